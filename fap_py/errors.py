@@ -1,0 +1,77 @@
+"""The one exception hierarchy of fap_py.
+
+Every error the package raises derives from :class:`FapError`. Where a
+built-in category fits, the class also derives from it (``InvalidValueError``
+is a ``ValueError``, ``PortError`` an ``OSError``, ``FapTimeoutError`` a
+``TimeoutError``) so generic handlers keep working.
+
+Protocol modules add subclasses (``fap_py.g485.NoResponseError`` ...), never
+parallel hierarchies.
+"""
+from __future__ import annotations
+
+import errno as _errno
+import os
+
+
+class FapError(Exception):
+    """Base of every fap_py error."""
+
+
+class InvalidValueError(FapError, ValueError):
+    """An argument is out of range or of the wrong kind (C: E_VALUE/E_PARAM)."""
+
+
+class NotInitialisedError(FapError):
+    """The bus or engine is not initialised / configured yet (C: E_INIT)."""
+
+
+class QueueFullError(FapError):
+    """A transmit queue is full (C: E_RES on transmit)."""
+
+
+class ClosedError(FapError):
+    """The object was closed."""
+
+
+class FapTimeoutError(FapError, TimeoutError):
+    """No answer (or no data) within the allowed time."""
+
+
+class FrameError(FapError):
+    """A frame on the wire failed its checks (CRC, length, format)."""
+
+
+class BusCollisionError(FapError):
+    """What was read back from the bus differs from what was sent."""
+
+
+class PortError(FapError, OSError):
+    """The serial port failed; ``errno`` holds the OS error number."""
+
+    def __init__(self, err: int, message: str | None = None, path: str | None = None) -> None:
+        text = message or os.strerror(err)
+        if path:
+            text = f"{path}: {text}"
+        super().__init__(err, text)
+        self.path = path
+
+
+# libfap's own negative codes (include/fap_port.h)
+FAP_PORT_ECOLLISION = -10001
+FAP_PORT_ECLOSED = -10002
+
+
+def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
+    """Map a negative libfap port-layer return code to an exception instance."""
+    prefix = f"{what}: " if what else ""
+    if code == FAP_PORT_ECOLLISION:
+        return BusCollisionError(f"{prefix}bus collision (echo differs from what was sent)")
+    if code == FAP_PORT_ECLOSED:
+        return ClosedError(f"{prefix}port closed")
+    err = -code
+    if err == _errno.ETIMEDOUT:
+        return FapTimeoutError(f"{prefix}{os.strerror(err)}")
+    if err in (_errno.EINVAL, _errno.ERANGE):
+        return InvalidValueError(f"{prefix}{os.strerror(err)}")
+    return PortError(err, f"{prefix}{os.strerror(err)}", path)

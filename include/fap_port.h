@@ -1,0 +1,113 @@
+/* fap_port.h - libfap serial port layer: termios raw 8N1, RS-485 direction
+ * control, echo suppression, turnaround delay, deadline reads.
+ *
+ * Every protocol engine in libfap (FAP, exec async, mikroC) talks to the
+ * wire only through this API. Codecs and state machines never include it.
+ *
+ * Return convention: 0 or a byte count on success, a negative errno on
+ * failure (-ENOTTY, -EBUSY, -EIO, -ENXIO, -ETIMEDOUT ...), plus the libfap
+ * specific negative codes below. fap_port_strerror() names any of them.
+ */
+#ifndef FAP_PORT_H
+#define FAP_PORT_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include <sys/types.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* libfap specific error codes (negative, outside the errno range). */
+#define FAP_PORT_ECOLLISION  (-10001)  /* echo read back differs from what was sent */
+#define FAP_PORT_ECLOSED     (-10002)  /* port closed (by fap_port_close/shutdown)  */
+
+/* How the transmitter is switched on and off. */
+typedef enum fap_rs485_mode {
+    FAP_RS485_AUTO = 0,     /* try KERNEL, fall back to NONE; see fap_port_mode() */
+    FAP_RS485_KERNEL = 1,   /* TIOCSRS485 with SER_RS485_ENABLED, kernel toggles RTS */
+    FAP_RS485_SOFT_RTS = 2, /* assert RTS, write, tcdrain(), release RTS */
+    FAP_RS485_NONE = 3      /* auto-direction transceiver, USB adapter, pty */
+} fap_rs485_mode;
+
+typedef struct fap_port_options {
+    unsigned baud;                 /* any standard termios rate; default 115200 */
+    fap_rs485_mode rs485_mode;     /* default FAP_RS485_AUTO */
+    int rts_active_high;           /* RTS level while sending: 1 high (default), 0 low */
+    unsigned delay_before_send_us; /* RTS asserted -> first bit (kernel: ms, rounded up) */
+    unsigned delay_after_send_us;  /* last bit -> RTS released (kernel: ms, rounded up) */
+    int rx_during_tx;              /* kernel mode: SER_RS485_RX_DURING_TX (default 0) */
+    int echo_suppression;          /* read back and drop our own bytes (2-wire adapters) */
+    unsigned echo_timeout_us;      /* how long to wait for the echo; 0 = 20 char times + 20 ms */
+    unsigned turnaround_us;        /* minimum quiet time after the last received byte
+                                      before this node transmits (0 = none) */
+    int exclusive;                 /* TIOCEXCL + flock(LOCK_EX|LOCK_NB); default 1 */
+} fap_port_options;
+
+typedef struct fap_port_stats {
+    uint64_t tx_bytes;
+    uint64_t rx_bytes;
+    uint64_t echo_bytes;      /* echo bytes read back and dropped */
+    uint64_t collisions;      /* echo mismatches */
+    uint64_t write_errors;
+    uint64_t read_errors;
+    uint64_t reopens;
+} fap_port_stats;
+
+typedef struct fap_port fap_port;   /* opaque; one per open device */
+
+/* Fill *o with the defaults documented above. */
+void fap_port_options_init(fap_port_options *o);
+
+/* Open and configure a device. *out is set only on success.
+ * Errors: -errno of open/ioctl/tcsetattr; -EBUSY if another process holds
+ * it; -EINVAL for an unsupported baud rate; an explicit KERNEL or SOFT_RTS
+ * mode that the device refuses fails with that ioctl's errno (-ENOTTY on a
+ * pty) and nothing stays open. */
+int fap_port_open(fap_port **out, const char *path, const fap_port_options *o);
+
+/* Close the port (restores the RS-485 config the port had before, if we
+ * changed it). NULL is accepted. */
+void fap_port_close(fap_port *p);
+
+/* Close and open the same path again with the same options (after a USB
+ * unplug, say). Returns 0 or a negative error; on error the port stays
+ * usable for further reopen attempts. */
+int fap_port_reopen(fap_port *p);
+
+/* The mode actually in force (never FAP_RS485_AUTO once open). */
+fap_rs485_mode fap_port_mode(const fap_port *p);
+const char *fap_rs485_mode_name(fap_rs485_mode m);
+
+/* The file descriptor, for poll(); -1 while the device is gone. */
+int fap_port_fd(const fap_port *p);
+const char *fap_port_path(const fap_port *p);
+unsigned fap_port_baud(const fap_port *p);
+
+/* Write all n bytes: waits out the turnaround delay, switches direction per
+ * the mode, handles EINTR and partial writes, drains with tcdrain(), reads
+ * back the echo when suppression is on. Returns n, or a negative error:
+ * -EIO/-ENXIO/-ENODEV device vanished, FAP_PORT_ECOLLISION echo mismatch. */
+ssize_t fap_port_write(fap_port *p, const void *buf, size_t n);
+
+/* Read up to n bytes, waiting until at least one byte arrives or the
+ * absolute CLOCK_MONOTONIC deadline (ns, see fap_port_now_ns) passes.
+ * deadline 0 = do not wait; INT64_MAX = wait forever.
+ * Returns the byte count, 0 at the deadline, or a negative error
+ * (-EIO/-ENXIO when the device vanished, -EINTR never). */
+ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns);
+
+/* Discard unread input (and untransmitted output). */
+int fap_port_flush(fap_port *p);
+
+/* CLOCK_MONOTONIC now, in ns: the clock the deadlines above use. */
+int64_t fap_port_now_ns(void);
+
+void fap_port_get_stats(const fap_port *p, fap_port_stats *out);
+const char *fap_port_strerror(int err);
+
+#ifdef __cplusplus
+}
+#endif
+#endif /* FAP_PORT_H */
