@@ -9,8 +9,9 @@ import fap_py
 
 
 def test_imported_from_installed_package_not_source_tree() -> None:
-    here = Path(__file__).resolve().parents[2]
-    assert here not in Path(fap_py.__file__).resolve().parents
+    source_pkg = Path(__file__).resolve().parents[2] / "fap_py"
+    assert Path(fap_py.__file__).resolve().parent != source_pkg
+    assert "site-packages" in Path(fap_py.__file__).resolve().parts
 
 
 def test_native_extension_reports_core_version() -> None:
