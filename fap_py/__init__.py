@@ -20,6 +20,21 @@ from .errors import (
     QueueFullError,
 )
 
+from .fap import (
+    RS485,
+    EventKind,
+    InvalidTypeError,
+    Master,
+    Message,
+    NotMasterError,
+    RS485Mode,
+    Slave,
+    SlaveEvent,
+    SlaveExistsError,
+    Stats,
+    UnknownSlaveError,
+)
+
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 
@@ -43,5 +58,17 @@ __all__ = [
     "PortError",
     "QueueFullError",
     "native_version",
+    "EventKind",
+    "InvalidTypeError",
+    "Master",
+    "Message",
+    "NotMasterError",
+    "RS485",
+    "RS485Mode",
+    "Slave",
+    "SlaveEvent",
+    "SlaveExistsError",
+    "Stats",
+    "UnknownSlaveError",
     "__version__",
 ]

@@ -43,6 +43,9 @@ typedef struct fap_port_options {
     unsigned turnaround_us;        /* minimum quiet time after the last received byte
                                       before this node transmits (0 = none) */
     int exclusive;                 /* TIOCEXCL + flock(LOCK_EX|LOCK_NB); default 1 */
+    unsigned write_timeout_us;     /* longest one fap_port_write may take to hand all
+                                      bytes to the driver (-ETIMEDOUT after);
+                                      0 = twice the frame's wire time + 1 s */
 } fap_port_options;
 
 typedef struct fap_port_stats {
@@ -106,6 +109,11 @@ int64_t fap_port_now_ns(void);
 
 void fap_port_get_stats(const fap_port *p, fap_port_stats *out);
 const char *fap_port_strerror(int err);
+
+/* Why FAP_RS485_AUTO settled on NONE: the errno (positive) the kernel
+ * RS-485 ioctl failed with, e.g. ENOTTY on a pty; 0 if AUTO got KERNEL or
+ * the mode was explicit. */
+int fap_port_auto_errno(const fap_port *p);
 
 #ifdef __cplusplus
 }

@@ -38,6 +38,9 @@ typedef struct fap_vbus_stats {
     uint64_t collisions;       /* overlapping transmissions (paced mode) */
     uint64_t bit_errors;       /* bytes corrupted by fault injection */
     uint64_t dropped;          /* bytes dropped by fault injection or silence */
+    /* appended: */
+    uint64_t overflow;         /* bytes not delivered: a node's queue was full (it does not read) */
+    uint64_t disconnects;      /* simulated disconnects so far */
 } fap_vbus_stats;
 
 typedef struct fap_vbus fap_vbus;

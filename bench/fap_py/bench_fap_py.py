@@ -1,0 +1,271 @@
+#!/usr/bin/env python3
+"""Overhead of the fap_py binding: the same FAP exchanges through Python and through C.
+
+Both sides drive libfap's engine (one master, one slave) on the SAME virtual
+bus, which runs in its own process (``fap bus``) so that each side's CPU
+time holds only its own threads: the two C engine threads, plus the Python
+interpreter on the Python side.
+
+Modes (each run through fap_py here and through ``bench_fapx_c`` in C):
+
+- ``round-trip``: the master sends SIZE bytes to slave 1, a thread on the
+  slave echoes them back, the master waits for the echo. Latency-bound.
+- ``stream``: the master queues COUNT messages for slave 1; a slave thread
+  receives them. Throughput-bound.
+- ``calls``: no wire, a slave nobody polls: ``send()`` into a deep queue +
+  ``recv_nowait()`` on an empty one: the pure per-call cost of the binding.
+- ``round-trip asyncio`` (Python only): the master awaits ``arecv()``.
+
+Run (needs fap_py installed; builds the C side with meson unless given)::
+
+    python bench/fap_py/bench_fap_py.py [--count 2000] [--sizes 16,1024]
+        [--baud 115200] [--c-bench PATH/bench_fapx_c]
+
+With ``--baud`` the bus is paced at that rate (10 bits/byte) and the table
+also shows the wire's limit; unpaced, the wire costs nearly nothing and
+the numbers show the software alone.
+"""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import os
+import re
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Dict, List, Optional, Tuple
+
+from fap_py import Master, QueueFullError, Slave
+
+REPO = Path(__file__).resolve().parents[2]
+FRAME_OVERHEAD = 15          # marker 8 + size 2 + msg 1 + dst 1 + src 1 + crc 2
+
+
+@dataclass
+class Result:
+    mode: str
+    size: int
+    api: str
+    count: int
+    wall_s: float
+    cpu_s: float
+
+    @property
+    def rate(self) -> float:
+        return self.count / self.wall_s if self.wall_s > 0 else float("inf")
+
+
+# -- the bus ------------------------------------------------------------------
+
+class BusProcess:
+    """``fap bus`` in a child process; its port paths."""
+
+    def __init__(self, ports: int, baud: int) -> None:
+        cmd = [sys.executable, "-I", "-m", "fap_py", "bus", "--ports", str(ports)]
+        if baud:
+            cmd += ["--baud", str(baud)]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+        self.paths: List[str] = []
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            if line.startswith("port"):
+                self.paths.append(line.split()[1])
+            elif line.startswith("ready"):
+                break
+        if len(self.paths) != ports:
+            raise SystemExit("fap bus did not start")
+
+    def close(self) -> None:
+        self.proc.terminate()
+        self.proc.communicate(timeout=10)
+
+
+# -- the C side ------------------------------------------------------------------
+
+def build_c_bench(build_dir: Path) -> Path:
+    """Configure (once) and build bench/fap_py/bench_fapx_c with meson."""
+    exe = build_dir / "bench" / "fap_py" / "bench_fapx_c"
+    meson = shutil.which("meson") or str(Path(sys.executable).parent / "meson")
+    if not (build_dir / "build.ninja").exists():
+        subprocess.run([meson, "setup", str(build_dir), str(REPO), "-Dpython=false",
+                        "-Dtests=false", "-Dpytest=false", "--buildtype=release"],
+                       check=True, stdout=subprocess.DEVNULL)
+    subprocess.run([meson, "compile", "-C", str(build_dir), "bench_fapx_c"], check=True,
+                   stdout=subprocess.DEVNULL)
+    return exe
+
+
+def run_c(exe: Path, paths: List[str], mode: str, count: int, size: int) -> Result:
+    cmode = {"round-trip": "rt", "stream": "stream", "calls": "calls"}[mode]
+    out = subprocess.run([str(exe), paths[0], paths[1], cmode, str(count), str(size)],
+                         check=True, capture_output=True, text=True, timeout=600).stdout
+    f = dict(re.findall(r"(\w+)=(\S+)", out))
+    return Result(mode, size, "C (fapx)", count, float(f["wall_s"]), float(f["cpu_s"]))
+
+
+# -- the Python side -----------------------------------------------------------------
+
+def _pair(paths: List[str]) -> Tuple[Master, Slave]:
+    master = Master(paths[0], slaves=[1], tx_queue=1024, rx_queue=1024)
+    slave = Slave(paths[1], id=1, tx_queue=1024, rx_queue=1024)
+    master.wait_active(timeout=10)
+    return master, slave
+
+
+def _send(node: Master, data: bytes, to: int) -> None:
+    """send(), waiting for room when the transmit queue is full (as the C side does)."""
+    while True:
+        try:
+            node.send(data, to)
+            return
+        except QueueFullError:
+            try:
+                node.flush(timeout=0.1)
+            except TimeoutError:
+                pass
+
+
+def _slave_thread(slave: Slave, count: int, echo: bool) -> threading.Thread:
+    def body() -> None:
+        for _ in range(count):
+            msg = slave.recv(timeout=10)
+            if echo:
+                slave.send(msg.data, msg.source)
+
+    t = threading.Thread(target=body, daemon=True)
+    t.start()
+    return t
+
+
+def _measure(fn: Callable[[], None]) -> Tuple[float, float]:
+    w0, c0 = time.perf_counter(), time.process_time()
+    fn()
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
+    data = bytes((i * 7) & 0xFF for i in range(size))
+    if mode == "calls":
+        with Slave(paths[1], id=1, tx_queue=count) as s:
+            def calls() -> None:
+                send, recv_nowait = s.send, s.recv_nowait
+                for _ in range(count):
+                    send(data, 0)
+                    recv_nowait()
+            wall, cpu = _measure(calls)
+        return Result(mode, size, "Python (fap_py)", count, wall, cpu)
+    master, slave = _pair(paths)
+    try:
+        if mode == "round-trip":
+            def rt() -> None:
+                t = _slave_thread(slave, count, echo=True)
+                for _ in range(count):
+                    master.send(data, 1)
+                    master.recv(timeout=10)
+                t.join()
+            wall, cpu = _measure(rt)
+            api = "Python (fap_py)"
+        elif mode == "round-trip asyncio":
+            async def art() -> None:
+                for _ in range(count):
+                    master.send(data, 1)
+                    await master.arecv(timeout=10)
+
+            def run_art() -> None:
+                t = _slave_thread(slave, count, echo=True)
+                asyncio.run(art())
+                t.join()
+            wall, cpu = _measure(run_art)
+            api = "Python asyncio"
+        else:
+            def stream() -> None:
+                t = _slave_thread(slave, count, echo=False)
+                for _ in range(count):
+                    _send(master, data, 1)
+                t.join()
+            wall, cpu = _measure(stream)
+            api = "Python (fap_py)"
+        return Result(mode, size, api, count, wall, cpu)
+    finally:
+        slave.close()
+        master.close()
+
+
+# -- report ------------------------------------------------------------------------
+
+def wire_rate(mode: str, size: int, baud: int) -> Optional[float]:
+    """Messages/s the wire allows at baud (10 bits per byte), None if not wire-bound."""
+    if mode.startswith("round-trip"):
+        # master DATA + SEND_DATA + slave DATA + DATA_DONE
+        wire_bytes = 2 * (FRAME_OVERHEAD + size) + 2 * FRAME_OVERHEAD
+    elif mode == "stream":
+        wire_bytes = FRAME_OVERHEAD + size
+    else:
+        return None
+    return baud / 10.0 / wire_bytes
+
+
+def print_table(results: List[Result], baud: int) -> None:
+    head = (f"{'mode':<20}{'size':>6}  {'API':<17}{'msgs/s':>11}{'us/msg':>10}"
+            f"{'CPU us/msg':>12}{'Py/C CPU':>10}")
+    print(head)
+    print("-" * len(head))
+    base: Dict[Tuple[str, int], Result] = {}
+    for r in results:
+        if r.api.startswith("C"):
+            base[(r.mode, r.size)] = r
+    for r in results:
+        c = base.get((r.mode.replace(" asyncio", ""), r.size))
+        ratio = "" if c is None or r is c or c.cpu_s <= 0 else f"{r.cpu_s / c.cpu_s:.2f}x"
+        print(f"{r.mode:<20}{r.size:>6}  {r.api:<17}{r.rate:>11,.0f}"
+              f"{r.wall_s / r.count * 1e6:>10.1f}{r.cpu_s / r.count * 1e6:>12.2f}{ratio:>10}")
+    if baud:
+        print()
+        for mode in ("round-trip", "stream"):
+            for size in sorted({r.size for r in results}):
+                w = wire_rate(mode, size, baud)
+                if w is not None:
+                    print(f"wire limit at {baud} baud: {mode:<11} {size:>5} B  {w:>10,.1f} msgs/s")
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--count", type=int, default=2000, help="messages per run (default 2000)")
+    ap.add_argument("--sizes", default="16,1024", help="message sizes, comma separated")
+    ap.add_argument("--baud", type=int, default=0, help="pace the bus at this rate (default unpaced)")
+    ap.add_argument("--c-bench", type=Path, help="bench_fapx_c executable (default: build it)")
+    ap.add_argument("--build-dir", type=Path, default=Path("/tmp/fap_py-bench-build"),
+                    help="meson build dir for the C side (default %(default)s)")
+    args = ap.parse_args(argv)
+    sizes = [int(s) for s in args.sizes.split(",")]
+    exe = args.c_bench or build_c_bench(args.build_dir)
+    count = args.count
+    bus = BusProcess(2, args.baud)
+    results: List[Result] = []
+    try:
+        cores = os.cpu_count()
+        print(f"fap_py binding overhead: {count} messages per run, bus "
+              f"{'paced at %d baud' % args.baud if args.baud else 'unpaced'} in its own process, "
+              f"{cores} CPUs; CPU = this side's process time (its 2 C engine threads included)\n")
+        for size in sizes:
+            for mode in ("round-trip", "stream", "calls"):
+                n = count if mode != "calls" else max(count, 20000)
+                if args.baud and mode != "calls":
+                    n = min(n, max(20, int((wire_rate(mode, size, args.baud) or 100) * 2)))
+                results.append(run_c(exe, bus.paths, mode, n, size))
+                results.append(run_py(bus.paths, mode, n, size))
+                if mode == "round-trip":
+                    results.append(run_py(bus.paths, "round-trip asyncio", n, size))
+    finally:
+        bus.close()
+    print_table(results, args.baud)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,230 @@
+/* Exec async master: the thin I/O layer around seq_logic's transaction
+ * machine. Sends on the port, feeds received bytes to execAsyncByteIn,
+ * lets lf_exec_mtx decide between waiting, resending and giving up. */
+#include "exec_async_engine.h"
+
+#include <errno.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "common/mono_clock.h"
+#include "execasync/seq_logic.h"
+#include "execasync/stats_atomic.h"
+
+#define DEFAULT_REPLY_TIMEOUT_US 100000u
+#define DEFAULT_RETRIES          3u
+
+struct execMaster {
+    fap_port *port;
+    pthread_mutex_t lock;            /* one transaction at a time */
+    unsigned reply_timeout_us;       /* guarded by lock */
+    unsigned retries;
+    lf_exec_mseq seq;                /* next seq per node; [255] = broadcast */
+    struct execAsyncStateDef rx;
+    byte rxbuf[EXEC_ASYNC_MAX_DATA];
+    byte txbuf[EXEC_ASYNC_MAX_FRAME];
+    execMasterStats stats;           /* updated and read atomically */
+};
+
+void execMasterOptionsInit(execMasterOptions *o)
+{
+    if (!o)
+        return;
+    memset(o, 0, sizeof *o);
+    o->reply_timeout_us = DEFAULT_REPLY_TIMEOUT_US;
+    o->retries = DEFAULT_RETRIES;
+}
+
+int execMasterOpen(execMaster **out, const char *path, const fap_port_options *port,
+                   const execMasterOptions *o)
+{
+    if (!out || !path)
+        return -EINVAL;
+    execMasterOptions defaults;
+    execMasterOptionsInit(&defaults);
+    if (!o)
+        o = &defaults;
+    execMaster *m = calloc(1, sizeof *m);
+    if (!m)
+        return -ENOMEM;
+    int err = fap_port_open(&m->port, path, port);
+    if (err) {
+        free(m);
+        return err;
+    }
+    pthread_mutex_init(&m->lock, NULL);
+    m->reply_timeout_us = o->reply_timeout_us ? o->reply_timeout_us : DEFAULT_REPLY_TIMEOUT_US;
+    m->retries = o->retries;
+    *out = m;
+    return 0;
+}
+
+int execMasterSetTimeout(execMaster *m, unsigned reply_timeout_us, unsigned retries)
+{
+    if (!m)
+        return -EINVAL;
+    pthread_mutex_lock(&m->lock);
+    m->reply_timeout_us = reply_timeout_us ? reply_timeout_us : DEFAULT_REPLY_TIMEOUT_US;
+    m->retries = retries;
+    pthread_mutex_unlock(&m->lock);
+    return 0;
+}
+
+static void count_frame(execMaster *m, const lf_exec_mtx *t)
+{
+    LF_STAT_INC(m->stats.rx_frames);
+    if (t->event == LF_EXEC_EV_CORRUPT)
+        LF_STAT_INC(m->stats.corrupt);
+    else if (t->event == LF_EXEC_EV_UNEXPECTED)
+        LF_STAT_INC(m->stats.unexpected);
+}
+
+/* Send the frame in txbuf (n bytes) until the reply is decoded into
+ * m->rx/rxbuf or the attempts are used up. Lock held. */
+static int run_transaction(execMaster *m, lf_exec_mtx *t, word n)
+{
+    lf_exec_mact act = LF_EXEC_M_SEND;
+    for (;;) {
+        if (act == LF_EXEC_M_SEND) {
+            if (t->attempt > 0)
+                LF_STAT_INC(m->stats.retries);
+            memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
+            ssize_t w = fap_port_write(m->port, m->txbuf, n);
+            if (w < 0)
+                return (int)w;
+            LF_STAT_INC(m->stats.tx_frames);
+            lf_exec_mtx_sent(t, lf_now_ns());
+            act = LF_EXEC_M_WAIT;
+        }
+        byte chunk[128];
+        ssize_t r = fap_port_read(m->port, chunk, sizeof chunk, t->deadline);
+        if (r < 0)
+            return (int)r;
+        /* Decode the whole chunk: a good reply may follow a bad frame. */
+        lf_exec_mact pending = LF_EXEC_M_WAIT;
+        for (ssize_t i = 0; i < r; i++) {
+            if (!execAsyncByteIn(chunk[i], &m->rx, m->rxbuf))
+                continue;
+            lf_exec_mact a = lf_exec_mtx_on_frame(t, &m->rx);
+            count_frame(m, t);
+            if (a == LF_EXEC_M_DONE)
+                return 0;              /* bytes after the reply: not ours to wait for */
+            if (a != LF_EXEC_M_WAIT)
+                pending = a;
+        }
+        if (pending != LF_EXEC_M_WAIT) {
+            act = pending;
+        } else {
+            act = lf_exec_mtx_on_time(t, lf_now_ns());
+            if (act != LF_EXEC_M_WAIT)
+                LF_STAT_INC(m->stats.timeouts);
+        }
+        if (act == LF_EXEC_M_FAIL)
+            return t->last_error;
+    }
+}
+
+int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
+                       byte *reply, word reply_cap, word *reply_len)
+{
+    if (!m || node == 0 || node == EXEC_ASYNC_BROADCAST || (!req && req_len) ||
+        (!reply && reply_cap))
+        return -EINVAL;
+    if (req_len > EXEC_ASYNC_MAX_DATA)
+        return -EMSGSIZE;
+    pthread_mutex_lock(&m->lock);
+    uint8_t seq = m->seq.next[node];
+    word n = execAsyncBufferOut(node, (byte *)req, m->txbuf, (byte)req_len, seq);
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, node, seq, m->retries, (lf_ns)m->reply_timeout_us * LF_NS_PER_US);
+    LF_STAT_INC(m->stats.transactions);
+    /* Whatever is waiting now came before our request and cannot be its
+     * reply; a corrupt leftover would otherwise trigger a needless retry. */
+    int err = fap_port_flush(m->port);
+    if (!err)
+        err = run_transaction(m, &t, n);
+    /* Always move on: if the slave processed it and only the replies were
+     * lost, reusing seq would make it resend an old reply to new data. */
+    m->seq.next[node] = lf_exec_seq_next(seq);
+    if (!err) {
+        LF_STAT_INC(m->stats.replies);
+        word len = m->rx.Length;
+        if (len > reply_cap) {
+            err = -ENOBUFS;
+            len = reply_cap;
+        }
+        if (len)
+            memcpy(reply, m->rxbuf, len);
+        if (reply_len)
+            *reply_len = m->rx.Length;
+    } else {
+        LF_STAT_INC(m->stats.failures);
+        if (reply_len)
+            *reply_len = 0;
+    }
+    pthread_mutex_unlock(&m->lock);
+    return err;
+}
+
+int execMasterBroadcast(execMaster *m, const byte *data, word len)
+{
+    if (!m || (!data && len))
+        return -EINVAL;
+    if (len > EXEC_ASYNC_MAX_DATA)
+        return -EMSGSIZE;
+    pthread_mutex_lock(&m->lock);
+    uint8_t seq = m->seq.next[EXEC_ASYNC_BROADCAST];
+    word n = execAsyncBufferOut(EXEC_ASYNC_BROADCAST, (byte *)data, m->txbuf, (byte)len, seq);
+    m->seq.next[EXEC_ASYNC_BROADCAST] = lf_exec_seq_next(seq);
+    ssize_t w = fap_port_write(m->port, m->txbuf, n);
+    if (w >= 0) {
+        LF_STAT_INC(m->stats.broadcasts);
+        LF_STAT_INC(m->stats.tx_frames);
+    }
+    pthread_mutex_unlock(&m->lock);
+    return w < 0 ? (int)w : 0;
+}
+
+int execMasterNextSeq(execMaster *m, byte node)
+{
+    if (!m || node == 0)
+        return -EINVAL;
+    pthread_mutex_lock(&m->lock);
+    int seq = m->seq.next[node];
+    pthread_mutex_unlock(&m->lock);
+    return seq;
+}
+
+void execMasterResetSequence(execMaster *m)
+{
+    if (!m)
+        return;
+    pthread_mutex_lock(&m->lock);
+    memset(&m->seq, 0, sizeof m->seq);
+    pthread_mutex_unlock(&m->lock);
+}
+
+void execMasterGetStats(execMaster *m, execMasterStats *out)
+{
+    if (!m || !out)
+        return;
+    const uint64_t *src = (const uint64_t *)&m->stats;
+    uint64_t *dst = (uint64_t *)out;
+    for (size_t i = 0; i < sizeof *out / sizeof(uint64_t); i++)
+        dst[i] = LF_STAT_LOAD(src[i]);
+}
+
+fap_port *execMasterPort(execMaster *m)
+{
+    return m ? m->port : NULL;
+}
+
+void execMasterClose(execMaster *m)
+{
+    if (!m)
+        return;
+    fap_port_close(m->port);
+    pthread_mutex_destroy(&m->lock);
+    free(m);
+}

@@ -1,0 +1,78 @@
+/* Sans-I/O sequence-number logic of the exec async master and slave.
+ * No fds, no threads: decoded frames, a clock value and results in,
+ * decisions out. The I/O layers (master.c, slave.c) drive these. */
+#ifndef LF_EXEC_SEQ_LOGIC_H
+#define LF_EXEC_SEQ_LOGIC_H
+
+#include <stdint.h>
+
+#include "common/mono_clock.h"
+#include "exec_async.h"
+
+/* 0 at start-up, then 1..255, 255 wraps to 1 (0 means "start-up" to a slave). */
+static inline uint8_t lf_exec_seq_next(uint8_t seq)
+{
+    return seq == 255 ? 1 : (uint8_t)(seq + 1);
+}
+
+/* ---- master: one transaction (poll + wait for the reply, with retries) ---- */
+
+typedef enum lf_exec_mact {
+    LF_EXEC_M_WAIT,   /* keep receiving until lf_exec_mtx.deadline */
+    LF_EXEC_M_SEND,   /* (re)send the same frame, then wait */
+    LF_EXEC_M_DONE,   /* the reply is in the decoder's buffer */
+    LF_EXEC_M_FAIL    /* no attempt left; see last_error */
+} lf_exec_mact;
+
+/* What one frame did to a transaction, for statistics. */
+typedef enum lf_exec_mevent {
+    LF_EXEC_EV_NONE,
+    LF_EXEC_EV_REPLY,      /* the awaited reply */
+    LF_EXEC_EV_CORRUPT,    /* bad CRC, framing or overflow */
+    LF_EXEC_EV_UNEXPECTED  /* a good frame from another node or with another seq */
+} lf_exec_mevent;
+
+typedef struct lf_exec_mtx {
+    uint8_t node, seq;
+    unsigned attempt;        /* attempts sent so far */
+    unsigned max_attempts;   /* 1 + retries */
+    lf_ns timeout;           /* per attempt */
+    lf_ns deadline;          /* of the current attempt */
+    int last_error;          /* -ETIMEDOUT or -EBADMSG when failing */
+    lf_exec_mevent event;    /* what the last on_frame saw */
+} lf_exec_mtx;
+
+/* Per-node sequence numbers: zero-filled = every node starts at 0. */
+typedef struct lf_exec_mseq {
+    uint8_t next[256];
+} lf_exec_mseq;
+
+void lf_exec_mtx_start(lf_exec_mtx *t, uint8_t node, uint8_t seq,
+                       unsigned retries, lf_ns timeout);
+/* The caller has just sent the frame (start, or after LF_EXEC_M_SEND). */
+void lf_exec_mtx_sent(lf_exec_mtx *t, lf_ns now);
+/* A frame was decoded (execAsyncByteIn returned true). */
+lf_exec_mact lf_exec_mtx_on_frame(lf_exec_mtx *t, const struct execAsyncStateDef *st);
+/* Nothing (more) arrived: deadline check. */
+lf_exec_mact lf_exec_mtx_on_time(lf_exec_mtx *t, lf_ns now);
+
+/* ---- slave: what to do with a decoded frame ---- */
+
+typedef enum lf_exec_sact {
+    LF_EXEC_S_IGNORE,     /* not for us, or corrupt */
+    LF_EXEC_S_PROCESS,    /* new request: run the handler, reply, then commit */
+    LF_EXEC_S_RESEND,     /* retry of the last request: resend the last reply */
+    LF_EXEC_S_BROADCAST   /* process, never reply */
+} lf_exec_sact;
+
+typedef struct lf_exec_sseq {
+    uint8_t node;          /* our node number, 1..254 */
+    uint8_t have_last;     /* a request has been processed since start */
+    uint8_t last_seq;
+} lf_exec_sseq;
+
+lf_exec_sact lf_exec_sseq_classify(const lf_exec_sseq *s, const struct execAsyncStateDef *st);
+/* The request with this seq has been processed and answered. */
+void lf_exec_sseq_commit(lf_exec_sseq *s, uint8_t seq);
+
+#endif

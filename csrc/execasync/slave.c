@@ -1,0 +1,306 @@
+/* Exec async slave: the thin I/O layer around seq_logic's classifier.
+ * Receives on the port, feeds execAsyncByteIn, calls the application's
+ * handler in the serving thread, sends (or resends) the reply.
+ *
+ * "A message that arrives while we transmit": our response phase runs from
+ * the end of the request to the end of our reply. Every byte received
+ * before the reply starts (during the handler and the turnaround delay,
+ * which the slave spends watching the line) belongs to that window; a frame
+ * with a byte in the window is dropped: not processed, not answered
+ * (stats.rx_during_tx). Bytes that arrive during the write itself are only
+ * seen on a bus that echoes (echo suppression reports FAP_PORT_ECOLLISION,
+ * stats.collisions): a pty or a 4-wire line cannot say when a byte came,
+ * and guessing from "readable right after the write" misfires when the
+ * master answers faster than this thread returns from write(). */
+#include "exec_async_engine.h"
+
+#include <errno.h>
+#include <poll.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
+
+#include "common/mono_clock.h"
+#include "execasync/codec_internal.h"
+#include "execasync/seq_logic.h"
+#include "execasync/stats_atomic.h"
+
+#define PENDING_SIZE 1024
+
+struct execSlave {
+    fap_port *port;
+    int stop_fd;                       /* eventfd: execSlaveStop wakes poll() */
+    int stopped;                       /* atomic */
+    execSlaveHandler handler;
+    void *ctx;
+    lf_ns turnaround;                  /* the port's turnaround_us, in ns */
+    lf_ns last_rx;                     /* when bytes last arrived */
+    lf_exec_sseq seq;
+    struct execAsyncStateDef rx;
+    byte rxbuf[EXEC_ASYNC_MAX_DATA];
+    byte reply[EXEC_ASYNC_MAX_DATA];
+    byte last_frame[EXEC_ASYNC_MAX_FRAME];   /* the last reply, as sent */
+    word last_len;                     /* 0: the last request had no reply */
+    byte pending[PENDING_SIZE];        /* received, not decoded yet */
+    size_t pos, len;                   /* pending[pos..len) still to decode */
+    size_t window_end;                 /* pending[..window_end) arrived while we sent */
+    int taint;                         /* the frame being decoded had a byte in the window */
+    execSlaveStats stats;
+};
+
+void execSlaveOptionsInit(execSlaveOptions *o)
+{
+    if (!o)
+        return;
+    memset(o, 0, sizeof *o);
+    o->node = 1;
+}
+
+int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *port,
+                  const execSlaveOptions *o, execSlaveHandler handler, void *ctx)
+{
+    if (!out || !path || !handler)
+        return -EINVAL;
+    execSlaveOptions defaults;
+    execSlaveOptionsInit(&defaults);
+    if (!o)
+        o = &defaults;
+    if (o->node == 0 || o->node == EXEC_ASYNC_BROADCAST)
+        return -EINVAL;
+    execSlave *s = calloc(1, sizeof *s);
+    if (!s)
+        return -ENOMEM;
+    s->stop_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (s->stop_fd < 0) {
+        int err = -errno;
+        free(s);
+        return err;
+    }
+    int err = fap_port_open(&s->port, path, port);
+    if (err) {
+        close(s->stop_fd);
+        free(s);
+        return err;
+    }
+    s->handler = handler;
+    s->ctx = ctx;
+    s->turnaround = port ? (lf_ns)port->turnaround_us * LF_NS_PER_US : 0;
+    s->seq.node = o->node;
+    *out = s;
+    return 0;
+}
+
+/* Make room at the end of pending (keeps the undecoded bytes). */
+static void compact(execSlave *s)
+{
+    if (s->pos == 0)
+        return;
+    memmove(s->pending, s->pending + s->pos, s->len - s->pos);
+    s->window_end = s->window_end > s->pos ? s->window_end - s->pos : 0;
+    s->len -= s->pos;
+    s->pos = 0;
+}
+
+/* Before answering: wait out the turnaround delay watching the line. Any
+ * byte that comes (or came, during the handler) is in the window. */
+static void watch_line(execSlave *s)
+{
+    compact(s);
+    lf_ns until = s->last_rx + s->turnaround;
+    int fd = fap_port_fd(s->port);
+    while (s->len < PENDING_SIZE && fd >= 0) {
+        lf_ns now = lf_now_ns();
+        /* with input already there, just collect what is readable */
+        lf_ns wait = s->len > s->pos || now >= until ? 0 : until - now;
+        struct timespec ts = {.tv_sec = wait / LF_NS_PER_S, .tv_nsec = wait % LF_NS_PER_S};
+        struct pollfd pf = {.fd = fd, .events = POLLIN};
+        int pr = ppoll(&pf, 1, &ts, NULL);
+        if (pr < 0 && errno == EINTR)
+            continue;
+        if (pr <= 0)
+            break;
+        ssize_t r = fap_port_read(s->port, s->pending + s->len, PENDING_SIZE - s->len, 0);
+        if (r <= 0)
+            break;      /* a read error shows again on the next wait */
+        s->len += (size_t)r;
+        s->last_rx = lf_now_ns();
+    }
+    s->window_end = s->len;
+}
+
+/* Send the stored reply (the port waits out whatever turnaround is left). */
+static int send_last_reply(execSlave *s)
+{
+    watch_line(s);
+    /* counted before the write: once the master has the reply, the count
+     * already shows it */
+    LF_STAT_INC(s->stats.replies);
+    ssize_t w = fap_port_write(s->port, s->last_frame, s->last_len);
+    if (w == FAP_PORT_ECOLLISION)
+        LF_STAT_INC(s->stats.collisions);   /* someone talked over our reply */
+    return w < 0 && w != FAP_PORT_ECOLLISION ? (int)w : 0;
+}
+
+/* One decoded frame. Returns 0 to keep serving, EXEC_SLAVE_* when a
+ * request was handled, or a negative error. */
+static int handle_frame(execSlave *s, int tainted)
+{
+    LF_STAT_INC(s->stats.rx_frames);
+    lf_exec_sact act = lf_exec_sseq_classify(&s->seq, &s->rx);
+    if (act == LF_EXEC_S_IGNORE) {
+        if (s->rx.Status != EXEC_ASYNC_GOOD)
+            LF_STAT_INC(s->stats.corrupt);
+        else
+            LF_STAT_INC(s->stats.ignored);
+        return 0;
+    }
+    if (tainted && act != LF_EXEC_S_BROADCAST) {
+        /* not answered; a broadcast is never answered anyway, and is never
+         * repeated by the master, so it is still processed */
+        LF_STAT_INC(s->stats.rx_during_tx);
+        return 0;
+    }
+    execSlaveRequest req = {
+        .node = s->rx.Node, .seq = s->rx.SeqNo, .len = s->rx.Length, .data = s->rxbuf};
+    switch (act) {
+    case LF_EXEC_S_BROADCAST:
+        LF_STAT_INC(s->stats.broadcasts);
+        (void)s->handler(s->ctx, &req, s->reply, EXEC_ASYNC_MAX_DATA);
+        return EXEC_SLAVE_BROADCAST;
+    case LF_EXEC_S_RESEND:
+        LF_STAT_INC(s->stats.resent);
+        if (!s->last_len) {
+            LF_STAT_INC(s->stats.no_reply);
+            return EXEC_SLAVE_RESENT;
+        }
+        {
+            int err = send_last_reply(s);
+            return err ? err : EXEC_SLAVE_RESENT;
+        }
+    case LF_EXEC_S_PROCESS: {
+        LF_STAT_INC(s->stats.processed);
+        int n = s->handler(s->ctx, &req, s->reply, EXEC_ASYNC_MAX_DATA);
+        /* processed now, whatever happens to the reply: a retry must not
+         * run the handler again */
+        lf_exec_sseq_commit(&s->seq, req.seq);
+        s->last_len = 0;
+        if (n < 0) {
+            LF_STAT_INC(s->stats.no_reply);
+            return EXEC_SLAVE_PROCESSED;
+        }
+        if (n > EXEC_ASYNC_MAX_DATA) {
+            LF_STAT_INC(s->stats.no_reply);
+            return -EMSGSIZE;   /* handler bug: nothing is sent */
+        }
+        s->last_len = execAsyncBufferOut(s->seq.node, s->reply, s->last_frame, (byte)n, req.seq);
+        int err = send_last_reply(s);
+        return err ? err : EXEC_SLAVE_PROCESSED;
+    }
+    default:
+        return 0;
+    }
+}
+
+/* Wait for input or a stop until deadline. 1: bytes in pending, 0: time is
+ * up, negative: error or -ECANCELED. */
+static int wait_input(execSlave *s, lf_ns deadline)
+{
+    for (;;) {
+        if (__atomic_load_n(&s->stopped, __ATOMIC_ACQUIRE))
+            return -ECANCELED;
+        int fd = fap_port_fd(s->port);
+        if (fd < 0) {   /* device gone: let the port say why */
+            ssize_t r = fap_port_read(s->port, s->pending, PENDING_SIZE, 0);
+            return r < 0 ? (int)r : -ENODEV;
+        }
+        lf_ns now = lf_now_ns();
+        struct pollfd pf[2] = {{.fd = fd, .events = POLLIN}, {.fd = s->stop_fd, .events = POLLIN}};
+        int pr = poll(pf, 2, now >= deadline ? 0 : lf_poll_timeout_ms(deadline, now));
+        if (pr < 0) {
+            if (errno == EINTR)
+                continue;
+            return -errno;
+        }
+        if (pf[1].revents)
+            return -ECANCELED;
+        if (pf[0].revents) {
+            ssize_t r = fap_port_read(s->port, s->pending, PENDING_SIZE, 0);
+            if (r < 0)
+                return (int)r;
+            if (r > 0) {
+                s->pos = 0;
+                s->len = (size_t)r;
+                s->window_end = 0;
+                s->last_rx = lf_now_ns();
+                return 1;
+            }
+        }
+        if (lf_now_ns() >= deadline)
+            return 0;
+    }
+}
+
+int execSlaveServe(execSlave *s, int timeout_ms)
+{
+    if (!s)
+        return -EINVAL;
+    lf_ns deadline = timeout_ms < 0 ? LF_NEVER : lf_now_ns() + (lf_ns)timeout_ms * LF_NS_PER_MS;
+    for (;;) {
+        if (__atomic_load_n(&s->stopped, __ATOMIC_ACQUIRE))
+            return -ECANCELED;
+        while (s->pos < s->len) {
+            size_t i = s->pos++;
+            int in_window = i < s->window_end;
+            if (!execAsyncByteIn(s->pending[i], &s->rx, s->rxbuf)) {
+                if (in_window && lf_exec_rx_in_frame(&s->rx))
+                    s->taint = 1;
+                continue;
+            }
+            int tainted = s->taint || in_window;
+            /* a framing report may already be inside the next frame */
+            s->taint = in_window && lf_exec_rx_in_frame(&s->rx);
+            int r = handle_frame(s, tainted);
+            if (r)
+                return r;
+        }
+        s->pos = s->len = s->window_end = 0;
+        int r = wait_input(s, deadline);
+        if (r <= 0)
+            return r;
+    }
+}
+
+void execSlaveStop(execSlave *s)
+{
+    if (!s)
+        return;
+    __atomic_store_n(&s->stopped, 1, __ATOMIC_RELEASE);
+    uint64_t one = 1;
+    ssize_t w = write(s->stop_fd, &one, sizeof one);
+    (void)w;   /* EAGAIN: already signalled */
+}
+
+void execSlaveGetStats(execSlave *s, execSlaveStats *out)
+{
+    if (!s || !out)
+        return;
+    const uint64_t *src = (const uint64_t *)&s->stats;
+    uint64_t *dst = (uint64_t *)out;
+    for (size_t i = 0; i < sizeof *out / sizeof(uint64_t); i++)
+        dst[i] = LF_STAT_LOAD(src[i]);
+}
+
+fap_port *execSlavePort(execSlave *s)
+{
+    return s ? s->port : NULL;
+}
+
+void execSlaveClose(execSlave *s)
+{
+    if (!s)
+        return;
+    fap_port_close(s->port);
+    close(s->stop_fd);
+    free(s);
+}

@@ -1,0 +1,165 @@
+/* The vendor's classic API (fap.h) over one default fapx handle.
+ *
+ * fapInit opens the port (the handle exists, no engine yet); fapConfig
+ * starts the engine as master or slave (a second fapConfig stops it and
+ * starts it again with the new configuration, keeping queued data).
+ * Between fapInit and fapConfig: fapTx queues (sent once configured),
+ * fapRx reports E_RES, fapAddSlave/fapRemSlave edit the list a master will
+ * use (fapConfig as a slave discards it). All calls are thread-safe. */
+#include "fap.h"
+#include "fapx.h"
+#include "fap/fapx_internal.h"
+#include <errno.h>
+#include <pthread.h>
+#include <string.h>
+
+static pthread_rwlock_t g_lock = PTHREAD_RWLOCK_INITIALIZER;
+static fapx *g_h;                 /* set by fapInit */
+static int g_configured;
+static int g_have_opts;
+static fapx_options g_opts;
+
+void fapClassicSetOptions(const fapx_options *o)
+{
+    pthread_rwlock_wrlock(&g_lock);
+    g_have_opts = o != NULL;
+    if (o)
+        g_opts = *o;
+    pthread_rwlock_unlock(&g_lock);
+}
+
+fapx *fapClassicHandle(void)
+{
+    pthread_rwlock_rdlock(&g_lock);
+    fapx *h = g_configured ? g_h : NULL;
+    pthread_rwlock_unlock(&g_lock);
+    return h;
+}
+
+void fapClassicClose(void)
+{
+    pthread_rwlock_wrlock(&g_lock);
+    fapx *h = g_h;
+    g_h = NULL;
+    g_configured = 0;
+    pthread_rwlock_unlock(&g_lock);
+    lf_fapx_destroy(h);
+}
+
+static int classic_baud(usys b)
+{
+    return b == 9600 || b == 19200 || b == 38400 || b == 57600 || b == 115200;
+}
+
+usys fapInit(char *devName, usys baudRate)
+{
+    pthread_rwlock_wrlock(&g_lock);
+    usys rc = GOOD;
+    if (g_h) {
+        rc = E_INIT;
+    } else if (!devName || !classic_baud(baudRate)) {
+        rc = BAD;
+    } else {
+        fapx_options o;
+        if (g_have_opts)
+            o = g_opts;
+        else
+            fapx_options_init(&o);
+        o.port.baud = baudRate;
+        if (lf_fapx_create(&g_h, devName, &o) < 0) {
+            g_h = NULL;
+            rc = BAD;
+        }
+    }
+    pthread_rwlock_unlock(&g_lock);
+    return rc;
+}
+
+usys fapConfig(fapT *config)
+{
+    pthread_rwlock_wrlock(&g_lock);
+    usys rc = GOOD;
+    if (!g_h)
+        rc = E_INIT;
+    else if (!config || (config->mode != FAP_MASTER && config->mode != FAP_SLAVE))
+        rc = E_PARAM;
+    else if (config->mode == FAP_MASTER ? config->id != 0
+                                        : (config->id == 0 || config->id > FAPX_MAX_ID))
+        rc = E_VALUE;
+    if (rc == GOOD) {
+        /* idcTime in seconds; 0 = fapClassicSetOptions' idc_us, else 15 s. */
+        if (config->mode == FAP_MASTER && config->idcTime)
+            g_h->o.idc_us = (uint64_t)config->idcTime * 1000000u;
+        else if (config->mode == FAP_MASTER)
+            g_h->o.idc_us = g_have_opts && g_opts.idc_us ? g_opts.idc_us : 15000000u;
+        if (lf_fapx_start(g_h, config->mode, config->id) < 0)
+            rc = BAD;
+        else
+            g_configured = 1;
+    }
+    pthread_rwlock_unlock(&g_lock);
+    return rc;
+}
+
+static usys list_call(usys id, int add)
+{
+    pthread_rwlock_rdlock(&g_lock);
+    usys rc;
+    if (!g_h) {
+        rc = E_INIT;
+    } else {
+        int r = add ? fapx_add_slave(g_h, id) : fapx_remove_slave(g_h, id);
+        rc = r == 0 ? GOOD : r == -EPERM ? E_PARAM : r == -ESHUTDOWN ? E_INIT : E_VALUE;
+    }
+    pthread_rwlock_unlock(&g_lock);
+    return rc;
+}
+
+usys fapAddSlave(usys id)
+{
+    return list_call(id, 1);
+}
+
+usys fapRemSlave(usys id)
+{
+    return list_call(id, 0);
+}
+
+usys fapTx(u8 *data, usys size, usys id)
+{
+    pthread_rwlock_rdlock(&g_lock);
+    usys rc;
+    if (!g_h) {
+        rc = E_INIT;
+    } else if (!data || size == 0 || size > MAX_DATA_SIZE || id > FAPX_MAX_ID) {
+        rc = E_VALUE;
+    } else {
+        int r = fapx_tx(g_h, id, data, size);
+        rc = r == 0 ? GOOD : r == -EAGAIN ? E_RES : r == -ESHUTDOWN ? E_INIT : E_VALUE;
+    }
+    pthread_rwlock_unlock(&g_lock);
+    return rc;
+}
+
+usys fapRx(u8 *data, usys *size, usys *id)
+{
+    pthread_rwlock_rdlock(&g_lock);
+    usys rc;
+    if (!g_h) {
+        rc = E_INIT;
+    } else if (!data || !size || !id) {
+        rc = E_PARAM;
+    } else {
+        unsigned src = 0;
+        int n = fapx_rx(g_h, data, MAX_DATA_SIZE, &src);
+        if (n >= 0) {
+            *size = (usys)n;
+            *id = src;
+            rc = GOOD;
+        } else {
+            rc = E_RES;
+        }
+    }
+    pthread_rwlock_unlock(&g_lock);
+    return rc;
+}

@@ -1,0 +1,362 @@
+/* The engine thread of one FAP handle: poll() on the port fd, an eventfd
+ * (wake-ups from fapx_tx, slave-list changes, close) and a timerfd armed at
+ * the nearest CLOCK_MONOTONIC deadline (state machine timer, decoder
+ * inter-byte gap, port reopen). It feeds received bytes to the decoder and
+ * frames to the state machine, and transmits the state machine's outbox
+ * through the port layer. No signals: nothing the host application sees. */
+#include "fap/fapx_internal.h"
+#include <errno.h>
+#include <poll.h>
+#include <string.h>
+#include <sys/timerfd.h>
+#include <unistd.h>
+
+/* ---- state machine callbacks (engine thread) ---- */
+
+static void set_notify_locked(fapx *h)
+{
+    if (!h->notify_set) {
+        uint64_t one = 1;
+        if (write(h->notify_fd, &one, sizeof one) == sizeof one)
+            h->notify_set = 1;
+    }
+}
+
+static uint32_t consistent_ids_locked(const fapx *h)
+{
+    uint32_t ok = 0;
+    for (unsigned id = 1; id <= LF_FAP_MAX_ID; id++)
+        if (h->applied_epoch[id] == h->add_epoch[id])
+            ok |= 1u << id;
+    return ok & h->want_listed & h->applied_listed;
+}
+
+/* Copy the engine's counters into the shared snapshot (lock held). */
+static void publish_locked(fapx *h)
+{
+    const lf_fap_sm_counts *c = h->mode == FAPX_MASTER ? &h->m.c : &h->s.c;
+    const lf_fap_rx_counts *d = &h->dec.c;
+    fapx_stats *st = &h->stats;
+    st->frames_tx = h->ec.frames_tx;
+    st->bytes_tx = h->ec.bytes_tx;
+    st->frames_rx = d->frames;
+    st->bytes_rx = d->bytes;
+    st->data_tx = c->data_tx;
+    st->data_rx = c->data_rx;
+    st->crc_errors = d->crc_errors;
+    st->framing_errors = d->framing_errors;
+    st->gap_timeouts = d->gap_timeouts;
+    st->garbage_bytes = d->garbage_bytes;
+    st->id_timeouts = c->id_timeouts;
+    st->data_done_timeouts = c->data_done_timeouts;
+    st->collisions = h->ec.collisions;
+    st->cycles = c->cycles;
+    st->id_cycles = c->id_cycles;
+    st->polls = c->polls;
+    st->rx_dropped = h->ec.rx_dropped;
+    st->tx_dropped = c->tx_dropped;
+    st->write_errors = h->ec.write_errors;
+    st->port_lost = h->ec.port_lost;
+    st->port_reopened = h->ec.port_reopened;
+    st->unexpected = c->unexpected;
+    if (h->mode == FAPX_MASTER)
+        h->active_pub = h->m.active & consistent_ids_locked(h);
+}
+
+static void call_back(fapx *h, int type, unsigned id, lf_ns now)
+{
+    fapx_callback cb;
+    void *ctx;
+    pthread_mutex_lock(&h->lock);
+    cb = h->cb;
+    ctx = h->cb_ctx;
+    pthread_mutex_unlock(&h->lock);
+    if (cb) {
+        fapx_event ev = { .type = type, .id = id, .time_ns = now };
+        cb(ctx, &ev);
+    }
+}
+
+static void push_event(fapx *h, int type, unsigned id, lf_ns now)
+{
+    pthread_mutex_lock(&h->lock);
+    publish_locked(h);
+    fapx_event *ev = lf_ring_tail(&h->ev);
+    if (ev) {                       /* a full event queue keeps the oldest events */
+        ev->type = type;
+        ev->id = id;
+        ev->time_ns = now;
+        lf_ring_commit(&h->ev);
+        set_notify_locked(h);
+        if (h->waiters)
+            pthread_cond_broadcast(&h->cond);
+    }
+    pthread_mutex_unlock(&h->lock);
+    call_back(h, type, id, now);
+}
+
+static void sm_event(void *ctx, int type, unsigned id, lf_ns now)
+{
+    /* lf_fap_event values equal the fapx_event_type values. */
+    push_event(ctx, type, id, now);
+}
+
+static void sm_deliver(void *ctx, uint8_t src, const uint8_t *data, uint16_t len, lf_ns now)
+{
+    fapx *h = ctx;
+    int dropped = 0;
+    pthread_mutex_lock(&h->lock);
+    lf_fapx_item *it = lf_ring_tail(&h->rx);
+    if (it) {
+        it->peer = src;
+        it->len = len;
+        memcpy(it->data, data, len);
+        lf_ring_commit(&h->rx);
+        set_notify_locked(h);
+        if (h->waiters)
+            pthread_cond_broadcast(&h->cond);
+    } else {
+        h->ec.rx_dropped++;
+        dropped = 1;
+    }
+    publish_locked(h);
+    pthread_mutex_unlock(&h->lock);
+    if (dropped)
+        push_event(h, FAPX_EV_RX_OVERFLOW, src, now);
+    else
+        call_back(h, FAPX_EV_RX, src, now);
+}
+
+static int sm_tx_pop(void *ctx, uint8_t *dst, uint8_t *data, uint16_t *len)
+{
+    fapx *h = ctx;
+    int got = 0;
+    pthread_mutex_lock(&h->lock);
+    lf_fapx_item *it = lf_ring_head(&h->tx);
+    if (it) {
+        *dst = it->peer;
+        *len = it->len;
+        memcpy(data, it->data, it->len);
+        lf_ring_pop(&h->tx);
+        h->tx_inflight = 1;
+        got = 1;
+        if (h->waiters)                /* room for fapx_tx_wait */
+            pthread_cond_broadcast(&h->cond);
+    }
+    pthread_mutex_unlock(&h->lock);
+    return got;
+}
+
+static void on_frame(void *ctx, const lf_fap_frame *f, lf_ns now)
+{
+    fapx *h = ctx;
+    if (h->mode == FAPX_MASTER)
+        lf_fap_master_on_frame(&h->m, f, now);
+    else
+        lf_fap_slave_on_frame(&h->s, f, now);
+}
+
+/* ---- port ---- */
+
+static void port_lost(fapx *h, lf_ns now)
+{
+    if (h->port_down)
+        return;
+    h->port_down = 1;
+    h->ec.port_lost++;
+    h->reopen_at = now + (lf_ns)h->o.reopen_us * LF_NS_PER_US;
+    lf_fap_decoder_reset(&h->dec);
+    push_event(h, FAPX_EV_PORT_LOST, h->id, now);
+}
+
+static void try_reopen(fapx *h, lf_ns now)
+{
+    if (!h->port_down || now < h->reopen_at)
+        return;
+    if (fap_port_reopen(h->port) == 0 && fap_port_fd(h->port) >= 0) {
+        h->port_down = 0;
+        h->ec.port_reopened++;
+        lf_fap_decoder_reset(&h->dec);
+        push_event(h, FAPX_EV_PORT_REOPENED, h->id, now);
+    } else {
+        h->reopen_at = now + (lf_ns)h->o.reopen_us * LF_NS_PER_US;
+    }
+}
+
+static void refresh_port_counts(fapx *h)
+{
+    fap_port_stats ps;
+    fap_port_get_stats(h->port, &ps);
+    h->ec.collisions = ps.collisions;
+}
+
+/* Transmit the outbox until the state machine stops producing frames. */
+static void drain_outbox(fapx *h)
+{
+    int wrote_data = 0;
+    for (;;) {
+        const lf_fap_outbox *o = h->mode == FAPX_MASTER ? &h->m.out : &h->s.out;
+        if (o->len == 0)
+            break;
+        if (!h->port_down) {
+            ssize_t r = fap_port_write(h->port, o->buf, o->len);
+            if (r == (ssize_t)o->len || r == FAP_PORT_ECOLLISION) {
+                h->ec.frames_tx++;
+                h->ec.bytes_tx += o->len;
+                if (r == FAP_PORT_ECOLLISION)
+                    refresh_port_counts(h);
+            } else {
+                h->ec.write_errors++;
+                if (r == -EIO || r == -ENXIO || r == -ENODEV || r == -EBADF ||
+                    r == FAP_PORT_ECLOSED || r == -EPIPE)
+                    port_lost(h, lf_now_ns());
+            }
+        } else {
+            h->ec.write_errors++;          /* the wire is gone: the frame is lost */
+        }
+        if (o->msg == LF_FAP_DATA)
+            wrote_data = 1;
+        lf_ns now = lf_now_ns();
+        if (h->mode == FAPX_MASTER)
+            lf_fap_master_sent(&h->m, now);
+        else
+            lf_fap_slave_sent(&h->s, now);
+    }
+    pthread_mutex_lock(&h->lock);
+    if (h->tx_inflight || wrote_data) {
+        h->tx_inflight = 0;
+        if (h->waiters)
+            pthread_cond_broadcast(&h->cond);
+    }
+    publish_locked(h);
+    pthread_mutex_unlock(&h->lock);
+}
+
+/* Apply the application's slave-list changes (a snapshot taken under the
+ * lock) to the master. Not under the lock: the master calls tx_pop. */
+static void apply_list(fapx *h, uint32_t want_listed, const uint8_t *epoch, lf_ns now)
+{
+    for (unsigned id = 1; id <= LF_FAP_MAX_ID; id++) {
+        uint32_t bit = 1u << id;
+        int want = (want_listed & bit) != 0;
+        int have = (h->applied_listed & bit) != 0;
+        if (have && (!want || h->applied_epoch[id] != epoch[id])) {
+            lf_fap_master_remove(&h->m, id, now);
+            h->applied_listed &= ~bit;
+            have = 0;
+        }
+        if (want && !have) {
+            lf_fap_master_add(&h->m, id, now);
+            h->applied_listed |= bit;
+            h->applied_epoch[id] = epoch[id];
+        }
+    }
+}
+
+static void arm_timer(fapx *h, lf_ns deadline)
+{
+    if (deadline == h->armed)
+        return;
+    struct itimerspec its;
+    memset(&its, 0, sizeof its);
+    if (deadline != LF_NEVER) {
+        if (deadline <= 0)
+            deadline = 1;             /* 0 would disarm */
+        its.it_value = lf_ns_to_timespec(deadline);
+    }
+    timerfd_settime(h->timer_fd, TFD_TIMER_ABSTIME, &its, NULL);
+    h->armed = deadline;
+}
+
+static lf_ns min_ns(lf_ns a, lf_ns b)
+{
+    return a < b ? a : b;
+}
+
+void *lf_fapx_engine_main(void *arg)
+{
+    fapx *h = arg;
+    uint8_t rbuf[4096];
+    lf_ns now = lf_now_ns();
+    lf_fap_timing t = {
+        .idc = (lf_ns)h->o.idc_us * LF_NS_PER_US,
+        .id_answer = (lf_ns)h->o.id_answer_us * LF_NS_PER_US,
+        .data_done = (lf_ns)h->o.data_done_us * LF_NS_PER_US,
+        .send_budget = (lf_ns)h->o.send_budget_us * LF_NS_PER_US,
+    };
+    lf_fap_io io = { .ctx = h, .tx_pop = sm_tx_pop, .deliver = sm_deliver, .event = sm_event };
+    lf_ns gap = h->o.gap_us ? (lf_ns)h->o.gap_us * LF_NS_PER_US
+                            : lf_fap_default_gap(fap_port_baud(h->port));
+    lf_fap_decoder_init(&h->dec, gap);
+    if (h->mode == FAPX_MASTER)
+        lf_fap_master_init(&h->m, &t, &io, now);
+    else
+        lf_fap_slave_init(&h->s, h->id, &t, &io);
+    h->applied_listed = 0;
+    memset(h->applied_epoch, 0, sizeof h->applied_epoch);
+    h->armed = -1;
+    arm_timer(h, LF_NEVER);
+
+    for (;;) {
+        now = lf_now_ns();
+        pthread_mutex_lock(&h->lock);
+        if (h->stop) {
+            pthread_mutex_unlock(&h->lock);
+            break;
+        }
+        int kick = h->tx_kick;
+        h->tx_kick = 0;
+        uint32_t want = h->want_listed;
+        uint8_t epoch[32];
+        memcpy(epoch, h->add_epoch, sizeof epoch);
+        pthread_mutex_unlock(&h->lock);
+        if (h->mode == FAPX_MASTER)
+            apply_list(h, want, epoch, now);
+        if (kick && h->mode == FAPX_MASTER)
+            lf_fap_master_tx_queued(&h->m, now);
+
+        drain_outbox(h);
+
+        lf_ns sm_dl = h->mode == FAPX_MASTER ? lf_fap_master_deadline(&h->m)
+                                             : lf_fap_slave_deadline(&h->s);
+        lf_ns deadline = min_ns(sm_dl, lf_fap_decoder_deadline(&h->dec));
+        if (h->port_down)
+            deadline = min_ns(deadline, h->reopen_at);
+        arm_timer(h, deadline);
+
+        struct pollfd pf[3] = {
+            { .fd = h->wake_fd, .events = POLLIN },
+            { .fd = h->timer_fd, .events = POLLIN },
+            { .fd = h->port_down ? -1 : fap_port_fd(h->port), .events = POLLIN },
+        };
+        int pr = poll(pf, 3, -1);
+        if (pr < 0 && errno != EINTR)
+            break;                    /* cannot happen with valid fds */
+        now = lf_now_ns();
+        uint64_t cnt;
+        if (pf[0].revents & POLLIN) {
+            if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
+        }
+        if (pf[1].revents & POLLIN) {
+            if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
+            h->armed = -1;            /* expired: arm again next time */
+        }
+        if (pf[2].revents & (POLLIN | POLLHUP | POLLERR)) {
+            for (int rounds = 0; rounds < 4; rounds++) {
+                ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
+                if (n > 0)
+                    lf_fap_decoder_feed(&h->dec, rbuf, (size_t)n, now, on_frame, h);
+                if ((n < 0 && n != -EAGAIN && n != -EINTR) ||
+                    (n == 0 && rounds == 0 && (pf[2].revents & (POLLHUP | POLLERR))))
+                    port_lost(h, now);    /* hung up: a 0-byte read would spin */
+                if (n < (ssize_t)sizeof rbuf)
+                    break;
+            }
+        }
+        try_reopen(h, now);
+        lf_fap_decoder_tick(&h->dec, now, on_frame, h);
+        if (h->mode == FAPX_MASTER && now >= lf_fap_master_deadline(&h->m))
+            lf_fap_master_on_timer(&h->m, now);
+    }
+    return NULL;
+}

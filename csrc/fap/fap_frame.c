@@ -1,0 +1,177 @@
+/* FAP frame encoder and streaming decoder. See fap_frame.h.
+ *
+ * The decoder keeps at most one candidate frame in its buffer, always
+ * starting at buf[0]. A rejected candidate (bad size, msg, CRC or a stale
+ * partial) loses only its FIRST byte: the search resumes at the next byte,
+ * never after the claimed size, so a damaged frame cannot swallow a good
+ * frame that follows it. */
+#include "fap/fap_frame.h"
+#include "common/crc16.h"
+#include <string.h>
+
+static const char marker[LF_FAP_MARKER_LEN] = { 'c','C','t','R','s','F','e','F' };
+
+size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
+                     unsigned src, const uint8_t *data, size_t len)
+{
+    if (msg > LF_FAP_ID || dst > 0xFF || src > 0xFF)
+        return 0;
+    if (msg == LF_FAP_DATA ? (len == 0 || len > LF_FAP_MAX_DATA) : len != 0)
+        return 0;
+    size_t size = LF_FAP_HDR_LEN + len;
+    if (cap < size + LF_FAP_CRC_LEN)
+        return 0;
+    memcpy(out, marker, LF_FAP_MARKER_LEN);
+    out[8] = (uint8_t)(size & 0xFF);
+    out[9] = (uint8_t)(size >> 8);
+    out[10] = (uint8_t)msg;
+    out[11] = (uint8_t)dst;
+    out[12] = (uint8_t)src;
+    if (len)
+        memcpy(out + LF_FAP_HDR_LEN, data, len);
+    uint16_t crc = lf_crc16_ccitt(out + LF_FAP_MARKER_LEN, size - LF_FAP_MARKER_LEN);
+    out[size] = (uint8_t)(crc & 0xFF);
+    out[size + 1] = (uint8_t)(crc >> 8);
+    return size + LF_FAP_CRC_LEN;
+}
+
+lf_ns lf_fap_default_gap(unsigned baud)
+{
+    lf_ns four = 4 * lf_char_time_ns(baud);
+    lf_ns ten = 10 * LF_NS_PER_MS;
+    return four > ten ? four : ten;
+}
+
+void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap)
+{
+    memset(d, 0, sizeof *d);
+    d->gap = gap > 0 ? gap : lf_fap_default_gap(0);
+}
+
+void lf_fap_decoder_reset(lf_fap_decoder *d)
+{
+    d->n = 0;
+}
+
+const char *lf_fap_msg_name(unsigned msg)
+{
+    static const char *const names[] = { "SEND_DATA", "DATA", "DATA_DONE", "QUERY_ID", "ID" };
+    return msg <= LF_FAP_ID ? names[msg] : "?";
+}
+
+/* Drop k bytes from the front of the buffer. */
+static void drop(lf_fap_decoder *d, size_t k)
+{
+    if (k >= d->n) {
+        d->n = 0;
+        return;
+    }
+    memmove(d->buf, d->buf + k, d->n - k);
+    d->n -= k;
+}
+
+/* Reject the candidate at buf[0]: resume the search one byte later. */
+static void reject(lf_fap_decoder *d, uint64_t *counter)
+{
+    (*counter)++;
+    drop(d, 1);
+}
+
+/* How many leading bytes match the marker (either spelling). */
+static int marker_prefix_ok(const uint8_t *b, size_t n)
+{
+    size_t m = n < LF_FAP_MARKER_LEN ? n : LF_FAP_MARKER_LEN;
+    for (size_t i = 0; i < m; i++) {
+        if (b[i] == (uint8_t)marker[i])
+            continue;
+        if (i == 7 && b[i] == 'f')
+            continue;
+        return 0;
+    }
+    return 1;
+}
+
+/* Parse the buffer: report complete frames, reject bad candidates, stop
+ * when the buffer holds only a (so far) valid prefix. */
+static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
+{
+    while (d->n > 0) {
+        if (d->buf[0] != 'c') {
+            uint8_t *c = memchr(d->buf, 'c', d->n);
+            size_t skip = c ? (size_t)(c - d->buf) : d->n;
+            d->c.garbage_bytes += skip;
+            drop(d, skip);
+            continue;
+        }
+        if (!marker_prefix_ok(d->buf, d->n)) {
+            reject(d, &d->c.garbage_bytes);
+            continue;
+        }
+        if (d->n < 10)
+            return;
+        unsigned size = (unsigned)d->buf[8] | ((unsigned)d->buf[9] << 8);
+        if (size < LF_FAP_HDR_LEN || size > LF_FAP_HDR_LEN + LF_FAP_MAX_DATA) {
+            reject(d, &d->c.framing_errors);
+            continue;
+        }
+        if (d->n < 11)
+            return;
+        unsigned msg = d->buf[10];
+        if (msg > LF_FAP_ID || (msg == LF_FAP_DATA) != (size > LF_FAP_HDR_LEN)) {
+            reject(d, &d->c.framing_errors);
+            continue;
+        }
+        size_t total = size + LF_FAP_CRC_LEN;
+        if (d->n < total)
+            return;
+        uint16_t want = (uint16_t)(d->buf[size] | (d->buf[size + 1] << 8));
+        if (lf_crc16_ccitt(d->buf + LF_FAP_MARKER_LEN, size - LF_FAP_MARKER_LEN) != want) {
+            reject(d, &d->c.crc_errors);
+            continue;
+        }
+        lf_fap_frame f = {
+            .msg = (uint8_t)msg, .dst = d->buf[11], .src = d->buf[12],
+            .len = (uint16_t)(size - LF_FAP_HDR_LEN), .data = d->buf + LF_FAP_HDR_LEN,
+        };
+        d->c.frames++;
+        if (cb)
+            cb(ctx, &f, now);
+        drop(d, total);
+    }
+}
+
+lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d)
+{
+    return d->n ? d->last_byte + d->gap : LF_NEVER;
+}
+
+void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
+{
+    if (d->n == 0 || now < d->last_byte + d->gap)
+        return;
+    d->c.gap_timeouts++;
+    /* Everything held is equally stale: keep rejecting first bytes until
+     * the rescan either empties the buffer or reports what it finds. */
+    while (d->n > 0) {
+        d->c.garbage_bytes++;
+        drop(d, 1);
+        parse(d, now, cb, ctx);
+    }
+}
+
+void lf_fap_decoder_feed(lf_fap_decoder *d, const uint8_t *p, size_t n, lf_ns now,
+                         lf_fap_frame_cb cb, void *ctx)
+{
+    lf_fap_decoder_tick(d, now, cb, ctx);
+    d->c.bytes += n;
+    while (n > 0) {
+        size_t room = sizeof d->buf - d->n;
+        size_t k = n < room ? n : room;
+        memcpy(d->buf + d->n, p, k);
+        d->n += k;
+        p += k;
+        n -= k;
+        d->last_byte = now;
+        parse(d, now, cb, ctx);
+    }
+}

@@ -1,0 +1,81 @@
+/* FAP wire frames: encoder and streaming decoder (sans-I/O).
+ *
+ * Frame: marker "cCtRsFeF" | size u16 LE (13 + data length) | msg u8 |
+ * dst u8 | src u8 | data 0..1024 | CRC-16/CCITT-FALSE u16 LE over
+ * size..data. Receivers also accept the marker spelling "cCtRsFef".
+ * The decoder takes bytes in any chunking plus the current time, and
+ * reports complete, valid frames through a callback. It never touches an
+ * fd; the engine feeds it. */
+#ifndef LF_FAP_FRAME_H
+#define LF_FAP_FRAME_H
+#include <stddef.h>
+#include <stdint.h>
+#include "common/mono_clock.h"
+
+#define LF_FAP_MARKER      "cCtRsFeF"
+#define LF_FAP_MARKER_LEN  8
+#define LF_FAP_HDR_LEN     13            /* marker + size + msg + dst + src */
+#define LF_FAP_CRC_LEN     2
+#define LF_FAP_OVERHEAD    (LF_FAP_HDR_LEN + LF_FAP_CRC_LEN)   /* 15 */
+#define LF_FAP_MAX_DATA    1024
+#define LF_FAP_MAX_FRAME   (LF_FAP_OVERHEAD + LF_FAP_MAX_DATA) /* 1039 */
+#define LF_FAP_MAX_ID      31
+
+enum lf_fap_msg {
+    LF_FAP_SEND_DATA = 0,
+    LF_FAP_DATA      = 1,
+    LF_FAP_DATA_DONE = 2,
+    LF_FAP_QUERY_ID  = 3,
+    LF_FAP_ID        = 4
+};
+
+typedef struct lf_fap_frame {
+    uint8_t  msg, dst, src;
+    uint16_t len;                        /* data length */
+    const uint8_t *data;                 /* points into the decoder's buffer */
+} lf_fap_frame;
+
+/* Encode one frame into out (cap >= 15 + len). Returns the frame length,
+ * or 0 when the message is invalid: msg > 4, DATA with len 0 or > 1024,
+ * another message with data. */
+size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
+                     unsigned src, const uint8_t *data, size_t len);
+
+/* Receive counters (cumulative). */
+typedef struct lf_fap_rx_counts {
+    uint64_t bytes;          /* bytes fed */
+    uint64_t frames;         /* valid frames reported */
+    uint64_t crc_errors;     /* complete frame, CRC mismatch */
+    uint64_t framing_errors; /* marker ok, bad size or msg/size mismatch */
+    uint64_t gap_timeouts;   /* partial frame abandoned after the inter-byte gap */
+    uint64_t garbage_bytes;  /* bytes skipped while searching for a marker */
+} lf_fap_rx_counts;
+
+typedef void (*lf_fap_frame_cb)(void *ctx, const lf_fap_frame *f, lf_ns now);
+
+typedef struct lf_fap_decoder {
+    uint8_t buf[LF_FAP_MAX_FRAME];
+    size_t  n;               /* bytes held (a candidate frame prefix) */
+    lf_ns   last_byte;       /* arrival time of the newest held byte */
+    lf_ns   gap;             /* inter-byte gap that abandons a partial frame */
+    lf_fap_rx_counts c;
+} lf_fap_decoder;
+
+/* Inter-byte gap default: the longer of 4 character times and 10 ms. */
+lf_ns lf_fap_default_gap(unsigned baud);
+
+void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap);
+/* Feed n bytes that arrived at `now`; every valid frame completed by them
+ * is reported through cb (frame data is valid during the call only). */
+void lf_fap_decoder_feed(lf_fap_decoder *d, const uint8_t *p, size_t n, lf_ns now,
+                         lf_fap_frame_cb cb, void *ctx);
+/* When a partial frame will be abandoned (LF_NEVER if none is held). */
+lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d);
+/* Apply the inter-byte gap at `now`: abandon a stale partial frame and
+ * rescan what followed its first byte (which may hold a complete frame). */
+void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx);
+/* Drop everything held (after a port reopen). */
+void lf_fap_decoder_reset(lf_fap_decoder *d);
+
+const char *lf_fap_msg_name(unsigned msg);
+#endif

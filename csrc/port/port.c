@@ -1,0 +1,301 @@
+/* port.c - fap_port lifecycle: options, open/close/reopen, accessors,
+ * stats, and the fd borrowing that makes a vanished device safe to close
+ * while other threads are inside read/write. */
+#include "port/port_internal.h"
+
+#include <stdlib.h>
+#include <string.h>
+#include <sys/epoll.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
+
+#include "common/mono_clock.h"
+
+void fap_port_options_init(fap_port_options *o)
+{
+    if (!o)
+        return;
+    memset(o, 0, sizeof *o);
+    o->baud = 115200;
+    o->rs485_mode = FAP_RS485_AUTO;
+    o->rts_active_high = 1;
+    o->exclusive = 1;
+}
+
+static int validate_options(const fap_port_options *in, fap_port_options *out)
+{
+    if (in)
+        *out = *in;
+    else
+        fap_port_options_init(out);
+    speed_t speed;
+    if (lf_port_baud_to_speed(out->baud, &speed) < 0)
+        return -EINVAL;
+    switch (out->rs485_mode) {
+    case FAP_RS485_AUTO:
+    case FAP_RS485_KERNEL:
+    case FAP_RS485_SOFT_RTS:
+    case FAP_RS485_NONE:
+        break;
+    default:
+        return -EINVAL;
+    }
+    out->rts_active_high = out->rts_active_high != 0;
+    out->rx_during_tx = out->rx_during_tx != 0;
+    out->echo_suppression = out->echo_suppression != 0;
+    out->exclusive = out->exclusive != 0;
+    return 0;
+}
+
+void lf_port_watch(fap_port *p, int fd)
+{
+    struct epoll_event ev = {.events = EPOLLIN, .data.fd = fd};
+    (void)epoll_ctl(p->poll_fd, EPOLL_CTL_ADD, fd, &ev);
+}
+
+void lf_port_unwatch(fap_port *p, int fd)
+{
+    if (fd >= 0)
+        (void)epoll_ctl(p->poll_fd, EPOLL_CTL_DEL, fd, NULL);
+}
+
+void lf_port_pend_signal(fap_port *p, int nonempty)
+{
+    uint64_t v = 1;
+    if (nonempty) {
+        if (write(p->pend_efd, &v, sizeof v) < 0) { /* counter full: still readable */ }
+    } else {
+        if (read(p->pend_efd, &v, sizeof v) < 0) { /* already clear */ }
+    }
+}
+
+/* Unwatch and close a connection. */
+static void conn_drop(fap_port *p, lf_port_conn *c)
+{
+    lf_port_unwatch(p, c->fd);
+    lf_port_conn_close(p, c);
+}
+
+static void port_free(fap_port *p)
+{
+    if (p->poll_fd >= 0)
+        close(p->poll_fd);
+    if (p->pend_efd >= 0)
+        close(p->pend_efd);
+    free(p->pend);
+    pthread_cond_destroy(&p->idle_cv);
+    pthread_mutex_destroy(&p->st_mu);
+    pthread_mutex_destroy(&p->rx_mu);
+    pthread_mutex_destroy(&p->tx_mu);
+    free(p->path);
+    free(p);
+}
+
+int lf_port_open_with_backend(fap_port **out, const char *path,
+                              const fap_port_options *o,
+                              const lf_port_backend *be, void *ctx)
+{
+    if (!out || !path || !be)
+        return -EINVAL;
+    fap_port *p = calloc(1, sizeof *p);
+    if (!p)
+        return -ENOMEM;
+    p->be = be;
+    p->ctx = ctx;
+    p->conn.fd = -1;
+    p->poll_fd = p->pend_efd = -1;
+    pthread_mutex_init(&p->tx_mu, NULL);
+    pthread_mutex_init(&p->rx_mu, NULL);
+    pthread_mutex_init(&p->st_mu, NULL);
+    pthread_cond_init(&p->idle_cv, NULL);
+    int err = validate_options(o, &p->opt);
+    if (err) {
+        port_free(p);
+        return err;
+    }
+    p->path = strdup(path);
+    p->poll_fd = epoll_create1(EPOLL_CLOEXEC);
+    p->pend_efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
+    if (!p->path || p->poll_fd < 0 || p->pend_efd < 0) {
+        err = p->path ? -errno : -ENOMEM;
+        port_free(p);
+        return err;
+    }
+    lf_port_watch(p, p->pend_efd);
+    err = lf_port_conn_open(p, &p->conn);
+    if (err) {
+        port_free(p);
+        return err;
+    }
+    lf_port_watch(p, p->conn.fd);
+    *out = p;
+    return 0;
+}
+
+int fap_port_open(fap_port **out, const char *path, const fap_port_options *o)
+{
+    return lf_port_open_with_backend(out, path, o, &lf_port_posix_backend, NULL);
+}
+
+void fap_port_close(fap_port *p)
+{
+    if (!p)
+        return;
+    pthread_mutex_lock(&p->st_mu);
+    while (p->busy > 0)
+        pthread_cond_wait(&p->idle_cv, &p->st_mu);
+    pthread_mutex_unlock(&p->st_mu);
+    conn_drop(p, &p->conn);
+    port_free(p);
+}
+
+int fap_port_reopen(fap_port *p)
+{
+    if (!p)
+        return -EINVAL;
+    pthread_mutex_lock(&p->tx_mu);
+    pthread_mutex_lock(&p->rx_mu);
+    pthread_mutex_lock(&p->st_mu);
+    while (p->busy > 0)
+        pthread_cond_wait(&p->idle_cv, &p->st_mu);
+    lf_port_conn old = p->conn;
+    p->conn.fd = -1;
+    if (!p->gone_err)
+        p->gone_err = -ENODEV;   /* between close and open: no device */
+    pthread_mutex_unlock(&p->st_mu);
+
+    conn_drop(p, &old);
+    /* Input parked from the old device belongs to a dead stream. */
+    p->pend_off = p->pend_len = 0;
+    lf_port_pend_signal(p, 0);
+    lf_port_conn fresh;
+    int err = lf_port_conn_open(p, &fresh);
+    if (err == 0)
+        lf_port_watch(p, fresh.fd);
+
+    pthread_mutex_lock(&p->st_mu);
+    if (err == 0) {
+        p->conn = fresh;
+        p->gone_err = 0;
+        p->last_rx_ns = 0;
+        p->stats.reopens++;
+    } else {
+        p->gone_err = err;
+    }
+    pthread_mutex_unlock(&p->st_mu);
+    pthread_mutex_unlock(&p->rx_mu);
+    pthread_mutex_unlock(&p->tx_mu);
+    return err;
+}
+
+int lf_port_acquire(fap_port *p, int *fd, fap_rs485_mode *mode)
+{
+    pthread_mutex_lock(&p->st_mu);
+    if (p->gone_err || p->conn.fd < 0) {
+        int err = p->gone_err ? p->gone_err : -EIO;
+        pthread_mutex_unlock(&p->st_mu);
+        return err;
+    }
+    p->busy++;
+    *fd = p->conn.fd;
+    if (mode)
+        *mode = p->conn.mode;
+    pthread_mutex_unlock(&p->st_mu);
+    return 0;
+}
+
+void lf_port_release(fap_port *p)
+{
+    lf_port_conn dead = {.fd = -1};
+    pthread_mutex_lock(&p->st_mu);
+    if (p->busy == 1 && p->gone_err && p->conn.fd >= 0) {
+        /* Last user of a vanished device: close it now, so a USB adapter's
+         * node is free for the replug. Stay busy until it is closed, so a
+         * reopen cannot race with this close (its flock would see ours). */
+        dead = p->conn;
+        p->conn.fd = -1;
+    } else {
+        p->busy--;
+        if (p->busy == 0)
+            pthread_cond_broadcast(&p->idle_cv);
+    }
+    pthread_mutex_unlock(&p->st_mu);
+    if (dead.fd < 0)
+        return;
+    conn_drop(p, &dead);
+    pthread_mutex_lock(&p->st_mu);
+    if (--p->busy == 0)
+        pthread_cond_broadcast(&p->idle_cv);
+    pthread_mutex_unlock(&p->st_mu);
+}
+
+int lf_port_mark_gone(fap_port *p, int err)
+{
+    pthread_mutex_lock(&p->st_mu);
+    if (!p->gone_err)
+        p->gone_err = err;
+    pthread_mutex_unlock(&p->st_mu);
+    return err;
+}
+
+fap_rs485_mode fap_port_mode(const fap_port *p)
+{
+    if (!p)
+        return FAP_RS485_NONE;
+    fap_port *mp = (fap_port *)p;   /* the lock is not part of the value */
+    pthread_mutex_lock(&mp->st_mu);
+    fap_rs485_mode m = p->conn.mode;
+    pthread_mutex_unlock(&mp->st_mu);
+    return m;
+}
+
+int fap_port_fd(const fap_port *p)
+{
+    if (!p)
+        return -1;
+    fap_port *mp = (fap_port *)p;
+    pthread_mutex_lock(&mp->st_mu);
+    int fd = p->gone_err || p->conn.fd < 0 ? -1 : p->poll_fd;
+    pthread_mutex_unlock(&mp->st_mu);
+    return fd;
+}
+
+const char *fap_port_path(const fap_port *p)
+{
+    return p ? p->path : NULL;
+}
+
+unsigned fap_port_baud(const fap_port *p)
+{
+    return p ? p->opt.baud : 0;
+}
+
+int64_t fap_port_now_ns(void)
+{
+    return lf_now_ns();
+}
+
+void fap_port_get_stats(const fap_port *p, fap_port_stats *out)
+{
+    if (!out)
+        return;
+    if (!p) {
+        memset(out, 0, sizeof *out);
+        return;
+    }
+    fap_port *mp = (fap_port *)p;
+    pthread_mutex_lock(&mp->st_mu);
+    *out = p->stats;
+    pthread_mutex_unlock(&mp->st_mu);
+}
+
+int fap_port_auto_errno(const fap_port *p)
+{
+    if (!p)
+        return 0;
+    fap_port *mp = (fap_port *)p;
+    pthread_mutex_lock(&mp->st_mu);
+    int e = p->conn.auto_errno;
+    pthread_mutex_unlock(&mp->st_mu);
+    return e;
+}

@@ -1,0 +1,46 @@
+/* port_backend.h - the seam between the port logic (port.c) and the OS.
+ *
+ * port.c never calls open/ioctl/read/... directly: it goes through one of
+ * these tables. lf_port_posix_backend is the real one; tests pass a fake
+ * that wraps a pty and answers the RS-485 / modem-line ioctls a pty refuses,
+ * recording what it was asked to do. Every function returns what its libc
+ * namesake returns and sets errno the same way. ctx is the backend's own.
+ */
+#ifndef LF_PORT_BACKEND_H
+#define LF_PORT_BACKEND_H
+
+#include <poll.h>
+#include <stdint.h>
+#include <sys/types.h>
+#include <termios.h>
+
+#include "fap_port.h"
+
+typedef struct lf_port_backend {
+    int (*open)(void *ctx, const char *path, int flags);
+    int (*close)(void *ctx, int fd);
+    /* request is one of TIOCEXCL, TIOCNXCL, TIOCGRS485, TIOCSRS485,
+     * TIOCMBIS, TIOCMBIC; arg as for ioctl(2) (NULL for EXCL/NXCL). */
+    int (*ioctl)(void *ctx, int fd, unsigned long request, void *arg);
+    int (*tcgetattr)(void *ctx, int fd, struct termios *t);
+    int (*tcsetattr)(void *ctx, int fd, int action, const struct termios *t);
+    int (*tcflush)(void *ctx, int fd, int queue);
+    int (*tcdrain)(void *ctx, int fd);
+    int (*flock)(void *ctx, int fd, int op);
+    ssize_t (*read)(void *ctx, int fd, void *buf, size_t n);
+    ssize_t (*write)(void *ctx, int fd, const void *buf, size_t n);
+    int (*poll)(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms);
+    /* Sleep until an absolute CLOCK_MONOTONIC time in ns (RTS delays and
+     * turnaround); a fake may record the call instead of sleeping. */
+    void (*sleep_until)(void *ctx, int64_t deadline_ns);
+} lf_port_backend;
+
+extern const lf_port_backend lf_port_posix_backend;
+
+/* fap_port_open with an explicit backend (tests). be must outlive the port;
+ * ctx is passed back to every backend call. */
+int lf_port_open_with_backend(fap_port **out, const char *path,
+                              const fap_port_options *o,
+                              const lf_port_backend *be, void *ctx);
+
+#endif

@@ -1,0 +1,30 @@
+/* port_errors.c - names for modes and error codes. */
+#include <errno.h>
+#include <string.h>
+
+#include "fap_port.h"
+
+const char *fap_rs485_mode_name(fap_rs485_mode m)
+{
+    switch (m) {
+    case FAP_RS485_AUTO: return "auto";
+    case FAP_RS485_KERNEL: return "kernel";
+    case FAP_RS485_SOFT_RTS: return "soft-rts";
+    case FAP_RS485_NONE: return "none";
+    }
+    return "unknown";
+}
+
+const char *fap_port_strerror(int err)
+{
+    switch (err) {
+    case 0: return "success";
+    case FAP_PORT_ECOLLISION: return "bus collision: the echo differs from the bytes sent";
+    case FAP_PORT_ECLOSED: return "port closed";
+    default: break;
+    }
+    int e = err < 0 ? -err : err;
+    /* strerrordesc_np: thread-safe, no locale, NULL for unknown numbers. */
+    const char *s = (e > 0 && e < 4096) ? strerrordesc_np(e) : NULL;
+    return s ? s : "unknown error";
+}

@@ -1,0 +1,86 @@
+/* port_internal.h - the fap_port struct and the helpers shared by the
+ * port layer's files (lifecycle port.c, device setup port_config.c, I/O
+ * port_io.c). Not installed; nothing outside csrc/port includes it. */
+#ifndef LF_PORT_INTERNAL_H
+#define LF_PORT_INTERNAL_H
+
+#include <errno.h>
+#include <linux/serial.h>
+#include <pthread.h>
+#include <stdint.h>
+
+#include "fap_port.h"
+#include "port/port_backend.h"
+
+/* One open device: everything port_config_open() sets up and
+ * port_config_close() undoes. */
+typedef struct lf_port_conn {
+    int fd;                       /* -1 when none */
+    fap_rs485_mode mode;          /* in force, never AUTO */
+    int excl_set;                 /* TIOCEXCL applied: clear it on close */
+    int rs485_restore;            /* we changed the RS-485 config */
+    struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
+    struct serial_rs485 rs485_active;  /* what TIOCSRS485 handed back */
+    int auto_errno;               /* AUTO fell back to NONE: the ioctl errno */
+} lf_port_conn;
+
+struct fap_port {
+    const lf_port_backend *be;
+    void *ctx;
+    char *path;
+    fap_port_options opt;         /* validated copy, used again by reopen */
+
+    /* Lock order: tx_mu, then rx_mu, then st_mu. */
+    pthread_mutex_t tx_mu;        /* one writer at a time (frames never interleave) */
+    pthread_mutex_t rx_mu;        /* around read(): the echo read-back holds it
+                                     for a whole write so no reader steals echo */
+    pthread_mutex_t st_mu;        /* the fields below */
+    pthread_cond_t idle_cv;       /* busy dropped to 0 */
+
+    /* What fap_port_fd() hands out: an epoll fd over the device fd and
+     * pend_efd, so a poller wakes for device input AND for bytes parked in
+     * pend (which the device fd alone would never signal). */
+    int poll_fd;
+    int pend_efd;                 /* eventfd: readable while pend_len > 0 */
+
+    /* Input that was already queued when an echo-suppressed write began:
+     * set aside (it is not our echo), returned first by fap_port_read.
+     * Guarded by rx_mu. */
+    uint8_t *pend;
+    size_t pend_off, pend_len, pend_cap;
+
+    lf_port_conn conn;
+    int gone_err;                 /* <0: device vanished (or reopen failed) */
+    int busy;                     /* read/write calls currently using conn.fd */
+    int64_t last_rx_ns;           /* CLOCK_MONOTONIC of the last received byte */
+    fap_port_stats stats;
+};
+
+/* port_config.c */
+int lf_port_baud_to_speed(unsigned baud, speed_t *out);
+/* Open p->path per p->opt into *c. On error nothing stays open and the
+ * negative errno is returned. */
+int lf_port_conn_open(const fap_port *p, lf_port_conn *c);
+/* Undo lf_port_conn_open (restore RS-485, clear TIOCEXCL, close). */
+void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
+/* Soft RTS: drive RTS to the sending (on=1) or idle (on=0) level. */
+int lf_port_rts(const fap_port *p, int fd, int on);
+
+/* port.c: I/O calls borrow the fd; a vanished device is closed by the
+ * last borrower, so an fd number is never reused under a running call. */
+int lf_port_acquire(fap_port *p, int *fd, fap_rs485_mode *mode);
+void lf_port_release(fap_port *p);
+/* Add/remove a device fd to/from poll_fd. */
+void lf_port_watch(fap_port *p, int fd);
+void lf_port_unwatch(fap_port *p, int fd);
+/* Mark pend non-empty / empty on pend_efd (rx_mu held). */
+void lf_port_pend_signal(fap_port *p, int nonempty);
+/* Record that the device vanished with err; returns err. */
+int lf_port_mark_gone(fap_port *p, int err);
+
+static inline int lf_port_errno_vanished(int e)
+{
+    return e == EIO || e == ENXIO || e == ENODEV;
+}
+
+#endif

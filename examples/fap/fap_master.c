@@ -1,0 +1,88 @@
+/*------------------------------------------------------------------------*/
+/* File Name   : fap_master.c                                             */
+/* Description : Example FAP Master, written as the vendor document's     */
+/*               examples are: fapInit, fapConfig, fapAddSlave, then      */
+/*               fapTx / fapRx (non-blocking, polled).                    */
+/* Usage       : fap_master [device [slaveId [count]]]                    */
+/*               default /dev/ttyS1, slave 7, 10 messages                 */
+/* Build       : cc fap_master.c -o fap_master -lfap -lpthread -lrt       */
+/*------------------------------------------------------------------------*/
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <unistd.h>
+#include <fap.h>
+
+#define REPLY_WAIT_MS  20000
+
+int main (int argc, char **argv)
+{
+    usys   status ;
+    fapT   config ;
+    char  *devName = argc > 1 ? argv[1] : "/dev/ttyS1" ;
+    usys   slaveId = argc > 2 ? (usys) atoi (argv[2]) : 7 ;
+    int    count   = argc > 3 ? atoi (argv[3]) : 10 ;
+    int    replies = 0 ;
+    int    i, waited ;
+
+    /* Configure the RS-485 Port */
+    status = fapInit (devName, 115200) ;
+    if (status != GOOD)
+    {
+       printf ("ERROR: fapInit() Failed with Status %d !!!\n", status) ;
+       return BAD ;
+    }
+
+    config.mode    = FAP_MASTER ;
+    config.id      = 0  ;
+    config.idcTime = 15 ;
+    status = fapConfig (&config) ;
+    if (status != GOOD)
+    {
+       printf ("ERROR: fapConfig() Failed with Status %d !!!\n", status) ;
+       return BAD ;
+    }
+
+    status = fapAddSlave (slaveId) ;
+    if (status != GOOD)
+    {
+       printf ("ERROR: fapAddSlave(%u) Failed with Status %d !!!\n", slaveId, status) ;
+       return BAD ;
+    }
+
+    for (i = 0 ; i < count ; i++)
+    {
+       u8   msg [MAX_DATA_SIZE] ;
+       u8   rxData [MAX_DATA_SIZE + 1] ;
+       usys rxSize, rxId ;
+
+       sprintf ((char *) msg, "hello %d from the master", i) ;
+       status = fapTx (msg, (usys) strlen ((char *) msg), slaveId) ;
+       if (status != GOOD)
+       {
+          printf ("ERROR: fapTx() Failed with Status %d !!!\n", status) ;
+          return BAD ;
+       }
+
+       /* fapRx is non-blocking: poll it */
+       for (waited = 0 ; waited < REPLY_WAIT_MS ; waited++)
+       {
+          status = fapRx (rxData, &rxSize, &rxId) ;
+          if (status == GOOD)
+             break ;
+          usleep (1000) ;
+       }
+       if (status != GOOD)
+       {
+          printf ("ERROR: no reply from slave %u !!!\n", slaveId) ;
+          break ;
+       }
+       rxData[rxSize] = 0 ;
+       printf ("reply from %u: %s\n", rxId, (char *) rxData) ;
+       if (rxId == slaveId)
+          replies++ ;
+    }
+
+    printf ("master: %d of %d replies\n", replies, count) ;
+    return replies == count ? GOOD : BAD ;
+}

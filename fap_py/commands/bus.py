@@ -1,0 +1,63 @@
+"""``fap bus``: run a virtual RS-485 bus until SIGINT/SIGTERM.
+
+Prints one line per port (``port<i> <path>``) and then ``ready`` on stdout,
+flushed, so a script can wait for the paths; on exit prints the counters.
+"""
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "bus", help="run a virtual multi-drop RS-485 bus of pseudo-terminals",
+        description="Create N pty ports that behave as one 2-wire RS-485 bus: every byte "
+        "written on one port reaches every other port. Runs until SIGINT/SIGTERM.")
+    p.add_argument("--ports", type=int, default=3, help="number of ports, 2..64 (default 3)")
+    p.add_argument("--baud", type=int, default=0,
+                   help="pace delivery at 10 bits/byte and detect collisions (default: unpaced)")
+    p.add_argument("--echo", action="store_true", help="deliver each byte back to its sender too")
+    p.add_argument("--link-dir", metavar="DIR",
+                   help="directory for the stable symlinks port0..portN-1 (default: a temp dir)")
+    p.add_argument("--capture", metavar="FILE", help="record every byte on the bus (docs/vbus.md)")
+    p.add_argument("--ber", type=float, default=0.0, metavar="X",
+                   help="per-byte probability of one flipped bit, every port")
+    p.add_argument("--drop-rate", type=float, default=0.0, metavar="X",
+                   help="per-byte probability of a dropped byte, every port")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random faults (default 0)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..vbus import VirtualBus
+
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        stop.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with VirtualBus(ports=args.ports, baud=args.baud or None, echo=args.echo,
+                        link_dir=args.link_dir, capture=args.capture, seed=args.seed) as bus:
+            if args.ber or args.drop_rate:
+                bus.set_fault(None, bit_error_rate=args.ber, drop_rate=args.drop_rate)
+            for i, path in enumerate(bus.paths):
+                print(f"port{i} {path}")
+            mode = f"{args.baud} baud" if args.baud else "unpaced"
+            print(f"ready ({len(bus.paths)} ports, {mode}{', echo' if args.echo else ''})",
+                  flush=True)
+            while not stop.wait(0.2):   # signal handlers run between waits
+                pass
+            st = bus.stats()
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+    print(f"stats bytes_in={st.bytes_in} bytes_out={st.bytes_out} collisions={st.collisions} "
+          f"bit_errors={st.bit_errors} dropped={st.dropped} overflow={st.overflow} "
+          f"disconnects={st.disconnects}", flush=True)
+    sys.stdout.flush()
+    return 0

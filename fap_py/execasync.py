@@ -1,0 +1,691 @@
+"""Exec async protocol (DLE STX ... DLE ETX + CRC-16) over libfap.
+
+Everything here runs in the C core (``include/exec_async.h`` and
+``include/exec_async_engine.h``) through the cffi extension:
+
+* :func:`encode` / :class:`Decoder`: ``execAsyncBufferOut`` and
+  ``execAsyncByteIn`` (one frame per call / a byte stream).
+* :class:`StructLayout`: ``execPackDataEx`` / ``execUnPackDataEx`` from a
+  Python description of a C structure (native layout <-> packed big-endian).
+* :class:`Master` and :class:`Slave`: the master/slave engine on a libfap
+  port (a serial device or a :class:`fap_py.vbus.VirtualBus` port), with
+  per-node sequence numbers, retries and the resend-without-processing
+  rule. Time values are in seconds.
+
+Example::
+
+    line = RS485(mode=RS485Mode.NONE)
+    with VirtualBus(ports=2) as bus, \\
+         Slave(bus.paths[1], node=1, handler=lambda req: req.data[::-1], rs485=line) as slave, \\
+         Master(bus.paths[0], timeout=0.05, rs485=line) as master:
+        slave.start()
+        assert master.transact(1, b"abc") == b"cba"
+"""
+from __future__ import annotations
+
+import ctypes
+import errno
+import logging
+import os
+import threading
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+
+from ._native import ffi, lib
+from .errors import ClosedError, FapError, FapTimeoutError, FrameError, InvalidValueError, error_from_code
+from .fap import RS485, RS485Mode   # the line options every fap_py node takes
+
+log = logging.getLogger("fap_py.execasync")
+
+DLE = 0x10
+STX = 0x02
+ETX = 0x03
+BROADCAST = 255
+MAX_DATA = 255                       # RawSize is a byte
+MAX_FRAME = 2 * MAX_DATA + 8         # every data byte a DLE
+
+BytesLike = Union[bytes, bytearray, memoryview]
+
+
+# ---- errors -----------------------------------------------------------------
+
+class ExecAsyncError(FapError):
+    """Base of the exec async errors."""
+
+
+class ExecValueError(ExecAsyncError, InvalidValueError):
+    """A node number, payload or structure description is out of range."""
+
+
+class NoReplyError(ExecAsyncError, FapTimeoutError):
+    """The node did not answer, after every retry."""
+
+
+class CorruptReplyError(ExecAsyncError, FrameError):
+    """Every attempt failed and the last one got a corrupted frame (CRC, framing)."""
+
+
+def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
+    if code >= 0:
+        return
+    if code == -errno.ETIMEDOUT:
+        raise NoReplyError(f"{what}: no reply")
+    if code == -errno.EBADMSG:
+        raise CorruptReplyError(f"{what}: corrupted reply")
+    if code in (-errno.EINVAL, -errno.EMSGSIZE):
+        raise ExecValueError(f"{what}: {ffi.string(lib.fap_port_strerror(code)).decode()}")
+    if code == -errno.ECANCELED:
+        raise ClosedError(f"{what}: stopped")
+    raise error_from_code(code, what, path)
+
+
+def _check_node(node: int, *, allow_broadcast: bool = False) -> int:
+    if not isinstance(node, int) or isinstance(node, bool):
+        raise ExecValueError(f"node must be an int, not {type(node).__name__}")
+    top = 255 if allow_broadcast else 254
+    if not 1 <= node <= top:
+        raise ExecValueError(f"node {node} out of range 1..{top}")
+    return node
+
+
+def _check_data(data: BytesLike) -> bytes:
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise ExecValueError(f"data must be bytes, not {type(data).__name__}")
+    data = bytes(data)
+    if len(data) > MAX_DATA:
+        raise ExecValueError(f"{len(data)} bytes of data, at most {MAX_DATA}")
+    return data
+
+
+# ---- framing ------------------------------------------------------------------
+
+class Status(IntEnum):
+    """What :meth:`Decoder.feed` found (``execAsyncStateDef.Status``)."""
+
+    GOOD = 1
+    BAD_CRC = 2
+    OVERFLOW = 3
+    FRAMING = 4
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One decoded frame; only ``GOOD`` frames can be trusted."""
+
+    node: int
+    seq: int
+    data: bytes
+    status: Status
+
+    @property
+    def ok(self) -> bool:
+        return self.status is Status.GOOD
+
+
+def encode(node: int, data: BytesLike = b"", seq: int = 0) -> bytes:
+    """Format one frame (``execAsyncBufferOut``). node and seq are 0..255."""
+    if not 0 <= node <= 255 or not 0 <= seq <= 255:
+        raise ExecValueError(f"node {node} / seq {seq} must be 0..255")
+    raw = _check_data(data)
+    out = ffi.new("byte[]", MAX_FRAME)
+    n = lib.execAsyncBufferOut(node, ffi.from_buffer("byte[]", raw) if raw else ffi.NULL,
+                               out, len(raw), seq)
+    return bytes(ffi.buffer(out, n))
+
+
+class Decoder:
+    """Feed received bytes, get frames (``execAsyncByteIn`` one byte at a time).
+
+    ``buffer_size`` (1..255) limits the payload; a longer one is reported
+    as ``Status.OVERFLOW`` with its first ``buffer_size`` bytes.
+    """
+
+    def __init__(self, buffer_size: int = MAX_DATA) -> None:
+        if not 1 <= buffer_size <= MAX_DATA:
+            raise ExecValueError(f"buffer_size {buffer_size} out of range 1..{MAX_DATA}")
+        self._size = buffer_size
+        self._buf = ffi.new("byte[]", buffer_size)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget any partial frame; wait for the next DLE STX."""
+        self._state = ffi.new("struct execAsyncStateDef *")
+        self._state.BufferSize = self._size % 256
+
+    def feed(self, data: BytesLike) -> List[Frame]:
+        frames: List[Frame] = []
+        st = self._state
+        for b in bytes(data):
+            if lib.execAsyncByteIn(b, st, self._buf):
+                frame = Frame(st.Node, st.SeqNo, bytes(ffi.buffer(self._buf, st.Length)),
+                              Status(st.Status))
+                log.debug("decoded %s", frame)
+                frames.append(frame)
+        return frames
+
+
+# ---- structure packing -----------------------------------------------------------
+
+_CTYPES: Dict[str, Any] = {
+    "u8": ctypes.c_uint8, "s8": ctypes.c_int8,
+    "u16": ctypes.c_uint16, "s16": ctypes.c_int16,
+    "u32": ctypes.c_uint32, "s32": ctypes.c_int32,
+    "u64": ctypes.c_uint64, "s64": ctypes.c_int64,
+    "f32": ctypes.c_float, "f64": ctypes.c_double,
+    "bytes": ctypes.c_char,          # count = length; copied as is
+}
+
+FieldSpec = Union[Tuple[str, str], Tuple[str, str, int]]
+
+
+class StructLayout:
+    """A C structure described in Python, packed by the C core.
+
+    ``fields`` lists ``(name, type)`` or ``(name, type, count)`` in member
+    order; types are ``u8 s8 u16 s16 u32 s32 u64 s64 f32 f64`` and
+    ``bytes`` (count = its length). The native layout (offsets, padding) is
+    the platform C compiler's, as ``ctypes`` computes it; the descriptor
+    handed to ``execPackDataEx`` is built from it, so the packed bytes are
+    what a C program with the same struct sends::
+
+        layout = StructLayout([("id", "u8"), ("raw", "u16"), ("delta", "s16", 3)])
+        wire = layout.pack({"id": 1, "raw": 0x1234, "delta": [1, -1, 0]})
+        layout.unpack(wire)["raw"] == 0x1234
+    """
+
+    def __init__(self, fields: Sequence[FieldSpec]) -> None:
+        if not fields:
+            raise ExecValueError("a structure needs at least one field")
+        specs: List[Tuple[str, str, int]] = []
+        for f in fields:
+            if len(f) not in (2, 3):
+                raise ExecValueError(f"field {f!r}: expected (name, type[, count])")
+            name, kind = f[0], f[1]
+            count = int(f[2]) if len(f) == 3 else 1  # type: ignore[misc]
+            if kind not in _CTYPES:
+                raise ExecValueError(f"field {name!r}: unknown type {kind!r} "
+                                     f"(one of {' '.join(_CTYPES)})")
+            if count < 1:
+                raise ExecValueError(f"field {name!r}: count {count} < 1")
+            specs.append((name, kind, count))
+        names = [s[0] for s in specs]
+        if len(set(names)) != len(names):
+            raise ExecValueError("field names must be unique")
+        ctype_fields = [(n, _CTYPES[k] * c if (c > 1 or k == "bytes") else _CTYPES[k])
+                        for n, k, c in specs]
+        self._struct = type("ExecStruct", (ctypes.Structure,), {"_fields_": ctype_fields})
+        self._specs = specs
+        self.native_size = ctypes.sizeof(self._struct)
+        if self.native_size > 0xFFFF:
+            raise ExecValueError("structure larger than 65535 bytes")
+        self._desc = ffi.new("struct execStructDef[]", len(specs) + 1)
+        for i, (name, kind, count) in enumerate(specs):
+            d = self._desc[i]
+            d.Offset = getattr(self._struct, name).offset
+            d.Size = ctypes.sizeof(_CTYPES[kind])
+            d.Count = count
+        self._desc[len(specs)].Offset = self.native_size   # terminator: Size 0
+        self.packed_size = sum(ctypes.sizeof(_CTYPES[k]) * c for _, k, c in specs)
+
+    @property
+    def names(self) -> List[str]:
+        return [s[0] for s in self._specs]
+
+    def pack_native(self, native: BytesLike) -> bytes:
+        """Native-layout bytes (e.g. a cffi/ctypes struct) -> packed big-endian."""
+        native = bytes(native)
+        if len(native) != self.native_size:
+            raise ExecValueError(f"{len(native)} bytes, the native structure has {self.native_size}")
+        src = ffi.new("byte[]", native)
+        out = ffi.new("byte[]", max(self.packed_size, 1))
+        n = lib.execPackDataEx(out, src, self._desc)
+        return bytes(ffi.buffer(out, n))
+
+    def unpack_native(self, packed: BytesLike) -> bytes:
+        """Packed big-endian -> native-layout bytes (padding zero)."""
+        packed = bytes(packed)
+        if len(packed) != self.packed_size:
+            raise ExecValueError(f"{len(packed)} bytes, the packed structure has {self.packed_size}")
+        src = ffi.new("byte[]", packed)
+        out = ffi.new("byte[]", self.native_size)   # zeroed: padding stays 0
+        n = lib.execUnPackDataEx(out, src, self._desc)
+        return bytes(ffi.buffer(out, n))
+
+    def pack(self, values: Mapping[str, Any]) -> bytes:
+        """Field values (ints, floats, lists for arrays, bytes) -> packed bytes."""
+        missing = [n for n in self.names if n not in values]
+        extra = [n for n in values if n not in self.names]
+        if missing or extra:
+            raise ExecValueError(f"missing fields {missing}, unknown fields {extra}")
+        inst = self._struct()
+        for name, kind, count in self._specs:
+            v = values[name]
+            try:
+                if kind == "bytes":
+                    v = bytes(v)
+                    if len(v) > count:
+                        raise ExecValueError(f"field {name!r}: {len(v)} bytes, room for {count}")
+                    ctypes.memmove(ctypes.addressof(inst) + getattr(self._struct, name).offset,
+                                   v, len(v))
+                elif count > 1:
+                    if len(v) != count:
+                        raise ExecValueError(f"field {name!r}: {len(v)} items, expected {count}")
+                    arr = getattr(inst, name)
+                    for i, item in enumerate(v):
+                        arr[i] = _checked(name, kind, item)
+                else:
+                    setattr(inst, name, _checked(name, kind, v))
+            except TypeError as exc:
+                raise ExecValueError(f"field {name!r}: {exc}") from None
+        return self.pack_native(bytes(inst))
+
+    def unpack(self, packed: BytesLike) -> Dict[str, Any]:
+        """Packed bytes -> dict of field values (lists for arrays)."""
+        inst = self._struct.from_buffer_copy(self.unpack_native(packed))
+        out: Dict[str, Any] = {}
+        for name, kind, count in self._specs:
+            v = getattr(inst, name)
+            if kind == "bytes":
+                off = getattr(self._struct, name).offset
+                out[name] = bytes(inst)[off:off + count]
+            elif count > 1:
+                out[name] = list(v)
+            else:
+                out[name] = v
+        return out
+
+
+def _checked(name: str, kind: str, value: Any) -> Any:
+    """Range-check an integer (ctypes would silently wrap it)."""
+    if kind[0] == "f":
+        return float(value)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise ExecValueError(f"field {name!r}: {value!r} is not an int")
+    bits = int(kind[1:])
+    lo, hi = (0, (1 << bits) - 1) if kind[0] == "u" else (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
+    if not lo <= value <= hi:
+        raise ExecValueError(f"field {name!r}: {value} out of range {lo}..{hi} ({kind})")
+    return value
+
+
+# ---- engine ---------------------------------------------------------------------
+
+def _port_options(baudrate: int, rs485: Optional[RS485]) -> Any:
+    """``fap_port_options`` from a baud rate and :class:`fap_py.fap.RS485` line options."""
+    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+        raise ExecValueError(f"baudrate must be a positive int, not {baudrate!r}")
+    if rs485 is None:
+        rs485 = RS485()
+    elif not isinstance(rs485, RS485):
+        raise ExecValueError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    po = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(po)
+    po.baud = baudrate
+    po.rs485_mode = int(rs485.mode)
+    po.rts_active_high = int(rs485.rts_active_high)
+    po.delay_before_send_us = rs485.delay_before_send_us
+    po.delay_after_send_us = rs485.delay_after_send_us
+    po.rx_during_tx = int(rs485.rx_during_tx)
+    po.echo_suppression = int(rs485.echo_suppression)
+    po.echo_timeout_us = rs485.echo_timeout_us
+    po.turnaround_us = rs485.turnaround_us
+    po.exclusive = int(rs485.exclusive)
+    po.write_timeout_us = rs485.write_timeout_us
+    return po
+
+
+def _stats_dict(cdata: Any, ctype: str) -> Dict[str, int]:
+    return {f[0]: int(getattr(cdata, f[0])) for f in ffi.typeof(ctype).fields}
+
+
+@dataclass(frozen=True)
+class MasterStats:
+    """``execMasterStats``: counters since the master was opened."""
+
+    transactions: int
+    replies: int
+    failures: int
+    retries: int
+    timeouts: int
+    corrupt: int
+    unexpected: int
+    broadcasts: int
+    tx_frames: int
+    rx_frames: int
+
+
+@dataclass(frozen=True)
+class SlaveStats:
+    """``execSlaveStats``: counters since the slave was opened."""
+
+    processed: int
+    resent: int
+    broadcasts: int
+    replies: int
+    no_reply: int
+    ignored: int
+    corrupt: int
+    rx_during_tx: int
+    collisions: int
+    rx_frames: int
+
+
+class Master:
+    """Exec async master on one port.
+
+    ``timeout`` is per attempt (end of our frame to end of the reply);
+    ``retries`` extra attempts repeat the frame with the same sequence
+    number. Sequence numbers are kept per node (0, 1..255, 1..).
+
+    Args:
+        port: serial device path (or a :class:`~fap_py.vbus.VirtualBus` path).
+        baudrate: line speed.
+        timeout: seconds per attempt.
+        retries: extra attempts after the first.
+        rs485: :class:`fap_py.fap.RS485` line options, as for FAP nodes
+            (``echo_suppression=True`` on a bus that echoes our own bytes).
+
+    Thread-safe; a context manager.
+    """
+
+    def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
+                 timeout: float = 0.1, retries: int = 3, rs485: Optional[RS485] = None) -> None:
+        self._m: Any = None
+        self.path = os.fspath(port)
+        popts = _port_options(baudrate, rs485)
+        mopts = ffi.new("execMasterOptions *")
+        lib.execMasterOptionsInit(mopts)
+        mopts.reply_timeout_us, mopts.retries = self._timing(timeout, retries)
+        self._retries = retries
+        out = ffi.new("execMaster **")
+        _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
+        self._m = out[0]
+        self._lock = threading.Lock()
+        self._reply = ffi.new("byte[]", MAX_DATA)
+        self._reply_len = ffi.new("word *")
+        log.info("exec async master on %s", self.path)
+
+    @staticmethod
+    def _timing(timeout: float, retries: int) -> Tuple[int, int]:
+        if not 0 < timeout <= 3600:
+            raise ExecValueError(f"timeout {timeout} s out of range (0, 3600]")
+        if not isinstance(retries, int) or not 0 <= retries <= 1000:
+            raise ExecValueError(f"retries {retries!r} out of range 0..1000")
+        return max(1, int(round(timeout * 1e6))), retries
+
+    def _handle(self) -> Any:
+        if self._m is None:
+            raise ClosedError(f"{self.path}: master closed")
+        return self._m
+
+    def set_timeout(self, timeout: float, retries: Optional[int] = None) -> None:
+        """Change the per-attempt timeout (s) and, if given, the retries."""
+        with self._lock:
+            m = self._handle()
+            us, r = self._timing(timeout, self._retries if retries is None else retries)
+            _raise_for(lib.execMasterSetTimeout(m, us, r), "set_timeout")
+            self._retries = r
+
+    def transact(self, node: int, data: BytesLike = b"") -> bytes:
+        """Poll ``node`` (1..254) with ``data``; return its reply.
+
+        Raises :class:`NoReplyError` / :class:`CorruptReplyError` when every
+        attempt failed (the sequence number moves on anyway).
+        """
+        _check_node(node)
+        payload = _check_data(data)
+        with self._lock:
+            m = self._handle()
+            log.debug("-> node %d seq %d %s", node, lib.execMasterNextSeq(m, node), payload.hex())
+            rc = lib.execMasterTransact(m, node, payload, len(payload), self._reply, MAX_DATA,
+                                        self._reply_len)
+            _raise_for(rc, f"node {node}", self.path)
+            reply = bytes(ffi.buffer(self._reply, self._reply_len[0]))
+        log.debug("<- node %d %s", node, reply.hex())
+        return reply
+
+    def broadcast(self, data: BytesLike = b"") -> None:
+        """Send ``data`` to every slave (node 255); nobody answers."""
+        payload = _check_data(data)
+        with self._lock:
+            log.debug("-> broadcast %s", payload.hex())
+            _raise_for(lib.execMasterBroadcast(self._handle(), payload, len(payload)),
+                       "broadcast", self.path)
+
+    def next_seq(self, node: int) -> int:
+        """The sequence number the next message to ``node`` will carry."""
+        _check_node(node, allow_broadcast=True)
+        with self._lock:
+            return int(lib.execMasterNextSeq(self._handle(), node))
+
+    def reopen(self) -> None:
+        """Open the device again (after it vanished: a USB unplug, say)."""
+        with self._lock:
+            _raise_for(lib.fap_port_reopen(lib.execMasterPort(self._handle())), "reopen", self.path)
+
+    def reset_sequence(self) -> None:
+        """Start again from sequence number 0 for every node (a master restart)."""
+        with self._lock:
+            lib.execMasterResetSequence(self._handle())
+
+    def _stats_raw(self) -> Any:
+        st = ffi.new("execMasterStats *")
+        lib.execMasterGetStats(self._handle(), st)
+        return st
+
+    @property
+    def stats(self) -> MasterStats:
+        return MasterStats(**_stats_dict(self._stats_raw(), "execMasterStats"))
+
+    def close(self) -> None:
+        """Close the port (waits for a transaction in progress). Idempotent."""
+        with self._lock:
+            if self._m is not None:
+                lib.execMasterClose(self._m)
+                self._m = None
+
+    @property
+    def closed(self) -> bool:
+        return self._m is None
+
+    def __enter__(self) -> "Master":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if getattr(self, "_m", None) is not None:
+            self.close()
+
+
+@dataclass(frozen=True)
+class Request:
+    """A request as a :class:`Slave` handler sees it."""
+
+    node: int          # the slave's node, or BROADCAST
+    seq: int
+    data: bytes
+
+    @property
+    def broadcast(self) -> bool:
+        return self.node == BROADCAST
+
+
+class ServeResult(IntEnum):
+    """What one :meth:`Slave.serve` call did."""
+
+    TIMEOUT = 0
+    PROCESSED = 1      # the handler ran and its reply was sent
+    RESENT = 2         # a retry: the last reply was sent again, the handler did not run
+    BROADCAST = 3      # the handler ran, nothing was sent
+
+
+Handler = Callable[[Request], Optional[BytesLike]]
+
+@ffi.def_extern()
+def fap_py_exec_slave_handler(ctx: Any, req: Any, reply: Any, cap: int) -> int:
+    """C -> Python trampoline, called in the thread that runs execSlaveServe."""
+    slave: Slave = ffi.from_handle(ctx)
+    return slave._dispatch(req, reply, cap)
+
+
+class Slave:
+    """Exec async slave for ``node`` (1..254) on one port.
+
+    ``handler(request)`` returns the reply bytes (0..255), or ``None`` for
+    no reply; it is not called again for a retried request (the last reply
+    is resent) and is called for broadcasts, whose reply is ignored. Call
+    :meth:`serve` from your own thread, or :meth:`start` a background
+    thread. An exception in the handler sends no reply and is re-raised by
+    :meth:`serve` (or kept in :attr:`error` by the background thread).
+
+    Args:
+        port, baudrate, rs485: as for :class:`Master`;
+            ``rs485.turnaround_us`` delays every reply (for slow masters).
+        node: this slave's node number, 1..254.
+        handler: ``handler(request) -> bytes | None``.
+    """
+
+    def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
+                 node: int, handler: Handler, rs485: Optional[RS485] = None) -> None:
+        self._s: Any = None
+        _check_node(node)
+        if not callable(handler):
+            raise ExecValueError("handler must be callable")
+        self.path = os.fspath(port)
+        self.node = node
+        self._handler = handler
+        self._pending_error: Optional[BaseException] = None
+        self.error: Optional[BaseException] = None
+        self._thread: Optional[threading.Thread] = None
+        self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)
+        self._serving = 0        # serve() calls inside C: close() waits for them
+        popts = _port_options(baudrate, rs485)
+        sopts = ffi.new("execSlaveOptions *")
+        lib.execSlaveOptionsInit(sopts)
+        sopts.node = node
+        self._self_handle = ffi.new_handle(self)
+        out = ffi.new("execSlave **")
+        _raise_for(lib.execSlaveOpen(out, self.path.encode(), popts, sopts,
+                                     lib.fap_py_exec_slave_handler, self._self_handle),
+                   "open", self.path)
+        self._s = out[0]
+        log.info("exec async slave %d on %s", node, self.path)
+
+    def _dispatch(self, req: Any, reply: Any, cap: int) -> int:
+        request = Request(int(req.node), int(req.seq), bytes(ffi.buffer(req.data, req.len)))
+        log.debug("slave %d <- seq %d %s", self.node, request.seq, request.data.hex())
+        try:
+            out = self._handler(request)
+            if out is None or request.broadcast:
+                return -1
+            out = bytes(out)
+            if len(out) > cap:
+                raise ExecValueError(f"handler reply of {len(out)} bytes, at most {cap}")
+        except BaseException as exc:  # handed to serve(); C must not unwind through Python
+            self._pending_error = exc
+            return -1
+        ffi.memmove(reply, out, len(out))
+        log.debug("slave %d -> seq %d %s", self.node, request.seq, out.hex())
+        return len(out)
+
+    def serve(self, timeout: Optional[float] = None) -> ServeResult:
+        """Handle one request for this node (or a broadcast); wait at most
+        ``timeout`` seconds (None = until one comes or :meth:`stop`)."""
+        ms = -1 if timeout is None else max(0, int(round(timeout * 1000)))
+        with self._lock:
+            s = self._s
+            if s is None:
+                raise ClosedError(f"{self.path}: slave closed")
+            self._serving += 1
+        try:
+            rc = lib.execSlaveServe(s, ms)
+        finally:
+            with self._lock:
+                self._serving -= 1
+                self._idle.notify_all()
+        err, self._pending_error = self._pending_error, None
+        if err is not None:
+            raise err
+        _raise_for(rc, f"slave {self.node}", self.path)
+        return ServeResult(rc)
+
+    def _run(self) -> None:
+        try:
+            while True:
+                self.serve(None)
+        except ClosedError:
+            pass
+        except BaseException as exc:  # kept for the owner; the thread ends
+            log.exception("slave %d on %s stopped", self.node, self.path)
+            self.error = exc
+
+    def start(self) -> "Slave":
+        """Serve in a background (daemon) thread until :meth:`stop` / :meth:`close`."""
+        with self._lock:
+            if self._s is None:
+                raise ClosedError(f"{self.path}: slave closed")
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._run, name=f"exec-slave-{self.node}",
+                                                daemon=True)
+                self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Make serve() return (raising ClosedError) now and from then on; join the thread."""
+        with self._lock:
+            if self._s is not None:
+                lib.execSlaveStop(self._s)
+            thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join()
+
+    def reopen(self) -> None:
+        """Open the device again after it vanished (serve() raised PortError)."""
+        with self._lock:
+            if self._s is None:
+                raise ClosedError(f"{self.path}: slave closed")
+            _raise_for(lib.fap_port_reopen(lib.execSlavePort(self._s)), "reopen", self.path)
+
+    @property
+    def stats(self) -> SlaveStats:
+        s = self._s
+        if s is None:
+            raise ClosedError(f"{self.path}: slave closed")
+        st = ffi.new("execSlaveStats *")
+        lib.execSlaveGetStats(s, st)
+        return SlaveStats(**_stats_dict(st, "execSlaveStats"))
+
+    def close(self) -> None:
+        """Stop serving (also serve() calls in other threads) and close the port. Idempotent."""
+        self.stop()
+        with self._lock:
+            while self._serving:
+                self._idle.wait()
+            if self._s is not None:
+                lib.execSlaveClose(self._s)
+                self._s = None
+
+    @property
+    def closed(self) -> bool:
+        return self._s is None
+
+    def __enter__(self) -> "Slave":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if getattr(self, "_s", None) is not None:
+            self.close()
+
+
+__all__ = [
+    "RS485", "RS485Mode", "BROADCAST", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "Decoder", "ExecAsyncError",
+    "ExecValueError", "Frame", "Master", "MasterStats", "NoReplyError", "Request",
+    "ServeResult", "Slave", "SlaveStats", "Status", "StructLayout", "encode",
+]

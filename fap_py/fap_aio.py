@@ -1,0 +1,267 @@
+"""asyncio support of :mod:`fap_py.fap`: the C engine's notification fd drives the loop.
+
+One :class:`AsyncPump` per node and event loop. It registers the handle's
+notification fd (``fapx_notify_fd``, level-triggered: readable while a
+received frame or an event is queued in C) with ``loop.add_reader``. When
+it turns readable, the loop thread moves the queued frames and events into
+Python deques with the non-blocking ``fapx_rx`` / ``fapx_event_get`` and
+wakes the coroutines awaiting them. No thread, no timer, no polling.
+
+Back-pressure: the message deque holds at most the node's ``rx_queue``
+depth. When it is full the pump stops reading the fd (frames then wait in,
+and eventually overflow, the C queue exactly as for a C program that does
+not call ``fapx_rx``) and resumes as soon as a message is taken. While it
+is paused, events are still collected every :data:`fap_py.fap.WAIT_SLICE`
+seconds. Events beyond ``event_queue`` drop the oldest (counted in
+:attr:`AsyncPump.events_dropped`).
+
+Nothing here is called from the C engine thread: Python only ever runs in
+the event loop's thread (or the caller's), never in a C callback.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import threading
+from collections import deque
+from typing import TYPE_CHECKING, Any, Deque, Optional
+
+from .errors import ClosedError, FapError, FapTimeoutError
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .fap import Message, Node, SlaveEvent
+
+log = logging.getLogger(__name__)
+
+__all__ = ["AsyncPump"]
+
+
+class AsyncPump:
+    """Moves one node's C queues into an asyncio event loop (see the module doc)."""
+
+    def __init__(self, node: "Node", loop: asyncio.AbstractEventLoop) -> None:
+        self.node = node
+        self.loop = loop
+        self.thread_id = threading.get_ident()    # the loop's thread
+        self.fd = node.fileno()
+        self.rx_cap = int(node._rx_depth)
+        self.rx: Deque["Message"] = deque()
+        self.ev: Deque["SlaveEvent"] = deque()
+        self.ev_cap = int(node._ev_depth)
+        self.rx_waiters: Deque[asyncio.Future] = deque()
+        self.ev_waiters: Deque[asyncio.Future] = deque()
+        self.events_dropped = 0     #: events discarded because nobody read them
+        self.reading = False
+        self.paused = False
+        self.stopped = False
+        self._poll: Optional[asyncio.TimerHandle] = None
+
+    @classmethod
+    def for_running_loop(cls, node: "Node", current: Optional["AsyncPump"]) -> "AsyncPump":
+        """The node's pump for the running loop: ``current`` or a new one."""
+        loop = asyncio.get_running_loop()
+        if current is not None and not current.stopped:
+            if current.loop is loop:
+                return current
+            if current.loop.is_running():
+                raise FapError("this node is attached to another running event loop")
+            current.stop()           # its loop is finished: move to this one
+        pump = cls(node, loop)
+        if current is not None:      # keep what the old loop had collected
+            pump.rx.extend(current.rx)
+            pump.ev.extend(current.ev)
+        pump._start_reading()
+        return pump
+
+    # -- fd reader (loop thread) ----------------------------------------------
+    def _start_reading(self) -> None:
+        if not self.reading and not self.stopped:
+            self.loop.add_reader(self.fd, self._on_readable)
+            self.reading = True
+            self.paused = False
+
+    def _pause(self) -> None:
+        if self.reading:
+            self.loop.remove_reader(self.fd)
+            self.reading = False
+        self.paused = True
+        if self._poll is None:
+            from .fap import WAIT_SLICE
+
+            self._poll = self.loop.call_later(WAIT_SLICE, self._poll_paused)
+        log.debug("%s: async receive queue full, paused", self.node._label())
+
+    def _poll_paused(self) -> None:
+        self._poll = None
+        if self.paused and not self.stopped:
+            self._on_readable()
+
+    def _maybe_resume(self) -> None:
+        if self.paused and not self.stopped and len(self.rx) < self.rx_cap:
+            if self._poll is not None:
+                self._poll.cancel()
+                self._poll = None
+            self._start_reading()
+
+    def _on_readable(self) -> None:
+        node = self.node
+        try:
+            while len(self.rx) < self.rx_cap or self.rx_waiters:
+                msg = node._rx_c(None)
+                if msg is None:
+                    break
+                self._deliver(self.rx_waiters, self.rx, msg)
+            while True:
+                ev = node._ev_c(None)
+                if ev is None:
+                    break
+                if not self._deliver(self.ev_waiters, self.ev, ev) and len(self.ev) > self.ev_cap:
+                    self.ev.popleft()
+                    self.events_dropped += 1
+        except ClosedError:
+            self._detach()
+            return
+        except FapError as exc:  # pragma: no cover - fapx_rx/event_get only fail on close
+            log.error("%s: async reader failed: %s", node._label(), exc)
+            self._fail_waiters(exc)
+            return
+        if len(self.rx) >= self.rx_cap:
+            self._pause()
+        elif self.paused:
+            self._maybe_resume()
+
+    @staticmethod
+    def _deliver(waiters: Deque[asyncio.Future], queue: Deque[Any], item: Any) -> bool:
+        """Hand item to the first live waiter (True) or queue it (False)."""
+        while waiters:
+            fut = waiters.popleft()
+            if not fut.done():
+                fut.set_result(item)
+                return True
+        queue.append(item)
+        return False
+
+    # -- consumers --------------------------------------------------------------
+    def _in_loop_thread(self) -> bool:
+        return threading.get_ident() == self.thread_id
+
+    def take_rx(self) -> Optional["Message"]:
+        """A message already moved to Python, or None (any thread)."""
+        try:
+            msg = self.rx.popleft()
+        except IndexError:
+            return None
+        if self.paused:
+            if self._in_loop_thread():
+                self._maybe_resume()
+            else:
+                try:
+                    self.loop.call_soon_threadsafe(self._maybe_resume)
+                except RuntimeError:  # the loop is closed
+                    pass
+        return msg
+
+    def take_event(self) -> Optional["SlaveEvent"]:
+        """An event already moved to Python, or None (any thread)."""
+        try:
+            return self.ev.popleft()
+        except IndexError:
+            return None
+
+    def rx_queued(self) -> int:
+        """Messages moved to Python and not taken yet."""
+        return len(self.rx)
+
+    async def _wait(self, waiters: Deque[asyncio.Future], queue: Deque[Any],
+                    timeout: Optional[float], what: str) -> Any:
+        if self.stopped:
+            raise ClosedError(f"{self.node._label()} on {self.node.path} is closed")
+        fut = self.loop.create_future()
+        waiters.append(fut)
+        timer = None
+        if timeout is not None:
+            timer = self.loop.call_later(timeout, self._expire, fut,
+                                         f"{what}: nothing within {timeout} s")
+        try:
+            return await fut
+        except asyncio.CancelledError:
+            # Cancelled after the item was handed over: put it back, lose nothing.
+            if fut.done() and not fut.cancelled() and fut.exception() is None:
+                queue.appendleft(fut.result())
+            raise
+        finally:
+            if timer is not None:
+                timer.cancel()
+            try:
+                waiters.remove(fut)
+            except ValueError:
+                pass
+
+    @staticmethod
+    def _expire(fut: asyncio.Future, text: str) -> None:
+        if not fut.done():
+            fut.set_exception(FapTimeoutError(text))
+
+    async def get_rx(self, timeout: Optional[float]) -> "Message":
+        """The next message (the Python deque first, then C, then wait for the fd)."""
+        msg = self.take_rx()
+        if msg is None and not self.stopped:
+            msg = self.node._rx_c(None)
+        if msg is not None:
+            return msg
+        return await self._wait(self.rx_waiters, self.rx, timeout, "arecv")
+
+    async def get_event(self, timeout: Optional[float]) -> "SlaveEvent":
+        """The next engine event."""
+        ev = self.take_event()
+        if ev is None and not self.stopped:
+            ev = self.node._ev_c(None)
+        if ev is not None:
+            return ev
+        return await self._wait(self.ev_waiters, self.ev, timeout, "await_event")
+
+    # -- shutdown -----------------------------------------------------------------
+    def _fail_waiters(self, exc: BaseException) -> None:
+        for waiters in (self.rx_waiters, self.ev_waiters):
+            while waiters:
+                fut = waiters.popleft()
+                if not fut.done():
+                    try:
+                        fut.set_exception(exc)
+                    except RuntimeError:  # its loop is closed
+                        pass
+
+    def _detach(self) -> None:
+        """Unregister the fd and fail the waiters (loop thread, or loop not running)."""
+        self.stopped = True
+        if self._poll is not None:
+            self._poll.cancel()
+            self._poll = None
+        if self.reading:
+            self.reading = False
+            if not self.loop.is_closed():
+                self.loop.remove_reader(self.fd)
+        self._fail_waiters(ClosedError(f"{self.node._label()} on {self.node.path} is closed"))
+
+    def stop(self) -> None:
+        """Detach from the loop before the handle (and its fd) is closed. Idempotent."""
+        if self.stopped and not self.reading:
+            return
+        self.stopped = True
+        loop = self.loop
+        if self._in_loop_thread() or loop.is_closed() or not loop.is_running():
+            self._detach()
+            return
+        done = threading.Event()
+
+        def detach() -> None:
+            self._detach()
+            done.set()
+
+        try:
+            loop.call_soon_threadsafe(detach)
+        except RuntimeError:  # closed meanwhile
+            return
+        if not done.wait(2.0):  # pragma: no cover - the loop thread is stuck
+            log.warning("%s: event loop did not detach the notify fd within 2 s",
+                        self.node._label())

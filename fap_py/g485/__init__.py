@@ -1,0 +1,33 @@
+"""Gicren G485 (G485_V11) in pure Python: codec, master and device simulator.
+
+>>> from fap_py.g485 import G485Master, SetCommand
+>>> with G485Master("/dev/ttyUSB0", 115200) as bus:          # doctest: +SKIP
+...     data = bus.read(1, 1, 7)                              # registers 1..7 of device 1
+...     bus.write(1, 8, [0x32])
+...     bus.set(1, SetCommand.SAVE_EEPROM)
+
+See docs/g485.md for every decision the vendor document leaves open.
+"""
+from .codec import (BROADCAST, MASTER_ADDRESS, WAKE_UP_PREAMBLE, Discarded, ErrorBit, Packet, PacketKind,
+                    ParseIssue, Parser, SetCommand, decode_frame, describe_error_word, encode_error_word_request,
+                    encode_error_word_response, encode_handshake_request, encode_handshake_response,
+                    encode_read_request, encode_read_response, encode_set, encode_write)
+from .device import RegisterSpec, SimDevice
+from .errors import (BroadcastReadError, CheckByteError, CheckMismatchError, DeviceErrorWordError, EchoMismatchError,
+                     G485Error,
+                     G485FrameError, G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
+                     UnexpectedReplyError)
+from .master import Check, G485Master, MasterStats
+from .simulator import Simulator
+
+__all__ = [
+    "BROADCAST", "MASTER_ADDRESS", "WAKE_UP_PREAMBLE", "Discarded", "ErrorBit", "Packet", "PacketKind",
+    "ParseIssue", "Parser", "SetCommand", "decode_frame", "describe_error_word", "encode_error_word_request",
+    "encode_error_word_response", "encode_handshake_request", "encode_handshake_response",
+    "encode_read_request", "encode_read_response", "encode_set", "encode_write",
+    "RegisterSpec", "SimDevice",
+    "BroadcastReadError", "CheckByteError", "CheckMismatchError", "DeviceErrorWordError", "G485Error",
+    "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError", "RereadMismatchError",
+    "UnexpectedReplyError",
+    "Check", "G485Master", "MasterStats", "Simulator",
+]

@@ -1,0 +1,452 @@
+"""G485 (Gicren G485_V11) frames, sans-I/O: encoders, a strict decoder and a
+streaming parser.
+
+Frame: ``FF FF | ADDRESS | LENGTH | PID | DATA... | CHECK`` where ADDRESS is
+``(address << 1) | R/W`` (W = 0, R = 1), LENGTH counts every byte after it
+(PID, data and check) and CHECK = ``~(ADDRESS + LENGTH + PID + DATA...) & 0xFF``.
+The master's address is 127, so every reply starts ``FF FF FF``; the third
+0xFF is an address byte, never a start byte.
+
+Nothing here touches a file descriptor: the parser takes bytes and returns
+events (:class:`Packet` or :class:`Discarded`).
+"""
+from __future__ import annotations
+
+import enum
+from typing import List, NamedTuple, Optional, Tuple, Union
+
+from .errors import BroadcastReadError, CheckByteError, G485FrameError, G485ValueError, UnexpectedReplyError
+
+START = b"\xff\xff"
+MASTER_ADDRESS = 127
+BROADCAST = 0
+MIN_SLAVE_ADDRESS = 1
+MAX_SLAVE_ADDRESS = 126
+SMA_R = (MASTER_ADDRESS << 1) | 1  # 0xFF: the address byte of every reply
+MIN_REGISTER = 1
+MAX_REGISTER = 100
+HPID = 0x7F  # handshake
+EPID = 0x7E  # get error word
+#: LENGTH of the longest frame: PID + 100 data bytes + CHECK
+MAX_LENGTH = MAX_REGISTER + 2
+MIN_LENGTH = 2
+#: bytes before the LENGTH byte is known: FF FF ADDRESS LENGTH
+HEADER_SIZE = 4
+#: what the vendor's manuals send to wake a device that detects the baud rate
+WAKE_UP_PREAMBLE = b"\xff\xff\xff\xff"
+#: the seed: devices above this baud rate lose the first packet after power-on
+WAKE_UP_BAUD_THRESHOLD = 28800
+
+
+class SetCommand(enum.IntEnum):
+    """The ten Set sub-types (SPID values)."""
+
+    FACTORY_RESET = 0x7D
+    SAVE_EEPROM = 0x7C
+    RESET = 0x7B
+    CLEAR_ERROR_WORD = 0x7A
+    REAL_TIME_WRITE = 0x79
+    NON_REAL_TIME_WRITE = 0x78
+    APPLY_WRITES = 0x77  # perform the pending Non-Real-Time writes
+    CONTROL_MODE = 0x76
+    BULK_MODE = 0x75
+    LOCK_BAUD_RATE = 0x74
+
+
+_SET_VALUES = frozenset(int(c) for c in SetCommand)
+
+
+class ErrorBit(enum.IntFlag):
+    """Bits of the error word as this library defines them (the seed does not).
+
+    ERRL (bits 0..7) holds communication errors set by the simulator; ERRH
+    (bits 8..15) is left to the device's own (private) faults.
+    """
+
+    BAD_CHECK = 0x0001        # a packet for this device had a wrong check byte
+    MALFORMED = 0x0002        # unknown PID or a length that does not fit the PID
+    REGISTER_RANGE = 0x0004   # register / count outside 1..100
+    READ_ONLY = 0x0008        # write to a read-only register (1..5 or private R)
+    BAD_VALUE = 0x0010        # value refused (ID outside 1..126, ...)
+    EEPROM = 0x0020           # EEPROM (file) save or restore failed
+    BROADCAST_READ = 0x0040   # a read / error word / handshake sent to broadcast
+    DISCARDED = 0x0080        # a packet was discarded in bulk transmission mode
+
+
+def describe_error_word(word: int) -> str:
+    """Names of the bits set in ``word`` (``"none"`` for 0)."""
+    if not word:
+        return "none"
+    names = [b.name for b in ErrorBit if word & b and b.name]
+    rest = word & ~sum(int(b) for b in ErrorBit)
+    if rest:
+        names.append(f"device-specific 0x{rest:04x}")
+    return ", ".join(str(n) for n in names)
+
+
+class PacketKind(enum.Enum):
+    """The 8 instruction packet types of the seed."""
+
+    WRITE = "User-Register-Write"
+    READ_REQUEST = "User-Register-Read-Request"
+    READ_RESPONSE = "User-Register-Read-Response"
+    HANDSHAKE_REQUEST = "Handshake-Request"
+    HANDSHAKE_RESPONSE = "Handshake-Response"
+    ERROR_WORD_REQUEST = "Get-Error-Word-Request"
+    ERROR_WORD_RESPONSE = "Get-Error-Word-Response"
+    SET = "Set"
+
+
+REPLY_KINDS = frozenset({PacketKind.READ_RESPONSE, PacketKind.HANDSHAKE_RESPONSE,
+                         PacketKind.ERROR_WORD_RESPONSE})
+
+
+class Packet(NamedTuple):
+    """A decoded, check-verified frame.
+
+    ``address`` is the 7-bit slave address (0 = broadcast) for requests and
+    127 for replies; ``pid`` the register (RPID) or 0x7F/0x7E/Set value.
+    """
+
+    kind: PacketKind
+    address: int
+    pid: int
+    data: bytes
+    check: int
+    raw: bytes
+
+    @property
+    def register(self) -> int:
+        """First register of a write, read request or read response."""
+        return self.pid
+
+    @property
+    def count(self) -> int:
+        """RCBN of a read request, else the number of data bytes."""
+        if self.kind is PacketKind.READ_REQUEST:
+            return self.data[0]
+        return len(self.data)
+
+    @property
+    def command(self) -> SetCommand:
+        """The sub-type of a Set packet."""
+        return SetCommand(self.pid)
+
+    @property
+    def error_word(self) -> int:
+        """ERRH << 8 | ERRL of a Get-Error-Word-Response."""
+        return (self.data[0] << 8) | self.data[1]
+
+    @property
+    def handshake_value(self) -> int:
+        """The SDOC/SDIC byte carried by a Handshake-Response."""
+        return self.data[0]
+
+
+class ParseIssue(enum.Enum):
+    """Why the parser dropped bytes."""
+
+    GARBAGE = "bytes outside any frame"
+    BAD_LENGTH = "start bytes followed by an impossible address/length"
+    BAD_CHECK = "check byte does not match"
+    UNKNOWN_PACKET = "valid check byte but no G485 packet type fits PID/length/address"
+    STALE = "incomplete frame expired (line idle)"
+
+
+class Discarded(NamedTuple):
+    """Bytes the parser dropped, and why.
+
+    For ``BAD_CHECK`` ``data`` is the whole candidate frame; the parser then
+    resynchronises from the candidate's second byte (a corrupted length byte
+    must not swallow the next frame), so its later bytes may be reported
+    again as garbage.
+    """
+
+    data: bytes
+    issue: ParseIssue
+    detail: str
+
+
+Event = Union[Packet, Discarded]
+
+
+def check_byte(body: bytes) -> int:
+    """CHECK of ADDRESS..DATA (the frame without FF FF and without CHECK)."""
+    return ~sum(body) & 0xFF
+
+
+def frame(address_byte: int, pid: int, data: bytes = b"") -> bytes:
+    """A frame from its raw fields, unchecked (the encoders below validate first)."""
+    body = bytes((address_byte, len(data) + 2, pid)) + data
+    return START + body + bytes((~sum(body) & 0xFF,))
+
+
+_frame = frame
+
+
+# -- argument checks ---------------------------------------------------------
+
+def _check_address(address: int, *, broadcast_ok: bool, what: str) -> None:
+    if not isinstance(address, int) or isinstance(address, bool):
+        raise G485ValueError(f"address must be an int, got {address!r}")
+    if address == BROADCAST:
+        if broadcast_ok:
+            return
+        raise BroadcastReadError(
+            f"{what} cannot be broadcast: G485 allows only User-Register-Write and Set "
+            f"on address 0 (nobody may answer a broadcast)")
+    if not MIN_SLAVE_ADDRESS <= address <= MAX_SLAVE_ADDRESS:
+        raise G485ValueError(f"slave address {address} outside 1..126"
+                             + (" (0 = broadcast)" if broadcast_ok else ""))
+
+
+def check_register_span(register: int, count: int) -> None:
+    """Raise G485ValueError unless registers register..register+count-1 lie in 1..100."""
+    if not isinstance(register, int) or not MIN_REGISTER <= register <= MAX_REGISTER:
+        raise G485ValueError(f"register {register!r} outside 1..100")
+    if not isinstance(count, int) or count < 1:
+        raise G485ValueError(f"count {count!r} must be at least 1")
+    if register + count - 1 > MAX_REGISTER:
+        raise G485ValueError(f"registers {register}..{register + count - 1} run past 100")
+
+
+def _as_data(data: Union[bytes, bytearray, memoryview, List[int], Tuple[int, ...], int]) -> bytes:
+    if isinstance(data, int) and not isinstance(data, bool):
+        data = [data]
+    try:
+        return bytes(data)
+    except (ValueError, TypeError) as exc:
+        raise G485ValueError(f"register data must be bytes or ints 0..255: {exc}") from None
+
+
+# -- encoders (the 8 packet types) -------------------------------------------
+
+def encode_write(address: int, register: int, data: Union[bytes, List[int], int]) -> bytes:
+    """User-Register-Write (address 0 = broadcast)."""
+    _check_address(address, broadcast_ok=True, what="write")
+    payload = _as_data(data)
+    check_register_span(register, len(payload) or 0)
+    return _frame(address << 1, register, payload)
+
+
+def encode_read_request(address: int, register: int, count: int) -> bytes:
+    """User-Register-Read-Request for ``count`` (RCBN) registers."""
+    _check_address(address, broadcast_ok=False, what="a register read")
+    check_register_span(register, count)
+    return _frame((address << 1) | 1, register, bytes((count,)))
+
+
+def encode_read_response(register: int, data: bytes) -> bytes:
+    """User-Register-Read-Response (slave to master)."""
+    payload = _as_data(data)
+    check_register_span(register, len(payload) or 0)
+    return _frame(SMA_R, register, payload)
+
+
+def encode_handshake_request(address: int) -> bytes:
+    """Handshake-Request."""
+    _check_address(address, broadcast_ok=False, what="a handshake")
+    return _frame((address << 1) | 1, HPID)
+
+
+def encode_handshake_response(value: int) -> bytes:
+    """Handshake-Response carrying the slave's SDOC/SDIC."""
+    if not 0 <= value <= 0xFF:
+        raise G485ValueError(f"handshake value {value} outside 0..255")
+    return _frame(SMA_R, HPID, bytes((value,)))
+
+
+def encode_error_word_request(address: int) -> bytes:
+    """Get-Error-Word-Request."""
+    _check_address(address, broadcast_ok=False, what="an error-word read")
+    return _frame((address << 1) | 1, EPID)
+
+
+def encode_error_word_response(word: int) -> bytes:
+    """Get-Error-Word-Response, ERRH first."""
+    if not 0 <= word <= 0xFFFF:
+        raise G485ValueError(f"error word {word} outside 0..0xffff")
+    return _frame(SMA_R, EPID, bytes((word >> 8, word & 0xFF)))
+
+
+def encode_set(address: int, command: Union[SetCommand, int, str]) -> bytes:
+    """Set (address 0 = broadcast); ``command`` a SetCommand, its value or name."""
+    _check_address(address, broadcast_ok=True, what="set")
+    return _frame(address << 1, int(set_command(command)))
+
+
+def set_command(command: Union[SetCommand, int, str]) -> SetCommand:
+    """A SetCommand from a member, a value 0x74..0x7D or a name (any case)."""
+    if isinstance(command, SetCommand):
+        return command
+    if isinstance(command, str):
+        try:
+            return SetCommand[command.upper()]
+        except KeyError:
+            raise G485ValueError(f"unknown Set command {command!r}; one of "
+                                 f"{', '.join(c.name for c in SetCommand)}") from None
+    try:
+        return SetCommand(command)
+    except ValueError:
+        raise G485ValueError(f"Set command {command!r} outside 0x74..0x7d") from None
+
+
+# -- classification and strict decoding --------------------------------------
+
+def classify(address_byte: int, length: int, pid: int) -> Optional[PacketKind]:
+    """The packet type a well-checked frame header denotes, or None."""
+    if address_byte == SMA_R:
+        if MIN_REGISTER <= pid <= MAX_REGISTER:
+            if length >= 3 and pid + length - 3 <= MAX_REGISTER:
+                return PacketKind.READ_RESPONSE
+            return None
+        if pid == HPID:
+            return PacketKind.HANDSHAKE_RESPONSE if length == 3 else None
+        if pid == EPID:
+            return PacketKind.ERROR_WORD_RESPONSE if length == 4 else None
+        return None
+    if address_byte & 1:
+        if MIN_REGISTER <= pid <= MAX_REGISTER:
+            return PacketKind.READ_REQUEST if length == 3 else None
+        if pid == HPID:
+            return PacketKind.HANDSHAKE_REQUEST if length == 2 else None
+        if pid == EPID:
+            return PacketKind.ERROR_WORD_REQUEST if length == 2 else None
+        return None
+    if address_byte == (MASTER_ADDRESS << 1):
+        return None  # nobody writes to the master
+    if MIN_REGISTER <= pid <= MAX_REGISTER:
+        if length >= 3 and pid + length - 3 <= MAX_REGISTER:
+            return PacketKind.WRITE
+        return None
+    if pid in _SET_VALUES:
+        return PacketKind.SET if length == 2 else None
+    return None
+
+
+def _packet(kind: PacketKind, frame: bytes) -> Packet:
+    return Packet(kind, frame[2] >> 1, frame[4], frame[5:-1], frame[-1], frame)
+
+
+def decode_frame(frame: bytes) -> Packet:
+    """Decode exactly one frame; raise a G485FrameError subclass saying what is wrong."""
+    frame = bytes(frame)
+    if len(frame) < HEADER_SIZE + MIN_LENGTH or frame[:2] != START:
+        raise G485FrameError(f"not a G485 frame (must start FF FF, at least 6 bytes): {frame.hex(' ')}")
+    length = frame[3]
+    if length + HEADER_SIZE != len(frame):
+        raise G485FrameError(f"length byte {length} but {len(frame) - HEADER_SIZE} bytes follow it")
+    expected = check_byte(frame[2:-1])
+    if expected != frame[-1]:
+        raise CheckByteError(f"bad check byte 0x{frame[-1]:02x}, expected 0x{expected:02x}: "
+                             f"{frame.hex(' ')}", frame)
+    kind = classify(frame[2], length, frame[4])
+    if kind is None:
+        raise UnexpectedReplyError(f"no G485 packet type has address byte 0x{frame[2]:02x}, "
+                                   f"length {length}, PID 0x{frame[4]:02x}")
+    return _packet(kind, frame)
+
+
+# -- streaming parser ---------------------------------------------------------
+
+class Parser:
+    """Streaming G485 parser: feed bytes, get packets and discards.
+
+    It looks for FF FF with ``bytes.find``, takes the next byte as the
+    address (even if it is 0xFF), checks the length byte, waits for the
+    whole frame, then checks the check byte. Anything that fails is reported
+    as :class:`Discarded` and the search restarts one byte later. A partial
+    frame whose rest never comes is dropped by :meth:`expire`, which the
+    I/O layer calls when the line has been idle.
+    """
+
+    __slots__ = ("_buf",)
+
+    def __init__(self) -> None:
+        self._buf = bytearray()
+
+    def clear(self) -> None:
+        """Forget buffered bytes."""
+        del self._buf[:]
+
+    @property
+    def buffered(self) -> int:
+        """Bytes held waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def pending_header(self) -> Optional[Tuple[int, int]]:
+        """(address byte, length byte) of the partial frame held, if known."""
+        buf = self._buf
+        if len(buf) >= HEADER_SIZE:
+            return buf[2], buf[3]
+        return None
+
+    def bytes_wanted(self) -> int:
+        """Bytes still needed to finish the held partial frame (or its header); 0 if none held."""
+        n = len(self._buf)
+        if n == 0:
+            return 0
+        if n < HEADER_SIZE:
+            return HEADER_SIZE - n
+        return HEADER_SIZE + self._buf[3] - n
+
+    def feed(self, data: bytes) -> List[Event]:
+        """Add bytes; return the packets and discards they complete, in order."""
+        buf = self._buf
+        buf += data
+        events: List[Event] = []
+        n = len(buf)
+        pos = 0
+        while True:
+            i = buf.find(START, pos)
+            if i < 0:
+                # a trailing 0xFF may be the first start byte of the next frame
+                end = n - 1 if n > pos and buf[n - 1] == 0xFF else n
+                if end > pos:
+                    events.append(Discarded(bytes(buf[pos:end]), ParseIssue.GARBAGE,
+                                            f"{end - pos} byte(s) without FF FF"))
+                pos = end
+                break
+            if i > pos:
+                events.append(Discarded(bytes(buf[pos:i]), ParseIssue.GARBAGE,
+                                        f"{i - pos} byte(s) before FF FF"))
+                pos = i
+            if n - i < HEADER_SIZE:
+                break
+            length = buf[i + 3]
+            if length < MIN_LENGTH or length > MAX_LENGTH or buf[i + 2] == 0xFE:
+                events.append(Discarded(bytes(buf[i:i + 1]), ParseIssue.BAD_LENGTH,
+                                        f"address byte 0x{buf[i + 2]:02x} length {length}"))
+                pos = i + 1
+                continue
+            end = i + HEADER_SIZE + length
+            if end > n:
+                break
+            frame = bytes(buf[i:end])
+            expected = ~sum(frame[2:-1]) & 0xFF
+            if expected != frame[-1]:
+                events.append(Discarded(frame, ParseIssue.BAD_CHECK,
+                                        f"check 0x{frame[-1]:02x}, expected 0x{expected:02x}"))
+                pos = i + 1
+                continue
+            kind = classify(frame[2], length, frame[4])
+            if kind is None:
+                events.append(Discarded(frame, ParseIssue.UNKNOWN_PACKET,
+                                        f"address byte 0x{frame[2]:02x} length {length} "
+                                        f"PID 0x{frame[4]:02x}"))
+            else:
+                events.append(Packet(kind, frame[2] >> 1, frame[4], frame[5:-1], frame[-1], frame))
+            pos = end
+        if pos:
+            del buf[:pos]
+        return events
+
+    def expire(self) -> List[Event]:
+        """The line went idle: drop held partial frames byte by byte, re-parsing the rest."""
+        events: List[Event] = []
+        while self._buf:
+            events.append(Discarded(bytes(self._buf[:1]), ParseIssue.STALE,
+                                    f"{len(self._buf)} byte(s) of an unfinished frame"))
+            del self._buf[:1]
+            events.extend(self.feed(b""))
+        return events

@@ -1,0 +1,434 @@
+"""mikroC RS-485 library (master/slave, 0..3 data bytes per frame).
+
+The frame codec and the master/slave logic run in libfap's C core
+(``include/mikroc_rs485.h``); this module calls them through cffi.
+
+Frame on the wire::
+
+    0x96 | ADDRESS | DATALEN | DATA1..3 | CRC | 0xA9
+
+Codec (no I/O)::
+
+    frame = encode(0x12, b"\\x01\\x02")              # master -> slave 0x12
+    for event in Decoder().feed(frame):              # Message or a FrameError
+        ...
+
+Nodes on a serial port (or a :class:`fap_py.vbus.VirtualBus` port)::
+
+    with Master("/dev/ttyUSB0", 19200) as m, ...:
+        m.send(0x12, b"\\x01")
+        reply = m.receive(timeout=0.5)               # Message(address=0x12, ...)
+
+    with Slave("/dev/ttyUSB1", 19200, address=0x12) as s:
+        msg = s.receive(timeout=None)                # blocks until a frame for us
+        s.send(b"\\x02")
+
+Rules (docs/mikroc.md): address 50 is broadcast (every slave but those at
+150 and 169 takes it); slaves ignore frames for other addresses and frames
+sent by other slaves; a damaged frame whose address (and direction) say it
+is for this node raises a :class:`MikrocFrameError` subclass from
+``receive``; more than 3 data bytes is refused, never truncated.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from dataclasses import dataclass
+from typing import List, Optional, Union
+
+from ._native import ffi, lib
+from .errors import (
+    ClosedError,
+    FapTimeoutError,
+    FrameError,
+    InvalidValueError,
+    error_from_code,
+)
+
+__all__ = [
+    "BROADCAST",
+    "MAX_DATA",
+    "START_BYTE",
+    "STOP_BYTE",
+    "AbortedFrameError",
+    "ChecksumError",
+    "Decoder",
+    "FormatError",
+    "LongFrameError",
+    "Master",
+    "Message",
+    "MikrocFrameError",
+    "NodeStats",
+    "OverrunError",
+    "ShortFrameError",
+    "Slave",
+    "decode",
+    "encode",
+]
+
+log = logging.getLogger(__name__)
+
+START_BYTE: int = lib.MIKROC_RS485_START_BYTE
+STOP_BYTE: int = lib.MIKROC_RS485_STOP_BYTE
+BROADCAST: int = lib.MIKROC_RS485_BROADCAST
+MAX_DATA: int = lib.MIKROC_RS485_MAX_DATA
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+# ---- errors ---------------------------------------------------------------
+
+class MikrocFrameError(FrameError):
+    """A mikroC frame failed its checks. ``code`` is the C MIKROC_RS485_E*
+    value; ``address`` the address it carried, when that arrived."""
+
+    def __init__(self, code: int, address: Optional[int] = None) -> None:
+        text = ffi.string(lib.mikrocRS485_strerror(code)).decode()
+        if address is not None:
+            text = f"{text} (address {address})"
+        super().__init__(text)
+        self.code = code
+        self.address = address
+
+
+class ChecksumError(MikrocFrameError):
+    """The CRC byte does not match the frame."""
+
+
+class FormatError(MikrocFrameError):
+    """DATALEN bit 5 set, or escape flags that do not fit the bytes."""
+
+
+class ShortFrameError(MikrocFrameError):
+    """The stop byte came before the frame was complete."""
+
+
+class LongFrameError(MikrocFrameError):
+    """No stop byte where DATALEN put it."""
+
+
+class AbortedFrameError(MikrocFrameError):
+    """A new start byte cut the frame off."""
+
+
+class OverrunError(MikrocFrameError):
+    """A frame arrived while the previous one was still unread."""
+
+
+_ERRORS = {
+    lib.MIKROC_RS485_ECRC: ChecksumError,
+    lib.MIKROC_RS485_EFORMAT: FormatError,
+    lib.MIKROC_RS485_ESHORT: ShortFrameError,
+    lib.MIKROC_RS485_ELONG: LongFrameError,
+    lib.MIKROC_RS485_EABORT: AbortedFrameError,
+    lib.MIKROC_RS485_EOVERRUN: OverrunError,
+}
+
+
+def _frame_error(code: int, address: Optional[int] = None) -> MikrocFrameError:
+    return _ERRORS.get(code, MikrocFrameError)(code, address)
+
+
+# ---- codec ----------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Message:
+    """A valid frame: the address it carried, its data, and its direction.
+
+    For a master the address is the replying slave's; for a slave it is the
+    address the master sent to (its own, or :data:`BROADCAST`)."""
+
+    address: int
+    data: bytes
+    from_master: bool
+
+
+def _check_address(address: int) -> int:
+    if not isinstance(address, int) or not 0 <= address <= 255:
+        raise InvalidValueError(f"address must be 0..255, not {address!r}")
+    return address
+
+
+def _check_data(data: bytes) -> bytes:
+    data = bytes(data)
+    if len(data) > MAX_DATA:
+        raise InvalidValueError(f"a mikroC frame carries 0..{MAX_DATA} data bytes, not {len(data)}")
+    return data
+
+
+def encode(address: int, data: bytes = b"", *, from_master: bool = True) -> bytes:
+    """The frame carrying ``data`` (0..3 bytes) to (master) or from (slave)
+    ``address``, escaped and checksummed by the C codec."""
+    _check_address(address)
+    data = _check_data(data)
+    out = ffi.new("uint8_t[]", lib.MIKROC_RS485_FRAME_MAX)
+    n = lib.mikrocRS485_Encode(out, data, len(data), address, 1 if from_master else 0)
+    if n < 0:
+        raise error_from_code(n, "mikroC encode")
+    return bytes(ffi.buffer(out, n))
+
+
+class Decoder:
+    """Byte-wise decoder (the C state machine). Bytes outside frames are
+    skipped; a 0x96 always starts a new frame."""
+
+    def __init__(self) -> None:
+        self._dec = ffi.new("mikrocRS485_decoder *")
+        self._frame = ffi.new("mikrocRS485_frame *")
+        lib.mikrocRS485_DecoderInit(self._dec)
+
+    def reset(self) -> None:
+        """Forget a half-received frame."""
+        lib.mikrocRS485_DecoderInit(self._dec)
+
+    def feed(self, data: bytes) -> List[Union[Message, MikrocFrameError]]:
+        """Feed received bytes; return the frames and frame errors they
+        completed, in order (errors are returned, not raised)."""
+        events: List[Union[Message, MikrocFrameError]] = []
+        f = self._frame
+        for byte in bytes(data):
+            r = lib.mikrocRS485_DecoderFeed(self._dec, byte, f)
+            if r == lib.MIKROC_RS485_MORE:
+                continue
+            if r == lib.MIKROC_RS485_FRAME:
+                events.append(Message(f.address, bytes(f.data[0:f.count]),
+                                      bool(f.datalen & lib.MIKROC_RS485_DL_MASTER)))
+            else:
+                events.append(_frame_error(r, f.address if f.header else None))
+        return events
+
+
+def decode(frame: bytes) -> Message:
+    """Decode exactly one complete frame; raise its error otherwise."""
+    events = Decoder().feed(frame)
+    if len(events) == 1 and isinstance(events[0], Message):
+        return events[0]
+    for e in events:
+        if isinstance(e, MikrocFrameError):
+            raise e
+    raise FrameError(f"not exactly one mikroC frame: {frame.hex()}")
+
+
+# ---- nodes on a port ------------------------------------------------------
+
+@dataclass(frozen=True)
+class NodeStats:
+    """Counters of a master or slave (``mikrocRS485_stats``)."""
+
+    frames: int      #: frames delivered
+    errors: int      #: damaged frames for this node (and overruns)
+    overruns: int    #: frames not stored because the last one was unread
+    ignored: int     #: valid frames for another address or direction
+    damaged: int     #: damaged frames heard, for any address
+
+
+_SLICE_MS = 200   # longest single wait in C, so close() is noticed
+
+_MODES = {                      # fap_rs485_mode (include/fap_port.h)
+    "auto": lib.FAP_RS485_AUTO,
+    "kernel": lib.FAP_RS485_KERNEL,
+    "soft_rts": lib.FAP_RS485_SOFT_RTS,
+    "none": lib.FAP_RS485_NONE,
+}
+
+
+def _timeout_ms(timeout: Optional[float]) -> int:
+    if timeout is None:
+        return -1
+    try:
+        t = float(timeout)
+    except (TypeError, ValueError) as exc:
+        raise InvalidValueError(f"timeout must be seconds or None, not {timeout!r}") from exc
+    if t < 0 or math.isnan(t):
+        raise InvalidValueError(f"timeout must be >= 0, not {timeout!r}")
+    return min(math.ceil(t * 1000.0), 0x7FFFFFFF)
+
+
+class _Node:
+    _buffer_size = 7
+
+    def __init__(self, port_path: PathLike, baudrate: int, rs485_mode: Optional[str],
+                 echo_suppression: bool) -> None:
+        self.path = os.fspath(port_path)
+        self._lock = threading.Lock()      # receive side: one receiver at a time
+        self._tx_lock = threading.Lock()   # send side (may run beside a receive)
+        self._closing = False
+        self._ctx = ffi.new("mikrocRS485_ctx *")
+        self._init_ctx()
+        opts = ffi.NULL
+        if rs485_mode is not None or echo_suppression:
+            if rs485_mode is not None and rs485_mode not in _MODES:
+                raise InvalidValueError(f"rs485_mode must be one of {sorted(_MODES)}, not {rs485_mode!r}")
+            opts = ffi.new("fap_port_options *")
+            lib.fap_port_options_init(opts)
+            if rs485_mode is not None:
+                opts.rs485_mode = _MODES[rs485_mode]
+            opts.echo_suppression = 1 if echo_suppression else 0
+        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+            raise InvalidValueError(f"baudrate must be a positive int, not {baudrate!r}")
+        r = lib.mikrocRS485_CtxOpen(self._ctx, self.path.encode(), baudrate, opts)
+        if r < 0:
+            raise error_from_code(r, "open", self.path)
+        self._open = True
+        log.debug("%s opened %s at %d baud", type(self).__name__, self.path, baudrate)
+
+    def _init_ctx(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> "_Node":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # interpreter shutdown
+            pass
+
+    @property
+    def closed(self) -> bool:
+        return not getattr(self, "_open", False)
+
+    def close(self) -> None:
+        """Close the port (idempotent). A receive() running in another
+        thread ends with ClosedError within a fraction of a second."""
+        if getattr(self, "_open", False):
+            self._closing = True
+            with self._lock, self._tx_lock:
+                if self._open:
+                    self._open = False
+                    lib.mikrocRS485_CtxClose(self._ctx)
+
+    def _check_open(self) -> None:
+        if not getattr(self, "_open", False):
+            raise ClosedError(f"{type(self).__name__} on {self.path} is closed")
+
+    @property
+    def stats(self) -> NodeStats:
+        st = ffi.new("mikrocRS485_stats *")
+        lib.mikrocRS485_CtxGetStats(self._ctx, st)
+        return NodeStats(st.frames, st.errors, st.overruns, st.ignored, st.damaged)
+
+    def _send(self, data: bytes, address: int) -> None:
+        with self._tx_lock:
+            self._check_open()
+            r = lib.mikrocRS485_CtxSend(self._ctx, data, len(data), address)
+        if r < 0:
+            raise error_from_code(r, "send", self.path)
+
+    def _poll(self, buf, ms: int) -> int:
+        """CtxPoll in slices, so that close() from another thread is seen."""
+        end = None if ms < 0 else time.monotonic() + ms / 1000.0
+        while True:
+            if self._closing:
+                raise ClosedError(f"{type(self).__name__} on {self.path} was closed")
+            left = _SLICE_MS if end is None else max(0, math.ceil((end - time.monotonic()) * 1000.0))
+            r = lib.mikrocRS485_CtxPoll(self._ctx, buf, min(left, _SLICE_MS))
+            if r != 0 or (end is not None and left <= _SLICE_MS):
+                return r
+
+    def _receive(self, timeout: Optional[float], from_master: bool) -> Message:
+        ms = _timeout_ms(timeout)
+        with self._lock:
+            self._check_open()
+            buf = ffi.new("char[]", self._buffer_size)   # fresh: flags cleared
+            r = self._poll(buf, ms)
+            if r == 0:
+                raise FapTimeoutError(f"{self.path}: no mikroC frame within {timeout} s")
+            if r < 0:
+                raise error_from_code(r, "receive", self.path)
+            st = ffi.new("mikrocRS485_stats *")
+            lib.mikrocRS485_CtxGetStats(self._ctx, st)
+            raw = bytes(ffi.buffer(buf, self._buffer_size))
+        if r & lib.MIKROC_RS485_POLL_ERROR:
+            err = _frame_error(st.last_rx_error)
+            log.debug("%s: %s", self.path, err)
+            raise err
+        address = raw[6] if self._buffer_size == 7 else st.last_address
+        msg = Message(address, raw[0:raw[3]], from_master)
+        log.debug("%s: rx %s", self.path, msg)
+        return msg
+
+
+class Master(_Node):
+    """A mikroC master on a serial port: ``send`` to a slave, ``receive`` its
+    reply. Runs the C master (``mikrocRS485_CtxInitMaster``)."""
+
+    def __init__(self, port_path: PathLike, baudrate: int = 19200, *,
+                 rs485_mode: Optional[str] = None, echo_suppression: bool = False) -> None:
+        """Open ``port_path``. ``rs485_mode`` is "auto" (default of the port
+        layer), "kernel", "soft_rts" or "none"; see docs/port.md."""
+        super().__init__(port_path, baudrate, rs485_mode, echo_suppression)
+
+    def _init_ctx(self) -> None:
+        lib.mikrocRS485_CtxInitMaster(self._ctx)
+
+    def send(self, address: int, data: bytes = b"") -> None:
+        """Send 0..3 bytes to slave ``address`` (50 = broadcast). Input that
+        arrived before (a late reply to an earlier request, a half frame) is
+        discarded first, so the next ``receive`` returns a reply to this
+        (not when a receive() is already running in another thread)."""
+        _check_address(address)
+        data = _check_data(data)
+        self._check_open()
+        # Skipped while another thread already waits in receive(): that
+        # thread owns the receive side, and what it gets is its business.
+        if self._lock.acquire(blocking=False):
+            try:
+                self._check_open()
+                r = lib.mikrocRS485_CtxResetRx(self._ctx)
+            finally:
+                self._lock.release()
+            if r < 0:
+                raise error_from_code(r, "flush", self.path)
+        log.debug("%s: tx to %d %s", self.path, address, data.hex())
+        self._send(data, address)
+
+    def receive(self, timeout: Optional[float] = 1.0) -> Message:
+        """The next frame from a slave: Message(address=slave, data).
+        Raises FapTimeoutError, or a MikrocFrameError subclass for a damaged
+        frame."""
+        return self._receive(timeout, from_master=False)
+
+    def request(self, address: int, data: bytes = b"", timeout: Optional[float] = 1.0) -> Message:
+        """``send`` then ``receive``; the reply must come from ``address``."""
+        self.send(address, data)
+        reply = self.receive(timeout)
+        if reply.address != address:
+            raise FrameError(f"reply from slave {reply.address}, expected {address}")
+        return reply
+
+
+class Slave(_Node):
+    """A mikroC slave at ``address``: ``receive`` frames for it (and
+    broadcasts), ``send`` replies. Runs the C slave."""
+
+    _buffer_size = 6
+
+    def __init__(self, port_path: PathLike, baudrate: int = 19200, address: int = 1, *,
+                 rs485_mode: Optional[str] = None, echo_suppression: bool = False) -> None:
+        self.address = _check_address(address)
+        super().__init__(port_path, baudrate, rs485_mode, echo_suppression)
+
+    def _init_ctx(self) -> None:
+        lib.mikrocRS485_CtxInitSlave(self._ctx, self.address)
+
+    def send(self, data: bytes = b"") -> None:
+        """Reply with 0..3 bytes (from this slave's address)."""
+        data = _check_data(data)
+        log.debug("%s: tx from %d %s", self.path, self.address, data.hex())
+        self._send(data, self.address)
+
+    def receive(self, timeout: Optional[float] = 1.0) -> Message:
+        """The next frame for this slave: Message(address=own or BROADCAST).
+        Raises FapTimeoutError, or a MikrocFrameError subclass for a damaged
+        frame addressed to it."""
+        return self._receive(timeout, from_master=True)
+
+    def __repr__(self) -> str:
+        return f"Slave({self.path!r}, address={self.address})"

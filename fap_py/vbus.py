@@ -1,0 +1,338 @@
+"""Virtual multi-drop RS-485 bus for tests, demos and benchmarks.
+
+:class:`VirtualBus` wraps libfap's C bus (``include/fap_vbus.h``): N
+pseudo-terminal ports that behave as one 2-wire bus. Every byte written on
+one port reaches every other port (and the sender too with ``echo=True``).
+With ``baud`` set, delivery is paced at 10 bits per byte and overlapping
+transmissions collide (both arrive bit-inverted). Faults are seeded and
+reproducible. A relay thread in C does the copying, so Python code using the
+bus (or a C program opened on one of :attr:`VirtualBus.paths`) runs freely.
+
+:func:`read_capture` parses the capture file the bus writes with
+``capture=PATH`` (format in ``docs/vbus.md``).
+
+Example::
+
+    with VirtualBus(ports=3, baud=9600) as bus:
+        a, b, c = bus.paths          # open these like serial devices
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, Iterable, List, Optional, Union
+
+from .errors import ClosedError, InvalidValueError, error_from_code
+
+__all__ = [
+    "MAX_PORTS",
+    "Capture",
+    "CaptureEvent",
+    "CaptureFormatError",
+    "CaptureRecord",
+    "VirtualBus",
+    "VirtualBusStats",
+    "parse_capture",
+    "read_capture",
+]
+
+log = logging.getLogger(__name__)
+
+MAX_PORTS = 64                 # FAP_VBUS_MAX_PORTS
+_MAX_MS = 0xFFFFFFFF           # the C API takes unsigned milliseconds
+_MAX_COUNT = 0xFFFFFFFF
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+@dataclass(frozen=True)
+class VirtualBusStats:
+    """Counters of a bus since it opened (``fap_vbus_stats``)."""
+
+    bytes_in: int       #: bytes written by nodes
+    bytes_out: int      #: bytes delivered to nodes
+    collisions: int     #: overlapping transmissions (paced mode)
+    bit_errors: int     #: bytes corrupted by fault injection
+    dropped: int        #: bytes dropped by fault injection or silence
+    overflow: int       #: bytes not delivered because a node did not read
+    disconnects: int    #: simulated disconnects
+
+
+def _check(code: int, what: str) -> int:
+    if code < 0:
+        raise error_from_code(code, what)
+    return code
+
+
+def _to_ms(seconds: float, what: str) -> int:
+    try:
+        ms = round(float(seconds) * 1000.0)
+    except (TypeError, ValueError) as exc:
+        raise InvalidValueError(f"{what}: seconds must be a number, not {seconds!r}") from exc
+    if not 0 <= ms <= _MAX_MS:
+        raise InvalidValueError(f"{what}: seconds out of range: {seconds!r}")
+    return ms
+
+
+class VirtualBus:
+    """A virtual RS-485 bus of ``ports`` pty ports (a context manager).
+
+    Args:
+        ports: number of ports, 2..64.
+        baud: pace delivery at this rate (10 bits per byte) and detect
+            collisions; ``None`` or 0 relays as fast as the ptys go.
+        echo: also deliver each byte back to its sender.
+        link_dir: directory for the stable port symlinks ``port0..``
+            (created if missing); default a private temporary directory.
+        capture: record every byte on the bus in this file.
+        seed: seed of every random fault (runs with the same seed and the
+            same traffic see the same faults).
+
+    Raises:
+        InvalidValueError: bad arguments.
+        PortError: the ptys, symlinks or capture file could not be made.
+    """
+
+    def __init__(self, ports: int = 3, baud: Optional[int] = None, echo: bool = False,
+                 link_dir: Optional[PathLike] = None, capture: Optional[PathLike] = None,
+                 seed: int = 0) -> None:
+        from ._native import ffi, lib
+
+        self._ffi, self._lib = ffi, lib
+        self._lock = threading.Lock()
+        self._bus = ffi.NULL
+        if isinstance(ports, bool) or not isinstance(ports, int) or not 2 <= ports <= MAX_PORTS:
+            raise InvalidValueError(f"ports must be an int in 2..{MAX_PORTS}, not {ports!r}")
+        baud = 0 if baud is None else baud
+        if isinstance(baud, bool) or not isinstance(baud, int) or not 0 <= baud <= 10_000_000:
+            raise InvalidValueError(f"baud must be None or an int in 0..10000000, not {baud!r}")
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise InvalidValueError(f"seed must be an int, not {seed!r}")
+        opts = ffi.new("fap_vbus_options *")
+        lib.fap_vbus_options_init(opts)
+        opts.n_ports = ports
+        opts.baud = baud
+        opts.echo = 1 if echo else 0
+        opts.seed = seed & 0xFFFFFFFFFFFFFFFF
+        keep = []   # the C strings must outlive fap_vbus_open
+        if link_dir is not None:
+            keep.append(ffi.new("char[]", os.fsencode(link_dir)))
+            opts.link_dir = keep[-1]
+        if capture is not None:
+            keep.append(ffi.new("char[]", os.fsencode(capture)))
+            opts.capture_path = keep[-1]
+        out = ffi.new("fap_vbus **")
+        code = lib.fap_vbus_open(out, opts)
+        if code < 0:
+            where = ", ".join(f"{k}={os.fsdecode(v)}" for k, v in
+                              (("link_dir", link_dir), ("capture", capture)) if v is not None)
+            raise error_from_code(code, f"fap_vbus_open({where})")
+        self._bus = out[0]
+        self.baud = baud
+        self.echo = bool(echo)
+        self.paths: List[str] = [
+            os.fsdecode(ffi.string(lib.fap_vbus_port_path(self._bus, i))) for i in range(ports)
+        ]
+        log.info("virtual bus open: %d ports, baud %s, echo %s: %s",
+                 ports, baud or "unpaced", self.echo, " ".join(self.paths))
+
+    # -- lifetime ---------------------------------------------------------
+    def __enter__(self) -> "VirtualBus":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # a forgotten bus must not leave a thread running
+        try:
+            self.close()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran."""
+        return self._bus == self._ffi.NULL
+
+    def close(self) -> None:
+        """Stop the relay, close the ptys, remove the symlinks. Idempotent."""
+        lock = getattr(self, "_lock", None)
+        if lock is None:
+            return
+        with lock:
+            bus, self._bus = self._bus, self._ffi.NULL
+            if bus != self._ffi.NULL:
+                self._lib.fap_vbus_close(bus)
+                log.info("virtual bus closed")
+
+    def _handle(self) -> object:  # caller holds self._lock
+        if self._bus == self._ffi.NULL:
+            raise ClosedError("virtual bus is closed")
+        return self._bus
+
+    def _port(self, port: int) -> int:
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < len(self.paths):
+            raise InvalidValueError(f"port must be an int in 0..{len(self.paths) - 1}, not {port!r}")
+        return port
+
+    # -- faults -----------------------------------------------------------
+    def set_fault(self, port: Optional[int] = None, bit_error_rate: float = 0.0,
+                  drop_rate: float = 0.0) -> None:
+        """Random faults on bytes sent by ``port`` (``None``: every port).
+
+        Each byte gets one random bit flipped with probability
+        ``bit_error_rate`` and vanishes with probability ``drop_rate``.
+        0 disables.
+        """
+        p = -1 if port is None else self._port(port)
+        for name, rate in (("bit_error_rate", bit_error_rate), ("drop_rate", drop_rate)):
+            if not isinstance(rate, (int, float)) or not 0.0 <= float(rate) <= 1.0:
+                raise InvalidValueError(f"{name} must be in 0..1, not {rate!r}")
+        with self._lock:
+            _check(self._lib.fap_vbus_set_fault(self._handle(), p, float(bit_error_rate),
+                                                float(drop_rate)), "set_fault")
+
+    def _count(self, n: int) -> int:
+        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= _MAX_COUNT:
+            raise InvalidValueError(f"n must be an int in 0..{_MAX_COUNT}, not {n!r}")
+        return n
+
+    def drop_next(self, port: int, n: int) -> None:
+        """Drop the next ``n`` bytes sent by ``port`` (0 cancels)."""
+        p, n = self._port(port), self._count(n)
+        with self._lock:
+            _check(self._lib.fap_vbus_drop_next(self._handle(), p, n), "drop_next")
+
+    def corrupt_next(self, port: int, n: int) -> None:
+        """Flip one (seeded random) bit in each of the next ``n`` bytes sent by ``port``."""
+        p, n = self._port(port), self._count(n)
+        with self._lock:
+            _check(self._lib.fap_vbus_corrupt_next(self._handle(), p, n), "corrupt_next")
+
+    def silence(self, port: int, seconds: float) -> None:
+        """``port`` goes silent for ``seconds``: its bytes are dropped and it hears nothing."""
+        p, ms = self._port(port), _to_ms(seconds, "silence")
+        with self._lock:
+            _check(self._lib.fap_vbus_silence(self._handle(), p, ms), "silence")
+
+    def disconnect(self, port: int, seconds: float) -> None:
+        """``port`` disconnects for ``seconds``.
+
+        On return the node's open fd is hung up (reads/writes fail with EIO);
+        opening the path fails (ENOENT) until the port comes back at the same
+        path with a new pty.
+        """
+        p, ms = self._port(port), _to_ms(seconds, "disconnect")
+        with self._lock:
+            _check(self._lib.fap_vbus_disconnect(self._handle(), p, ms), "disconnect")
+
+    def stats(self) -> VirtualBusStats:
+        """A snapshot of the bus counters."""
+        st = self._ffi.new("fap_vbus_stats *")
+        with self._lock:
+            self._lib.fap_vbus_get_stats(self._handle(), st)
+        return VirtualBusStats(
+            bytes_in=st.bytes_in, bytes_out=st.bytes_out, collisions=st.collisions,
+            bit_errors=st.bit_errors, dropped=st.dropped, overflow=st.overflow,
+            disconnects=st.disconnects)
+
+    def __repr__(self) -> str:
+        state = "closed" if self.closed else f"{len(self.paths)} ports"
+        return f"<VirtualBus {state} baud={self.baud or 'unpaced'} echo={self.echo}>"
+
+
+# -- capture files ---------------------------------------------------------
+
+class CaptureFormatError(InvalidValueError):
+    """A capture file line does not follow the documented format."""
+
+
+@dataclass(frozen=True)
+class CaptureRecord:
+    """Bytes one port put on the wire (one data line)."""
+
+    t_us: int     #: wire start of data[0], microseconds since the bus opened
+    port: int     #: the sender
+    data: bytes   #: what the receivers got (after faults and collisions)
+
+
+@dataclass(frozen=True)
+class CaptureEvent:
+    """An event line (``# <kind> t=<t_us> key=value ...``)."""
+
+    kind: str
+    t_us: int
+    fields: Dict[str, str] = field(default_factory=dict)
+
+
+@dataclass
+class Capture:
+    """A parsed capture file."""
+
+    header: Dict[str, str] = field(default_factory=dict)
+    records: List[CaptureRecord] = field(default_factory=list)
+    events: List[CaptureEvent] = field(default_factory=list)
+
+    def data_from(self, port: int) -> bytes:
+        """Everything ``port`` put on the wire, in order."""
+        return b"".join(r.data for r in self.records if r.port == port)
+
+    def events_of(self, kind: str) -> List[CaptureEvent]:
+        """The events of one kind (``collision``, ``fault``, ``overflow`` ...)."""
+        return [e for e in self.events if e.kind == kind]
+
+
+def _fields(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
+    out = {}
+    for tok in tokens:
+        key, sep, value = tok.partition("=")
+        if not sep or not key:
+            raise CaptureFormatError(f"line {lineno}: expected key=value, got {tok!r}")
+        out[key] = value
+    return out
+
+
+def parse_capture(lines: Iterable[str]) -> Capture:
+    """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+    cap = Capture()
+    for lineno, raw in enumerate(lines, 1):
+        line = raw.strip()
+        if not line:
+            continue
+        if line.startswith("#"):
+            tokens = line[1:].split()
+            if not tokens:
+                continue
+            kind = tokens[0]
+            if kind == "fap-vbus-capture":
+                if len(tokens) < 2 or tokens[1] != "1":
+                    raise CaptureFormatError(f"line {lineno}: unsupported capture version")
+                cap.header = _fields(tokens[2:], lineno)
+                continue
+            f = _fields(tokens[1:], lineno)
+            try:
+                t_us = int(f.pop("t"))
+            except (KeyError, ValueError) as exc:
+                raise CaptureFormatError(f"line {lineno}: event without t=<us>") from exc
+            cap.events.append(CaptureEvent(kind, t_us, f))
+            continue
+        parts = line.split()
+        try:
+            t_us, port = int(parts[0]), int(parts[1])
+            data = bytes(int(h, 16) for h in parts[2:])
+        except (IndexError, ValueError) as exc:
+            raise CaptureFormatError(f"line {lineno}: bad data line {line!r}") from exc
+        if not parts[2:] or any(len(h) != 2 for h in parts[2:]):
+            raise CaptureFormatError(f"line {lineno}: bad data line {line!r}")
+        cap.records.append(CaptureRecord(t_us, port, data))
+    return cap
+
+
+def read_capture(path: PathLike) -> Capture:
+    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``."""
+    with open(Path(path), "r", encoding="ascii") as fh:
+        return parse_capture(fh)
+

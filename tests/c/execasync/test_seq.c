@@ -1,0 +1,127 @@
+/* Sans-I/O sequence logic with a fake clock: the settled numbering rule,
+ * master retries (timeout, CRC error, stray frames) and the slave's
+ * process / resend / ignore decisions. */
+#include <errno.h>
+
+#include "execasync/seq_logic.h"
+#include "unit.h"
+
+static struct execAsyncStateDef frame(byte status, byte node, byte seq)
+{
+    struct execAsyncStateDef st;
+    memset(&st, 0, sizeof st);
+    st.Status = status;
+    st.Node = node;
+    st.SeqNo = seq;
+    return st;
+}
+
+static void test_numbering_rule(void)
+{
+    /* the vectors' "sequence": 0 1 2 ... 254 255 1 2 */
+    lf_exec_mseq m;
+    memset(&m, 0, sizeof m);
+    CHECK_EQ(m.next[7], 0);
+    uint8_t s = 0;
+    unsigned seen = 0;
+    for (int i = 0; i < 600; i++) {
+        uint8_t n = lf_exec_seq_next(s);
+        CHECK(n != 0);
+        CHECK(n == (s == 255 ? 1 : s + 1));
+        s = n;
+        seen++;
+    }
+    CHECK_EQ(lf_exec_seq_next(0), 1);
+    CHECK_EQ(lf_exec_seq_next(254), 255);
+    CHECK_EQ(lf_exec_seq_next(255), 1);
+    CHECK_EQ(seen, 600);
+}
+
+static void test_master_reply_first_time(void)
+{
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 3, 0, 2, 5 * LF_NS_PER_MS);
+    lf_exec_mtx_sent(&t, 1000);
+    CHECK_EQ(lf_exec_mtx_on_time(&t, 1000 + 4 * LF_NS_PER_MS), LF_EXEC_M_WAIT);
+    struct execAsyncStateDef st = frame(EXEC_ASYNC_GOOD, 3, 0);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &st), LF_EXEC_M_DONE);
+    CHECK_EQ(t.event, LF_EXEC_EV_REPLY);
+    CHECK_EQ(t.attempt, 1);
+}
+
+static void test_master_timeout_retries_then_fails(void)
+{
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 3, 9, 2, 5 * LF_NS_PER_MS);
+    lf_ns now = 0;
+    lf_exec_mtx_sent(&t, now);
+    for (int attempt = 1; attempt <= 2; attempt++) {
+        now += 5 * LF_NS_PER_MS;
+        CHECK_EQ(lf_exec_mtx_on_time(&t, now), LF_EXEC_M_SEND);
+        CHECK_EQ(t.seq, 9);                   /* same seq on every attempt */
+        lf_exec_mtx_sent(&t, now);
+    }
+    now += 5 * LF_NS_PER_MS;
+    CHECK_EQ(lf_exec_mtx_on_time(&t, now), LF_EXEC_M_FAIL);
+    CHECK_EQ(t.last_error, -ETIMEDOUT);
+    CHECK_EQ(t.attempt, 3);
+}
+
+static void test_master_crc_error_retries_at_once(void)
+{
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 3, 9, 1, 5 * LF_NS_PER_MS);
+    lf_exec_mtx_sent(&t, 0);
+    struct execAsyncStateDef bad = frame(EXEC_ASYNC_BAD_CRC, 3, 9);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &bad), LF_EXEC_M_SEND);
+    CHECK_EQ(t.event, LF_EXEC_EV_CORRUPT);
+    lf_exec_mtx_sent(&t, 1);
+    struct execAsyncStateDef framing = frame(EXEC_ASYNC_FRAMING, 0, 0);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &framing), LF_EXEC_M_FAIL);
+    CHECK_EQ(t.last_error, -EBADMSG);
+}
+
+static void test_master_ignores_stray_frames(void)
+{
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 3, 9, 0, 5 * LF_NS_PER_MS);
+    lf_exec_mtx_sent(&t, 0);
+    struct execAsyncStateDef other_node = frame(EXEC_ASYNC_GOOD, 4, 9);
+    struct execAsyncStateDef old_seq = frame(EXEC_ASYNC_GOOD, 3, 8);
+    struct execAsyncStateDef ours = frame(EXEC_ASYNC_GOOD, 3, 9);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &other_node), LF_EXEC_M_WAIT);
+    CHECK_EQ(t.event, LF_EXEC_EV_UNEXPECTED);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &old_seq), LF_EXEC_M_WAIT);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &ours), LF_EXEC_M_DONE);
+}
+
+static void test_slave_rules(void)
+{
+    lf_exec_sseq s = {.node = 5};
+    struct execAsyncStateDef f;
+    f = frame(EXEC_ASYNC_GOOD, 5, 7);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_PROCESS);   /* first ever */
+    lf_exec_sseq_commit(&s, 7);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_RESEND);    /* repeat = retry */
+    f = frame(EXEC_ASYNC_GOOD, 5, 8);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_PROCESS);
+    lf_exec_sseq_commit(&s, 8);
+    f = frame(EXEC_ASYNC_GOOD, 5, 0);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_PROCESS);
+    lf_exec_sseq_commit(&s, 0);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_PROCESS);   /* 0 always */
+    f = frame(EXEC_ASYNC_GOOD, 6, 1);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_IGNORE);    /* other node */
+    f = frame(EXEC_ASYNC_BAD_CRC, 5, 1);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_IGNORE);
+    f = frame(EXEC_ASYNC_OVERFLOW, 5, 1);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_IGNORE);
+    f = frame(EXEC_ASYNC_GOOD, 255, 0);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_BROADCAST);
+    f = frame(EXEC_ASYNC_GOOD, 255, 0);
+    CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_BROADCAST); /* never "retried" */
+}
+
+UNIT_MAIN(UNIT(test_numbering_rule), UNIT(test_master_reply_first_time),
+          UNIT(test_master_timeout_retries_then_fails), UNIT(test_master_crc_error_retries_at_once),
+          UNIT(test_master_ignores_stray_frames), UNIT(test_slave_rules))

@@ -1,0 +1,513 @@
+/* Port layer through a fake OS backend: a real pty underneath, but the
+ * RS-485 and modem-line ioctls a pty refuses are answered by the fake, which
+ * records them (and write / tcdrain / sleeps) in order, and can fail any of
+ * them with a chosen errno. Covers kernel mode (the serial_rs485 struct,
+ * restore on close, error paths), soft-RTS ordering and its error paths,
+ * EINTR and partial writes, and the turnaround wait. */
+#include <linux/serial.h>
+#include <sys/ioctl.h>
+
+#include "fap_port.h"
+#include "port/port_backend.h"
+#include "pty_util.h"
+#include "unit.h"
+
+enum ev_kind { EV_RTS_SET, EV_RTS_CLEAR, EV_WRITE, EV_DRAIN, EV_SLEEP, EV_GRS485, EV_SRS485 };
+
+typedef struct fake_ev {
+    enum ev_kind kind;
+    int64_t value;     /* write: bytes taken; sleep: deadline ns */
+    int64_t at_ns;     /* when it was called */
+} fake_ev;
+
+typedef struct fake {
+    /* the simulated UART's RS-485 state */
+    int has_rs485;
+    struct serial_rs485 rs485;
+    struct serial_rs485 sets[8];   /* every TIOCSRS485 argument, in order */
+    int nsets;
+    /* errnos to fail with (0 = succeed) */
+    int fail_grs485, fail_srs485, fail_mbis, fail_mbic, fail_write, fail_read, fail_drain;
+    int eintr_writes;      /* this many writes fail with EINTR first */
+    int eintr_reads;
+    size_t write_chunk;    /* >0: accept at most this many bytes per write */
+    fake_ev ev[64];
+    int nev;
+} fake;
+
+static void rec(fake *f, enum ev_kind k, int64_t v)
+{
+    if (f->nev < 64)
+        f->ev[f->nev++] = (fake_ev){k, v, tp_now_ns()};
+}
+
+static int f_open(void *c, const char *path, int flags) { (void)c; return open(path, flags); }
+static int f_close(void *c, int fd) { (void)c; return close(fd); }
+static int f_tcgetattr(void *c, int fd, struct termios *t) { (void)c; return tcgetattr(fd, t); }
+static int f_tcsetattr(void *c, int fd, int a, const struct termios *t) { (void)c; return tcsetattr(fd, a, t); }
+static int f_tcflush(void *c, int fd, int q) { (void)c; return tcflush(fd, q); }
+static int f_flock(void *c, int fd, int op) { (void)c; return lf_port_posix_backend.flock(NULL, fd, op); }
+static int f_poll(void *c, struct pollfd *p, nfds_t n, int ms) { (void)c; return poll(p, n, ms); }
+
+static int f_ioctl(void *c, int fd, unsigned long req, void *arg)
+{
+    fake *f = c;
+    int fail = 0;
+    switch (req) {
+    case TIOCGRS485:
+        rec(f, EV_GRS485, 0);
+        fail = f->has_rs485 ? f->fail_grs485 : ENOTTY;
+        if (!fail)
+            *(struct serial_rs485 *)arg = f->rs485;
+        break;
+    case TIOCSRS485:
+        rec(f, EV_SRS485, 0);
+        fail = f->has_rs485 ? f->fail_srs485 : ENOTTY;
+        if (!fail) {
+            if (f->nsets < 8)
+                f->sets[f->nsets++] = *(struct serial_rs485 *)arg;
+            f->rs485 = *(struct serial_rs485 *)arg;
+        }
+        break;
+    case TIOCMBIS:
+    case TIOCMBIC:
+        rec(f, req == TIOCMBIS ? EV_RTS_SET : EV_RTS_CLEAR, *(int *)arg);
+        fail = req == TIOCMBIS ? f->fail_mbis : f->fail_mbic;
+        break;
+    default:
+        return ioctl(fd, req, arg);   /* TIOCEXCL / TIOCNXCL: the real pty */
+    }
+    if (fail) {
+        errno = fail;
+        return -1;
+    }
+    return 0;
+}
+
+static ssize_t f_write(void *c, int fd, const void *b, size_t n)
+{
+    fake *f = c;
+    if (f->eintr_writes > 0) {
+        f->eintr_writes--;
+        errno = EINTR;
+        return -1;
+    }
+    if (f->fail_write) {
+        rec(f, EV_WRITE, -f->fail_write);
+        errno = f->fail_write;
+        return -1;
+    }
+    if (f->write_chunk && n > f->write_chunk)
+        n = f->write_chunk;
+    ssize_t r = write(fd, b, n);
+    if (r > 0)
+        rec(f, EV_WRITE, r);
+    return r;
+}
+
+static ssize_t f_read(void *c, int fd, void *b, size_t n)
+{
+    fake *f = c;
+    if (f->eintr_reads > 0) {
+        f->eintr_reads--;
+        errno = EINTR;
+        return -1;
+    }
+    if (f->fail_read) {
+        errno = f->fail_read;
+        return -1;
+    }
+    return read(fd, b, n);
+}
+
+static int f_tcdrain(void *c, int fd)
+{
+    fake *f = c;
+    rec(f, EV_DRAIN, 0);
+    if (f->fail_drain) {
+        errno = f->fail_drain;
+        return -1;
+    }
+    return tcdrain(fd);
+}
+
+static void f_sleep_until(void *c, int64_t deadline)
+{
+    rec(c, EV_SLEEP, deadline);   /* recorded, not slept: the tests stay fast */
+}
+
+static const lf_port_backend fake_backend = {
+    .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcgetattr,
+    .tcsetattr = f_tcsetattr, .tcflush = f_tcflush, .tcdrain = f_tcdrain,
+    .flock = f_flock, .read = f_read, .write = f_write, .poll = f_poll,
+    .sleep_until = f_sleep_until,
+};
+
+static fap_port_options opts_mode(fap_rs485_mode m)
+{
+    fap_port_options o;
+    fap_port_options_init(&o);
+    o.rs485_mode = m;
+    return o;
+}
+
+/* A UART that had RS-485 configured by someone else before us. */
+static void fake_uart(fake *f)
+{
+    memset(f, 0, sizeof *f);
+    f->has_rs485 = 1;
+    f->rs485.flags = SER_RS485_RTS_AFTER_SEND;
+    f->rs485.delay_rts_before_send = 7;
+    f->rs485.delay_rts_after_send = 9;
+}
+
+/* ---- kernel mode --------------------------------------------------------- */
+
+static void test_kernel_active_high(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    struct serial_rs485 before = f.rs485;
+    fap_port_options o = opts_mode(FAP_RS485_KERNEL);
+    o.rts_active_high = 1;
+    o.delay_before_send_us = 1500;   /* -> 2 ms, rounded up */
+    o.delay_after_send_us = 1;       /* -> 1 ms */
+    o.rx_during_tx = 1;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_KERNEL);
+    MUST(f.nsets == 1);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND | SER_RS485_RX_DURING_TX);
+    CHECK_EQ(f.sets[0].delay_rts_before_send, 2);
+    CHECK_EQ(f.sets[0].delay_rts_after_send, 1);
+    /* The kernel toggles RTS itself: a write is write + drain, no RTS ioctl. */
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "abc", 3), 3);
+    MUST(f.nev == 2);
+    CHECK_EQ(f.ev[0].kind, EV_WRITE);
+    CHECK_EQ(f.ev[1].kind, EV_DRAIN);
+    char m[3];
+    CHECK_EQ(tp_read_exact(t.master, m, 3, 1000), 3);
+    fap_port_close(p);
+    MUST(f.nsets == 2);   /* restored on close */
+    CHECK_MEM(&f.sets[1], &before, sizeof before);
+    CHECK_MEM(&f.rs485, &before, sizeof before);
+    tp_close(&t);
+}
+
+static void test_kernel_active_low(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    fap_port_options o = opts_mode(FAP_RS485_KERNEL);
+    o.rts_active_high = 0;
+    o.delay_before_send_us = 0;
+    o.delay_after_send_us = 100000;   /* 100 ms */
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    MUST(f.nsets == 1);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND);
+    CHECK_EQ(f.sets[0].delay_rts_before_send, 0);
+    CHECK_EQ(f.sets[0].delay_rts_after_send, 100);
+    fap_port_close(p);
+    CHECK_EQ(f.nsets, 2);
+    CHECK_EQ(f.rs485.delay_rts_before_send, 7);
+    tp_close(&t);
+}
+
+static void test_auto_gets_kernel(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, NULL, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_KERNEL);
+    CHECK_EQ(fap_port_auto_errno(p), 0);
+    MUST(f.nsets == 1);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND);
+    fap_port_close(p);
+    CHECK_EQ(f.nsets, 2);
+    tp_close(&t);
+}
+
+/* TIOCGRS485 answered, TIOCSRS485 refused (a plain 8250): explicit KERNEL
+ * fails with that errno and nothing stays open; AUTO falls back to NONE. */
+static void check_kernel_refused(int get_errno, int set_errno)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.fail_grs485 = get_errno;
+    f.fail_srs485 = set_errno;
+    int fds = tp_count_fds();
+    fap_port_options o = opts_mode(FAP_RS485_KERNEL);
+    fap_port *p = NULL;
+    int want = -(get_errno ? get_errno : set_errno);
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), want);
+    CHECK(p == NULL);
+    CHECK_EQ(tp_count_fds(), fds);
+    CHECK_EQ(f.nsets, 0);   /* nothing was changed, so nothing to restore */
+
+    o = opts_mode(FAP_RS485_AUTO);
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_NONE);
+    CHECK_EQ(fap_port_auto_errno(p), -want);
+    fap_port_close(p);
+    CHECK_EQ(f.nsets, 0);
+    tp_close(&t);
+}
+
+static void test_kernel_set_einval(void) { check_kernel_refused(0, EINVAL); }
+static void test_kernel_set_enotty(void) { check_kernel_refused(0, ENOTTY); }
+static void test_kernel_get_enotty(void) { check_kernel_refused(ENOTTY, 0); }
+
+static void test_auto_does_not_hide_a_dying_device(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.fail_grs485 = EIO;
+    fap_port *p = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, NULL, &fake_backend, &f), -EIO);
+    CHECK(p == NULL);
+    tp_close(&t);
+}
+
+/* ---- soft RTS ------------------------------------------------------------- */
+
+static void check_soft_rts_order(int active_high)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    o.rts_active_high = active_high;
+    o.delay_before_send_us = 500;
+    o.delay_after_send_us = 700;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_SOFT_RTS);
+    enum ev_kind on = active_high ? EV_RTS_SET : EV_RTS_CLEAR;
+    enum ev_kind off = active_high ? EV_RTS_CLEAR : EV_RTS_SET;
+    MUST(f.nev == 1);   /* open: RTS to the receive level */
+    CHECK_EQ(f.ev[0].kind, off);
+    CHECK_EQ(f.ev[0].value, TIOCM_RTS);
+
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "frame", 5), 5);
+    MUST(f.nev == 6);
+    CHECK_EQ(f.ev[0].kind, on);
+    CHECK_EQ(f.ev[0].value, TIOCM_RTS);
+    CHECK_EQ(f.ev[1].kind, EV_SLEEP);
+    CHECK(f.ev[1].value >= f.ev[0].at_ns + 500000);
+    CHECK(f.ev[1].value <= f.ev[1].at_ns + 500000);
+    CHECK_EQ(f.ev[2].kind, EV_WRITE);
+    CHECK_EQ(f.ev[2].value, 5);
+    CHECK_EQ(f.ev[3].kind, EV_DRAIN);
+    CHECK_EQ(f.ev[4].kind, EV_SLEEP);
+    CHECK(f.ev[4].value >= f.ev[3].at_ns + 700000);
+    CHECK(f.ev[4].value <= f.ev[4].at_ns + 700000);
+    CHECK_EQ(f.ev[5].kind, off);
+    char m[5];
+    CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
+    CHECK_MEM(m, "frame", 5);
+
+    /* Without delays: on, write, drain, off. */
+    fap_port_close(p);
+    o.delay_before_send_us = o.delay_after_send_us = 0;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "x", 1), 1);
+    MUST(f.nev == 4);
+    CHECK_EQ(f.ev[0].kind, on);
+    CHECK_EQ(f.ev[1].kind, EV_WRITE);
+    CHECK_EQ(f.ev[2].kind, EV_DRAIN);
+    CHECK_EQ(f.ev[3].kind, off);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+static void test_soft_rts_active_high(void) { check_soft_rts_order(1); }
+static void test_soft_rts_active_low(void) { check_soft_rts_order(0); }
+
+static void test_soft_rts_assert_fails(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.fail_mbis = EPERM;
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "lost", 4), -EPERM);
+    MUST(f.nev == 1);   /* the failed TIOCMBIS, and no write */
+    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    char m[4];
+    CHECK_EQ(tp_read_exact(t.master, m, 4, 50), 0);
+    fap_port_stats st;
+    fap_port_get_stats(p, &st);
+    CHECK_EQ(st.tx_bytes, 0);
+    CHECK_EQ(st.write_errors, 1);
+    CHECK(fap_port_fd(p) >= 0);   /* EPERM is not a vanished device */
+    f.fail_mbis = 0;
+    CHECK_EQ(fap_port_write(p, "ok", 2), 2);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+static void test_soft_rts_open_refused(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    f.fail_mbic = ENOTTY;
+    int fds = tp_count_fds();
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    fap_port *p = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -ENOTTY);
+    CHECK(p == NULL);
+    CHECK_EQ(tp_count_fds(), fds);
+    tp_close(&t);
+}
+
+/* A write or drain that fails still releases the bus. */
+static void test_soft_rts_released_after_error(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    o.delay_after_send_us = 300;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+
+    f.fail_drain = EINVAL;
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "d", 1), -EINVAL);
+    MUST(f.nev == 4);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    CHECK_EQ(f.ev[1].kind, EV_WRITE);
+    CHECK_EQ(f.ev[2].kind, EV_DRAIN);
+    CHECK_EQ(f.ev[3].kind, EV_RTS_CLEAR);   /* no after-delay on error, but released */
+    f.fail_drain = 0;
+
+    f.fail_write = ENXIO;   /* USB adapter unplugged mid-frame */
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "w", 1), -ENXIO);
+    MUST(f.nev == 3);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    CHECK_EQ(f.ev[1].kind, EV_WRITE);
+    CHECK_EQ(f.ev[2].kind, EV_RTS_CLEAR);
+    CHECK_EQ(fap_port_fd(p), -1);   /* vanished: closed */
+    CHECK_EQ(fap_port_write(p, "w", 1), -ENXIO);
+    f.fail_write = 0;
+    CHECK_EQ(fap_port_reopen(p), 0);
+    CHECK_EQ(fap_port_write(p, "z", 1), 1);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+/* ---- EINTR, partial writes, read errors, turnaround ----------------------- */
+
+static void test_eintr_and_partial_writes(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    f.eintr_writes = 2;
+    f.eintr_reads = 2;
+    f.write_chunk = 3;
+    fap_port_options o = opts_mode(FAP_RS485_NONE);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "0123456789", 10), 10);
+    int writes = 0;
+    for (int i = 0; i < f.nev; i++)
+        writes += f.ev[i].kind == EV_WRITE;
+    CHECK_EQ(writes, 4);   /* 3 + 3 + 3 + 1 */
+    char m[10];
+    CHECK_EQ(tp_read_exact(t.master, m, 10, 1000), 10);
+    CHECK_MEM(m, "0123456789", 10);
+    CHECK_EQ(tp_write_all(t.master, "in", 2, 1000), 2);
+    char b[4];
+    CHECK_EQ(fap_port_read(p, b, 2, fap_port_now_ns() + 2000000000LL) > 0, 1);
+    CHECK_EQ(f.eintr_reads, 0);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+static void test_read_error_paths(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_NONE);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    char b[4];
+    f.fail_read = EOVERFLOW;   /* an odd error: reported, port stays */
+    CHECK_EQ(fap_port_read(p, b, 4, 0), -EOVERFLOW);
+    CHECK(fap_port_fd(p) >= 0);
+    f.fail_read = ENODEV;      /* the device is gone */
+    CHECK_EQ(fap_port_read(p, b, 4, 0), -ENODEV);
+    CHECK_EQ(fap_port_fd(p), -1);
+    f.fail_read = 0;
+    fap_port_stats st;
+    fap_port_get_stats(p, &st);
+    CHECK_EQ(st.read_errors, 2);
+    CHECK_EQ(fap_port_reopen(p), 0);
+    CHECK_EQ(fap_port_read(p, b, 4, 0), 0);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+static void test_turnaround_deadline(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_NONE);
+    o.turnaround_us = 3500;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(tp_write_all(t.master, "q", 1, 1000), 1);
+    char c;
+    int64_t before = fap_port_now_ns();
+    CHECK_EQ(fap_port_read(p, &c, 1, before + 2000000000LL), 1);
+    int64_t after = fap_port_now_ns();
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "a", 1), 1);
+    MUST(f.nev >= 1);
+    CHECK_EQ(f.ev[0].kind, EV_SLEEP);   /* before anything is written */
+    CHECK(f.ev[0].value >= before + 3500000);
+    CHECK(f.ev[0].value <= after + 3500000);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
+          UNIT(test_auto_gets_kernel), UNIT(test_kernel_set_einval),
+          UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
+          UNIT(test_auto_does_not_hide_a_dying_device),
+          UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
+          UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
+          UNIT(test_soft_rts_released_after_error),
+          UNIT(test_eintr_and_partial_writes), UNIT(test_read_error_paths),
+          UNIT(test_turnaround_deadline))
