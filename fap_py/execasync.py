@@ -524,7 +524,13 @@ class ServeResult(IntEnum):
 
 Handler = Callable[[Request], Optional[BytesLike]]
 
-@ffi.def_extern()
+def _callback_failed(exc_type: Any, exc: Any, tb: Any) -> int:
+    """Last resort if the trampoline itself fails: no reply, and say why."""
+    log.error("exec async slave callback failed", exc_info=(exc_type, exc, tb))
+    return -1
+
+
+@ffi.def_extern(onerror=_callback_failed)
 def fap_py_exec_slave_handler(ctx: Any, req: Any, reply: Any, cap: int) -> int:
     """C -> Python trampoline, called in the thread that runs execSlaveServe."""
     slave: Slave = ffi.from_handle(ctx)
@@ -576,9 +582,9 @@ class Slave:
         log.info("exec async slave %d on %s", node, self.path)
 
     def _dispatch(self, req: Any, reply: Any, cap: int) -> int:
-        request = Request(int(req.node), int(req.seq), bytes(ffi.buffer(req.data, req.len)))
-        log.debug("slave %d <- seq %d %s", self.node, request.seq, request.data.hex())
         try:
+            request = Request(int(req.node), int(req.seq), bytes(ffi.buffer(req.data, req.len)))
+            log.debug("slave %d <- seq %d %s", self.node, request.seq, request.data.hex())
             out = self._handler(request)
             if out is None or request.broadcast:
                 return -1

@@ -149,6 +149,8 @@ def _slave_id(value: Any, what: str = "slave id") -> int:
 
 
 def _payload(data: Any) -> bytes:
+    if type(data) is bytes and 1 <= len(data) <= MAX_DATA:   # the common case, fast
+        return data
     if isinstance(data, str):
         raise InvalidTypeError("data must be bytes-like, not str (encode it first)")
     if not isinstance(data, (bytes, bytearray, memoryview)):
@@ -347,6 +349,7 @@ class Node:
         self._closing = False
         self._pump: Optional["AsyncPump"] = None
         self._stash: List[SlaveEvent] = []   # events taken by wait_active, not yet read
+        self._tls = threading.local()        # per-thread receive buffers
         if not isinstance(port, (str, bytes, os.PathLike)):
             raise InvalidTypeError(f"port must be a path, not {type(port).__name__}")
         self.path: str = os.fsdecode(port)     #: the serial device
@@ -376,7 +379,7 @@ class Node:
                 setattr(opts, attr, _int(value, name, 1, 1 << 20))
         self._rx_depth = opts.rx_depth or lib.FAPX_DEFAULT_RX_DEPTH
         self._ev_depth = opts.ev_depth or lib.FAPX_DEFAULT_EV_DEPTH
-        po = opts.port
+        po = lib.fapx_options_port(opts)     # &opts->port (opaque to cffi)
         po.baud = self.baudrate
         po.rs485_mode = int(rs485.mode)
         po.rts_active_high = int(rs485.rts_active_high)
@@ -526,22 +529,43 @@ class Node:
     def _check_dest(self, to: Any) -> int:
         raise NotImplementedError
 
-    def send(self, data: Union[bytes, bytearray, memoryview], to: int) -> None:
+    def send(self, data: Union[bytes, bytearray, memoryview], to: int,
+             timeout: Optional[float] = 0.0) -> None:
         """Queue ``data`` (1..1024 bytes) for node ``to``; it goes out in this node's turn.
+
+        Args:
+            timeout: how long to wait for room when the transmit queue is
+                full: 0 (default) raises at once, ``None`` waits as long as
+                it takes.
 
         Raises:
             InvalidValueError / InvalidTypeError: bad ``data`` or ``to``
                 (checked before anything reaches C).
-            QueueFullError: the transmit queue is full (see :meth:`flush`).
-            ClosedError: the node is closed.
+            QueueFullError: the transmit queue is (still) full.
+            ClosedError: the node is (or got) closed.
         """
         dest = self._check_dest(to)
         payload = _payload(data)
-        h = self._enter()
-        try:
-            code = self._lib.fapx_tx(h, dest, payload, len(payload))
-        finally:
-            self._leave()
+        if timeout == 0.0:
+            h = self._enter()
+            try:
+                code = self._lib.fapx_tx(h, dest, payload, len(payload))
+            finally:
+                self._leave()
+        else:
+            deadline = _deadline(timeout)
+            while True:
+                h = self._enter()
+                try:
+                    code = self._lib.fapx_tx_wait(h, dest, payload, len(payload),
+                                                  _slice_ms(deadline))
+                finally:
+                    self._leave()
+                if code != -_errno.ETIMEDOUT:
+                    break
+                if deadline is not None and time.monotonic() >= deadline:
+                    code = -_errno.EAGAIN        # still full: QueueFullError
+                    break
         if code < 0:
             raise _error(code, "send")
         log.debug("%s: queued %d bytes for %d", self._label(), len(payload), dest)
@@ -578,8 +602,11 @@ class Node:
     def _rx_c(self, wait_ms: Optional[int]) -> Optional[Message]:
         """One fapx_rx / fapx_rx_wait call: a message, or None on -EAGAIN/-ETIMEDOUT."""
         ffi, lib = self._ffi, self._lib
-        buf = ffi.new("unsigned char[]", MAX_DATA)
-        src = ffi.new("unsigned *")
+        try:
+            buf, src = self._tls.rx
+        except AttributeError:       # first receive in this thread: its own buffers
+            buf, src = self._tls.rx = (ffi.new("unsigned char[]", MAX_DATA),
+                                       ffi.new("unsigned *"))
         h = self._enter()
         try:
             if wait_ms is None:
@@ -915,6 +942,10 @@ class Slave(Node):
             raise InvalidValueError(f"a slave cannot send to its own ID {dest}")
         return dest
 
-    def send(self, data: Union[bytes, bytearray, memoryview], to: int = MASTER_ID) -> None:
-        """Queue ``data`` for node ``to`` (default the master); sent when polled."""
-        super().send(data, to)
+    def send(self, data: Union[bytes, bytearray, memoryview], to: int = MASTER_ID,
+             timeout: Optional[float] = 0.0) -> None:
+        """Queue ``data`` for node ``to`` (default the master); sent when polled.
+
+        See :meth:`Node.send`.
+        """
+        super().send(data, to, timeout)

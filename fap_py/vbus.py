@@ -59,6 +59,14 @@ class VirtualBusStats:
     dropped: int        #: bytes dropped by fault injection or silence
     overflow: int       #: bytes not delivered because a node did not read
     disconnects: int    #: simulated disconnects
+    paced_bytes: int = 0        #: bytes delivered by the pacer (paced mode)
+    pace_late_sum_ns: int = 0   #: their total lateness vs the end of their wire time
+    pace_late_max_ns: int = 0   #: the worst lateness
+
+    @property
+    def pace_late_mean_us(self) -> float:
+        """Mean pacer lateness in microseconds (0.0 when nothing was paced)."""
+        return self.pace_late_sum_ns / self.paced_bytes / 1000.0 if self.paced_bytes else 0.0
 
 
 def _check(code: int, what: str) -> int:
@@ -237,7 +245,8 @@ class VirtualBus:
         return VirtualBusStats(
             bytes_in=st.bytes_in, bytes_out=st.bytes_out, collisions=st.collisions,
             bit_errors=st.bit_errors, dropped=st.dropped, overflow=st.overflow,
-            disconnects=st.disconnects)
+            disconnects=st.disconnects, paced_bytes=st.paced_bytes,
+            pace_late_sum_ns=st.pace_late_sum_ns, pace_late_max_ns=st.pace_late_max_ns)
 
     def __repr__(self) -> str:
         state = "closed" if self.closed else f"{len(self.paths)} ports"

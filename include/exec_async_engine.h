@@ -18,7 +18,8 @@
  * the slave is answering (between the end of a request and the start of
  * its reply: handler time and turnaround delay) is dropped, not processed
  * and not answered (stats.rx_during_tx); the master's retry of it is then
- * processed. During the reply's own transmission only a bus that echoes
+ * processed. (A broadcast in that window is still processed: it is never
+ * answered and never repeated.) During the reply's own transmission only a bus that echoes
  * can tell (echo suppression: FAP_PORT_ECOLLISION, stats.collisions).
  *
  * Return convention: 0 or a positive value on success, a negative errno or
@@ -137,7 +138,8 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
                   const execSlaveOptions *o, execSlaveHandler handler, void *ctx);
 /* Wait up to timeout_ms (-1 = forever) for one request for this node and
  * handle it. Returns EXEC_SLAVE_PROCESSED, EXEC_SLAVE_RESENT,
- * EXEC_SLAVE_BROADCAST, 0 when the time ran out, or a negative error.
+ * EXEC_SLAVE_BROADCAST, 0 when the time ran out, or a negative error
+ * (-EMSGSIZE: the handler returned more than 255; nothing was sent).
  * One thread at a time may serve a slave. */
 #define EXEC_SLAVE_PROCESSED 1
 #define EXEC_SLAVE_RESENT    2

@@ -115,6 +115,13 @@ const char *fap_port_strerror(int err);
  * the mode was explicit. */
 int fap_port_auto_errno(const fap_port *p);
 
+/* Kernel mode: the RS-485 config the driver accepted, which may differ from
+ * the request (drivers clamp delays, drop flags they lack). Fills whichever
+ * pointers are not NULL (flags are SER_RS485_* bits, delays in ms) and
+ * returns 0, or -ENOTTY when the port is not in FAP_RS485_KERNEL mode. */
+int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
+                          uint32_t *delay_before_ms, uint32_t *delay_after_ms);
+
 #ifdef __cplusplus
 }
 #endif

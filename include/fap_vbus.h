@@ -9,7 +9,9 @@
  * reproducible. Used by tests, demos (`fap bus`) and benchmarks.
  *
  * Port paths are symlinks (in options.link_dir, or a private temp dir) that
- * stay valid across a simulated disconnect.
+ * stay valid across a simulated disconnect. A port nobody has open receives
+ * nothing (bytes are not kept for a later opener). Collided bytes arrive
+ * bit-inverted. Details, capture file format: docs/vbus.md.
  * Return convention: 0 / count, or a negative errno.
  */
 #ifndef FAP_VBUS_H
@@ -41,6 +43,11 @@ typedef struct fap_vbus_stats {
     /* appended: */
     uint64_t overflow;         /* bytes not delivered: a node's queue was full (it does not read) */
     uint64_t disconnects;      /* simulated disconnects so far */
+    /* paced mode: how late the relay handed bytes over, against the end of
+     * their wire time (the pacer's own jitter, without the reader's) */
+    uint64_t paced_bytes;      /* bytes delivered by the pacer */
+    uint64_t pace_late_sum_ns; /* their total lateness */
+    uint64_t pace_late_max_ns; /* the worst one */
 } fap_vbus_stats;
 
 typedef struct fap_vbus fap_vbus;

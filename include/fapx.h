@@ -103,6 +103,8 @@ typedef struct fapx_stats {
 } fapx_stats;
 
 void fapx_options_init(fapx_options *o);
+/* &o->port (for bindings that see fapx_options without its port member). */
+fap_port_options *fapx_options_port(fapx_options *o);
 
 /* Open the port at path and start the node. *out is set only on success.
  * Errors: -EINVAL (bad mode/id/depth), -ENOMEM, or fap_port_open's error. */

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, List, Optional, Tuple
 
-from fap_py import Master, QueueFullError, Slave
+from fap_py import FapTimeoutError, Master, Slave
 
 REPO = Path(__file__).resolve().parents[2]
 FRAME_OVERHEAD = 15          # marker 8 + size 2 + msg 1 + dst 1 + src 1 + crc 2
@@ -54,10 +54,13 @@ class Result:
     count: int
     wall_s: float
     cpu_s: float
+    received: int = -1     #: stream: messages the slave got (-1: all, by construction)
 
     @property
     def rate(self) -> float:
-        return self.count / self.wall_s if self.wall_s > 0 else float("inf")
+        """Messages delivered per second."""
+        delivered = self.count if self.received < 0 else self.received
+        return delivered / self.wall_s if self.wall_s > 0 else float("inf")
 
 
 # -- the bus ------------------------------------------------------------------
@@ -102,44 +105,50 @@ def build_c_bench(build_dir: Path) -> Path:
 
 def run_c(exe: Path, paths: List[str], mode: str, count: int, size: int) -> Result:
     cmode = {"round-trip": "rt", "stream": "stream", "calls": "calls"}[mode]
-    out = subprocess.run([str(exe), paths[0], paths[1], cmode, str(count), str(size)],
-                         check=True, capture_output=True, text=True, timeout=600).stdout
-    f = dict(re.findall(r"(\w+)=(\S+)", out))
-    return Result(mode, size, "C (fapx)", count, float(f["wall_s"]), float(f["cpu_s"]))
+    proc = subprocess.run([str(exe), paths[0], paths[1], cmode, str(count), str(size)],
+                          capture_output=True, text=True, timeout=600)
+    if proc.returncode != 0:
+        raise SystemExit(f"bench_fapx_c {cmode} failed: {proc.stderr.strip()}")
+    f = dict(re.findall(r"(\w+)=(\S+)", proc.stdout))
+    return Result(mode, size, "C (fapx)", count, float(f["wall_s"]), float(f["cpu_s"]),
+                  int(f["received"]))
 
 
 # -- the Python side -----------------------------------------------------------------
 
-def _pair(paths: List[str]) -> Tuple[Master, Slave]:
-    master = Master(paths[0], slaves=[1], tx_queue=1024, rx_queue=1024)
-    slave = Slave(paths[1], id=1, tx_queue=1024, rx_queue=1024)
+def _pair(paths: List[str], count: int) -> Tuple[Master, Slave]:
+    # FAP has no flow control: a slave receive queue that holds the whole
+    # stream keeps the run about speed, not about scheduling luck (as in C).
+    slave = Slave(paths[1], id=1, rx_queue=max(256, count))   # first: answers the 1st query
+    master = Master(paths[0], slaves=[1])  # default queue depths, as the C side
     master.wait_active(timeout=10)
     return master, slave
 
 
-def _send(node: Master, data: bytes, to: int) -> None:
-    """send(), waiting for room when the transmit queue is full (as the C side does)."""
-    while True:
-        try:
-            node.send(data, to)
-            return
-        except QueueFullError:
+class _SlaveThread(threading.Thread):
+    """Receives count messages on the slave (echoing them back if asked).
+
+    Stream mode stops after 2 s of silence: frames an overloaded unpaced bus
+    dropped never come (the C side does the same).
+    """
+
+    def __init__(self, slave: Slave, count: int, echo: bool) -> None:
+        super().__init__(daemon=True)
+        self.slave, self.count, self.echo = slave, count, echo
+        self.received = 0
+        self.start()
+
+    def run(self) -> None:
+        for _ in range(self.count):
             try:
-                node.flush(timeout=0.1)
-            except TimeoutError:
-                pass
-
-
-def _slave_thread(slave: Slave, count: int, echo: bool) -> threading.Thread:
-    def body() -> None:
-        for _ in range(count):
-            msg = slave.recv(timeout=10)
-            if echo:
-                slave.send(msg.data, msg.source)
-
-    t = threading.Thread(target=body, daemon=True)
-    t.start()
-    return t
+                msg = self.slave.recv(timeout=10 if self.echo else 2)
+            except FapTimeoutError:
+                if self.echo:
+                    raise
+                return
+            self.received += 1
+            if self.echo:
+                self.slave.send(msg.data, msg.source, timeout=None)
 
 
 def _measure(fn: Callable[[], None]) -> Tuple[float, float]:
@@ -159,11 +168,11 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
                     recv_nowait()
             wall, cpu = _measure(calls)
         return Result(mode, size, "Python (fap_py)", count, wall, cpu)
-    master, slave = _pair(paths)
+    master, slave = _pair(paths, count)
     try:
         if mode == "round-trip":
             def rt() -> None:
-                t = _slave_thread(slave, count, echo=True)
+                t = _SlaveThread(slave, count, echo=True)
                 for _ in range(count):
                     master.send(data, 1)
                     master.recv(timeout=10)
@@ -177,19 +186,24 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
                     await master.arecv(timeout=10)
 
             def run_art() -> None:
-                t = _slave_thread(slave, count, echo=True)
+                t = _SlaveThread(slave, count, echo=True)
                 asyncio.run(art())
                 t.join()
             wall, cpu = _measure(run_art)
             api = "Python asyncio"
         else:
+            receiver: List[_SlaveThread] = []
+
             def stream() -> None:
-                t = _slave_thread(slave, count, echo=False)
+                receiver.append(_SlaveThread(slave, count, echo=False))
                 for _ in range(count):
-                    _send(master, data, 1)
-                t.join()
+                    master.send(data, 1, timeout=None)   # waits for room, as the C side
+                receiver[0].join()
             wall, cpu = _measure(stream)
-            api = "Python (fap_py)"
+            got = receiver[0].received
+            if got < count:
+                wall -= 2.0                 # the final 2 s of silence
+            return Result(mode, size, "Python (fap_py)", count, wall, cpu, got)
         return Result(mode, size, api, count, wall, cpu)
     finally:
         slave.close()
@@ -212,7 +226,7 @@ def wire_rate(mode: str, size: int, baud: int) -> Optional[float]:
 
 def print_table(results: List[Result], baud: int) -> None:
     head = (f"{'mode':<20}{'size':>6}  {'API':<17}{'msgs/s':>11}{'us/msg':>10}"
-            f"{'CPU us/msg':>12}{'Py/C CPU':>10}")
+            f"{'CPU us/msg':>12}{'Py/C CPU':>10}{'lost':>7}")
     print(head)
     print("-" * len(head))
     base: Dict[Tuple[str, int], Result] = {}
@@ -223,7 +237,8 @@ def print_table(results: List[Result], baud: int) -> None:
         c = base.get((r.mode.replace(" asyncio", ""), r.size))
         ratio = "" if c is None or r is c or c.cpu_s <= 0 else f"{r.cpu_s / c.cpu_s:.2f}x"
         print(f"{r.mode:<20}{r.size:>6}  {r.api:<17}{r.rate:>11,.0f}"
-              f"{r.wall_s / r.count * 1e6:>10.1f}{r.cpu_s / r.count * 1e6:>12.2f}{ratio:>10}")
+              f"{r.wall_s / r.count * 1e6:>10.1f}{r.cpu_s / r.count * 1e6:>12.2f}{ratio:>10}"
+              f"{r.count - r.received if r.received >= 0 else 0:>7}")
     if baud:
         print()
         for mode in ("round-trip", "stream"):

@@ -253,9 +253,12 @@ static void apply_list(fapx *h, uint32_t want_listed, const uint8_t *epoch, lf_n
     }
 }
 
+/* Arm the timerfd for `deadline`. Lazy: a later deadline than the one
+ * armed is left alone (the early expiry just re-arms), which saves a
+ * syscall per poll cycle while deadlines keep moving out. */
 static void arm_timer(fapx *h, lf_ns deadline)
 {
-    if (deadline == h->armed)
+    if (deadline == h->armed || (h->armed >= 0 && deadline > h->armed))
         return;
     struct itimerspec its;
     memset(&its, 0, sizeof its);

@@ -162,7 +162,6 @@ void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void 
 void lf_fap_decoder_feed(lf_fap_decoder *d, const uint8_t *p, size_t n, lf_ns now,
                          lf_fap_frame_cb cb, void *ctx)
 {
-    lf_fap_decoder_tick(d, now, cb, ctx);
     d->c.bytes += n;
     while (n > 0) {
         size_t room = sizeof d->buf - d->n;

@@ -66,7 +66,12 @@ lf_ns lf_fap_default_gap(unsigned baud);
 
 void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap);
 /* Feed n bytes that arrived at `now`; every valid frame completed by them
- * is reported through cb (frame data is valid during the call only). */
+ * is reported through cb (frame data is valid during the call only).
+ * Feeding never applies the inter-byte gap: a driver that was itself
+ * late to read cannot tell when the bytes really arrived, so the gap is
+ * judged only by lf_fap_decoder_tick(), called when the line is idle (no
+ * bytes waiting). A late continuation is still safe: a wrong candidate
+ * fails its size/msg/CRC checks and the search resumes at its 2nd byte. */
 void lf_fap_decoder_feed(lf_fap_decoder *d, const uint8_t *p, size_t n, lf_ns now,
                          lf_fap_frame_cb cb, void *ctx);
 /* When a partial frame will be abandoned (LF_NEVER if none is held). */

@@ -16,6 +16,11 @@ void fapx_options_init(fapx_options *o)
     fap_port_options_init(&o->port);
 }
 
+fap_port_options *fapx_options_port(fapx_options *o)
+{
+    return o ? &o->port : NULL;
+}
+
 static void fill_defaults(fapx_options *o)
 {
     if (!o->idc_us)         o->idc_us = 15000000u;

@@ -299,3 +299,24 @@ int fap_port_auto_errno(const fap_port *p)
     pthread_mutex_unlock(&mp->st_mu);
     return e;
 }
+
+int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
+                          uint32_t *delay_before_ms, uint32_t *delay_after_ms)
+{
+    if (!p)
+        return -EINVAL;
+    fap_port *mp = (fap_port *)p;
+    pthread_mutex_lock(&mp->st_mu);
+    int err = p->conn.mode == FAP_RS485_KERNEL && p->conn.rs485_restore ? 0 : -ENOTTY;
+    struct serial_rs485 r = p->conn.rs485_active;
+    pthread_mutex_unlock(&mp->st_mu);
+    if (err)
+        return err;
+    if (flags)
+        *flags = r.flags;
+    if (delay_before_ms)
+        *delay_before_ms = r.delay_rts_before_send;
+    if (delay_after_ms)
+        *delay_after_ms = r.delay_rts_after_send;
+    return 0;
+}

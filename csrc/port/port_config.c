@@ -60,7 +60,7 @@ static int configure_termios(const fap_port *p, int fd)
 
 static uint32_t us_to_ms_up(unsigned us)
 {
-    return (uint32_t)((us + 999u) / 1000u);
+    return (uint32_t)(((uint64_t)us + 999u) / 1000u);   /* no wrap near UINT_MAX */
 }
 
 /* Kernel RS-485: save the current config, then enable ours. The kernel

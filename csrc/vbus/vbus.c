@@ -20,6 +20,7 @@
 #include <math.h>
 #include <poll.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -526,9 +527,16 @@ int fap_vbus_open(fap_vbus **out, const fap_vbus_options *o)
         err = b->rbuf ? -errno : -ENOMEM;
         goto fail;
     }
+    /* The relay takes no signals: the application's handlers run in its
+     * own threads, and our syscalls see no EINTR. */
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);
     err = -pthread_create(&b->thread, NULL, relay_main, b);
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
     if (err)
         goto fail;
+    pthread_setname_np(b->thread, "fap-vbus");   /* for top -H, gdb */
     b->thread_started = 1;
     *out = b;
     return 0;
@@ -659,5 +667,8 @@ void fap_vbus_get_stats(const fap_vbus *cb, fap_vbus_stats *out)
     out->dropped = b->wire.stats.dropped;
     out->overflow = b->overflow;
     out->disconnects = b->disconnects;
+    out->paced_bytes = b->wire.stats.paced_bytes;
+    out->pace_late_sum_ns = b->wire.stats.late_sum_ns;
+    out->pace_late_max_ns = b->wire.stats.late_max_ns;
     pthread_mutex_unlock(&b->mu);
 }

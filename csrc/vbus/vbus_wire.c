@@ -278,6 +278,11 @@ void lf_wire_advance(lf_wire *w, lf_ns now)
             }
             if (!m)
                 t0 = b->begin;
+            uint64_t late = (uint64_t)(now - (b->begin + T));   /* >= 0: it was due */
+            w->stats.paced_bytes++;
+            w->stats.late_sum_ns += late;
+            if (late > w->stats.late_max_ns)
+                w->stats.late_max_ns = late;
             /* collision rule: every overlapped byte arrives bit-inverted */
             run[m++] = (b->flags & LF_WIRE_F_COLLIDED) ? (uint8_t)~b->value : b->value;
         }

@@ -56,6 +56,9 @@ typedef struct lf_wire_stats {
     uint64_t collisions;
     uint64_t bit_errors;
     uint64_t dropped;
+    uint64_t paced_bytes;       /* delivered by lf_wire_advance */
+    uint64_t late_sum_ns;       /* sum of (now - end of wire time) over them */
+    uint64_t late_max_ns;
 } lf_wire_stats;
 
 typedef struct lf_wire_byte {

@@ -19,7 +19,7 @@ if TYPE_CHECKING:  # pragma: no cover
 SLAVE_IDS = (3, 7, 12)
 WAIT_S = 5.0          # upper bound of every wait; the whole demo takes well under 1 s
 # Protocol timing shortened for the demo (vendor defaults: 15 s, 1 s, 15 s).
-DEMO_TIMING = dict(id_cycle=0.05, id_answer_timeout=0.05, data_done_timeout=0.2)
+DEMO_TIMING = dict(id_cycle=0.05, id_answer_timeout=0.1, data_done_timeout=0.3)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,9 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         "(libfap's C engine through fap_py) on it in this process, exchange messages in "
         "both directions, let one slave leave and return, print a transcript. No hardware.")
     p.add_argument("--baud", type=int, default=115200,
-                   help="line speed; the virtual bus paces bytes at this rate (default 115200)")
-    p.add_argument("--unpaced", action="store_true",
-                   help="relay bytes as fast as the ptys go instead of at --baud")
+                   help="line speed the nodes configure (default 115200)")
+    p.add_argument("--paced", action="store_true",
+                   help="let the virtual bus deliver bytes at --baud (10 bits/byte) like a "
+                   "real wire; default: as fast as the ptys go")
     p.set_defaults(func=run)
 
 
@@ -75,7 +76,7 @@ def run(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
     out = out or sys.stdout
     tr = Transcript(out)
     baud = args.baud
-    paced = None if args.unpaced else baud
+    paced = baud if args.paced else None
     tr.plain(f"FAP demo: 1 master + {len(SLAVE_IDS)} slaves on a virtual RS-485 bus "
              f"({baud} baud, {'paced' if paced else 'unpaced'}), libfap C engines via fap_py")
     with VirtualBus(ports=1 + len(SLAVE_IDS), baud=paced) as bus:
@@ -83,10 +84,13 @@ def run(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
         for path, role in zip(bus.paths, roles):
             tr.plain(f"  {path:<34} {role}")
         tr.plain()
-        master = Master(bus.paths[0], baud, slaves=SLAVE_IDS, **DEMO_TIMING)
+        # On a paced bus a busy machine can stall the relay thread for more than
+        # FAP's 10 ms inter-byte gap in the middle of a 1024-byte frame: allow 100 ms.
+        gap = dict(byte_gap=0.1) if paced else {}
+        master = Master(bus.paths[0], baud, slaves=SLAVE_IDS, **DEMO_TIMING, **gap)
         slaves: List[Slave] = []
         try:
-            slaves = [Slave(p, baud, id=i) for p, i in zip(bus.paths[1:], SLAVE_IDS)]
+            slaves = [Slave(p, baud, id=i, **gap) for p, i in zip(bus.paths[1:], SLAVE_IDS)]
             return _script(tr, master, slaves, bus.paths, baud)
         finally:
             for s in slaves:

@@ -13,7 +13,7 @@ events (:class:`Packet` or :class:`Discarded`).
 from __future__ import annotations
 
 import enum
-from typing import List, NamedTuple, Optional, Tuple, Union
+from typing import List, NamedTuple, Optional, Sequence, Tuple, Union
 
 from .errors import BroadcastReadError, CheckByteError, G485FrameError, G485ValueError, UnexpectedReplyError
 
@@ -121,7 +121,7 @@ class Packet(NamedTuple):
         return self.pid
 
     @property
-    def count(self) -> int:
+    def read_count(self) -> int:
         """RCBN of a read request, else the number of data bytes."""
         if self.kind is PacketKind.READ_REQUEST:
             return self.data[0]
@@ -168,6 +168,8 @@ class Discarded(NamedTuple):
 
 
 Event = Union[Packet, Discarded]
+#: register data: bytes-like, a sequence of ints 0..255, or one int
+Data = Union[bytes, bytearray, memoryview, Sequence[int], int]
 
 
 def check_byte(body: bytes) -> int:
@@ -210,7 +212,7 @@ def check_register_span(register: int, count: int) -> None:
         raise G485ValueError(f"registers {register}..{register + count - 1} run past 100")
 
 
-def _as_data(data: Union[bytes, bytearray, memoryview, List[int], Tuple[int, ...], int]) -> bytes:
+def _as_data(data: Data) -> bytes:
     if isinstance(data, int) and not isinstance(data, bool):
         data = [data]
     try:
@@ -221,7 +223,7 @@ def _as_data(data: Union[bytes, bytearray, memoryview, List[int], Tuple[int, ...
 
 # -- encoders (the 8 packet types) -------------------------------------------
 
-def encode_write(address: int, register: int, data: Union[bytes, List[int], int]) -> bytes:
+def encode_write(address: int, register: int, data: Data) -> bytes:
     """User-Register-Write (address 0 = broadcast)."""
     _check_address(address, broadcast_ok=True, what="write")
     payload = _as_data(data)
@@ -236,7 +238,7 @@ def encode_read_request(address: int, register: int, count: int) -> bytes:
     return _frame((address << 1) | 1, register, bytes((count,)))
 
 
-def encode_read_response(register: int, data: bytes) -> bytes:
+def encode_read_response(register: int, data: Data) -> bytes:
     """User-Register-Read-Response (slave to master)."""
     payload = _as_data(data)
     check_register_span(register, len(payload) or 0)

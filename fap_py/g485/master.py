@@ -13,11 +13,11 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
-from typing import Any, Dict, Iterable, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, Iterable, List, Optional, Tuple, Union
 
 from . import codec
-from .codec import (HEADER_SIZE, HPID, EPID, REPLY_KINDS, WAKE_UP_BAUD_THRESHOLD, WAKE_UP_PREAMBLE,
-                    Discarded, Packet, ParseIssue, Parser, SetCommand)
+from .codec import (EPID, HEADER_SIZE, HPID, REPLY_KINDS, WAKE_UP_BAUD_THRESHOLD, WAKE_UP_PREAMBLE, Data,
+                    Packet, ParseIssue, Parser, SetCommand)
 from .errors import (RETRYABLE_ERRORS, CheckByteError, DeviceErrorWordError, EchoMismatchError, G485Error,
                      G485FrameError,
                      G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
@@ -29,7 +29,6 @@ log = logging.getLogger("fap_py.g485")
 ID_REGISTER = 7
 COMMAND_REGISTER = 6  # write-only: a re-read check ignores it
 
-Data = Union[bytes, bytearray, Sequence[int], int]
 
 
 class Check(Enum):
@@ -119,13 +118,14 @@ class G485Master:
         self.echo = echo
         self._byte_time = 10.0 / max(1, self._io.baudrate)
         self._wake_pending = self.wake_up
+        self._sent = 0  # bytes of the last write
         self._parser = Parser()
         self._lock = _lock_for(self.name)
         # the check byte each device should hold now (for set_guard)
         self._device_check: Dict[int, int] = {}
         self._non_real_time: set = set()
         self.stats = MasterStats()
-        
+
     # -- context management ----------------------------------------------------
 
     def close(self) -> None:
@@ -150,6 +150,7 @@ class G485Master:
         elif log.isEnabledFor(logging.DEBUG):
             log.debug("%s tx %s", self.name, frame.hex(" "))
         self._io.write(frame)
+        self._sent = len(frame)
         if self.echo:
             self._read_echo(frame)
 
@@ -169,7 +170,8 @@ class G485Master:
     def _receive(self, pid: int, length: int, timeout: Optional[float]) -> Packet:
         """Wait for the reply with this PID and LENGTH byte; raise what went wrong."""
         size = HEADER_SIZE + length
-        deadline = time.monotonic() + (timeout or self.timeout) + size * self._byte_time
+        # the request may still be on the wire (the OS buffers it), then the reply must cross it
+        deadline = time.monotonic() + (timeout or self.timeout) + (self._sent + size) * self._byte_time
         parser = self._parser
         io = self._io
         junk = 0  # bytes received that are neither the reply nor an ignored frame

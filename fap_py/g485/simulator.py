@@ -99,6 +99,7 @@ class Simulator:
 
     def _serve_fd(self) -> None:
         fd = self._io.fd
+        assert fd is not None
         poller = select.poll()
         poller.register(fd, select.POLLIN)
         poller.register(self._stop_r, select.POLLIN)

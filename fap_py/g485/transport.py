@@ -55,8 +55,8 @@ class Transport:
                 self.serial = serial.serial_for_url(self.name, baudrate=baudrate, timeout=0.05,
                                                     **serial_kwargs)
             except serial.SerialException as exc:
-                err = getattr(exc, "errno", None) or errno.EIO
-                raise PortError(err, str(exc), self.name) from None
+                err = getattr(exc, "errno", None)
+                raise PortError(err or errno.EIO, None if err else str(exc), self.name) from None
             self._owns = True
         else:
             raise TypeError(f"port must be a path/URL, a pyserial object or an fd, not {port!r}")

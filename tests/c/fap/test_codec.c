@@ -176,8 +176,9 @@ static void test_truncated_frame_then_good_frame(void)
     (void)nb;
 }
 
-/* The gap is also applied when the next bytes arrive late (no tick call). */
-static void test_gap_applied_on_feed(void)
+/* A partial frame, an idle line (tick at the gap), then a new frame. And
+ * without the tick (a late reader): the CRC still resynchronises. */
+static void test_gap_then_new_frame(void)
 {
     uint8_t q[LF_FAP_MAX_FRAME];
     size_t nq = lf_fap_encode(q, sizeof q, LF_FAP_QUERY_ID, 5, 0, NULL, 0);
@@ -186,10 +187,18 @@ static void test_gap_applied_on_feed(void)
     s.n = 0;
     lf_fap_decoder_init(&d, 2 * LF_NS_PER_MS);
     lf_fap_decoder_feed(&d, q, 9, 0, on_frame, &s);               /* partial */
-    lf_fap_decoder_feed(&d, q, nq, 5 * LF_NS_PER_MS, on_frame, &s); /* late: a new frame */
+    lf_fap_decoder_tick(&d, 2 * LF_NS_PER_MS, on_frame, &s);
+    CHECK_EQ(d.c.gap_timeouts, 1);
+    CHECK_EQ(d.n, 0);
+    lf_fap_decoder_feed(&d, q, nq, 5 * LF_NS_PER_MS, on_frame, &s);
     REQUIRE(s.n == 1);
     CHECK_EQ(s.f[0].dst, 5);
-    CHECK_EQ(d.c.gap_timeouts, 1);
+    lf_fap_decoder_feed(&d, q, 9, 6 * LF_NS_PER_MS, on_frame, &s);  /* partial, no tick */
+    lf_fap_decoder_feed(&d, q, nq, 9 * LF_NS_PER_MS, on_frame, &s);
+    REQUIRE(s.n == 2);
+    CHECK_EQ(s.f[1].dst, 5);
+    CHECK(d.c.framing_errors + d.c.crc_errors >= 1);
+    s.n = 1;
     /* a slow frame within the gap per byte still decodes */
     for (size_t i = 0; i < nq; i++)
         lf_fap_decoder_feed(&d, q + i, 1, 10 * LF_NS_PER_MS + (lf_ns)i * LF_NS_PER_MS, on_frame, &s);
@@ -287,6 +296,6 @@ static void test_single_corruption_never_swallows_next(void)
 UNIT_MAIN(UNIT(test_encode_vectors), UNIT(test_encode_rejects),
           UNIT(test_decode_vectors_any_chunking), UNIT(test_decode_invalid_vectors),
           UNIT(test_alternate_marker), UNIT(test_stream_vector),
-          UNIT(test_truncated_frame_then_good_frame), UNIT(test_gap_applied_on_feed),
+          UNIT(test_truncated_frame_then_good_frame), UNIT(test_gap_then_new_frame),
           UNIT(test_default_gap), UNIT(test_fuzz_garbage_between_frames),
           UNIT(test_single_corruption_never_swallows_next))

@@ -243,5 +243,101 @@ static void test_notify_fd_and_callback(void)
     close_all();
 }
 
+
+/* A corrupted DATA_DONE: the master counts the bad frame, marks the slave
+ * inactive at the DATA_DONE timeout and takes it back at the ID cycle. */
+static void test_corrupted_frame_and_recovery(void)
+{
+    open_all();
+    REQUIRE(bus && master);
+    fapx_add_slave(master, 1);
+    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, 1, 2000, NULL), 0);
+    CHECK_EQ(fap_vbus_corrupt_next(bus, 1, 15), 0);
+    fapx_event ev;
+    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_INACTIVE, 1, 2000, &ev), 0);
+    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, 1, 2000, NULL), 0);
+    fapx_stats st;
+    fapx_get_stats(master, &st);
+    CHECK(st.crc_errors + st.framing_errors + st.garbage_bytes + st.gap_timeouts > 0);
+    CHECK_EQ(st.data_done_timeouts, 1);
+    close_all();
+}
+
+/* Random bit errors on every port: frames get lost (FAP does not
+ * retransmit) but nothing corrupted or duplicated is ever delivered. */
+static void test_bit_errors_never_deliver_garbage(void)
+{
+    open_all();
+    REQUIRE(bus && master);
+    for (unsigned id = 1; id <= 3; id++)
+        fapx_add_slave(master, id);
+    for (unsigned id = 1; id <= 3; id++)
+        CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, id, 2000, NULL), 0);
+    CHECK_EQ(fap_vbus_set_fault(bus, -1, 0.002, 0.0), 0);
+    char msg[200];
+    static uint8_t seen[4][200];
+    memset(seen, 0, sizeof seen);
+    for (int k = 0; k < 150; k++) {
+        unsigned id = 1 + (unsigned)k % 3;
+        int n = snprintf(msg, sizeof msg, "m>%u#%03d:%0120d", id, k, k);
+        fapx_tx_wait(master, id, msg, (size_t)n, 2000);
+    }
+    fapx_flush(master, 5000);
+    int bad = 0, got = 0;
+    for (unsigned id = 1; id <= 3; id++) {
+        uint8_t buf[FAPX_MAX_DATA + 1];
+        unsigned src;
+        int n;
+        while ((n = fapx_rx_wait(slave[id], buf, sizeof buf - 1, &src, 50)) > 0) {
+            buf[n] = 0;
+            unsigned to = 0;
+            int k = -1, k2 = -2;
+            char expect[200];
+            if (sscanf((char *)buf, "m>%u#%d:%d", &to, &k, &k2) != 3 || to != id || src != 0 ||
+                k != k2 || k < 0 || k >= 150 || seen[id][k]++) {
+                bad++;
+                continue;
+            }
+            snprintf(expect, sizeof expect, "m>%u#%03d:%0120d", id, k, k);
+            if (strcmp((char *)buf, expect) != 0)
+                bad++;
+            got++;
+        }
+    }
+    fap_vbus_set_fault(bus, -1, 0.0, 0.0);
+    fapx_stats st;
+    fapx_get_stats(slave[1], &st);
+    fprintf(stderr, "bit errors: %d of 150 delivered intact, %d bad; slave 1 crc %llu framing %llu\n",
+            got, bad, (unsigned long long)st.crc_errors, (unsigned long long)st.framing_errors);
+    CHECK_EQ(bad, 0);
+    CHECK(got > 0);
+    close_all();
+}
+
+/* The slave's port disconnects: its handle reports the loss and the
+ * reopen, and the master takes it back. */
+static void test_port_lost_and_reopened(void)
+{
+    open_all();
+    REQUIRE(bus && master);
+    fapx_add_slave(master, 1);
+    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, 1, 2000, NULL), 0);
+    CHECK_EQ(fap_vbus_disconnect(bus, 1, 50), 0);
+    CHECK_EQ(wait_event(slave[1], FAPX_EV_PORT_LOST, 1, 2000, NULL), 0);
+    CHECK_EQ(wait_event(slave[1], FAPX_EV_PORT_REOPENED, 1, 3000, NULL), 0);
+    CHECK_EQ(fapx_tx(slave[1], 0, "back", 4), 0);
+    uint8_t buf[16];
+    unsigned src;
+    CHECK_EQ(fapx_rx_wait(master, buf, sizeof buf, &src, 3000), 4);
+    CHECK_EQ(src, 1);
+    fapx_stats st;
+    fapx_get_stats(slave[1], &st);
+    CHECK_EQ(st.port_lost, 1);
+    CHECK(st.port_reopened >= 1);
+    close_all();
+}
+
 UNIT_MAIN(UNIT(test_open_errors), UNIT(test_master_and_slaves_exchange),
-          UNIT(test_slave_dies_and_comes_back), UNIT(test_notify_fd_and_callback))
+          UNIT(test_slave_dies_and_comes_back), UNIT(test_notify_fd_and_callback),
+          UNIT(test_corrupted_frame_and_recovery), UNIT(test_bit_errors_never_deliver_garbage),
+          UNIT(test_port_lost_and_reopened))

@@ -3,6 +3,7 @@
  * vanishes. */
 #include <errno.h>
 #include <poll.h>
+#include <pthread.h>
 
 #include "fap_vbus.h"
 #include "mikroc_rs485.h"
@@ -197,6 +198,59 @@ static void test_port_vanishes(void)
     mikrocRS485_CtxClose(&s);
 }
 
+/* Documented: one thread receives on a context while another sends on it
+ * (tsan checks the claim). Slave 5 answers each request with its byte. */
+typedef struct poller {
+    mikrocRS485_ctx *m;
+    int got[8];
+    int n;
+} poller;
+
+static void *poll_replies(void *arg)
+{
+    poller *p = arg;
+    char buf[7] = {0};
+    while (p->n < 8) {
+        int r = mikrocRS485_CtxPoll(p->m, buf, WAIT_MS);
+        if (r <= 0)
+            break;
+        if (r & MIKROC_RS485_POLL_READY)
+            p->got[p->n++] = buf[0];
+        buf[4] = buf[5] = 0;
+    }
+    return NULL;
+}
+
+static void test_send_beside_a_receiving_thread(void)
+{
+    fap_port_options o = pty_options();
+    mikrocRS485_ctx m, s;
+    mikrocRS485_CtxInitMaster(&m);
+    mikrocRS485_CtxInitSlave(&s, 5);
+    int r = mikrocRS485_CtxOpen(&m, fap_vbus_port_path(bus, 0), 0, &o);
+    REQUIRE(r == 0);
+    r = mikrocRS485_CtxOpen(&s, fap_vbus_port_path(bus, 1), 0, &o);
+    REQUIRE(r == 0);
+    poller p = {.m = &m};
+    pthread_t t;
+    r = pthread_create(&t, NULL, poll_replies, &p);
+    REQUIRE(r == 0);
+    char sbuf[6] = {0};
+    for (int i = 0; i < 8; i++) {
+        char b = (char)(i + 1);
+        CHECK_EQ(mikrocRS485_CtxSend(&m, &b, 1, 5), 0);    /* main thread sends */
+        CHECK_EQ(mikrocRS485_CtxPoll(&s, sbuf, WAIT_MS), MIKROC_RS485_POLL_READY);
+        sbuf[4] = 0;
+        CHECK_EQ(mikrocRS485_CtxSend(&s, sbuf, 1, 0), 0);  /* echo it back */
+    }
+    pthread_join(t, NULL);
+    CHECK_EQ(p.n, 8);
+    for (int i = 0; i < p.n; i++)
+        CHECK_EQ(p.got[i], i + 1);
+    mikrocRS485_CtxClose(&m);
+    mikrocRS485_CtxClose(&s);
+}
+
 int main(void)
 {
     fap_vbus_options vo;
@@ -213,6 +267,7 @@ int main(void)
         UNIT(test_poll_keeps_read_ahead),
         UNIT(test_reset_rx_drops_stale_input),
         UNIT(test_global_open_close),
+        UNIT(test_send_beside_a_receiving_thread),
         UNIT(test_port_vanishes),
     };
     int rc = unit_run(tests, sizeof tests / sizeof tests[0]);

@@ -64,9 +64,15 @@ static int f_ioctl(void *c, int fd, unsigned long req, void *arg)
         rec(f, EV_SRS485, 0);
         fail = f->has_rs485 ? f->fail_srs485 : ENOTTY;
         if (!fail) {
+            struct serial_rs485 *r = arg;
             if (f->nsets < 8)
-                f->sets[f->nsets++] = *(struct serial_rs485 *)arg;
-            f->rs485 = *(struct serial_rs485 *)arg;
+                f->sets[f->nsets++] = *r;
+            /* like the PL011 driver: clamp delays to 100 ms, write back */
+            if (r->delay_rts_before_send > 100)
+                r->delay_rts_before_send = 100;
+            if (r->delay_rts_after_send > 100)
+                r->delay_rts_after_send = 100;
+            f->rs485 = *r;
         }
         break;
     case TIOCMBIS:
@@ -205,14 +211,21 @@ static void test_kernel_active_low(void)
     fake_uart(&f);
     fap_port_options o = opts_mode(FAP_RS485_KERNEL);
     o.rts_active_high = 0;
-    o.delay_before_send_us = 0;
-    o.delay_after_send_us = 100000;   /* 100 ms */
+    o.delay_before_send_us = 4294967295u;   /* rounds up without wrapping */
+    o.delay_after_send_us = 100000;         /* 100 ms */
     fap_port *p = NULL;
     MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
     MUST(f.nsets == 1);
     CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND);
-    CHECK_EQ(f.sets[0].delay_rts_before_send, 0);
+    CHECK_EQ(f.sets[0].delay_rts_before_send, 4294968);
     CHECK_EQ(f.sets[0].delay_rts_after_send, 100);
+    /* what the driver made of it */
+    uint32_t fl = 0, before_ms = 0, after_ms = 0;
+    CHECK_EQ(fap_port_kernel_rs485(p, &fl, &before_ms, &after_ms), 0);
+    CHECK_EQ(fl, SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND);
+    CHECK_EQ(before_ms, 100);
+    CHECK_EQ(after_ms, 100);
+    CHECK_EQ(fap_port_kernel_rs485(p, NULL, NULL, NULL), 0);
     fap_port_close(p);
     CHECK_EQ(f.nsets, 2);
     CHECK_EQ(f.rs485.delay_rts_before_send, 7);
@@ -258,6 +271,7 @@ static void check_kernel_refused(int get_errno, int set_errno)
     o = opts_mode(FAP_RS485_AUTO);
     MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
     CHECK_EQ(fap_port_mode(p), FAP_RS485_NONE);
+    CHECK_EQ(fap_port_kernel_rs485(p, NULL, NULL, NULL), -ENOTTY);
     CHECK_EQ(fap_port_auto_errno(p), -want);
     fap_port_close(p);
     CHECK_EQ(f.nsets, 0);

@@ -172,6 +172,10 @@ static void test_round_trip(void)
     }
     CHECK_EQ(got, 7);
     CHECK_MEM(in, "\x13\x11world", 7);   /* XON/XOFF are data */
+    /* INT64_MAX: wait as long as it takes (the byte is already on its way). */
+    CHECK_EQ(tp_write_all(t.master, "!", 1, 1000), 1);
+    CHECK_EQ(fap_port_read(p, in, sizeof in, INT64_MAX), 1);
+    CHECK_EQ(in[0], '!');
     CHECK_EQ(fap_port_write(p, "", 0), 0);
     CHECK_EQ(fap_port_write(p, NULL, 1), -EINVAL);
     CHECK_EQ(fap_port_read(p, NULL, 1, 0), -EINVAL);
@@ -179,7 +183,7 @@ static void test_round_trip(void)
     fap_port_stats st;
     fap_port_get_stats(p, &st);
     CHECK_EQ(st.tx_bytes, 9);
-    CHECK_EQ(st.rx_bytes, 7);
+    CHECK_EQ(st.rx_bytes, 8);
     CHECK_EQ(st.write_errors, 0);
     fap_port_close(p);
     tp_close(&t);
@@ -573,7 +577,9 @@ static void test_vanish_and_reopen(void)
     MUST(symlink(t1.name, link) == 0);
     fap_port_options o = opts_mode(FAP_RS485_AUTO);
     fap_port *p = NULL;
+    int fds_closed = tp_count_fds();
     MUST(fap_port_open(&p, link, &o) == 0);
+    CHECK_EQ(tp_count_fds(), fds_closed + 3);   /* device, epoll, eventfd */
     CHECK_EQ(fap_port_write(p, "x", 1), 1);
 
     int pfd = fap_port_fd(p);
@@ -583,6 +589,7 @@ static void test_vanish_and_reopen(void)
     char b[8];
     CHECK_EQ(fap_port_read(p, b, sizeof b, fap_port_now_ns() + 5000000000LL), -EIO);
     CHECK_EQ(fap_port_fd(p), -1);
+    CHECK_EQ(tp_count_fds(), fds_closed + 2 - 1);   /* device closed; t1 master too */
     CHECK_EQ(fap_port_write(p, "x", 1), -EIO);
     CHECK_EQ(fap_port_read(p, b, sizeof b, 0), -EIO);
     CHECK_EQ(fap_port_flush(p), -EIO);

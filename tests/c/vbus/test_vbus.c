@@ -254,6 +254,11 @@ static void test_paced_frame_time(void)
     /* 100 bytes * 10 bits / 9600 baud = 104.2 ms; loose bounds only */
     CHECK(dt >= 95);
     CHECK(dt < 5000);
+    fap_vbus_stats st;
+    fap_vbus_get_stats(bus, &st);
+    CHECK_EQ(st.paced_bytes, 100);
+    CHECK(st.pace_late_max_ns < 5000000000ull);   /* measured in the benchmark */
+    CHECK(st.pace_late_sum_ns <= 100 * st.pace_late_max_ns);
     close_nodes(fd, 2);
     fap_vbus_close(bus);
 }
@@ -264,16 +269,16 @@ static void test_collision(void)
     REQUIRE(bus);
     int fd[3];
     open_nodes(bus, fd);
-    uint8_t a[20], b[20], got[40];
+    uint8_t a[64], b[64], got[128];
     memset(a, 0x11, sizeof a);
     memset(b, 0x22, sizeof b);
-    /* 20 bytes take ~21 ms at 9600 baud: the second write starts long
-     * before the first transmission ends */
-    CHECK_EQ(vt_write_all(fd[0], a, 20), 0);
-    CHECK_EQ(vt_write_all(fd[1], b, 20), 0);
-    CHECK_EQ(vt_read_n(fd[2], got, 40, 5000), 40);
+    /* 64 bytes take ~67 ms at 9600 baud: the second write starts long
+     * before the first transmission ends, even on a loaded machine */
+    CHECK_EQ(vt_write_all(fd[0], a, 64), 0);
+    CHECK_EQ(vt_write_all(fd[1], b, 64), 0);
+    CHECK_EQ(vt_read_n(fd[2], got, 128, 5000), 128);
     int corrupted_a = 0, corrupted_b = 0, clean = 0;
-    for (int i = 0; i < 40; i++) {
+    for (int i = 0; i < 128; i++) {
         if (got[i] == (uint8_t)~0x11)
             corrupted_a++;
         else if (got[i] == (uint8_t)~0x22)
@@ -283,13 +288,13 @@ static void test_collision(void)
     }
     CHECK(corrupted_a > 0);
     CHECK(corrupted_b > 0);
-    CHECK_EQ(corrupted_a + corrupted_b + clean, 40);
+    CHECK_EQ(corrupted_a + corrupted_b + clean, 128);
     fap_vbus_stats st;
     fap_vbus_get_stats(bus, &st);
     CHECK_EQ(st.collisions, 1);
     /* the senders hear each other's (corrupted) bytes too */
-    CHECK_EQ(vt_read_n(fd[0], got, 20, 5000), 20);
-    CHECK_EQ(vt_read_n(fd[1], got, 20, 5000), 20);
+    CHECK_EQ(vt_read_n(fd[0], got, 64, 5000), 64);
+    CHECK_EQ(vt_read_n(fd[1], got, 64, 5000), 64);
     close_nodes(fd, 3);
     fap_vbus_close(bus);
 }
@@ -699,6 +704,30 @@ static void test_control_calls_from_many_threads(void)
     fap_vbus_close(bus);
 }
 
+/* The largest bus: port 63 is the last bit of the receiver masks. */
+static void test_sixty_four_ports(void)
+{
+    fap_vbus *bus = open_bus(FAP_VBUS_MAX_PORTS, 0, 0, 0, NULL);
+    REQUIRE(bus);
+    int first = vt_open(fap_vbus_port_path(bus, 0));
+    int last = vt_open(fap_vbus_port_path(bus, FAP_VBUS_MAX_PORTS - 1));
+    CHECK(first >= 0 && last >= 0);
+    uint8_t got[2];
+    CHECK_EQ(vt_write_all(last, "hi", 2), 0);
+    CHECK_EQ(vt_read_n(first, got, 2, WAIT_MS), 2);
+    CHECK_MEM(got, "hi", 2);
+    CHECK_EQ(vt_write_all(first, "yo", 2), 0);
+    CHECK_EQ(vt_read_n(last, got, 2, WAIT_MS), 2);
+    CHECK_MEM(got, "yo", 2);
+    CHECK_EQ(fap_vbus_drop_next(bus, FAP_VBUS_MAX_PORTS - 1, 1), 0);
+    CHECK_EQ(vt_write_all(last, "ab", 2), 0);
+    CHECK_EQ(vt_read_n(first, got, 1, WAIT_MS), 1);
+    CHECK_EQ(got[0], 'b');
+    close(first);
+    close(last);
+    fap_vbus_close(bus);
+}
+
 UNIT_MAIN(
     UNIT(test_options_and_paths),
     UNIT(test_link_dir),
@@ -715,5 +744,6 @@ UNIT_MAIN(
     UNIT(test_capture),
     UNIT(test_overflow_does_not_block),
     UNIT(test_late_opener_starts_clean),
-    UNIT(test_control_calls_from_many_threads)
+    UNIT(test_control_calls_from_many_threads),
+    UNIT(test_sixty_four_ports)
 )

@@ -87,9 +87,9 @@ static void test_collision_seen_through_the_echo(void)
     CHECK(other >= 0);
     if (!a || other < 0)
         goto out;
-    uint8_t jam[30];
+    uint8_t jam[64];
     memset(jam, 0x33, sizeof jam);
-    /* port 1 holds the wire for ~31 ms; a's frame starts inside that */
+    /* port 1 holds the wire for ~67 ms; a's frame starts inside that */
     CHECK_EQ(vt_write_all(other, jam, sizeof jam), 0);
     CHECK_EQ(fap_port_write(a, "\x01\x02\x03\x04", 4), FAP_PORT_ECOLLISION);
     fap_vbus_stats st;

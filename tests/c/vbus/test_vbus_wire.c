@@ -117,7 +117,11 @@ static void test_paced_bytes_arrive_when_their_wire_time_ends(void)
     CHECK_EQ(l.recs[0].n, 1);
     CHECK_EQ(l.recs[0].t, 1000);
     CHECK_EQ(lf_wire_next_due(&w), 1000 + 2 * T9600);
+    CHECK_EQ(w.stats.late_max_ns, 0);
     lf_wire_advance(&w, 1000 + 3 * T9600);   /* late: both in one run */
+    CHECK_EQ(w.stats.paced_bytes, 3);
+    CHECK_EQ(w.stats.late_sum_ns, T9600);   /* byte 1 was one char time late */
+    CHECK_EQ(w.stats.late_max_ns, T9600);
     REQUIRE(l.n_recs == 2);
     CHECK_EQ(l.recs[1].n, 2);
     CHECK_EQ(l.recs[1].t, 1000 + T9600);

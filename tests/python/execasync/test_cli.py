@@ -37,7 +37,9 @@ def test_slave_command_answers(capsys: pytest.CaptureFixture) -> None:
             ["exec", "slave", "--port", bus.paths[1], "--rs485-mode", "none", "--node", "3",
              "--reply", "c0ffee", "--max-requests", "1"])))
         t.start()
-        with Master(bus.paths[0], timeout=1.0, rs485=RS485(mode=RS485Mode.NONE)) as master:
+        # the slave may open its port after our first attempt: short attempts, many
+        with Master(bus.paths[0], timeout=0.2, retries=10,
+                    rs485=RS485(mode=RS485Mode.NONE)) as master:
             assert master.transact(3, b"\x01") == b"\xc0\xff\xee"
         t.join(5)
     assert result == [0]

@@ -2,12 +2,14 @@
 from __future__ import annotations
 
 import sys
+import time
 from pathlib import Path
 from typing import Dict, Iterator, List, Tuple
 
 import pytest
 
-from fap_py import Master, Slave
+from fap_py import EventKind, Master, Slave, SlaveEvent
+from fap_py.fap import Node
 from fap_py.vbus import VirtualBus
 
 HERE = Path(__file__).resolve().parent
@@ -16,9 +18,19 @@ sys.path.insert(0, str(HERE))     # fap_helpers.py
 #: Protocol timing in milliseconds instead of the vendor's seconds, so "a
 #: slave disappears and returns" runs in well under a second. The answer
 #: window and DATA_DONE limit leave room for a loaded CI machine.
-FAST: Dict[str, float] = dict(id_cycle=0.05, id_answer_timeout=0.05, data_done_timeout=0.3)
+FAST: Dict[str, float] = dict(id_cycle=0.05, id_answer_timeout=0.05, data_done_timeout=0.5)
 WAIT = 10.0    #: upper bound of every wait in the tests (never a sleep)
 SLAVE_IDS = (3, 7, 31)
+
+
+def wait_for_event(node: Node, kind: EventKind, node_id: int) -> SlaveEvent:
+    """Read events until one of kind about node_id comes (others are skipped:
+    on a loaded machine a slave may also miss a short deadline spuriously)."""
+    deadline = time.monotonic() + WAIT
+    while True:
+        ev = node.wait_event(timeout=max(0.0, deadline - time.monotonic()))
+        if ev.kind is kind and ev.id == node_id:
+            return ev
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ from fap_py import (ClosedError, EventKind, FapTimeoutError, InvalidTypeError, I
                     SlaveExistsError, Stats, UnknownSlaveError)
 from fap_py.vbus import VirtualBus
 
-from conftest import FAST, SLAVE_IDS, WAIT
+from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
 
 Net = Tuple[Master, List[Slave]]
 
@@ -103,23 +103,18 @@ def test_slave_disappears_and_returns(bus: VirtualBus) -> None:
             list(master.events())                      # the joins so far
             gone = slaves[1]
             gone.close()
-            ev = master.wait_event(timeout=WAIT)
-            while ev.kind is not EventKind.SLAVE_INACTIVE:
-                ev = master.wait_event(timeout=WAIT)
-            assert ev.id == gone.id
+            wait_for_event(master, EventKind.SLAVE_INACTIVE, gone.id)
             assert gone.id not in master.active_slaves and not master.is_active(gone.id)
             assert gone.id in master.slaves
             # the others still talk while it is away
             master.send(b"still here?", to=slaves[0].id)
             assert slaves[0].recv(timeout=WAIT).data == b"still here?"
             # ... and the master keeps querying it (ID cycles every 50 ms)
-            ev = master.wait_event(timeout=WAIT)
-            assert (ev.kind, ev.id) == (EventKind.ID_TIMEOUT, gone.id)
+            wait_for_event(master, EventKind.ID_TIMEOUT, gone.id)
             back = Slave(bus.paths[2], id=gone.id)
             slaves[1] = back
             master.wait_active([gone.id], timeout=WAIT)
-            kinds = [(e.kind, e.id) for e in master.events()]
-            assert (EventKind.SLAVE_ACTIVE, gone.id) in kinds
+            wait_for_event(master, EventKind.SLAVE_ACTIVE, gone.id)   # kept by wait_active
             master.send(b"welcome back", to=gone.id)
             assert back.recv(timeout=WAIT) == Message(0, b"welcome back")
             back.send(b"thanks")
@@ -156,9 +151,9 @@ def test_add_and_remove_slaves(bus: VirtualBus) -> None:
             master.is_active(5)
         # listed again: queried afresh, then polled
         master.add_slave(5)
+        master.wait_active([5], timeout=WAIT)
         s5.send(b"again")
         assert master.recv(timeout=WAIT) == Message(5, b"again")
-        assert master.active_slaves == [5]
 
 
 def test_wait_active_timeout_names_missing(bus: VirtualBus) -> None:
@@ -194,10 +189,13 @@ def test_queue_full_raises_and_keeps_what_was_queued(bus: VirtualBus) -> None:
         with pytest.raises(QueueFullError):
             s.send(b"3")
         assert s.tx_pending == 2
+        with pytest.raises(QueueFullError):
+            s.send(b"3", timeout=0.05)           # waited for room, none came
         with pytest.raises(FapTimeoutError):
             s.flush(timeout=0.05)
         with Master(bus.paths[0], slaves=[4], **FAST) as master:
-            assert [master.recv(timeout=WAIT).data for _ in range(2)] == [b"1", b"2"]
+            s.send(b"3", timeout=WAIT)           # room comes when the master polls
+            assert [master.recv(timeout=WAIT).data for _ in range(3)] == [b"1", b"2", b"3"]
             s.flush(timeout=WAIT)
             assert s.tx_pending == 0
 
@@ -369,7 +367,7 @@ def test_events_are_read_by_python_threads_not_from_the_engine(net: Net) -> None
         while True:
             ev = master.wait_event(timeout=WAIT)
             seen.append((threading.current_thread().name, ev.kind, ev.id))
-            if ev.kind is EventKind.SLAVE_INACTIVE:
+            if ev.kind is EventKind.SLAVE_INACTIVE and ev.id == a.id:
                 return
 
     t = threading.Thread(target=reader, name="event-reader")

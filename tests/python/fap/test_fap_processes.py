@@ -11,7 +11,7 @@ from typing import List
 from fap_py import EventKind, Master, Message
 from fap_py.vbus import VirtualBus
 
-from conftest import FAST, SLAVE_IDS, WAIT
+from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
 from fap_helpers import SlaveProcess
 
 
@@ -60,11 +60,7 @@ def test_killed_slave_process_is_marked_inactive_and_returns(bus: VirtualBus) ->
             list(master.events())
             victim = procs[2]
             victim.kill()                       # vanishes mid-protocol, no cleanup
-            while True:
-                ev = master.wait_event(timeout=WAIT)
-                if ev.kind is EventKind.SLAVE_INACTIVE:
-                    break
-            assert ev.id == victim.id
+            wait_for_event(master, EventKind.SLAVE_INACTIVE, victim.id)
             assert victim.id not in master.active_slaves
             procs[2] = SlaveProcess(bus.paths[3], victim.id)   # a new process, same port
             procs[2].expect("ready", WAIT)

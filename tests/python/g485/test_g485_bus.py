@@ -218,3 +218,16 @@ def test_echo_bus_master_reads_back_its_frames(tmp_path):
         master.broadcast_set(SetCommand.CLEAR_ERROR_WORD)
         assert master.stats.retries == 0
         assert sim.error is None
+
+
+def test_paced_bus_reply_timeout_includes_wire_time():
+    """At 19200 baud a 106-byte reply takes 55 ms on the wire: a 50 ms timeout must still wait for it."""
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(ports=2, baud=19200, seed=5) as bus, \
+            Simulator(bus.paths[1], [SimDevice(8)]) as sim, \
+            G485Master(bus.paths[0], 19200, timeout=SHORT, retries=0) as master:
+        assert not master.wake_up
+        data = master.read(8, 1, 100, check=Check.NONE)
+        assert len(data) == 100 and data[6] == 8
+        assert sim.error is None

@@ -34,6 +34,7 @@ def sim_process(vbus, tmp_path):
     yield vbus.paths[0], tmp_path
     proc.terminate()
     assert proc.wait(10) == 0
+    proc.stdout.close()
 
 
 def test_cli_transactions_against_simulator_process(sim_process, fap):
@@ -52,3 +53,12 @@ def test_cli_transactions_against_simulator_process(sim_process, fap):
     assert r.returncode == 1 and "cannot be broadcast" in r.stderr
     r = fap("read", *base, "--address", "9", "--register", "1", "--retries", "0")
     assert r.returncode == 1 and "no reply" in r.stderr
+
+
+def test_example_fan_bus_runs():
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[3] / "examples" / "g485" / "fan_bus.py"
+    r = subprocess.run([sys.executable, str(example)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "fan 30 now runs at 70 %" in r.stdout and "READ_ONLY" in r.stdout

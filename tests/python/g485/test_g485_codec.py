@@ -62,7 +62,7 @@ def test_packet_accessors():
     assert decode_frame(codec.encode_error_word_response(0xBEEF)).error_word == 0xBEEF
     assert decode_frame(codec.encode_handshake_response(0x42)).handshake_value == 0x42
     req = decode_frame(codec.encode_read_request(9, 20, 4))
-    assert (req.register, req.count) == (20, 4)
+    assert (req.register, req.read_count) == (20, 4)
     assert decode_frame(codec.encode_set(3, "reset")).command is SetCommand.RESET
 
 
@@ -120,7 +120,7 @@ def test_range_checks(call):
 def test_largest_frames():
     frame = codec.encode_write(126, 1, bytes(range(100)))
     assert frame[3] == 102 and decode_frame(frame).data == bytes(range(100))
-    assert decode_frame(codec.encode_read_request(1, 100, 1)).count == 1
+    assert decode_frame(codec.encode_read_request(1, 100, 1)).read_count == 1
 
 
 def test_decode_reports_what_is_wrong():

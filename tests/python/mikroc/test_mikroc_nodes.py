@@ -200,3 +200,9 @@ def test_master_send_while_another_thread_receives(net):
     net.a.send(b"\x32")
     t.join(10)
     assert got == [Message(SLAVE_A, b"\x32", False)]
+
+
+def test_port_that_vanishes_raises_port_error(net):
+    net.bus.disconnect(1, 0.3)
+    with pytest.raises(PortError):
+        net.a.receive(timeout=5)

@@ -39,6 +39,7 @@ def test_auto_on_pty_falls_back_to_none(pty: tuple[int, str]) -> None:
     try:
         assert lib.fap_port_mode(p) == lib.FAP_RS485_NONE
         assert lib.fap_port_auto_errno(p) == errno.ENOTTY
+        assert lib.fap_port_kernel_rs485(p, ffi.NULL, ffi.NULL, ffi.NULL) == -errno.ENOTTY
     finally:
         lib.fap_port_close(p)
 

@@ -62,18 +62,31 @@ def test_paced_frame_takes_its_wire_time(open_nodes) -> None:
         assert read_exact(b, 100, timeout=5) == frame
         elapsed = time.monotonic() - t0
         assert 0.095 <= elapsed < 5.0   # 104.2 ms ideal; loose on purpose
+        st = bus.stats()
+        assert st.paced_bytes == 100
+        assert 0.0 <= st.pace_late_mean_us <= st.pace_late_max_ns / 1000.0
 
 
-def test_forced_collision_is_detected(open_nodes) -> None:
-    with VirtualBus(ports=3, baud=9600) as bus:
+def test_forced_collision_is_detected(tmp_path: Path, open_nodes) -> None:
+    with VirtualBus(ports=3, baud=9600, capture=tmp_path / "c.cap") as bus:
         a, b, c = open_nodes(bus)
-        write_all(a, b"\x11" * 20)   # ~21 ms on the wire...
-        write_all(b, b"\x22" * 20)   # ...so this one overlaps it
-        got = read_exact(c, 40, timeout=5)
-        assert len(got) == 40
+        write_all(a, b"\x11" * 64)   # ~67 ms on the wire...
+        write_all(b, b"\x22" * 64)   # ...so this one overlaps it
+        got = read_exact(c, 128, timeout=5)
+        assert len(got) == 128
         assert got.count(0xEE) > 0 and got.count(0xDD) > 0   # bit-inverted
         assert set(got) <= {0x11, 0x22, 0xEE, 0xDD}
         assert bus.stats().collisions == 1
+    cap = read_capture(tmp_path / "c.cap")
+    [event] = cap.events_of("collision")
+    assert event.fields == {"ports": "0,1"}
+    # what the capture shows is what the receivers got
+    sent_a, sent_b = cap.data_from(0), cap.data_from(1)
+    assert len(sent_a) == len(sent_b) == 64
+    assert 0xEE in sent_a and set(sent_a) <= {0x11, 0xEE}
+    assert 0xDD in sent_b and set(sent_b) <= {0x22, 0xDD}
+    # a corrupted byte started at most one char time (1042 us) before the overlap
+    assert all(r.t_us >= event.t_us - 1042 for r in cap.records if r.data[0] in (0xEE, 0xDD))
 
 
 def test_drop_next_and_corrupt_next_are_exact(open_nodes) -> None:
