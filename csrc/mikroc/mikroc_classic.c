@@ -5,6 +5,7 @@
 #include <stddef.h>
 
 #include "mikroc_rs485.h"
+#include "mikroc/mikroc_internal.h"
 
 static mikrocRS485_ctx g_master, g_slave;
 static fap_port *g_owned_port;      /* opened by mikrocRS485_Open */
@@ -64,15 +65,8 @@ int mikrocRS485_Open(const char *path, unsigned baud, const fap_port_options *op
         return -EINVAL;
     if (g_owned_port)
         return -EBUSY;
-    fap_port_options o;
-    if (opts)
-        o = *opts;
-    else
-        fap_port_options_init(&o);
-    if (baud)
-        o.baud = baud;
     fap_port *p = NULL;
-    int r = fap_port_open(&p, path, &o);
+    int r = lf_mikroc_port_open(&p, path, baud, opts);
     if (r < 0)
         return r;
     g_owned_port = p;

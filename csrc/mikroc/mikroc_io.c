@@ -4,6 +4,7 @@
 #include <stdint.h>
 
 #include "mikroc_rs485.h"
+#include "mikroc/mikroc_internal.h"
 
 int mikrocRS485_CtxBind(mikrocRS485_ctx *c, fap_port *port)
 {
@@ -16,13 +17,9 @@ int mikrocRS485_CtxBind(mikrocRS485_ctx *c, fap_port *port)
     return 0;
 }
 
-int mikrocRS485_CtxOpen(mikrocRS485_ctx *c, const char *path, unsigned baud,
+int lf_mikroc_port_open(fap_port **out, const char *path, unsigned baud,
                         const fap_port_options *opts)
 {
-    if (!path)
-        return -EINVAL;
-    if (c->owns_port)
-        return -EBUSY;
     fap_port_options o;
     if (opts)
         o = *opts;
@@ -30,8 +27,18 @@ int mikrocRS485_CtxOpen(mikrocRS485_ctx *c, const char *path, unsigned baud,
         fap_port_options_init(&o);
     if (baud)
         o.baud = baud;
+    return fap_port_open(out, path, &o);
+}
+
+int mikrocRS485_CtxOpen(mikrocRS485_ctx *c, const char *path, unsigned baud,
+                        const fap_port_options *opts)
+{
+    if (!path)
+        return -EINVAL;
+    if (c->owns_port)
+        return -EBUSY;
     fap_port *p = NULL;
-    int r = fap_port_open(&p, path, &o);
+    int r = lf_mikroc_port_open(&p, path, baud, opts);
     if (r < 0)
         return r;
     mikrocRS485_CtxBind(c, p);

@@ -1,12 +1,9 @@
-/* Reads tests/vectors/mikroc_rs485.json (path from argv/env) into a table.
- * A tiny scanner for that file's flat layout: two arrays ("valid",
- * "invalid") of flat objects with string, number and boolean fields. */
+/* Reads tests/vectors/mikroc_rs485.json (path from $MIKROC_VECTORS, set by
+ * meson) into a table: the "valid" and "invalid" arrays. Parsing is
+ * tests/c/json_scan.h's. */
 #ifndef MIKROC_VECTORS_H
 #define MIKROC_VECTORS_H
-#include <stdint.h>
-#include <stdio.h>
-#include <stdlib.h>
-#include <string.h>
+#include "json_scan.h"
 
 #define MV_MAX 64
 
@@ -22,128 +19,42 @@ typedef struct mv_vector {
     char reason[32];
 } mv_vector;
 
-static char *mv_slurp(const char *path)
-{
-    FILE *f = fopen(path, "rb");
-    if (!f)
-        return NULL;
-    fseek(f, 0, SEEK_END);
-    long n = ftell(f);
-    fseek(f, 0, SEEK_SET);
-    char *s = malloc((size_t)n + 1);
-    if (s && fread(s, 1, (size_t)n, f) != (size_t)n) {
-        free(s);
-        s = NULL;
-    }
-    if (s)
-        s[n] = 0;
-    fclose(f);
-    return s;
-}
+typedef struct { mv_vector *out; size_t n, cap; int valid; } mv_ctx;
 
-/* Value text of "key" inside [obj, end): returns pointer past ':' and spaces. */
-static const char *mv_field(const char *obj, const char *end, const char *key)
+static int mv_take(const char *o, const char *e, void *arg)
 {
-    char pat[48];
-    snprintf(pat, sizeof pat, "\"%s\"", key);
-    const char *p = strstr(obj, pat);
-    if (!p || p >= end)
-        return NULL;
-    p += strlen(pat);
-    while (*p == ' ' || *p == ':' || *p == '\n')
-        p++;
-    return p;
-}
-
-static void mv_string(const char *v, char *out, size_t cap)
-{
-    size_t n = 0;
-    if (v && *v == '"') {
-        v++;
-        while (*v && *v != '"' && n + 1 < cap)
-            out[n++] = *v++;
-    }
-    out[n] = 0;
-}
-
-static size_t mv_hex(const char *v, uint8_t *out, size_t cap)
-{
-    char tmp[64];
-    mv_string(v, tmp, sizeof tmp);
-    size_t n = 0;
-    for (const char *h = tmp; h[0] && h[1] && n < cap; h += 2) {
-        unsigned x;
-        if (sscanf(h, "%2x", &x) != 1)
-            break;
-        out[n++] = (uint8_t)x;
-    }
-    return n;
-}
-
-/* Next occurrence of c outside JSON strings (names contain braces). */
-static const char *mv_next(const char *p, char c)
-{
-    int in_str = 0;
-    for (; *p; p++) {
-        if (in_str) {
-            if (*p == '\\' && p[1])
-                p++;
-            else if (*p == '"')
-                in_str = 0;
-        } else if (*p == '"') {
-            in_str = 1;
-        } else if (*p == c) {
-            return p;
-        }
-    }
-    return NULL;
-}
-
-/* Parse the objects of array `key`; returns how many were added. */
-static size_t mv_parse_array(const char *doc, const char *key, int valid,
-                             mv_vector *out, size_t have, size_t cap)
-{
-    const char *a = mv_field(doc, doc + strlen(doc), key);
-    if (!a || *a != '[')
+    mv_ctx *c = arg;
+    if (c->n >= c->cap)
         return 0;
-    const char *close = mv_next(a, ']');
-    size_t n = 0;
-    for (const char *o = mv_next(a, '{'); o && close && o < close && have + n < cap;
-         o = mv_next(o, '{')) {
-        const char *e = mv_next(o, '}');
-        if (!e)
-            break;
-        mv_vector *v = &out[have + n];
-        memset(v, 0, sizeof *v);
-        v->valid = valid;
-        mv_string(mv_field(o, e, "name"), v->name, sizeof v->name);
-        v->frame_len = mv_hex(mv_field(o, e, "frame"), v->frame, sizeof v->frame);
-        const char *f;
-        if ((f = mv_field(o, e, "address")))
-            v->address = atoi(f);
-        if ((f = mv_field(o, e, "data")))
-            v->data_len = mv_hex(f, v->data, sizeof v->data);
-        if ((f = mv_field(o, e, "master")))
-            v->master = strncmp(f, "true", 4) == 0;
-        mv_string(mv_field(o, e, "reason"), v->reason, sizeof v->reason);
-        n++;
-        o = e;
-    }
-    return n;
+    mv_vector *v = &c->out[c->n++];
+    memset(v, 0, sizeof *v);
+    v->valid = c->valid;
+    js_string(js_field(o, e, "name"), v->name, sizeof v->name);
+    v->frame_len = js_hex(js_field(o, e, "frame"), v->frame, sizeof v->frame);
+    v->data_len = js_hex(js_field(o, e, "data"), v->data, sizeof v->data);
+    const char *f;
+    if ((f = js_field(o, e, "address")))
+        v->address = atoi(f);
+    if ((f = js_field(o, e, "master")))
+        v->master = strncmp(f, "true", 4) == 0;
+    js_string(js_field(o, e, "reason"), v->reason, sizeof v->reason);
+    return 1;
 }
 
-/* Load the vectors; the path comes from $MIKROC_VECTORS (set by meson). */
+/* Load the vectors; returns how many (valid first, then invalid). */
 static size_t mv_load(mv_vector *out, size_t cap)
 {
     const char *path = getenv("MIKROC_VECTORS");
-    char *doc = path ? mv_slurp(path) : NULL;
+    char *doc = js_slurp(path);
     if (!doc) {
         fprintf(stderr, "cannot read vectors (MIKROC_VECTORS=%s)\n", path ? path : "unset");
         return 0;
     }
-    size_t n = mv_parse_array(doc, "valid", 1, out, 0, cap);
-    n += mv_parse_array(doc, "invalid", 0, out, n, cap);
+    mv_ctx c = { out, 0, cap, 1 };
+    js_each(doc, "valid", mv_take, &c);
+    c.valid = 0;
+    js_each(doc, "invalid", mv_take, &c);
     free(doc);
-    return n;
+    return c.n;
 }
 #endif
