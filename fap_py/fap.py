@@ -36,8 +36,8 @@ import os
 import threading
 import time
 from dataclasses import dataclass, fields
-from typing import (TYPE_CHECKING, Any, AsyncIterator, Iterable, Iterator, List, Optional,
-                    Tuple, Union)
+from typing import (TYPE_CHECKING, Any, AsyncIterator, Callable, Dict, Iterable, Iterator,
+                    List, Optional, Tuple, Union)
 
 from .errors import (ClosedError, FapError, FapTimeoutError, InvalidValueError,
                      QueueFullError, error_from_code)
@@ -50,6 +50,7 @@ __all__ = [
     "MAX_DATA",
     "MAX_ID",
     "WAIT_SLICE",
+    "classic_check",
     "EventKind",
     "InvalidTypeError",
     "Master",
@@ -87,8 +88,10 @@ def _native() -> Tuple[Any, Any]:
     if _native_mod is None:
         from ._native import ffi, lib
 
-        if (lib.FAPX_MAX_ID, lib.FAPX_MAX_DATA) != (MAX_ID, MAX_DATA):  # pragma: no cover
-            raise FapError("fap_py.fap and the compiled libfap disagree on FAP limits")
+        if ((lib.FAPX_MAX_ID, lib.FAPX_MAX_DATA) != (MAX_ID, MAX_DATA) or
+                (lib.GOOD, lib.BAD, lib.E_PARAM, lib.E_VALUE, lib.E_INIT, lib.E_RES)
+                != (0, 1, 2, 3, 4, 5)):  # pragma: no cover
+            raise FapError("fap_py.fap and the compiled libfap disagree on FAP constants")
         _native_mod = (ffi, lib)
     return _native_mod
 
@@ -134,6 +137,33 @@ def _error(code: int, what: str, path: Optional[str] = None, detail: str = "") -
     return error_from_code(code, what, path)
 
 
+def classic_check(code: int, what: str) -> None:
+    """Raise the exception for a vendor-API (``fap.h``) return code; GOOD passes.
+
+    For Python code that calls the classic API through ``fap_py._native``:
+    ``classic_check(lib.fapTx(data, len(data), 3), "fapTx")``. ``E_RES`` is
+    :class:`QueueFullError` (from ``fapTx``; ``fapRx`` returns it for "nothing
+    received", which callers test for before calling this).
+    """
+    from .errors import NotInitialisedError
+
+    text = {1: "BAD (port could not be opened, or baud rate not 9600..115200)",
+            2: "E_PARAM (wrong mode, or a slave-list call on a slave)",
+            3: "E_VALUE (ID or size out of range, slave listed twice or not listed)",
+            4: "E_INIT (fapInit/fapConfig not done, or the handle was closed)",
+            5: "E_RES (queue full or empty)"}
+    if code == 0:
+        return
+    msg = f"{what}: {text.get(code, f'unknown code {code}')}"
+    if code in (2, 3):
+        raise InvalidValueError(msg)
+    if code == 4:
+        raise NotInitialisedError(msg)
+    if code == 5:
+        raise QueueFullError(msg)
+    raise FapError(msg)
+
+
 # -- argument checks (before anything reaches C) -----------------------------
 
 def _int(value: Any, what: str, lo: int, hi: int) -> int:
@@ -155,10 +185,10 @@ def _payload(data: Any) -> bytes:
         raise InvalidTypeError("data must be bytes-like, not str (encode it first)")
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-    data = bytes(data)
-    if not 1 <= len(data) <= MAX_DATA:
-        raise InvalidValueError(f"data must hold 1..{MAX_DATA} bytes, not {len(data)}")
-    return data
+    payload = bytes(data)
+    if not 1 <= len(payload) <= MAX_DATA:
+        raise InvalidValueError(f"data must hold 1..{MAX_DATA} bytes, not {len(payload)}")
+    return payload
 
 
 def _seconds(value: Any, what: str) -> float:
@@ -307,7 +337,7 @@ class Stats:
     port_reopened: int       #: times it came back
     unexpected: int          #: valid frames that fit no protocol state
 
-    def as_dict(self) -> dict:
+    def as_dict(self) -> Dict[str, int]:
         """The counters as a plain dict."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
@@ -347,6 +377,7 @@ class Node:
         self._idle = threading.Condition(self._lock)
         self._users = 0              # threads inside a C call on self._h
         self._closing = False
+        self._closer: Optional[int] = None   # the thread running close()
         self._pump: Optional["AsyncPump"] = None
         self._stash: List[SlaveEvent] = []   # events taken by wait_active, not yet read
         self._tls = threading.local()        # per-thread receive buffers
@@ -404,19 +435,31 @@ class Node:
     def _label(self) -> str:
         return "master" if self._mode == 0 else f"slave {self.id}"
 
-    def _enter(self) -> Any:
-        """Count this thread in as a C caller; the handle stays valid until _leave."""
-        with self._lock:
-            if self._closing:
-                raise ClosedError(f"{self._label()} on {self.path} is closed")
-            self._users += 1
-            return self._h
+    def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """fn(handle, *args) with this thread counted in as a user of the handle.
 
-    def _leave(self) -> None:
-        with self._lock:
-            self._users -= 1
-            if self._closing and self._users == 0:
-                self._idle.notify_all()
+        close() frees the handle only when no thread is inside such a call.
+        The bookkeeping is laid out so that an asynchronous exception
+        (KeyboardInterrupt from Ctrl-C) cannot leave the count wrong: Python
+        runs signal handlers only at function entries, backward jumps and
+        after calls, and there is none between ``+= 1`` and ``entered =
+        True``, nor between the ``finally`` and ``-= 1``.
+        """
+        entered = False
+        try:
+            with self._lock:
+                if self._closing:
+                    raise ClosedError(f"{self._label()} on {self.path} is closed")
+                self._users += 1
+                entered = True
+                h = self._h
+            return fn(h, *args)
+        finally:
+            if entered:
+                with self._lock:
+                    self._users -= 1
+                    if self._closing and not self._users:
+                        self._idle.notify_all()
 
     @property
     def closed(self) -> bool:
@@ -433,23 +476,29 @@ class Node:
         lock = getattr(self, "_lock", None)
         if lock is None or getattr(self, "_h", None) is None:
             return
+        me = threading.get_ident()
         with lock:
-            if self._closing:
-                while self._h is not None:    # another thread is closing it
-                    self._idle.wait()
-                return
             self._closing = True
-        pump, self._pump = self._pump, None
-        if pump is not None:
-            pump.stop()
-        with lock:
-            while self._users:
-                self._idle.wait()
-            h = self._h
-        self._lib.fapx_close(h)               # joins the engine thread (GIL released)
-        with lock:
-            self._h = None
-            self._idle.notify_all()
+            while self._closer is not None and self._h is not None:
+                self._idle.wait(WAIT_SLICE)   # another thread is closing it
+            if self._h is None:
+                return
+            self._closer = me
+        try:
+            pump, self._pump = self._pump, None
+            if pump is not None:
+                pump.stop()
+            with lock:
+                while self._users:            # they leave within WAIT_SLICE
+                    self._idle.wait(WAIT_SLICE)
+                # Forget the handle first: an interrupt before fapx_close leaks
+                # it, one after cannot free it twice.
+                h, self._h = self._h, None
+            self._lib.fapx_close(h)           # joins the engine thread (GIL released)
+        finally:
+            with lock:
+                self._closer = None
+                self._idle.notify_all()
         log.info("%s on %s closed", self._label(), self.path)
 
     def __enter__(self) -> "Node":
@@ -480,50 +529,31 @@ class Node:
 
         For ``select``/``poll``/``selectors``; never read it. Valid until close.
         """
-        h = self._enter()
-        try:
-            return int(self._lib.fapx_notify_fd(h))
-        finally:
-            self._leave()
+        return int(self._call(self._lib.fapx_notify_fd))
 
     @property
     def rs485_mode(self) -> RS485Mode:
         """The RS-485 direction mode actually in force (never AUTO)."""
-        h = self._enter()
-        try:
-            return RS485Mode(self._lib.fap_port_mode(self._lib.fapx_port(h)))
-        finally:
-            self._leave()
+        lib = self._lib
+        return RS485Mode(self._call(lambda h: lib.fap_port_mode(lib.fapx_port(h))))
 
     def stats(self) -> Stats:
         """A snapshot of the engine's counters."""
         st = self._ffi.new("fapx_stats *")
-        h = self._enter()
-        try:
-            self._lib.fapx_get_stats(h, st)
-        finally:
-            self._leave()
+        self._call(self._lib.fapx_get_stats, st)
         return Stats(**{name: getattr(st, name) for name in _STATS_FIELDS})
 
     @property
     def rx_pending(self) -> int:
         """Received messages queued in C, not read yet."""
-        h = self._enter()
-        try:
-            n = int(self._lib.fapx_rx_pending(h))
-        finally:
-            self._leave()
+        n = int(self._call(self._lib.fapx_rx_pending))
         pump = self._pump
         return n + (pump.rx_queued() if pump is not None else 0)
 
     @property
     def tx_pending(self) -> int:
         """Messages queued by :meth:`send` and not on the wire yet."""
-        h = self._enter()
-        try:
-            return int(self._lib.fapx_tx_pending(h))
-        finally:
-            self._leave()
+        return int(self._call(self._lib.fapx_tx_pending))
 
     # -- sending ----------------------------------------------------------
     def _check_dest(self, to: Any) -> int:
@@ -547,20 +577,12 @@ class Node:
         dest = self._check_dest(to)
         payload = _payload(data)
         if timeout == 0.0:
-            h = self._enter()
-            try:
-                code = self._lib.fapx_tx(h, dest, payload, len(payload))
-            finally:
-                self._leave()
+            code = self._call(self._lib.fapx_tx, dest, payload, len(payload))
         else:
             deadline = _deadline(timeout)
             while True:
-                h = self._enter()
-                try:
-                    code = self._lib.fapx_tx_wait(h, dest, payload, len(payload),
-                                                  _slice_ms(deadline))
-                finally:
-                    self._leave()
+                code = self._call(self._lib.fapx_tx_wait, dest, payload, len(payload),
+                                  _slice_ms(deadline))
                 if code != -_errno.ETIMEDOUT:
                     break
                 if deadline is not None and time.monotonic() >= deadline:
@@ -578,11 +600,7 @@ class Node:
         """
         deadline = _deadline(timeout)
         while True:
-            h = self._enter()
-            try:
-                code = self._lib.fapx_flush(h, _slice_ms(deadline))
-            finally:
-                self._leave()
+            code = self._call(self._lib.fapx_flush, _slice_ms(deadline))
             if code == 0:
                 return
             if code != -_errno.ETIMEDOUT or (deadline is not None
@@ -607,14 +625,10 @@ class Node:
         except AttributeError:       # first receive in this thread: its own buffers
             buf, src = self._tls.rx = (ffi.new("unsigned char[]", MAX_DATA),
                                        ffi.new("unsigned *"))
-        h = self._enter()
-        try:
-            if wait_ms is None:
-                n = lib.fapx_rx(h, buf, MAX_DATA, src)
-            else:
-                n = lib.fapx_rx_wait(h, buf, MAX_DATA, src, wait_ms)
-        finally:
-            self._leave()
+        if wait_ms is None:
+            n = self._call(lib.fapx_rx, buf, MAX_DATA, src)
+        else:
+            n = self._call(lib.fapx_rx_wait, buf, MAX_DATA, src, wait_ms)
         if n >= 0:
             msg = Message(int(src[0]), ffi.buffer(buf, n)[:])
             log.debug("%s: received %d bytes from %d", self._label(), n, msg.source)
@@ -667,14 +681,10 @@ class Node:
     # -- events ------------------------------------------------------------
     def _ev_c(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]:
         ev = self._ffi.new("fapx_event *")
-        h = self._enter()
-        try:
-            if wait_ms is None:
-                code = self._lib.fapx_event_get(h, ev)
-            else:
-                code = self._lib.fapx_event_wait(h, ev, wait_ms)
-        finally:
-            self._leave()
+        if wait_ms is None:
+            code = self._call(self._lib.fapx_event_get, ev)
+        else:
+            code = self._call(self._lib.fapx_event_wait, ev, wait_ms)
         if code == 0:
             try:
                 kind = EventKind(ev.type)
@@ -838,11 +848,7 @@ class Master(Node):
             SlaveExistsError: already listed.
         """
         sid = _slave_id(id)
-        h = self._enter()
-        try:
-            code = self._lib.fapx_add_slave(h, sid)
-        finally:
-            self._leave()
+        code = self._call(self._lib.fapx_add_slave, sid)
         if code < 0:
             raise _error(code, "add_slave", detail=f"id {sid}")
         log.info("master: slave %d listed", sid)
@@ -854,11 +860,7 @@ class Master(Node):
             UnknownSlaveError: not listed.
         """
         sid = _slave_id(id)
-        h = self._enter()
-        try:
-            code = self._lib.fapx_remove_slave(h, sid)
-        finally:
-            self._leave()
+        code = self._call(self._lib.fapx_remove_slave, sid)
         if code < 0:
             raise _error(code, "remove_slave", detail=f"id {sid}")
         log.info("master: slave %d removed", sid)
@@ -866,11 +868,7 @@ class Master(Node):
     def is_active(self, id: int) -> bool:
         """Whether listed slave ``id`` answers (UnknownSlaveError if not listed)."""
         sid = _slave_id(id)
-        h = self._enter()
-        try:
-            code = self._lib.fapx_slave_active(h, sid)
-        finally:
-            self._leave()
+        code = self._call(self._lib.fapx_slave_active, sid)
         if code < 0:
             raise _error(code, "is_active", detail=f"id {sid}")
         return bool(code)
@@ -878,20 +876,12 @@ class Master(Node):
     @property
     def slaves(self) -> List[int]:
         """The listed slave IDs, ascending."""
-        h = self._enter()
-        try:
-            return _mask_ids(self._lib.fapx_listed_mask(h))
-        finally:
-            self._leave()
+        return _mask_ids(self._call(self._lib.fapx_listed_mask))
 
     @property
     def active_slaves(self) -> List[int]:
         """The listed slaves that answered their last query, ascending."""
-        h = self._enter()
-        try:
-            return _mask_ids(self._lib.fapx_active_mask(h))
-        finally:
-            self._leave()
+        return _mask_ids(self._call(self._lib.fapx_active_mask))
 
     def wait_active(self, ids: Optional[Iterable[int]] = None,
                     timeout: Optional[float] = None) -> None:

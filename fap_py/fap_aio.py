@@ -48,8 +48,8 @@ class AsyncPump:
         self.rx: Deque["Message"] = deque()
         self.ev: Deque["SlaveEvent"] = deque()
         self.ev_cap = int(node._ev_depth)
-        self.rx_waiters: Deque[asyncio.Future] = deque()
-        self.ev_waiters: Deque[asyncio.Future] = deque()
+        self.rx_waiters: Deque["asyncio.Future[Any]"] = deque()
+        self.ev_waiters: Deque["asyncio.Future[Any]"] = deque()
         self.events_dropped = 0     #: events discarded because nobody read them
         self.reading = False
         self.paused = False
@@ -131,7 +131,7 @@ class AsyncPump:
             self._maybe_resume()
 
     @staticmethod
-    def _deliver(waiters: Deque[asyncio.Future], queue: Deque[Any], item: Any) -> bool:
+    def _deliver(waiters: Deque["asyncio.Future[Any]"], queue: Deque[Any], item: Any) -> bool:
         """Hand item to the first live waiter (True) or queue it (False)."""
         while waiters:
             fut = waiters.popleft()
@@ -172,7 +172,7 @@ class AsyncPump:
         """Messages moved to Python and not taken yet."""
         return len(self.rx)
 
-    async def _wait(self, waiters: Deque[asyncio.Future], queue: Deque[Any],
+    async def _wait(self, waiters: Deque["asyncio.Future[Any]"], queue: Deque[Any],
                     timeout: Optional[float], what: str) -> Any:
         if self.stopped:
             raise ClosedError(f"{self.node._label()} on {self.node.path} is closed")
@@ -192,33 +192,29 @@ class AsyncPump:
         finally:
             if timer is not None:
                 timer.cancel()
-            try:
-                waiters.remove(fut)
-            except ValueError:
-                pass
+            if fut in waiters:       # still there after a timeout or a cancel
+                waiters.remove(fut)  # (a miss would build a ValueError with repr(fut))
 
     @staticmethod
-    def _expire(fut: asyncio.Future, text: str) -> None:
+    def _expire(fut: "asyncio.Future[Any]", text: str) -> None:
         if not fut.done():
             fut.set_exception(FapTimeoutError(text))
 
     async def get_rx(self, timeout: Optional[float]) -> "Message":
-        """The next message (the Python deque first, then C, then wait for the fd)."""
+        """The next message: from the deque, else wait (the fd reader fills it)."""
         msg = self.take_rx()
-        if msg is None and not self.stopped:
-            msg = self.node._rx_c(None)
         if msg is not None:
             return msg
-        return await self._wait(self.rx_waiters, self.rx, timeout, "arecv")
+        got: "Message" = await self._wait(self.rx_waiters, self.rx, timeout, "arecv")
+        return got
 
     async def get_event(self, timeout: Optional[float]) -> "SlaveEvent":
-        """The next engine event."""
+        """The next engine event: from the deque, else wait (the fd reader fills it)."""
         ev = self.take_event()
-        if ev is None and not self.stopped:
-            ev = self.node._ev_c(None)
         if ev is not None:
             return ev
-        return await self._wait(self.ev_waiters, self.ev, timeout, "await_event")
+        got: "SlaveEvent" = await self._wait(self.ev_waiters, self.ev, timeout, "await_event")
+        return got
 
     # -- shutdown -----------------------------------------------------------------
     def _fail_waiters(self, exc: BaseException) -> None:

@@ -160,9 +160,10 @@ const char *fapx_strerror(int err);
 const char *fapx_event_name(int type);
 
 /* ---- the classic API's default handle (<fap.h>) ---- */
-/* Timing/queue/port options the next fapInit/fapConfig use (NULL = the
- * vendor defaults). mode/id are ignored: fapConfig sets them. Call before
- * fapInit for port options, before fapConfig for the rest. */
+/* Options the next fapInit/fapConfig use (NULL = the vendor defaults):
+ * port options and queue depths are taken by fapInit, timing (idc_us when
+ * fapConfig's idcTime is 0, id_answer_us, data_done_us, send_budget_us,
+ * gap_us, reopen_us) by fapConfig. mode/id are ignored: fapConfig sets them. */
 void fapClassicSetOptions(const fapx_options *o);
 /* The default handle once fapConfig has started it, else NULL. */
 fapx *fapClassicHandle(void);

@@ -5,8 +5,9 @@
  * usage: bench_fapx_c MASTER_PATH SLAVE_PATH MODE COUNT SIZE
  *   rt      master sends SIZE bytes to slave 1, a thread on the slave echoes
  *           them back, the master waits for the echo; COUNT times.
- *   stream  master queues COUNT messages for slave 1 (retrying when the tx
- *           queue is full); the slave thread receives them all.
+ *   stream  master queues COUNT messages for slave 1 (waiting for room in
+ *           its tx queue, at most WINDOW ahead of the receiver); the slave
+ *           thread receives them all.
  *   calls   no wire: COUNT x fapx_tx into a deep queue plus COUNT x fapx_rx
  *           on an empty queue, on a slave handle no master polls.
  * Prints one line: "mode=.. count=.. size=.. wall_s=.. cpu_s=.. received=.."
@@ -19,8 +20,15 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/resource.h>
+#include <time.h>
 
 #include "fapx.h"
+
+/* FAP has no flow control and the unpaced virtual bus drops what a slow
+ * reader leaves (64 KiB per port): the stream keeps at most WINDOW messages
+ * between the master's send and the slave's receive, so a run measures
+ * speed, not scheduling luck. Same value in bench_fap_py.py. */
+#define WINDOW 32
 
 static double cpu_s(void)
 {
@@ -45,7 +53,9 @@ struct echo_arg {
     fapx *slave;
     long count;
     int echo;              /* 1: send each message back to its sender */
-    long received;
+    pthread_mutex_t lock;
+    pthread_cond_t cond;
+    long received;         /* under lock: the stream window's feedback */
 };
 
 static void *slave_thread(void *p)
@@ -60,7 +70,10 @@ static void *slave_thread(void *p)
             break;
         if (n < 0)
             die("slave rx", n);
+        pthread_mutex_lock(&a->lock);
         a->received++;
+        pthread_cond_signal(&a->cond);
+        pthread_mutex_unlock(&a->lock);
         if (a->echo) {
             int rc = fapx_tx_wait(a->slave, src, buf, (size_t)n, -1);
             if (rc < 0)
@@ -70,13 +83,12 @@ static void *slave_thread(void *p)
     return NULL;
 }
 
-static fapx *open_node(const char *path, unsigned mode, unsigned id, unsigned rx_depth)
+static fapx *open_node(const char *path, unsigned mode, unsigned id)
 {
     fapx_options o;
     fapx_options_init(&o);
     o.mode = mode;
     o.id = id;
-    o.rx_depth = rx_depth;
     fapx *h;
     int rc = fapx_open(&h, path, &o);
     if (rc < 0)
@@ -131,11 +143,8 @@ int main(int argc, char **argv)
             fprintf(stderr, "bench_fapx_c: unknown mode %s\n", mode);
             return 2;
         }
-        /* FAP has no flow control: a receive queue that holds the whole
-         * stream keeps the run about speed, not about scheduling luck. */
-        unsigned depth = count > FAPX_DEFAULT_RX_DEPTH ? (unsigned)count : 0;
-        fapx *s = open_node(argv[2], FAPX_SLAVE, 1, depth);
-        fapx *m = open_node(argv[1], FAPX_MASTER, 0, 0);
+        fapx *s = open_node(argv[2], FAPX_SLAVE, 1);
+        fapx *m = open_node(argv[1], FAPX_MASTER, 0);
         int rc = fapx_add_slave(m, 1);
         if (rc < 0)
             die("add_slave", rc);
@@ -143,12 +152,25 @@ int main(int argc, char **argv)
         while (fapx_slave_active(m, 1) != 1)   /* wait for the first ID answer */
             if ((rc = fapx_event_wait(m, &ev, 5000)) < 0)
                 die("wait active", rc);
-        struct echo_arg arg = { s, count, rt, 0 };
+        struct echo_arg arg = { .slave = s, .count = count, .echo = rt };
+        pthread_mutex_init(&arg.lock, NULL);
+        pthread_cond_init(&arg.cond, NULL);
         pthread_t th;
         w0 = wall_s();
         c0 = cpu_s();
         pthread_create(&th, NULL, slave_thread, &arg);
         for (long i = 0; i < count; i++) {
+            if (!rt) {
+                pthread_mutex_lock(&arg.lock);
+                while (i - arg.received >= WINDOW) {
+                    struct timespec ts;      /* 2 s without progress: frames were lost */
+                    clock_gettime(CLOCK_REALTIME, &ts);
+                    ts.tv_sec += 2;
+                    if (pthread_cond_timedwait(&arg.cond, &arg.lock, &ts) == ETIMEDOUT)
+                        break;
+                }
+                pthread_mutex_unlock(&arg.lock);
+            }
             if ((rc = fapx_tx_wait(m, 1, data, size, -1)) < 0)
                 die("master tx", rc);
             if (rt) {

@@ -87,11 +87,24 @@ usys fapConfig(fapT *config)
                                         : (config->id == 0 || config->id > FAPX_MAX_ID))
         rc = E_VALUE;
     if (rc == GOOD) {
-        /* idcTime in seconds; 0 = fapClassicSetOptions' idc_us, else 15 s. */
+        /* Timing from fapClassicSetOptions (as it is now), vendor defaults
+         * for zero fields; idcTime in seconds wins when not 0. The handle
+         * is stopped first, so its options can be changed here. */
+        lf_fapx_stop(g_h);
+        fapx_options t;
+        if (g_have_opts)
+            t = g_opts;
+        else
+            fapx_options_init(&t);
+        lf_fapx_fill_defaults(&t);
+        g_h->o.idc_us = t.idc_us;
+        g_h->o.id_answer_us = t.id_answer_us;
+        g_h->o.data_done_us = t.data_done_us;
+        g_h->o.send_budget_us = t.send_budget_us;
+        g_h->o.gap_us = t.gap_us;
+        g_h->o.reopen_us = t.reopen_us;
         if (config->mode == FAP_MASTER && config->idcTime)
             g_h->o.idc_us = (uint64_t)config->idcTime * 1000000u;
-        else if (config->mode == FAP_MASTER)
-            g_h->o.idc_us = g_have_opts && g_opts.idc_us ? g_opts.idc_us : 15000000u;
         if (lf_fapx_start(g_h, config->mode, config->id) < 0)
             rc = BAD;
         else

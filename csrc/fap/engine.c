@@ -1,4 +1,4 @@
-/* The engine thread of one FAP handle: poll() on the port fd, an eventfd
+/* The engine thread of one FAP handle: epoll on the port fd, an eventfd
  * (wake-ups from fapx_tx, slave-list changes, close) and a timerfd armed at
  * the nearest CLOCK_MONOTONIC deadline (state machine timer, decoder
  * inter-byte gap, port reopen). It feeds received bytes to the decoder and
@@ -6,7 +6,7 @@
  * through the port layer. No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
 #include <errno.h>
-#include <poll.h>
+#include <sys/epoll.h>
 #include <string.h>
 #include <sys/timerfd.h>
 #include <unistd.h>
@@ -299,6 +299,11 @@ void *lf_fapx_engine_main(void *arg)
     memset(h->applied_epoch, 0, sizeof h->applied_epoch);
     h->armed = -1;
     arm_timer(h, LF_NEVER);
+    /* epoll rather than poll(): the sets stay registered, so a wake-up
+     * does not re-scan and re-queue on every fd (latency per cycle). */
+    int ep = h->epoll_fd;             /* wake and timer fds registered at create */
+    struct epoll_event ee;
+    int reg_port = -1;                /* port fd currently registered */
 
     for (;;) {
         now = lf_now_ns();
@@ -320,6 +325,9 @@ void *lf_fapx_engine_main(void *arg)
 
         drain_outbox(h);
 
+        if (!h->port_down && fap_port_fd(h->port) < 0)
+            port_lost(h, lf_now_ns());    /* the port layer found it gone */
+
         lf_ns sm_dl = h->mode == FAPX_MASTER ? lf_fap_master_deadline(&h->m)
                                              : lf_fap_slave_deadline(&h->s);
         lf_ns deadline = min_ns(sm_dl, lf_fap_decoder_deadline(&h->dec));
@@ -327,39 +335,64 @@ void *lf_fapx_engine_main(void *arg)
             deadline = min_ns(deadline, h->reopen_at);
         arm_timer(h, deadline);
 
-        struct pollfd pf[3] = {
-            { .fd = h->wake_fd, .events = POLLIN },
-            { .fd = h->timer_fd, .events = POLLIN },
-            { .fd = h->port_down ? -1 : fap_port_fd(h->port), .events = POLLIN },
-        };
-        int pr = poll(pf, 3, -1);
-        if (pr < 0 && errno != EINTR)
-            break;                    /* cannot happen with valid fds */
+        int want_port = h->port_down ? -1 : fap_port_fd(h->port);
+        if (want_port != reg_port) {
+            if (reg_port >= 0)
+                epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);   /* may be gone: fine */
+            ee.events = EPOLLIN;
+            ee.data.u32 = LF_FAPX_TAG_PORT;
+            if (want_port >= 0 && epoll_ctl(ep, EPOLL_CTL_ADD, want_port, &ee) < 0 &&
+                errno != EEXIST)
+                want_port = -1;       /* try again next round */
+            reg_port = want_port;
+        }
+
+        struct epoll_event evs[3];
+        int ne = epoll_wait(ep, evs, 3, -1);
+        if (ne < 0) {
+            /* EINTR, or ENOMEM under memory pressure: never give up the
+             * bus; back off a moment so an error cannot spin */
+            if (errno != EINTR)
+                lf_sleep_until(lf_now_ns() + LF_NS_PER_MS);
+            continue;
+        }
         now = lf_now_ns();
         uint64_t cnt;
-        if (pf[0].revents & POLLIN) {
-            if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
+        uint32_t port_ev = 0;
+        for (int i = 0; i < ne; i++) {
+            if (evs[i].data.u32 == LF_FAPX_TAG_WAKE) {
+                if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
+            } else if (evs[i].data.u32 == LF_FAPX_TAG_TIMER) {
+                if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
+                h->armed = -1;        /* expired: arm again next time */
+            } else {
+                port_ev = evs[i].events;
+            }
         }
-        if (pf[1].revents & POLLIN) {
-            if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
-            h->armed = -1;            /* expired: arm again next time */
-        }
-        if (pf[2].revents & (POLLIN | POLLHUP | POLLERR)) {
+        if (port_ev && !h->port_down) {
             for (int rounds = 0; rounds < 4; rounds++) {
                 ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
                 if (n > 0)
                     lf_fap_decoder_feed(&h->dec, rbuf, (size_t)n, now, on_frame, h);
                 if ((n < 0 && n != -EAGAIN && n != -EINTR) ||
-                    (n == 0 && rounds == 0 && (pf[2].revents & (POLLHUP | POLLERR))))
+                    (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
                     port_lost(h, now);    /* hung up: a 0-byte read would spin */
                 if (n < (ssize_t)sizeof rbuf)
                     break;
             }
+        }
+        if (h->port_down && reg_port >= 0) {
+            /* the fd is closed or dead: unregister it now, so a reopened
+             * port that gets the same number is registered again */
+            epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);
+            reg_port = -1;
         }
         try_reopen(h, now);
         lf_fap_decoder_tick(&h->dec, now, on_frame, h);
         if (h->mode == FAPX_MASTER && now >= lf_fap_master_deadline(&h->m))
             lf_fap_master_on_timer(&h->m, now);
     }
+    if (reg_port >= 0)                /* a restarted engine registers it again */
+        epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);
     return NULL;
 }

@@ -5,6 +5,7 @@
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/epoll.h>
 #include <sys/eventfd.h>
 #include <sys/timerfd.h>
 #include <unistd.h>
@@ -21,7 +22,7 @@ fap_port_options *fapx_options_port(fapx_options *o)
     return o ? &o->port : NULL;
 }
 
-static void fill_defaults(fapx_options *o)
+void lf_fapx_fill_defaults(fapx_options *o)
 {
     if (!o->idc_us)         o->idc_us = 15000000u;
     if (!o->id_answer_us)   o->id_answer_us = 1000000u;
@@ -44,7 +45,7 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     if (!out || !path || !opts)
         return -EINVAL;
     fapx_options o = *opts;
-    fill_defaults(&o);
+    lf_fapx_fill_defaults(&o);
     if (o.rx_depth > 1u << 20 || o.tx_depth > 1u << 20 || o.ev_depth > 1u << 20)
         return -EINVAL;
     fapx *h = calloc(1, sizeof *h);
@@ -52,7 +53,7 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
         return -ENOMEM;
     h->o = o;
     h->mode = -1;
-    h->wake_fd = h->notify_fd = h->timer_fd = -1;
+    h->wake_fd = h->notify_fd = h->timer_fd = h->epoll_fd = -1;
     int err = -ENOMEM;
     if (lf_ring_init(&h->rx, o.rx_depth, sizeof(lf_fapx_item)) ||
         lf_ring_init(&h->tx, o.tx_depth, sizeof(lf_fapx_item)) ||
@@ -61,7 +62,18 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     h->wake_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     h->notify_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     h->timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
-    if (h->wake_fd < 0 || h->notify_fd < 0 || h->timer_fd < 0) {
+    h->epoll_fd = epoll_create1(EPOLL_CLOEXEC);
+    if (h->wake_fd < 0 || h->notify_fd < 0 || h->timer_fd < 0 || h->epoll_fd < 0) {
+        err = -errno;
+        goto fail;
+    }
+    struct epoll_event ee = { .events = EPOLLIN, .data.u32 = LF_FAPX_TAG_WAKE };
+    if (epoll_ctl(h->epoll_fd, EPOLL_CTL_ADD, h->wake_fd, &ee) < 0) {
+        err = -errno;
+        goto fail;
+    }
+    ee.data.u32 = LF_FAPX_TAG_TIMER;
+    if (epoll_ctl(h->epoll_fd, EPOLL_CTL_ADD, h->timer_fd, &ee) < 0) {
         err = -errno;
         goto fail;
     }
@@ -83,6 +95,7 @@ fail:
     if (h->wake_fd >= 0) close(h->wake_fd);
     if (h->notify_fd >= 0) close(h->notify_fd);
     if (h->timer_fd >= 0) close(h->timer_fd);
+    if (h->epoll_fd >= 0) close(h->epoll_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);
     lf_ring_free(&h->ev);
@@ -106,6 +119,9 @@ int lf_fapx_start(fapx *h, unsigned mode, unsigned id)
     if (mode == FAPX_SLAVE)
         h->want_listed = 0;           /* a slave keeps no list */
     pthread_mutex_unlock(&h->lock);
+    /* Bytes that piled up since fapInit (or the last fapConfig) are stale
+     * frames nobody was listening for: drop them. */
+    fap_port_flush(h->port);
     int rc = pthread_create(&h->thread, NULL, lf_fapx_engine_main, h);
     if (rc != 0)
         return -rc;
@@ -148,6 +164,7 @@ void lf_fapx_destroy(fapx *h)
     close(h->wake_fd);
     close(h->notify_fd);
     close(h->timer_fd);
+    close(h->epoll_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);
     lf_ring_free(&h->ev);
@@ -245,6 +262,8 @@ int fapx_slave_active(fapx *h, unsigned id)
 
 uint32_t fapx_listed_mask(fapx *h)
 {
+    if (!h)
+        return 0;
     pthread_mutex_lock(&h->lock);
     uint32_t v = h->want_listed;
     pthread_mutex_unlock(&h->lock);
@@ -253,6 +272,8 @@ uint32_t fapx_listed_mask(fapx *h)
 
 uint32_t fapx_active_mask(fapx *h)
 {
+    if (!h)
+        return 0;
     pthread_mutex_lock(&h->lock);
     uint32_t v = h->active_pub & h->want_listed;
     pthread_mutex_unlock(&h->lock);
@@ -429,6 +450,8 @@ int fapx_notify_fd(fapx *h)
 
 void fapx_set_callback(fapx *h, fapx_callback cb, void *ctx)
 {
+    if (!h)
+        return;
     pthread_mutex_lock(&h->lock);
     h->cb = cb;
     h->cb_ctx = ctx;
@@ -437,6 +460,8 @@ void fapx_set_callback(fapx *h, fapx_callback cb, void *ctx)
 
 void fapx_get_stats(fapx *h, fapx_stats *out)
 {
+    if (!h || !out)
+        return;
     pthread_mutex_lock(&h->lock);
     *out = h->stats;
     pthread_mutex_unlock(&h->lock);
@@ -444,6 +469,8 @@ void fapx_get_stats(fapx *h, fapx_stats *out)
 
 unsigned fapx_rx_pending(fapx *h)
 {
+    if (!h)
+        return 0;
     pthread_mutex_lock(&h->lock);
     unsigned n = h->rx.count;
     pthread_mutex_unlock(&h->lock);
@@ -452,6 +479,8 @@ unsigned fapx_rx_pending(fapx *h)
 
 unsigned fapx_tx_pending(fapx *h)
 {
+    if (!h)
+        return 0;
     pthread_mutex_lock(&h->lock);
     unsigned n = h->tx.count + (unsigned)h->tx_inflight;
     pthread_mutex_unlock(&h->lock);

@@ -50,6 +50,7 @@ struct fapx {
     int wake_fd;                  /* eventfd: application -> engine */
     int notify_fd;                /* eventfd: readable while rx/ev pending */
     int timer_fd;                 /* timerfd, CLOCK_MONOTONIC absolute */
+    int epoll_fd;                 /* the engine waits here (wake, timer, port) */
     pthread_t thread;
 
     /* ---- engine thread only ---- */
@@ -64,6 +65,11 @@ struct fapx {
     lf_engine_counts ec;
 };
 
+/* epoll tags of the engine's fds */
+enum { LF_FAPX_TAG_WAKE = 1, LF_FAPX_TAG_TIMER = 2, LF_FAPX_TAG_PORT = 3 };
+
+/* Zero timing/depth fields take their defaults. */
+void lf_fapx_fill_defaults(fapx_options *o);
 /* Create: allocate, open the port (no thread yet). 0 or negative errno. */
 int  lf_fapx_create(fapx **out, const char *path, const fapx_options *o);
 /* Start the engine as mode/id with o's timing. 0 or negative errno. */

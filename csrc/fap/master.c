@@ -120,7 +120,13 @@ static void start_data_cycle(lf_fap_master *m, lf_ns now)
         poll_next(m, now);
         return;
     }
-    /* Nothing to send and nobody to poll: sleep until idc or an input. */
+    /* Nobody to poll: a slave added during the last ID cycle (below the
+     * one being queried then) is queried now; else sleep until idc or an
+     * input. */
+    if (m->fresh & m->listed) {
+        start_id_cycle(m, now);
+        return;
+    }
     m->state = LF_M_IDLE;
     m->wait_deadline = LF_NEVER;
 }

@@ -1,8 +1,9 @@
 /* vbus.c - the virtual RS-485 bus: ptys, symlinks and the relay thread.
  *
- * One relay thread polls every pty master, an eventfd (wake-ups from the
- * control calls and close) and a timerfd (absolute CLOCK_MONOTONIC: paced
- * deliveries, reconnects, capture flushes). It never busy-loops. What each
+ * One relay thread polls every pty master, an inotify fd (nodes opening
+ * and closing the ports), an eventfd (wake-ups from the control calls and
+ * close) and a timerfd (absolute CLOCK_MONOTONIC: paced deliveries,
+ * reconnects, capture lines). It never busy-loops. What each
  * port receives is decided by the sans-I/O wire model (vbus_wire.c); this
  * file only moves bytes between fds and that model.
  *
@@ -73,6 +74,9 @@ struct fap_vbus {
     uint64_t req_gen, done_gen;
 
     uint64_t bytes_out, overflow, disconnects;
+
+    pid_t owner;              /* the process that opened it (not a fork child) */
+    struct fap_vbus *live_next;
 };
 
 /* ---- output queues --------------------------------------------------- */
@@ -388,6 +392,63 @@ static void *relay_main(void *arg)
     return NULL;
 }
 
+/* ---- links of buses still open at exit ------------------------------------
+ * A program that exits without fap_vbus_close (a failed test, exit() from
+ * a CLI) would leave its symlinks and temp dir behind. An atexit handler
+ * removes those of the buses this process opened; fork children leave
+ * their parent's alone. Only paths are touched: no threads, no fds. */
+
+static pthread_mutex_t live_mu = PTHREAD_MUTEX_INITIALIZER;
+static fap_vbus *live_head;
+static pthread_once_t live_once = PTHREAD_ONCE_INIT;
+
+static void remove_links(fap_vbus *b)
+{
+    for (unsigned i = 0; i < FAP_VBUS_MAX_PORTS; i++)
+        if (b->port[i].link)
+            unlink(b->port[i].link);
+    if (b->own_dir && b->dir)
+        rmdir(b->dir);
+}
+
+static void live_atexit(void)
+{
+    /* trylock: a fork child may have inherited the lock held by a thread
+     * that no longer exists; then leave the cleanup to the parent */
+    if (pthread_mutex_trylock(&live_mu) != 0)
+        return;
+    for (fap_vbus *b = live_head; b; b = b->live_next)
+        if (b->owner == getpid())
+            remove_links(b);
+    pthread_mutex_unlock(&live_mu);
+}
+
+static void live_init(void)
+{
+    atexit(live_atexit);
+}
+
+static void live_add(fap_vbus *b)
+{
+    pthread_once(&live_once, live_init);
+    pthread_mutex_lock(&live_mu);
+    b->live_next = live_head;
+    live_head = b;
+    pthread_mutex_unlock(&live_mu);
+}
+
+static void live_remove(fap_vbus *b)
+{
+    pthread_mutex_lock(&live_mu);
+    for (fap_vbus **pp = &live_head; *pp; pp = &(*pp)->live_next) {
+        if (*pp == b) {
+            *pp = b->live_next;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&live_mu);
+}
+
 /* ---- public API --------------------------------------------------------- */
 
 void fap_vbus_options_init(fap_vbus_options *o)
@@ -407,16 +468,13 @@ static void wake(fap_vbus *b)
 
 static void bus_destroy(fap_vbus *b)
 {
+    remove_links(b);
     for (unsigned i = 0; i < FAP_VBUS_MAX_PORTS; i++) {
         vbus_port *pt = &b->port[i];
-        if (pt->link)
-            unlink(pt->link);
         lf_pty_close(&pt->pty);
         free(pt->link);
         free(pt->outq);
     }
-    if (b->own_dir && b->dir)
-        rmdir(b->dir);
     free(b->dir);
     lf_wire_free(&b->wire);
     lf_capture_close(&b->cap);
@@ -538,6 +596,8 @@ int fap_vbus_open(fap_vbus **out, const fap_vbus_options *o)
         goto fail;
     pthread_setname_np(b->thread, "fap-vbus");   /* for top -H, gdb */
     b->thread_started = 1;
+    b->owner = getpid();
+    live_add(b);
     *out = b;
     return 0;
 fail:
@@ -554,6 +614,7 @@ void fap_vbus_close(fap_vbus *b)
     pthread_cond_broadcast(&b->cv);
     pthread_mutex_unlock(&b->mu);
     wake(b);
+    live_remove(b);
     if (b->thread_started)
         pthread_join(b->thread, NULL);
     /* the relay is gone: no lock needed from here on */

@@ -9,6 +9,7 @@ shows who sent what to whom, the slave events and the counters.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from typing import TYPE_CHECKING, List, Optional, TextIO
@@ -17,12 +18,12 @@ if TYPE_CHECKING:  # pragma: no cover
     from ..fap import Master, Node, Slave
 
 SLAVE_IDS = (3, 7, 12)
-WAIT_S = 5.0          # upper bound of every wait; the whole demo takes well under 1 s
+WAIT_S = 10.0         # upper bound of every wait; the whole demo takes well under 1 s
 # Protocol timing shortened for the demo (vendor defaults: 15 s, 1 s, 15 s).
 DEMO_TIMING = dict(id_cycle=0.05, id_answer_timeout=0.1, data_done_timeout=0.3)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
     p = sub.add_parser(
         "demo", help="run a FAP master and 3 slaves on a virtual bus and show the traffic",
         description="Create a virtual 4-port RS-485 bus, run a FAP master and three slaves "
@@ -70,10 +71,18 @@ def _name(node_id: int) -> str:
 
 
 def run(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
+    try:
+        return _run(args, out or sys.stdout)
+    except BrokenPipeError:           # `fap demo | head`: the reader left, not an error
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())   # no second error when Python flushes
+        return 0
+
+
+def _run(args: argparse.Namespace, out: TextIO) -> int:
     from .. import Master, Slave
     from ..vbus import VirtualBus
 
-    out = out or sys.stdout
     tr = Transcript(out)
     baud = args.baud
     paced = baud if args.paced else None
@@ -87,15 +96,22 @@ def run(args: argparse.Namespace, out: Optional[TextIO] = None) -> int:
         # On a paced bus a busy machine can stall the relay thread for more than
         # FAP's 10 ms inter-byte gap in the middle of a 1024-byte frame: allow 100 ms.
         gap = dict(byte_gap=0.1) if paced else {}
-        master = Master(bus.paths[0], baud, slaves=SLAVE_IDS, **DEMO_TIMING, **gap)
+        timing = dict(DEMO_TIMING)
+        if paced:   # a slave's turn may carry a 1024-byte frame: allow its wire time
+            timing["data_done_timeout"] += 2 * (15 + 1024) * 10 / baud
         slaves: List[Slave] = []
+        master: Optional[Master] = None
         try:
-            slaves = [Slave(p, baud, id=i, **gap) for p, i in zip(bus.paths[1:], SLAVE_IDS)]
+            # slaves first: they answer the master's very first ID cycle
+            for p, i in zip(bus.paths[1:], SLAVE_IDS):
+                slaves.append(Slave(p, baud, id=i, **gap))
+            master = Master(bus.paths[0], baud, slaves=SLAVE_IDS, **timing, **gap)
             return _script(tr, master, slaves, bus.paths, baud)
         finally:
             for s in slaves:
                 s.close()
-            master.close()
+            if master is not None:
+                master.close()
 
 
 def _script(tr: Transcript, master: "Master", slaves: List["Slave"], paths: List[str],

@@ -368,8 +368,12 @@ class G485Master:
 
     def set(self, address: int, command: Union[SetCommand, int, str], *,
             check: Union[Check, str, None] = None, guard: Optional[bool] = None,
-            timeout: Optional[float] = None, retries: Optional[int] = None) -> None:
+            timeout: Optional[float] = None, retries: Optional[int] = None,
+            factory_address: Optional[int] = None) -> None:
         """Set transaction (address 0: broadcast, unchecked, no reply).
+
+        After FACTORY_RESET the device answers at its factory ID: the handshake
+        goes to ``factory_address`` (default: the master's, 1).
 
         With the handshake check and ``guard`` on (default ``set_guard``),
         the master first makes sure the device's check byte differs from the
@@ -380,12 +384,14 @@ class G485Master:
         frame = codec.encode_set(address, cmd)
         if address == codec.BROADCAST:
             self._broadcast(frame)
-            self._after_set(address, cmd)
+            self._after_set(address, cmd, address)
             return
         mode = _as_check(check, self.check)
         mdoc = frame[-1]
         use_guard = self.set_guard if guard is None else guard
-        answer_at = self.factory_address if cmd is SetCommand.FACTORY_RESET else address
+        answer_at = address
+        if cmd is SetCommand.FACTORY_RESET:
+            answer_at = self.factory_address if factory_address is None else factory_address
 
         def attempt() -> None:
             if mode is Check.HANDSHAKE and use_guard:
@@ -402,7 +408,7 @@ class G485Master:
                     self._send(frame)
 
         self._run(attempt, retries)
-        self._after_set(address, cmd)
+        self._after_set(address, cmd, answer_at)
 
     def _guard_check_byte(self, address: int, mdoc: int, timeout: Optional[float]) -> None:
         register = 1
@@ -415,14 +421,14 @@ class G485Master:
                           self.name, address, reply.check, mdoc)
             register += 1
 
-    def _after_set(self, address: int, cmd: SetCommand) -> None:
+    def _after_set(self, address: int, cmd: SetCommand, answer_at: int) -> None:
         targets = list(self._device_check) if address == codec.BROADCAST else [address]
         if cmd is SetCommand.NON_REAL_TIME_WRITE:
             self._non_real_time.update(targets)
         elif cmd in (SetCommand.REAL_TIME_WRITE, SetCommand.RESET, SetCommand.FACTORY_RESET):
             self._non_real_time.difference_update(targets)
-        if cmd is SetCommand.FACTORY_RESET and address != self.factory_address:
-            self._device_check.pop(address, None)
+        if cmd is SetCommand.FACTORY_RESET and answer_at != address:
+            self._device_check.pop(address, None)  # nobody answers there any more
 
     def _broadcast(self, frame: bytes) -> None:
         with self._lock:

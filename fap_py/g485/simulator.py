@@ -9,6 +9,7 @@ devices' replies; they are addressed to the master (127) and ignored.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import select
@@ -18,6 +19,7 @@ from typing import Any, Iterable, List, Optional
 
 from .codec import Discarded, Packet, Parser
 from .device import SimDevice
+from ..errors import PortError
 from .errors import G485ValueError
 from .transport import PortSpec, Transport
 
@@ -28,16 +30,23 @@ class Simulator:
     """Runs :class:`SimDevice` objects on one port (path, pyserial URL/object or fd).
 
     Use as a context manager, or call :meth:`start` and :meth:`stop`.
+    ``idle_timeout``: seconds of silence after which a partial frame is
+    dropped (default 20 ms, or 5 character times at slow baud rates).
     """
 
     def __init__(self, port: PortSpec, devices: Iterable[SimDevice] = (), *, baudrate: int = 115200,
-                 idle_timeout: float = 0.02, **serial_kwargs: Any) -> None:
+                 idle_timeout: Optional[float] = None, **serial_kwargs: Any) -> None:
         self._io = Transport(port, baudrate=baudrate, **serial_kwargs)
         self.name = self._io.name
+        # a port opened by path can be opened again after it hung up (a disconnect)
+        self._reopen_args = ((self.name,), dict(baudrate=baudrate, **serial_kwargs)) \
+            if isinstance(port, (str, os.PathLike)) else None
+        self.reopened = 0
         self.devices: List[SimDevice] = []
         for device in devices:
             self.add(device)
-        self.idle_timeout = idle_timeout
+        # silence after which a partial frame is dropped: 20 ms, or 5 characters at slow rates
+        self.idle_timeout = idle_timeout if idle_timeout is not None else max(0.02, 50.0 / baudrate)
         self._parser = Parser()
         self._thread: Optional[threading.Thread] = None
         self._stop_r, self._stop_w = os.pipe()
@@ -98,14 +107,21 @@ class Simulator:
                 log.error("%s simulator stopped: %s", self.name, exc)
 
     def _serve_fd(self) -> None:
-        fd = self._io.fd
-        assert fd is not None
-        poller = select.poll()
-        poller.register(fd, select.POLLIN)
-        poller.register(self._stop_r, select.POLLIN)
         stop_r = self._stop_r
         stop_only = select.poll()
         stop_only.register(stop_r, select.POLLIN)
+        while True:  # once per (re)opened port
+            fd = self._io.fd
+            assert fd is not None
+            poller = select.poll()
+            poller.register(fd, select.POLLIN)
+            poller.register(stop_r, select.POLLIN)
+            if not self._serve_open_fd(fd, poller, stop_only):
+                return
+
+    def _serve_open_fd(self, fd: int, poller: "select.poll", stop_only: "select.poll") -> bool:
+        """Serve until stopped (False) or until the port was opened again (True)."""
+        stop_r = self._stop_r
         while True:
             timeout = self.idle_timeout * 1000.0 if self._parser.buffered else None
             ready = poller.poll(timeout)
@@ -114,22 +130,44 @@ class Simulator:
                 continue
             for rfd, flags in ready:
                 if rfd == stop_r:
-                    return
+                    return False
                 try:
                     data = os.read(fd, 4096)
                 except BlockingIOError:
                     continue
                 except OSError as exc:
                     if self._stopping:
-                        return
-                    if flags & select.POLLHUP:
-                        # the other side of a pty is not open (yet): wait instead of spinning
-                        if stop_only.poll(50):
-                            return
-                        continue
-                    raise exc
+                        return False
+                    if not flags & (select.POLLHUP | select.POLLERR):
+                        raise PortError(exc.errno or errno.EIO, None, self.name) from None
+                    data = b""
                 if data:
                     self._dispatch(self._parser.feed(data))
+                    continue
+                # hung up (EIO or end of file): nobody on the other side of the pty yet, or
+                # the port was disconnected; wait (no spinning), then try the path again
+                if stop_only.poll(50):
+                    return False
+                if self._reopen():
+                    return True
+
+    def _reopen(self) -> bool:
+        if self._reopen_args is None:
+            return False
+        args, kwargs = self._reopen_args
+        try:
+            fresh = Transport(*args, **kwargs)
+        except PortError:
+            return False  # not back yet
+        if not fresh.fast:
+            fresh.close()
+            return False
+        self._io.close()
+        self._io = fresh
+        self._parser.clear()
+        self.reopened += 1
+        log.info("%s reopened after a hang-up", self.name)
+        return True
 
     def _serve_generic(self) -> None:
         while not self._stopping:
@@ -142,7 +180,6 @@ class Simulator:
 
     def _dispatch(self, events: List) -> None:
         debug = log.isEnabledFor(logging.DEBUG)
-        write = self._io.write
         for ev in events:
             if debug:
                 if isinstance(ev, Packet):
@@ -156,5 +193,8 @@ class Simulator:
                     if debug:
                         log.debug("%s tx device %d: %s", self.name, device.address, reply.hex(" "))
                     self.replies_sent += 1  # counted first: the master may look once it has the reply
-                    write(reply)
+                    try:
+                        self._io.write(reply)
+                    except PortError as exc:  # the port went away: the master will retry
+                        log.warning("%s reply lost: %s", self.name, exc)
         self.events += len(events)

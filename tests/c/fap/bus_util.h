@@ -13,17 +13,49 @@ static inline void fast_options(fapx_options *o, unsigned mode, unsigned id)
     fapx_options_init(o);
     o->mode = mode;
     o->id = id;
-    o->idc_us = 150000;        /* 150 ms */
-    o->id_answer_us = 20000;   /* 20 ms */
-    o->data_done_us = 60000;   /* 60 ms */
-    o->send_budget_us = 40000; /* 40 ms */
+    /* long enough that a loaded CI machine (sanitizers, 2 cores) does not
+     * miss them by accident; exact timing is tested on the fake clock */
+    o->idc_us = 300000;        /* 300 ms */
+    o->id_answer_us = 50000;   /* 50 ms */
+    o->data_done_us = 200000;  /* 200 ms */
+    o->send_budget_us = 100000; /* 100 ms */
     o->reopen_us = 20000;
     o->port.rs485_mode = FAP_RS485_NONE;
 }
 
-/* Wait for event (type, id), skipping others; 0 or -ETIMEDOUT. */
+/* Events read while waiting for another one are kept here, so that
+ * waiting for A then B works whatever order they came in. */
+static struct { fapx *h; fapx_event ev; } ev_backlog[512];
+static int ev_backlog_n;
+
+static inline int backlog_take(fapx *h, int type, unsigned id, fapx_event *out)
+{
+    for (int i = 0; i < ev_backlog_n; i++) {
+        if (ev_backlog[i].h == h && ev_backlog[i].ev.type == type && ev_backlog[i].ev.id == id) {
+            if (out)
+                *out = ev_backlog[i].ev;
+            ev_backlog[i] = ev_backlog[--ev_backlog_n];
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* Forget the backlog of a handle about to be closed. */
+static inline void backlog_forget(fapx *h)
+{
+    for (int i = 0; i < ev_backlog_n;)
+        if (ev_backlog[i].h == h)
+            ev_backlog[i] = ev_backlog[--ev_backlog_n];
+        else
+            i++;
+}
+
+/* Wait for event (type, id) (also one seen earlier); 0 or -ETIMEDOUT. */
 static inline int wait_event(fapx *h, int type, unsigned id, int timeout_ms, fapx_event *out)
 {
+    if (backlog_take(h, type, id, out))
+        return 0;
     int64_t end = fap_port_now_ns() + (int64_t)timeout_ms * 1000000;
     for (;;) {
         int64_t left = (end - fap_port_now_ns()) / 1000000;
@@ -37,6 +69,11 @@ static inline int wait_event(fapx *h, int type, unsigned id, int timeout_ms, fap
             if (out)
                 *out = ev;
             return 0;
+        }
+        if (ev_backlog_n < (int)(sizeof ev_backlog / sizeof ev_backlog[0])) {
+            ev_backlog[ev_backlog_n].h = h;
+            ev_backlog[ev_backlog_n].ev = ev;
+            ev_backlog_n++;
         }
     }
 }

@@ -3,6 +3,8 @@
 #include "fap.h"
 #include "bus_util.h"
 #include <poll.h>
+#include <pthread.h>
+#include <stdint.h>
 
 static fap_vbus *bus;
 static fapx *peer;                    /* a handle-API slave 1 on port 1 */
@@ -143,6 +145,88 @@ static void test_master_with_slave(void)
     CHECK_EQ(fapRemSlave(1), E_VALUE);
 }
 
+
+/* fapTx / fapRx from several threads at once (the vendor says they need
+ * not be thread-safe; libfap's are): nothing lost, nothing twice. */
+#define TX_THREADS 4
+#define TX_EACH 40
+static void *tx_thread(void *arg)
+{
+    int t = (int)(intptr_t)arg;
+    for (int k = 0; k < TX_EACH; k++) {
+        u8 msg[32];
+        usys n = (usys)snprintf((char *)msg, sizeof msg, "t%d#%d", t, k);
+        while (fapTx(msg, n, 1) == E_RES)
+            fapx_flush(fapClassicHandle(), 1000);   /* wait for room, no sleep */
+    }
+    return NULL;
+}
+
+static int rx_counts[TX_THREADS][TX_EACH];
+static pthread_mutex_t rx_lock = PTHREAD_MUTEX_INITIALIZER;
+static int rx_total;
+
+static void *rx_thread(void *arg)
+{
+    (void)arg;
+    for (;;) {
+        pthread_mutex_lock(&rx_lock);
+        int done = rx_total >= TX_THREADS * TX_EACH;
+        pthread_mutex_unlock(&rx_lock);
+        if (done)
+            return NULL;
+        u8 d[MAX_DATA_SIZE + 1];
+        usys size, id;
+        if (rx_wait(d, &size, &id, 200) != GOOD)
+            continue;
+        d[size] = 0;
+        int t = -1, k = -1;
+        pthread_mutex_lock(&rx_lock);
+        if (id == 1 && sscanf((char *)d, "t%d#%d", &t, &k) == 2 && t >= 0 && t < TX_THREADS &&
+            k >= 0 && k < TX_EACH)
+            rx_counts[t][k]++;
+        rx_total++;
+        pthread_mutex_unlock(&rx_lock);
+    }
+}
+
+static void *echo_peer(void *arg)
+{
+    (void)arg;
+    for (int i = 0; i < TX_THREADS * TX_EACH; i++) {
+        uint8_t buf[FAPX_MAX_DATA];
+        unsigned src;
+        int n = fapx_rx_wait(peer, buf, sizeof buf, &src, 5000);
+        if (n <= 0)
+            return NULL;
+        fapx_tx_wait(peer, 0, buf, (size_t)n, 5000);
+    }
+    return NULL;
+}
+
+static void test_threads_share_fapTx_fapRx(void)
+{
+    CHECK_EQ(fapAddSlave(1), GOOD);
+    pthread_t tx[TX_THREADS], rx[2], echo;
+    pthread_create(&echo, NULL, echo_peer, NULL);
+    for (int i = 0; i < 2; i++)
+        pthread_create(&rx[i], NULL, rx_thread, NULL);
+    for (int t = 0; t < TX_THREADS; t++)
+        pthread_create(&tx[t], NULL, tx_thread, (void *)(intptr_t)t);
+    for (int t = 0; t < TX_THREADS; t++)
+        pthread_join(tx[t], NULL);
+    pthread_join(echo, NULL);
+    for (int i = 0; i < 2; i++)
+        pthread_join(rx[i], NULL);
+    int bad = 0;
+    for (int t = 0; t < TX_THREADS; t++)
+        for (int k = 0; k < TX_EACH; k++)
+            bad += rx_counts[t][k] != 1;
+    CHECK_EQ(rx_total, TX_THREADS * TX_EACH);
+    CHECK_EQ(bad, 0);
+    CHECK_EQ(fapRemSlave(1), GOOD);
+}
+
 static void test_reconfigure_as_slave(void)
 {
     fapT c = { .id = 5, .mode = FAP_SLAVE, .idcTime = 0 };
@@ -172,5 +256,5 @@ static void test_close_and_init_again(void)
 }
 
 UNIT_MAIN(UNIT(test_before_init), UNIT(test_init_errors), UNIT(test_config_errors),
-          UNIT(test_between_init_and_config), UNIT(test_master_with_slave),
+          UNIT(test_between_init_and_config), UNIT(test_master_with_slave), UNIT(test_threads_share_fapTx_fapRx),
           UNIT(test_reconfigure_as_slave), UNIT(test_close_and_init_again))

@@ -262,8 +262,27 @@ static void test_frames_not_for_master_ignored(void)
     CHECK_EQ(M.c.data_rx, 1);
 }
 
+/* Added during an ID cycle, below the slave being queried: queried right
+ * after that cycle, not idc later. */
+static void test_add_during_id_cycle_below_cursor(void)
+{
+    setup(0);
+    lf_fap_master_add(&M, 5, 0);
+    EXPECT_TX(0, LF_FAP_QUERY_ID, 5);
+    CHECK_EQ(lf_fap_master_add(&M, 2, 1), 0);
+    lf_fap_master_on_timer(&M, IDA);          /* 5 never answers */
+    EXPECT_TX(IDA, LF_FAP_QUERY_ID, 2);
+    rx(LF_FAP_ID, 0, 2, NULL, IDA + 1);
+    CHECK(lf_fap_master_is_active(&M, 2));
+    /* that ID cycle goes on to every inactive slave, 5 included */
+    EXPECT_TX(IDA + 2, LF_FAP_QUERY_ID, 5);
+    lf_fap_master_on_timer(&M, IDA + 2 + IDA);
+    EXPECT_TX(IDA + 2 + IDA, LF_FAP_SEND_DATA, 2);
+}
+
 UNIT_MAIN(UNIT(test_idle_without_slaves), UNIT(test_id_cycle_then_data_cycle),
           UNIT(test_id_timeout_and_idc_requery), UNIT(test_data_done_timeout_marks_inactive),
           UNIT(test_master_slot_first_and_budget), UNIT(test_idle_master_sends_queued_data),
           UNIT(test_idle_until_idc), UNIT(test_add_remove_while_running),
-          UNIT(test_frames_not_for_master_ignored))
+          UNIT(test_frames_not_for_master_ignored),
+          UNIT(test_add_during_id_cycle_below_cursor))

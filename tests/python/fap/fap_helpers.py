@@ -67,6 +67,16 @@ class SlaveProcess:
         """Vanish without closing anything (SIGKILL)."""
         self.proc.send_signal(signal.SIGKILL)
         self.proc.wait(timeout=10)
+        self._reader.join(10)          # it saw EOF
+        self._close_pipes()
+
+    def _close_pipes(self) -> None:
+        for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
+            if f is not None:
+                try:
+                    f.close()
+                except OSError:
+                    pass
 
     def quit(self, timeout: float = 10.0) -> int:
         if self.proc.poll() is None:
@@ -77,12 +87,8 @@ class SlaveProcess:
         try:
             return self.proc.wait(timeout=timeout)
         finally:
-            for f in (self.proc.stdin, self.proc.stdout, self.proc.stderr):
-                if f is not None:
-                    try:
-                        f.close()
-                    except OSError:
-                        pass
+            self._reader.join(timeout)
+            self._close_pipes()
 
     def __enter__(self) -> "SlaveProcess":
         return self

@@ -4,6 +4,7 @@ from __future__ import annotations
 import errno
 import itertools
 import os
+import selectors
 import threading
 import time
 from typing import List, Tuple
@@ -47,6 +48,9 @@ def test_1024_byte_messages_both_ways(net: Net) -> None:
         assert msg.source == 0 and msg.data == data and len(msg.data) == 1024
     back = {m.source: m.data for m in (master.recv(timeout=WAIT) for _ in slaves)}
     assert back == {s.id: d[::-1] for s, d in zip(slaves, big)}
+    # the engine publishes its counters when a transmit burst ends; flush()
+    # returns after that point, so the snapshot holds the 3 DATA frames
+    master.flush(timeout=WAIT)
     st = master.stats()
     assert st.data_tx == 3 and st.data_rx == 3 and st.crc_errors == 0
 
@@ -377,3 +381,35 @@ def test_events_are_read_by_python_threads_not_from_the_engine(net: Net) -> None
     assert not t.is_alive()
     assert seen[-1] == ("event-reader", EventKind.SLAVE_INACTIVE, a.id)
     assert {name for name, _, _ in seen} == {"event-reader"}
+
+
+def test_notify_fd_works_with_selectors(net: Net) -> None:
+    master, (a, _, _) = net
+    list(master.events())
+    with selectors.DefaultSelector() as sel:
+        sel.register(master.fileno(), selectors.EVENT_READ)
+        a.send(b"select me")
+        assert sel.select(timeout=WAIT), "notify fd never became readable"
+        assert master.recv_nowait() == Message(a.id, b"select me")
+        list(master.events())                 # drain events too: the fd is level-triggered
+        if sel.select(timeout=0):             # only if something new came meanwhile
+            assert master.rx_pending or list(master.events())
+
+
+def test_port_lost_and_reopened_events(bus: VirtualBus) -> None:
+    with Master(bus.paths[0], slaves=[2], **FAST) as master, \
+            Slave(bus.paths[1], id=2, reopen_interval=0.02) as s:
+        master.wait_active(timeout=WAIT)
+        bus.disconnect(1, 0.1)                # the slave's device vanishes for 100 ms
+        wait_for_event(s, EventKind.PORT_LOST, 2)
+        wait_for_event(s, EventKind.PORT_REOPENED, 2)
+        master.wait_active([2], timeout=WAIT)
+        s.send(b"back on the wire")
+        assert master.recv(timeout=WAIT) == Message(2, b"back on the wire")
+        st = s.stats()
+        assert st.port_lost >= 1 and st.port_reopened >= 1
+
+
+def test_unsupported_baud_rate_is_invalid_value(bus: VirtualBus) -> None:
+    with pytest.raises(InvalidValueError):
+        Master(bus.paths[0], 12345)

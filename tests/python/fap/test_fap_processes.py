@@ -1,10 +1,13 @@
 """A Python master here and three Python slaves in their own processes, one bus."""
 from __future__ import annotations
 
+import os
+import queue
 import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from typing import List
 
@@ -12,7 +15,7 @@ from fap_py import EventKind, Master, Message
 from fap_py.vbus import VirtualBus
 
 from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
-from fap_helpers import SlaveProcess
+from fap_helpers import HERE, SlaveProcess
 
 
 def _start(bus: VirtualBus) -> List[SlaveProcess]:
@@ -114,3 +117,44 @@ def test_ctrl_c_interrupts_a_blocking_recv(bus: VirtualBus) -> None:
             proc.wait()
     assert proc.returncode == 3, err
     assert out.startswith("interrupted"), (out, err)
+
+
+def test_ctrl_c_storm_keeps_the_node_consistent(bus: VirtualBus) -> None:
+    """KeyboardInterrupt landing anywhere inside node calls never leaves a
+    stale 'thread inside C' count behind (close() would wait forever)."""
+    proc = subprocess.Popen([sys.executable, "-I", str(HERE / "fap_sigint_child.py"),
+                             bus.paths[1], "3000"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: "queue.Queue[str]" = queue.Queue()
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            lines.put(line.strip())
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    try:
+        assert lines.get(timeout=WAIT) == "ready"
+        result = None
+        deadline = time.monotonic() + 60
+        while result is None:                  # signal storm until the child reports
+            assert time.monotonic() < deadline, "child never finished"
+            os.kill(proc.pid, signal.SIGINT)
+            try:
+                result = lines.get_nowait()
+            except queue.Empty:
+                pass
+        assert lines.get(timeout=WAIT) == "closed"
+        assert proc.wait(timeout=WAIT) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        reader.join(WAIT)                       # EOF seen: the pipe can go
+        for f in (proc.stdout, proc.stderr):
+            if f is not None:
+                f.close()
+    fields = dict(kv.split("=") for kv in result.split())
+    assert fields["users"] == "0"
+    assert int(fields["hits"]) > 100, result          # the storm did hit node calls

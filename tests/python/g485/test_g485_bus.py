@@ -36,6 +36,14 @@ def test_every_transaction_over_the_bus(net):
         for cmd in SetCommand:
             if cmd not in (SetCommand.RESET, SetCommand.FACTORY_RESET):
                 master.set(address, cmd.name)
+    master.set(3, SetCommand.CONTROL_MODE)  # the loop left bulk and non-real-time modes on
+    master.set(3, SetCommand.REAL_TIME_WRITE)
+    master.write(3, 7, 30)  # ID 3 -> 30, then reset: the unsaved ID change is undone, so
+    master.set(30, SetCommand.RESET, check=Check.NONE)  # nobody could answer a handshake at 30
+    assert master.read(3, 7) == b"\x03"
+    master.change_id(3, 31, save=True)
+    master.set(31, SetCommand.FACTORY_RESET, factory_address=3)  # back to its factory ID
+    assert master.read(3, 7) == b"\x03" and d3.address == 3
     assert master.stats.retries == 0 and master.stats.ignored_frames == 0
     assert sims[1].replies_sent > 0 and d3.packets_handled > 0
 
@@ -231,3 +239,22 @@ def test_paced_bus_reply_timeout_includes_wire_time():
         data = master.read(8, 1, 100, check=Check.NONE)
         assert len(data) == 100 and data[6] == 8
         assert sim.error is None
+
+
+def test_simulator_port_disconnect_and_return(net):
+    master, bus, _, (sim1, _) = net
+    master.timeout = SHORT
+    master.read(1, 7)
+    bus.disconnect(1, 0.1)  # the simulator's port hangs up, then comes back at the same path
+    assert master.read(1, 7, retries=20) == b"\x01"
+    assert sim1.reopened == 1 and sim1.error is None
+
+
+def test_master_port_disconnect_raises_port_error(net):
+    from fap_py.errors import PortError
+
+    master, bus, _, _ = net
+    master.read(1, 7)
+    bus.disconnect(0, 0.1)
+    with pytest.raises(PortError):
+        master.read(1, 7)

@@ -375,3 +375,26 @@ def test_simulator_waits_while_no_master_has_the_pty_open():
         assert time.process_time() - c0 < 1.0  # it did not spin
     finally:
         os.close(mfd)
+
+
+def test_simulator_on_a_pyserial_url_generic_path():
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    port = server.getsockname()[1]
+    accepted = {}
+    t = threading.Thread(target=lambda: accepted.setdefault("conn", server.accept()[0]))
+    t.start()
+    sim = Simulator(f"socket://127.0.0.1:{port}", [SimDevice(2)])
+    t.join()
+    conn = accepted["conn"]
+    try:
+        assert not sim._io.fast
+        with sim, G485Master(conn.fileno(), timeout=FAST) as master:
+            master.write(2, 8, [7, 7, 7])
+            assert master.read(2, 8, 3) == b"\x07\x07\x07"
+            master.set(2, SetCommand.SAVE_EEPROM)
+        assert sim.error is None
+    finally:
+        conn.close()
+        server.close()
