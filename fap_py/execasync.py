@@ -34,7 +34,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from ._native import ffi, lib
 from .errors import ClosedError, FapError, FapTimeoutError, FrameError, InvalidValueError, error_from_code
-from .fap import RS485, RS485Mode   # the line options every fap_py node takes
+from .fap import RS485, RS485Mode, port_options   # the line options every fap_py node takes
 
 log = logging.getLogger("fap_py.execasync")
 
@@ -311,28 +311,6 @@ def _checked(name: str, kind: str, value: Any) -> Any:
 
 # ---- engine ---------------------------------------------------------------------
 
-def _port_options(baudrate: int, rs485: Optional[RS485]) -> Any:
-    """``fap_port_options`` from a baud rate and :class:`fap_py.fap.RS485` line options."""
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
-        raise ExecValueError(f"baudrate must be a positive int, not {baudrate!r}")
-    if rs485 is None:
-        rs485 = RS485()
-    elif not isinstance(rs485, RS485):
-        raise ExecValueError(f"rs485 must be an RS485, not {type(rs485).__name__}")
-    po = ffi.new("fap_port_options *")
-    lib.fap_port_options_init(po)
-    po.baud = baudrate
-    po.rs485_mode = int(rs485.mode)
-    po.rts_active_high = int(rs485.rts_active_high)
-    po.delay_before_send_us = rs485.delay_before_send_us
-    po.delay_after_send_us = rs485.delay_after_send_us
-    po.rx_during_tx = int(rs485.rx_during_tx)
-    po.echo_suppression = int(rs485.echo_suppression)
-    po.echo_timeout_us = rs485.echo_timeout_us
-    po.turnaround_us = rs485.turnaround_us
-    po.exclusive = int(rs485.exclusive)
-    po.write_timeout_us = rs485.write_timeout_us
-    return po
 
 
 def _stats_dict(cdata: Any, ctype: str) -> Dict[str, int]:
@@ -393,7 +371,7 @@ class Master:
                  timeout: float = 0.1, retries: int = 3, rs485: Optional[RS485] = None) -> None:
         self._m: Any = None
         self.path = os.fspath(port)
-        popts = _port_options(baudrate, rs485)
+        popts = port_options(baudrate, rs485)
         mopts = ffi.new("execMasterOptions *")
         lib.execMasterOptionsInit(mopts)
         mopts.reply_timeout_us, mopts.retries = self._timing(timeout, retries)
@@ -569,7 +547,7 @@ class Slave:
         self._lock = threading.Lock()
         self._idle = threading.Condition(self._lock)
         self._serving = 0        # serve() calls inside C: close() waits for them
-        popts = _port_options(baudrate, rs485)
+        popts = port_options(baudrate, rs485)
         sopts = ffi.new("execSlaveOptions *")
         lib.execSlaveOptionsInit(sopts)
         sopts.node = node

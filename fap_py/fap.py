@@ -266,6 +266,42 @@ class RS485:
             if not isinstance(getattr(self, name), bool):
                 raise InvalidTypeError(f"RS485.{name} must be a bool")
 
+    def apply_to(self, po: Any, baudrate: int) -> Any:
+        """Fill a cffi ``fap_port_options *`` with ``baudrate`` and these options.
+
+        The one place that maps Python line options onto the C port layer:
+        every protocol binding (FAP, exec async, mikroC) opens its port
+        through it.
+        """
+        po.baud = baudrate
+        po.rs485_mode = int(self.mode)
+        po.rts_active_high = int(self.rts_active_high)
+        po.delay_before_send_us = self.delay_before_send_us
+        po.delay_after_send_us = self.delay_after_send_us
+        po.rx_during_tx = int(self.rx_during_tx)
+        po.echo_suppression = int(self.echo_suppression)
+        po.echo_timeout_us = self.echo_timeout_us
+        po.turnaround_us = self.turnaround_us
+        po.exclusive = int(self.exclusive)
+        po.write_timeout_us = self.write_timeout_us
+        return po
+
+
+def port_options(baudrate: int, rs485: Optional[RS485] = None) -> Any:
+    """A new cffi ``fap_port_options *`` for ``baudrate`` and ``rs485``
+    (``None`` = the port layer's defaults: direction mode AUTO, no echo
+    suppression, exclusive). Raises before anything reaches C."""
+    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
+        raise InvalidValueError(f"baudrate must be a positive int, not {baudrate!r}")
+    if rs485 is None:
+        rs485 = RS485()
+    elif not isinstance(rs485, RS485):
+        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    ffi, lib = _native()
+    po = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(po)
+    return rs485.apply_to(po, baudrate)
+
 
 class EventKind(enum.IntEnum):
     """What a :class:`SlaveEvent` reports (``fapx_event_type``)."""
@@ -410,18 +446,7 @@ class Node:
                 setattr(opts, attr, _int(value, name, 1, 1 << 20))
         self._rx_depth = opts.rx_depth or lib.FAPX_DEFAULT_RX_DEPTH
         self._ev_depth = opts.ev_depth or lib.FAPX_DEFAULT_EV_DEPTH
-        po = lib.fapx_options_port(opts)     # &opts->port (opaque to cffi)
-        po.baud = self.baudrate
-        po.rs485_mode = int(rs485.mode)
-        po.rts_active_high = int(rs485.rts_active_high)
-        po.delay_before_send_us = rs485.delay_before_send_us
-        po.delay_after_send_us = rs485.delay_after_send_us
-        po.rx_during_tx = int(rs485.rx_during_tx)
-        po.echo_suppression = int(rs485.echo_suppression)
-        po.echo_timeout_us = rs485.echo_timeout_us
-        po.turnaround_us = rs485.turnaround_us
-        po.exclusive = int(rs485.exclusive)
-        po.write_timeout_us = rs485.write_timeout_us
+        rs485.apply_to(lib.fapx_options_port(opts), self.baudrate)  # &opts->port (opaque to cffi)
         out = ffi.new("fapx **")
         code = lib.fapx_open(out, os.fsencode(self.path), opts)
         if code < 0:

@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import List, Optional, Union
 
 from ._native import ffi, lib
+from .fap import RS485, port_options   # the line options every fap_py node takes
 from .errors import (
     ClosedError,
     FapTimeoutError,
@@ -227,12 +228,6 @@ class NodeStats:
 
 _SLICE_MS = 200   # longest single wait in C, so close() is noticed
 
-_MODES = {                      # fap_rs485_mode (include/fap_port.h)
-    "auto": lib.FAP_RS485_AUTO,
-    "kernel": lib.FAP_RS485_KERNEL,
-    "soft_rts": lib.FAP_RS485_SOFT_RTS,
-    "none": lib.FAP_RS485_NONE,
-}
 
 
 def _timeout_ms(timeout: Optional[float]) -> int:
@@ -250,25 +245,14 @@ def _timeout_ms(timeout: Optional[float]) -> int:
 class _Node:
     _buffer_size = 7
 
-    def __init__(self, port_path: PathLike, baudrate: int, rs485_mode: Optional[str],
-                 echo_suppression: bool) -> None:
+    def __init__(self, port_path: PathLike, baudrate: int, rs485: Optional[RS485]) -> None:
         self.path = os.fspath(port_path)
         self._lock = threading.Lock()      # receive side: one receiver at a time
         self._tx_lock = threading.Lock()   # send side (may run beside a receive)
         self._closing = False
         self._ctx = ffi.new("mikrocRS485_ctx *")
         self._init_ctx()
-        opts = ffi.NULL
-        if rs485_mode is not None or echo_suppression:
-            if rs485_mode is not None and rs485_mode not in _MODES:
-                raise InvalidValueError(f"rs485_mode must be one of {sorted(_MODES)}, not {rs485_mode!r}")
-            opts = ffi.new("fap_port_options *")
-            lib.fap_port_options_init(opts)
-            if rs485_mode is not None:
-                opts.rs485_mode = _MODES[rs485_mode]
-            opts.echo_suppression = 1 if echo_suppression else 0
-        if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
-            raise InvalidValueError(f"baudrate must be a positive int, not {baudrate!r}")
+        opts = port_options(baudrate, rs485)
         r = lib.mikrocRS485_CtxOpen(self._ctx, self.path.encode(), baudrate, opts)
         if r < 0:
             raise error_from_code(r, "open", self.path)
@@ -360,10 +344,11 @@ class Master(_Node):
     reply. Runs the C master (``mikrocRS485_CtxInitMaster``)."""
 
     def __init__(self, port_path: PathLike, baudrate: int = 19200, *,
-                 rs485_mode: Optional[str] = None, echo_suppression: bool = False) -> None:
-        """Open ``port_path``. ``rs485_mode`` is "auto" (default of the port
-        layer), "kernel", "soft_rts" or "none"; see docs/port.md."""
-        super().__init__(port_path, baudrate, rs485_mode, echo_suppression)
+                 rs485: Optional[RS485] = None) -> None:
+        """Open ``port_path``. ``rs485`` holds the line options (direction
+        mode, RTS, echo suppression, turnaround: :class:`fap_py.RS485`,
+        the same for every protocol); ``None`` = the port layer's defaults."""
+        super().__init__(port_path, baudrate, rs485)
 
     def _init_ctx(self) -> None:
         lib.mikrocRS485_CtxInitMaster(self._ctx)
@@ -411,9 +396,9 @@ class Slave(_Node):
     _buffer_size = 6
 
     def __init__(self, port_path: PathLike, baudrate: int = 19200, address: int = 1, *,
-                 rs485_mode: Optional[str] = None, echo_suppression: bool = False) -> None:
+                 rs485: Optional[RS485] = None) -> None:
         self.address = _check_address(address)
-        super().__init__(port_path, baudrate, rs485_mode, echo_suppression)
+        super().__init__(port_path, baudrate, rs485)
 
     def _init_ctx(self) -> None:
         lib.mikrocRS485_CtxInitSlave(self._ctx, self.address)

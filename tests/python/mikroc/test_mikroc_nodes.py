@@ -16,6 +16,7 @@ from fap_py.mikroc import (
     encode,
 )
 
+from fap_py import RS485, RS485Mode
 from fap_py.vbus import VirtualBus
 
 # the addresses of the slaves of the `net` fixture (conftest.py)
@@ -177,15 +178,15 @@ def test_open_errors(tmp_path):
 
 def test_port_options():
     with VirtualBus(ports=2) as bus:
-        with Master(bus.paths[0], 115200, rs485_mode="none") as m, \
-                Slave(bus.paths[1], 115200, address=3, rs485_mode="none") as s:
+        with Master(bus.paths[0], 115200, rs485=RS485(mode=RS485Mode.NONE)) as m, \
+                Slave(bus.paths[1], 115200, address=3, rs485=RS485(mode=RS485Mode.NONE)) as s:
             m.send(3, b"\x01")
             assert s.receive(timeout=5).data == b"\x01"
         # a pty has no kernel RS-485: an explicit request fails clearly
         with pytest.raises(PortError):
-            Master(bus.paths[0], 115200, rs485_mode="kernel")
+            Master(bus.paths[0], 115200, rs485=RS485(mode=RS485Mode.KERNEL))
         with pytest.raises(InvalidValueError):
-            Master(bus.paths[0], 115200, rs485_mode="sideways")
+            Master(bus.paths[0], 115200, rs485="kernel")
         with pytest.raises(InvalidValueError):
             Master(bus.paths[0], 0)
 
