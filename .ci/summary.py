@@ -1,5 +1,11 @@
-"""Print one closing line for CI from meson's test logs: 'N passed, N failed'."""
+"""Closing lines for CI from meson's test logs.
+
+Prints pytest's own summary (meson keeps test output to itself on success)
+and then one line counting every meson test of every build given:
+'N passed, N failed'. Exits 1 if anything failed or nothing ran.
+"""
 import json
+import re
 import sys
 from pathlib import Path
 
@@ -9,10 +15,15 @@ for build in sys.argv[1:]:
     if not log.exists():
         continue
     for line in log.read_text().splitlines():
-        result = json.loads(line).get("result")
+        entry = json.loads(line)
+        result = entry.get("result")
         if result in ("OK", "EXPECTEDFAIL"):
             passed += 1
-        elif result not in ("SKIP",):
+        elif result != "SKIP":
             failed += 1
+        if entry.get("name", "").split(":")[-1] == "pytest":
+            found = re.findall(r"^=*\s*(\d+ passed.*?)\s*=*$", entry.get("stdout", ""), re.M)
+            if found:
+                print(f"pytest ({build}): {found[-1]}")
 print(f"{passed} passed, {failed} failed")
 sys.exit(1 if failed or not passed else 0)
