@@ -221,6 +221,11 @@ static void drain_outbox(fapx *h)
             lf_fap_master_sent(&h->m, now);
         else
             lf_fap_slave_sent(&h->s, now);
+        /* Per frame, not per burst: a peer may already hold this frame, and
+         * a slave's turn can be a second of frames. */
+        pthread_mutex_lock(&h->lock);
+        publish_locked(h);
+        pthread_mutex_unlock(&h->lock);
     }
     pthread_mutex_lock(&h->lock);
     if (h->tx_inflight || wrote_data) {
