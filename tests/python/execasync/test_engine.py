@@ -195,3 +195,39 @@ def test_vanished_port_raises_port_error() -> None:
             slave.serve(5)
         with pytest.raises(OSError):
             master.transact(1, b"x")
+
+
+def _reopen_when_back(node: "Master | Slave", within: float = 5.0) -> None:
+    """Reopen ``node`` once the bus has brought its port back. Nothing can be
+    waited on for a path that reappears, so this retries on a bounded clock."""
+    import time
+
+    deadline = time.monotonic() + within
+    while True:
+        try:
+            node.reopen()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.01)
+
+
+def test_reopen_after_the_port_comes_back() -> None:
+    with VirtualBus(ports=2) as bus, \
+            Slave(bus.paths[1], node=1, handler=lambda r: r.data[::-1], rs485=LINE) as slave, \
+            Master(bus.paths[0], timeout=0.5, rs485=LINE) as master:
+        bus.disconnect(0, 0.05)
+        bus.disconnect(1, 0.05)
+        with pytest.raises(OSError):
+            master.transact(1, b"x")
+        with pytest.raises(OSError):
+            slave.serve(5)
+        _reopen_when_back(master)
+        _reopen_when_back(slave)
+        result: List[bytes] = []
+        t = threading.Thread(target=lambda: result.append(master.transact(1, b"abc")))
+        t.start()
+        assert slave.serve(5) is ServeResult.PROCESSED
+        t.join(5)
+        assert result == [b"cba"]
