@@ -11,7 +11,10 @@ thread), the server in its own process so CPU time is attributable:
 * minimalmodbus and pymodbus (sync and async) RTU reads of 10 holding
   registers against a pymodbus RTU server;
 * dynamixel-sdk protocol 1.0 reads of 10 bytes against a small Dynamixel 1.0
-  responder written here (``--serve dxl``).
+  responder written here (``--serve dxl``);
+* two reference rows without any protocol (``--serve canned``): bare Python
+  write/poll/read and write/spin/read, the floor of a blocking and of a
+  busy-waiting client on this link.
 
 Client CPU is the main thread's CPU time (the bus relay thread is not
 counted); server CPU is read from /proc. A last table shows what a read to
@@ -99,7 +102,49 @@ def serve_dxl(path: str, ident: int = 1) -> None:
                 os.write(fd, _dxl_status(ident, 0, b""))
 
 
+def serve_canned(path: str) -> None:
+    """Reference responder: answers every 7 bytes received with 16 fixed bytes (no protocol at all)."""
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    tty.setraw(fd)
+    reply = _dxl_status(1, 0, bytes(REGS))
+    pending = 0
+    print("ready", flush=True)
+    while True:
+        select.select([fd], [], [])
+        pending += len(os.read(fd, 4096))
+        while pending >= 7:  # a paced bus delivers a request in pieces
+            pending -= 7
+            os.write(fd, reply)
+
+
 # -- clients ----------------------------------------------------------------------
+
+def bare_client(path: str, spin: bool) -> Tuple[Reader, Callable[[], None], Optional[Reader]]:
+    """Reference client: write 7 bytes, wait (poll, or spin on non-blocking reads), read 16.
+
+    No protocol work at all: what Python itself costs on this link, blocking
+    or busy-waiting. Not a library; it shows where the floor is.
+    """
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    tty.setraw(fd)
+    poller = select.poll()
+    poller.register(fd, select.POLLIN)
+    request = bytes(7)
+    size = 6 + REGS
+
+    def read() -> None:
+        os.write(fd, request)
+        got = b""
+        while len(got) < size:
+            if not spin and not poller.poll(500):
+                raise TimeoutError("no reply")
+            try:
+                got += os.read(fd, size - len(got))
+            except BlockingIOError:
+                pass
+
+    return read, lambda: os.close(fd), None
+
 
 Reader = Callable[[], None]
 
@@ -301,6 +346,34 @@ def wire_limit(request: int, reply: int, baud: int, gap_chars: float = 0.0) -> f
     return baud / (10.0 * (request + reply + gap_chars))
 
 
+def run_one(args: argparse.Namespace, rnd: int, server_argv: List[str],
+            make_client: object) -> Tuple[Dict[str, float], Optional[Tuple[float, float]]]:
+    """One library, one round, on a fresh bus: (measurement, absent-ID cost or None)."""
+    from fap_py.vbus import VirtualBus
+
+    absent = None
+    with VirtualBus(ports=2, baud=args.baud if args.paced else None, seed=1) as bus:
+        server = start_server(server_argv + [bus.paths[1]])
+        try:
+            if isinstance(make_client, str):
+                coro = g485_async_measure if make_client == "async-g485" else pymodbus_async_measure
+                res = asyncio.run(coro(bus.paths[0], args.baud, args.seconds, server.pid))
+            else:
+                read, close, read_absent = make_client(bus.paths[0])  # type: ignore[operator]
+                try:
+                    warm_up(read)
+                    res = measure(read, args.seconds, server.pid)
+                    absent = absent_cost(read_absent) if rnd == 0 else None
+                finally:
+                    close()
+        finally:
+            server.terminate()
+            server.wait(5)
+            if server.stdout:
+                server.stdout.close()
+    return res, absent
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=2.0, help="measuring time per library and round")
@@ -308,7 +381,7 @@ def main() -> int:
     ap.add_argument("--baud", type=int, default=115200, help="nominal baud of every port")
     ap.add_argument("--paced", action="store_true", help="pace the virtual bus at --baud")
     ap.add_argument("--only", help="comma list: g485-none,g485-handshake,g485-async,dynamixel,"
-                                   "minimalmodbus,pymodbus-sync,pymodbus-async")
+                                   "minimalmodbus,pymodbus-sync,pymodbus-async,bare-block,bare-spin")
     ap.add_argument("--serve", nargs=2, metavar=("KIND", "PATH"), help=argparse.SUPPRESS)
     args = ap.parse_args()
 
@@ -318,9 +391,10 @@ def main() -> int:
             serve_modbus(path, args.baud)
         elif kind == "dxl":
             serve_dxl(path)
+        elif kind == "canned":
+            serve_canned(path)
         return 0
 
-    from fap_py.vbus import VirtualBus
 
     me = [sys.executable, os.path.abspath(__file__), "--baud", str(args.baud)]
     g485_server = [sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1", "--baud", str(args.baud),
@@ -340,45 +414,42 @@ def main() -> int:
          lambda p: pymodbus_sync_client(p, args.baud), wire_limit(8, 25, args.baud, 7)),
         ("pymodbus-async", "pymodbus async RTU", me + ["--serve", "modbus"], "async-pymodbus",
          wire_limit(8, 25, args.baud, 7)),
+        ("bare-block", "(ref) bare poll, no protocol", me + ["--serve", "canned"],
+         lambda p: bare_client(p, spin=False), wire_limit(7, 16, args.baud)),
+        ("bare-spin", "(ref) bare spin, no protocol", me + ["--serve", "canned"],
+         lambda p: bare_client(p, spin=True), wire_limit(7, 16, args.baud)),
     ]
     if args.only:
         wanted = set(args.only.split(","))
         runs = [r for r in runs if r[0] in wanted]
 
     rounds: Dict[str, List[Dict[str, float]]] = {key: [] for key, *_ in runs}
+    lost: Dict[str, int] = {key: 0 for key, *_ in runs}  # rounds that could not run at all
     for rnd in range(args.rounds):
         for key, label, server_argv, make_client, limit in runs:
-            with VirtualBus(ports=2, baud=args.baud if args.paced else None, seed=1) as bus:
-                server = start_server(server_argv + [bus.paths[1]])
-                try:
-                    if isinstance(make_client, str):
-                        coro = g485_async_measure if make_client == "async-g485" else pymodbus_async_measure
-                        res = asyncio.run(coro(bus.paths[0], args.baud, args.seconds, server.pid))
-                        absent = None
-                    else:
-                        read, close, read_absent = make_client(bus.paths[0])
-                        try:
-                            warm_up(read)
-                            res = measure(read, args.seconds, server.pid)
-                            absent = absent_cost(read_absent) if rnd == 0 else None
-                        finally:
-                            close()
-                finally:
-                    server.terminate()
-                    server.wait(5)
-                    if server.stdout:
-                        server.stdout.close()
+            try:
+                res, absent = run_one(args, rnd, server_argv, make_client)
+            except Exception as exc:  # one library's broken round must not stop the others
+                lost[key] += 1
+                print(f"  round {rnd + 1}: {label}: FAILED ({type(exc).__name__}: {exc})",
+                      file=sys.stderr, flush=True)
+                continue
             res.update(label=label, limit=limit, absent=absent)
             rounds[key].append(res)
             print(f"  round {rnd + 1}: {label}: {res['rate']:.0f}/s", file=sys.stderr, flush=True)
 
     results = []
-    for key, *_ in runs:
+    for key, label, *_ in runs:
+        if not rounds[key]:
+            print(f"{label}: failed in every round", file=sys.stderr)
+            continue
         rs = sorted(rounds[key], key=lambda r: r["rate"])
         med = dict(rs[len(rs) // 2])
         med["low"], med["high"] = rs[0]["rate"], rs[-1]["rate"]
         med["absent"] = rounds[key][0]["absent"]
         med["errors"] = sum(r["errors"] for r in rs)
+        if lost[key]:
+            med["label"] = f"{label} [{len(rs)}/{args.rounds}]"
         results.append(med)
 
     link = f"virtual bus paced at {args.baud} baud" if args.paced else "virtual bus, unpaced ptys"
@@ -399,6 +470,9 @@ def main() -> int:
     print("failed reads = reads that raised (timeouts, ...), summed over the rounds; reads/s counts "
           "successful reads only")
     print("* its client CPU is the whole bench process (event loop + worker thread + bus relay thread)")
+    print("[n/N]: the library's reads failed for a whole round in N - n rounds (see stderr)")
+    print("(ref) rows: no library, Python write + wait + read of fixed bytes against a canned responder: "
+          "the floor of a blocking (poll) and of a busy-waiting (spin) client on this link")
     return 0
 
 

@@ -185,6 +185,52 @@ def frame(address_byte: int, pid: int, data: bytes = b"") -> bytes:
 
 _frame = frame
 
+#: ``sum(frame) & 0xFF`` of every frame (FF FF included) whose check byte is right:
+#: ADDRESS..DATA plus ``~(ADDRESS..DATA) & 0xFF`` is 0xFF (mod 256) and FF FF adds 0x1FE.
+#: The fast paths check a whole frame with it, without slicing.
+FRAME_SUM = (0xFF + 2 * 0xFF) & 0xFF
+
+
+# -- fast paths: the common frames recognised whole --------------------------
+
+def reply_prefix(pid: int, length: int) -> bytes:
+    """The first 5 bytes of the reply a master awaits: ``FF FF FF LENGTH PID``.
+
+    A chunk read from the port that starts with them, is ``HEADER_SIZE +
+    length`` bytes long and sums to :data:`FRAME_SUM` is exactly the reply
+    the :class:`Parser` would return (see :func:`is_exact_reply`).
+    """
+    return START + bytes((SMA_R, length, pid))
+
+
+def is_exact_reply(chunk: bytes, prefix: bytes) -> bool:
+    """True if ``chunk`` is exactly one well-checked reply starting with ``prefix`` (from :func:`reply_prefix`).
+
+    ``prefix`` must come from a valid request (its PID and LENGTH fit a reply
+    type), so no further classification is needed.
+    """
+    return (len(chunk) == HEADER_SIZE + prefix[3] and chunk.startswith(prefix)
+            and sum(chunk) & 0xFF == FRAME_SUM)
+
+
+def exact_packet(chunk: bytes) -> Optional[Packet]:
+    """The packet if ``chunk`` is exactly one well-checked G485 frame, else None.
+
+    The simulator's fast path for a chunk read while nothing is buffered:
+    for such a chunk the :class:`Parser` would return this one Packet and
+    keep nothing; for anything else (None) the Parser decides.
+    """
+    n = len(chunk)
+    if n < HEADER_SIZE + MIN_LENGTH or n > HEADER_SIZE + MAX_LENGTH or not chunk.startswith(START):
+        return None
+    length = chunk[3]
+    if length + HEADER_SIZE != n or chunk[2] == 0xFE or sum(chunk) & 0xFF != FRAME_SUM:
+        return None
+    kind = classify(chunk[2], length, chunk[4])
+    if kind is None:
+        return None
+    return Packet(kind, chunk[2] >> 1, chunk[4], chunk[5:-1], chunk[-1], chunk)
+
 
 # -- argument checks ---------------------------------------------------------
 

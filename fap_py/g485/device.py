@@ -180,8 +180,12 @@ class SimDevice:
 
     def handle(self, event: Union[Packet, Discarded]) -> Optional[bytes]:
         """Process one parser event; return the reply frame to send, if any."""
-        with self.lock:
+        lock = self.lock
+        lock.acquire()  # explicit acquire/release: cheaper than ``with`` on the hot path
+        try:
             return self._handle(event)
+        finally:
+            lock.release()
 
     def _handle(self, event: Union[Packet, Discarded]) -> Optional[bytes]:
         if self.asleep:
@@ -239,7 +243,7 @@ class SimDevice:
         for reg in self._write_only:
             if register <= reg < end:
                 values[reg - register] = 0  # write-only reads as 0
-        reply = codec.frame(codec.SMA_R, register, bytes(values))
+        reply = codec.frame(codec.SMA_R, register, values)
         self.check_byte = reply[-1]  # SDIC
         return reply
 

@@ -17,7 +17,7 @@ from typing import Any, Dict, Iterable, List, Optional, Tuple, Union
 
 from . import codec
 from .codec import (EPID, HEADER_SIZE, HPID, REPLY_KINDS, WAKE_UP_BAUD_THRESHOLD, WAKE_UP_PREAMBLE, Data,
-                    Packet, ParseIssue, Parser, SetCommand)
+                    Packet, ParseIssue, Parser, SetCommand, is_exact_reply)
 from .errors import (RETRYABLE_ERRORS, CheckByteError, DeviceErrorWordError, EchoMismatchError, G485Error,
                      G485FrameError,
                      G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
@@ -28,7 +28,10 @@ log = logging.getLogger("fap_py.g485")
 
 ID_REGISTER = 7
 COMMAND_REGISTER = 6  # write-only: a re-read check ignores it
-
+_HANDSHAKE_PREFIX = codec.reply_prefix(HPID, 3)
+_MAX_READ_PLANS = 4096  # cached (address, register, count) read frames per master
+#: a cached read: request frame, reply prefix, then the address, register and count it is for
+_ReadPlan = Tuple[bytes, bytes, int, int, int]
 
 
 class Check(Enum):
@@ -117,6 +120,7 @@ class G485Master:
         self.factory_address = factory_address
         self.echo = echo
         self._byte_time = 10.0 / max(1, self._io.baudrate)
+        self._fast_io = self._io.fast  # read through the fd: the one-poll fast path applies
         self._wake_pending = self.wake_up
         self._sent = 0  # bytes of the last write
         self._parser = Parser()
@@ -125,6 +129,9 @@ class G485Master:
         self._device_check: Dict[int, int] = {}
         self._non_real_time: set = set()
         self.stats = MasterStats()
+        # encoded once: the frames of the hot transactions
+        self._read_plans: Dict[Tuple[int, int, int], _ReadPlan] = {}
+        self._handshake_requests: Dict[int, bytes] = {}
 
     # -- context management ----------------------------------------------------
 
@@ -167,18 +174,22 @@ class G485Master:
             raise EchoMismatchError(f"{self.name}: echo {got.hex(' ')} differs from sent "
                                     f"{frame.hex(' ')} (collision or line fault)")
 
-    def _receive(self, pid: int, length: int, timeout: Optional[float]) -> Packet:
-        """Wait for the reply with this PID and LENGTH byte; raise what went wrong."""
+    def _receive(self, pid: int, length: int, timeout: Optional[float], deadline: float,
+                 first: bytes = b"") -> Packet:
+        """Wait for the reply with this PID and LENGTH byte; raise what went wrong.
+
+        The general path: any chunking, garbage, echoes and foreign frames.
+        ``first`` holds bytes already read by :meth:`_exchange_raw`.
+        """
         size = HEADER_SIZE + length
-        # the request may still be on the wire (the OS buffers it), then the reply must cross it
-        deadline = time.monotonic() + (timeout or self.timeout) + (self._sent + size) * self._byte_time
         parser = self._parser
         io = self._io
         junk = 0  # bytes received that are neither the reply nor an ignored frame
         problem: Optional[str] = None
+        chunk = first
         while True:
-            want = parser.bytes_wanted() or size
-            chunk = io.read_some(want, deadline)
+            if not chunk:
+                chunk = io.read_some(parser.bytes_wanted() or size, deadline)
             if not chunk:
                 if junk or parser.buffered:
                     self.stats.frame_errors += 1
@@ -186,7 +197,9 @@ class G485Master:
                                          f"({junk + parser.buffered} byte(s) unexplained"
                                          f"{'; ' + problem if problem else ''})")
                 raise NoResponseError(f"{self.name}: no reply within {timeout or self.timeout:.3f} s")
-            for ev in parser.feed(chunk):
+            events = parser.feed(chunk)
+            chunk = b""
+            for ev in events:
                 if isinstance(ev, Packet):
                     if ev.kind in REPLY_KINDS and ev.pid == pid and len(ev.raw) == size:
                         if log.isEnabledFor(logging.DEBUG):
@@ -215,10 +228,38 @@ class G485Master:
                 # a whole reply's worth of bytes but no reply: allow only a short idle gap
                 deadline = min(deadline, time.monotonic() + max(0.01, 30 * self._byte_time))
 
-    def _exchange(self, frame: bytes, pid: int, length: int, timeout: Optional[float]) -> Packet:
+    def _exchange_raw(self, frame: bytes, prefix: bytes, timeout: Optional[float]) -> bytes:
+        """Send ``frame``, return the whole reply frame that starts with ``prefix`` (``codec.reply_prefix``).
+
+        Fast path (a port read through its fd, no echo, no preamble due, no
+        DEBUG logging): write, one poll, one ``os.read`` of the whole reply,
+        and :func:`codec.is_exact_reply`. Anything else (a partial or foreign
+        chunk, garbage, a timeout) continues in the general :meth:`_receive`
+        with the same deadline.
+        """
         self._parser.clear()
-        self._send(frame)
-        return self._receive(pid, length, timeout)
+        io = self._io
+        if self._fast_io and not self.echo and not self._wake_pending and not log.isEnabledFor(logging.DEBUG):
+            io.write(frame)
+            # from here until the reply comes the bus is busy: the bookkeeping costs no latency
+            self._sent = len(frame)
+            size = HEADER_SIZE + prefix[3]
+            # the request may still be on the wire (the OS buffers it), then the reply must cross it
+            wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time
+            deadline = time.monotonic() + wait
+            first = io.read_within(size, wait)
+            if is_exact_reply(first, prefix):
+                return first
+        else:
+            self._send(frame)
+            deadline = (time.monotonic() + (timeout or self.timeout)
+                        + (self._sent + HEADER_SIZE + prefix[3]) * self._byte_time)
+            first = b""
+        return self._receive(prefix[4], prefix[3], timeout, deadline, first).raw
+
+    def _exchange(self, frame: bytes, pid: int, length: int, timeout: Optional[float]) -> Packet:
+        """Send ``frame`` and return its reply (PID ``pid``, LENGTH byte ``length``) decoded."""
+        return codec.decode_frame(self._exchange_raw(frame, codec.reply_prefix(pid, length), timeout))
 
     def _recover(self, error: G485Error) -> None:
         """Between attempts: count, flush stale input, maybe wake the device."""
@@ -233,29 +274,44 @@ class G485Master:
         self._parser.clear()
         log.info("%s retry after: %s", self.name, error)
 
-    def _run(self, attempt: Any, retries: Optional[int]) -> Any:
-        """Call ``attempt()`` until it succeeds or the retries are used up."""
-        tries = (self.retries if retries is None else retries) + 1
-        with self._lock:
+    def _run(self, attempt: Any, retries: Optional[int], *args: Any) -> Any:
+        """Call ``attempt(*args)`` until it succeeds or the retries are used up."""
+        lock = self._lock
+        lock.acquire()  # explicit acquire/release: cheaper than ``with`` on the hot path
+        try:
             self.stats.transactions += 1
-            for n in range(tries):
-                try:
-                    return attempt()
-                except RETRYABLE_ERRORS as exc:
-                    if n + 1 >= tries:
-                        if isinstance(exc, NoResponseError):
-                            self.stats.no_response += 1
-                            if self.wake_up and self.wake_after_no_response:
-                                self._wake_pending = True
-                        self._io.flush_input()
-                        self._parser.clear()
-                        raise
-                    self._recover(exc)
-        raise AssertionError("unreachable")  # pragma: no cover
+            try:
+                return attempt(*args)
+            except RETRYABLE_ERRORS as exc:
+                error = exc
+            return self._retry(error, attempt, retries, args)
+        finally:
+            lock.release()
+
+    def _retry(self, error: G485Error, attempt: Any, retries: Optional[int], args: Tuple[Any, ...]) -> Any:
+        """The attempts after a failed first one (the port lock is held)."""
+        tries = (self.retries if retries is None else retries) + 1
+        n = 1
+        while n < tries:
+            self._recover(error)
+            n += 1
+            try:
+                return attempt(*args)
+            except RETRYABLE_ERRORS as exc:
+                error = exc
+        if isinstance(error, NoResponseError):
+            self.stats.no_response += 1
+            if self.wake_up and self.wake_after_no_response:
+                self._wake_pending = True
+        self._io.flush_input()
+        self._parser.clear()
+        raise error
 
     def _handshake_once(self, address: int, timeout: Optional[float]) -> int:
-        reply = self._exchange(codec.encode_handshake_request(address), HPID, 3, timeout)
-        return reply.data[0]
+        request = self._handshake_requests.get(address)
+        if request is None:
+            request = self._handshake_requests[address] = codec.encode_handshake_request(address)
+        return self._exchange_raw(request, _HANDSHAKE_PREFIX, timeout)[5]
 
     def _verify_handshake(self, address: int, expected: int, what: str, timeout: Optional[float]) -> None:
         got = self._handshake_once(address, timeout)
@@ -276,24 +332,40 @@ class G485Master:
              check: Union[Check, str, None] = None, timeout: Optional[float] = None,
              retries: Optional[int] = None) -> bytes:
         """User-Register-Read transaction: ``count`` registers from ``register`` (1..100)."""
-        request = codec.encode_read_request(address, register, count)
-        mode = _as_check(check, self.check)
+        plan = self._read_plans.get((address, register, count))
+        # the same int objects as when cached (True == 1 and 1.0 == 1 must not hit)
+        if plan is None or plan[2] is not address or plan[3] is not register or plan[4] is not count:
+            plan = self._read_plan(address, register, count)
+        mode = self.check if check is None else _as_check(check, self.check)
+        return self._run(self._read_once, retries, plan, address, mode, timeout)
 
-        def attempt() -> bytes:
-            reply = self._exchange(request, register, count + 2, timeout)
-            self._device_check[address] = reply.check
-            if mode is Check.HANDSHAKE:
-                self._verify_handshake(address, reply.check, "read", timeout)
-            elif mode is Check.REREAD:
-                again = self._exchange(request, register, count + 2, timeout)
-                self._device_check[address] = again.check
-                if again.data != reply.data:
-                    raise RereadMismatchError(f"{self.name}: device {address} registers {register}.."
-                                              f"{register + count - 1} read {reply.data.hex(' ')} "
-                                              f"then {again.data.hex(' ')}")
-            return reply.data
+    def _read_once(self, plan: _ReadPlan, address: int, mode: Check, timeout: Optional[float]) -> bytes:
+        """One attempt of :meth:`read` (a method, not a closure: no cells to build per call)."""
+        request, prefix = plan[0], plan[1]
+        reply = self._exchange_raw(request, prefix, timeout)
+        self._device_check[address] = reply[-1]
+        if mode is Check.HANDSHAKE:
+            self._verify_handshake(address, reply[-1], "read", timeout)
+        elif mode is Check.REREAD:
+            again = self._exchange_raw(request, prefix, timeout)
+            self._device_check[address] = again[-1]
+            if again[5:-1] != reply[5:-1]:
+                register, count = prefix[4], prefix[3] - 2
+                raise RereadMismatchError(f"{self.name}: device {address} registers {register}.."
+                                          f"{register + count - 1} read {reply[5:-1].hex(' ')} "
+                                          f"then {again[5:-1].hex(' ')}")
+        return reply[5:-1]
 
-        return self._run(attempt, retries)
+    def _read_plan(self, address: int, register: int, count: int) -> _ReadPlan:
+        """(request frame, reply prefix, address, register, count) of a read, validated by
+        the codec; cached for int arguments."""
+        plan = (codec.encode_read_request(address, register, count), codec.reply_prefix(register, count + 2),
+                address, register, count)
+        if type(address) is int and type(register) is int and type(count) is int:
+            if len(self._read_plans) >= _MAX_READ_PLANS:
+                self._read_plans.clear()
+            self._read_plans[(address, register, count)] = plan
+        return plan
 
     def read_register(self, address: int, register: int, **kwargs: Any) -> int:
         """One register as an int."""

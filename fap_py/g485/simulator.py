@@ -1,9 +1,10 @@
 """G485 device simulator on a port: one thread per port, any number of devices.
 
 The thread blocks in ``poll`` (no busy-waiting) on the port and on a
-wake-up pipe, feeds what it reads to one parser, hands every event to every
-device on the port (each decides whether it is addressed) and writes the
-replies. A partial frame left when the line goes idle is expired after
+wake-up pipe, feeds what it reads to one parser (a chunk that is exactly one
+frame, the common case, becomes its packet directly: ``codec.exact_packet``),
+hands every event to every device on the port (each decides whether it is
+addressed) and writes the replies. A partial frame left when the line goes idle is expired after
 ``idle_timeout``. On a shared bus the simulator also hears the other
 devices' replies; they are addressed to the master (127) and ignored.
 """
@@ -15,9 +16,9 @@ import os
 import select
 import threading
 import time
-from typing import Any, Iterable, List, Optional
+from typing import Any, Iterable, List, Optional, Sequence, Union
 
-from .codec import Discarded, Packet, Parser
+from .codec import Discarded, Packet, Parser, exact_packet
 from .device import SimDevice
 from ..errors import PortError
 from .errors import G485ValueError
@@ -122,11 +123,11 @@ class Simulator:
     def _serve_open_fd(self, fd: int, poller: "select.poll", stop_only: "select.poll") -> bool:
         """Serve until stopped (False) or until the port was opened again (True)."""
         stop_r = self._stop_r
+        parser = self._parser
         while True:
-            timeout = self.idle_timeout * 1000.0 if self._parser.buffered else None
-            ready = poller.poll(timeout)
+            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)
             if not ready:
-                self._dispatch(self._parser.expire())
+                self._dispatch(parser.expire())
                 continue
             for rfd, flags in ready:
                 if rfd == stop_r:
@@ -142,7 +143,9 @@ class Simulator:
                         raise PortError(exc.errno or errno.EIO, None, self.name) from None
                     data = b""
                 if data:
-                    self._dispatch(self._parser.feed(data))
+                    # fast path: the chunk is exactly one frame (the common case), no Parser pass
+                    packet = None if parser.buffered else exact_packet(data)
+                    self._dispatch(parser.feed(data) if packet is None else (packet,))
                     continue
                 # hung up (EIO or end of file): nobody on the other side of the pty yet, or
                 # the port was disconnected; wait (no spinning), then try the path again
@@ -178,7 +181,7 @@ class Simulator:
             elif self._parser.buffered:
                 self._dispatch(self._parser.expire())
 
-    def _dispatch(self, events: List) -> None:
+    def _dispatch(self, events: Sequence[Union[Packet, Discarded]]) -> None:
         debug = log.isEnabledFor(logging.DEBUG)
         for ev in events:
             if debug:

@@ -101,6 +101,27 @@ class Transport:
                 raise PortError(errno.EIO, "port hung up (end of file)", self.name)
             return data
 
+    def read_within(self, n: int, timeout: float) -> bytes:
+        """Fast path of fd ports (``fast``): one ``poll`` of up to ``timeout`` seconds,
+        then one ``os.read`` of up to ``n`` bytes; b"" if nothing was readable.
+
+        The caller goes on with :meth:`read_some` if the chunk is not what it
+        wants, so a spurious wake-up returns b"" instead of retrying here.
+        """
+        if self.closed:
+            raise ClosedError(f"{self.name}: port closed")
+        if not self._poll.poll(math.ceil(timeout * 1000.0)):  # type: ignore[union-attr]
+            return b""
+        try:
+            data = os.read(self.fd, n)  # type: ignore[arg-type]
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            raise PortError(exc.errno or errno.EIO, None, self.name) from None
+        if not data:
+            raise PortError(errno.EIO, "port hung up (end of file)", self.name)
+        return data
+
     def _read_serial(self, n: int, remaining: float) -> bytes:
         ser = self.serial
         assert ser is not None

@@ -253,3 +253,33 @@ def test_parser_bytes_wanted_guides_exact_reads():
     p.feed(reply[2:5])
     assert p.bytes_wanted() == len(reply) - 5
     assert _packets(p.feed(reply[5:])) == [reply]
+
+
+def test_fast_paths_agree_with_the_parser(vectors):
+    """exact_packet / is_exact_reply accept exactly what the Parser returns whole, nothing else."""
+    rng = random.Random(4851)
+    chunks = list(_frames(vectors))
+    for f in list(chunks):
+        chunks += [f[:-1], f + b"\x00", b"\x00" + f, f[:-1] + bytes(((f[-1] + 1) & 0xFF,)), f + f,
+                   bytes(rng.randrange(256) for _ in range(len(f)))]
+        for _ in range(5):  # one damaged byte somewhere
+            i = rng.randrange(len(f))
+            chunks.append(f[:i] + bytes(((f[i] ^ (1 << rng.randrange(8))),)) + f[i + 1:])
+    chunks += [codec.WAKE_UP_PREAMBLE + codec.encode_handshake_request(1), b"\xff\xff\xfe\x02\x7f\x80", b""]
+    for chunk in chunks:
+        events = Parser().feed(chunk)
+        whole = events[0] if len(events) == 1 and isinstance(events[0], Packet) and \
+            events[0].raw == chunk else None
+        assert codec.exact_packet(chunk) == whole, chunk.hex(" ")
+        for pid, length in ((1, 5), (1, 12), (codec.HPID, 3), (codec.EPID, 4), (8, 5)):
+            prefix = codec.reply_prefix(pid, length)
+            expected = whole is not None and whole.kind in codec.REPLY_KINDS and whole.pid == pid \
+                and len(whole.raw) == codec.HEADER_SIZE + length
+            assert codec.is_exact_reply(chunk, prefix) == expected, (chunk.hex(" "), pid, length)
+
+
+def test_frame_sum_is_the_check_byte_rule(vectors):
+    for f in _frames(vectors):
+        assert sum(f) & 0xFF == codec.FRAME_SUM
+        assert codec.check_byte(f[2:-1]) == f[-1]
+        assert sum(f[:-1] + bytes(((f[-1] + 1) & 0xFF,))) & 0xFF != codec.FRAME_SUM
