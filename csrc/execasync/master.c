@@ -209,10 +209,7 @@ void execMasterGetStats(execMaster *m, execMasterStats *out)
 {
     if (!m || !out)
         return;
-    const uint64_t *src = (const uint64_t *)&m->stats;
-    uint64_t *dst = (uint64_t *)out;
-    for (size_t i = 0; i < sizeof *out / sizeof(uint64_t); i++)
-        dst[i] = LF_STAT_LOAD(src[i]);
+    lf_stats_load(out, &m->stats, sizeof *out);
 }
 
 fap_port *execMasterPort(execMaster *m)

@@ -113,7 +113,7 @@ static void watch_line(execSlave *s)
         lf_ns now = lf_now_ns();
         /* with input already there, just collect what is readable */
         lf_ns wait = s->len > s->pos || now >= until ? 0 : until - now;
-        struct timespec ts = {.tv_sec = wait / LF_NS_PER_S, .tv_nsec = wait % LF_NS_PER_S};
+        struct timespec ts = lf_ns_to_timespec(wait);
         struct pollfd pf = {.fd = fd, .events = POLLIN};
         int pr = ppoll(&pf, 1, &ts, NULL);
         if (pr < 0 && errno == EINTR)
@@ -216,7 +216,7 @@ static int wait_input(execSlave *s, lf_ns deadline)
         }
         lf_ns now = lf_now_ns();
         struct pollfd pf[2] = {{.fd = fd, .events = POLLIN}, {.fd = s->stop_fd, .events = POLLIN}};
-        int pr = poll(pf, 2, now >= deadline ? 0 : lf_poll_timeout_ms(deadline, now));
+        int pr = poll(pf, 2, lf_poll_timeout_ms(deadline, now));
         if (pr < 0) {
             if (errno == EINTR)
                 continue;
@@ -285,10 +285,7 @@ void execSlaveGetStats(execSlave *s, execSlaveStats *out)
 {
     if (!s || !out)
         return;
-    const uint64_t *src = (const uint64_t *)&s->stats;
-    uint64_t *dst = (uint64_t *)out;
-    for (size_t i = 0; i < sizeof *out / sizeof(uint64_t); i++)
-        dst[i] = LF_STAT_LOAD(src[i]);
+    lf_stats_load(out, &s->stats, sizeof *out);
 }
 
 fap_port *execSlavePort(execSlave *s)

@@ -5,10 +5,10 @@
  * frames to the state machine, and transmits the state machine's outbox
  * through the port layer. No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
+#include "common/mono_timerfd.h"
 #include <errno.h>
 #include <sys/epoll.h>
 #include <string.h>
-#include <sys/timerfd.h>
 #include <unistd.h>
 
 /* ---- state machine callbacks (engine thread) ---- */
@@ -265,14 +265,7 @@ static void arm_timer(fapx *h, lf_ns deadline)
 {
     if (deadline == h->armed || (h->armed >= 0 && deadline > h->armed))
         return;
-    struct itimerspec its;
-    memset(&its, 0, sizeof its);
-    if (deadline != LF_NEVER) {
-        if (deadline <= 0)
-            deadline = 1;             /* 0 would disarm */
-        its.it_value = lf_ns_to_timespec(deadline);
-    }
-    timerfd_settime(h->timer_fd, TFD_TIMER_ABSTIME, &its, NULL);
+    lf_timerfd_arm_at(h->timer_fd, deadline);
     h->armed = deadline;
 }
 
@@ -330,7 +323,8 @@ void *lf_fapx_engine_main(void *arg)
 
         drain_outbox(h);
 
-        if (!h->port_down && fap_port_fd(h->port) < 0)
+        int want_port = h->port_down ? -1 : fap_port_fd(h->port);
+        if (!h->port_down && want_port < 0)
             port_lost(h, lf_now_ns());    /* the port layer found it gone */
 
         lf_ns sm_dl = h->mode == FAPX_MASTER ? lf_fap_master_deadline(&h->m)
@@ -340,7 +334,6 @@ void *lf_fapx_engine_main(void *arg)
             deadline = min_ns(deadline, h->reopen_at);
         arm_timer(h, deadline);
 
-        int want_port = h->port_down ? -1 : fap_port_fd(h->port);
         if (want_port != reg_port) {
             if (reg_port >= 0)
                 epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);   /* may be gone: fine */
@@ -379,8 +372,8 @@ void *lf_fapx_engine_main(void *arg)
                 ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
                 if (n > 0)
                     lf_fap_decoder_feed(&h->dec, rbuf, (size_t)n, now, on_frame, h);
-                if ((n < 0 && n != -EAGAIN && n != -EINTR) ||
-                    (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
+                /* fap_port_read reports "no data" as 0, never -EAGAIN or -EINTR */
+                if (n < 0 || (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
                     port_lost(h, now);    /* hung up: a 0-byte read would spin */
                 if (n < (ssize_t)sizeof rbuf)
                     break;

@@ -9,8 +9,6 @@
 #include "common/crc16.h"
 #include <string.h>
 
-static const char marker[LF_FAP_MARKER_LEN] = { 'c','C','t','R','s','F','e','F' };
-
 size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
                      unsigned src, const uint8_t *data, size_t len)
 {
@@ -21,7 +19,7 @@ size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
     size_t size = LF_FAP_HDR_LEN + len;
     if (cap < size + LF_FAP_CRC_LEN)
         return 0;
-    memcpy(out, marker, LF_FAP_MARKER_LEN);
+    memcpy(out, LF_FAP_MARKER, LF_FAP_MARKER_LEN);
     out[8] = (uint8_t)(size & 0xFF);
     out[9] = (uint8_t)(size >> 8);
     out[10] = (uint8_t)msg;
@@ -53,12 +51,6 @@ void lf_fap_decoder_reset(lf_fap_decoder *d)
     d->n = 0;
 }
 
-const char *lf_fap_msg_name(unsigned msg)
-{
-    static const char *const names[] = { "SEND_DATA", "DATA", "DATA_DONE", "QUERY_ID", "ID" };
-    return msg <= LF_FAP_ID ? names[msg] : "?";
-}
-
 /* Drop k bytes from the front of the buffer. */
 static void drop(lf_fap_decoder *d, size_t k)
 {
@@ -82,7 +74,7 @@ static int marker_prefix_ok(const uint8_t *b, size_t n)
 {
     size_t m = n < LF_FAP_MARKER_LEN ? n : LF_FAP_MARKER_LEN;
     for (size_t i = 0; i < m; i++) {
-        if (b[i] == (uint8_t)marker[i])
+        if (b[i] == (uint8_t)LF_FAP_MARKER[i])
             continue;
         if (i == 7 && b[i] == 'f')
             continue;

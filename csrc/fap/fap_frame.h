@@ -81,6 +81,4 @@ lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d);
 void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx);
 /* Drop everything held (after a port reopen). */
 void lf_fap_decoder_reset(lf_fap_decoder *d);
-
-const char *lf_fap_msg_name(unsigned msg);
 #endif

@@ -72,4 +72,12 @@ typedef struct lf_fap_outbox {
 
 int lf_fap_outbox_put(lf_fap_outbox *o, unsigned msg, unsigned dst, unsigned src,
                       const uint8_t *data, size_t len);
+
+/* The send-budget rule of a node's turn (master slot or slave turn): put
+ * the next queued DATA from node `self` in the outbox while now is before
+ * budget_end. 1: a frame is in; 0: the queue is empty, or the budget is
+ * spent (c->budget_cutoffs). A frame to `self` or past ID 31 is dropped
+ * (c->tx_dropped) and the next one tried. scratch holds 1024 bytes. */
+int lf_fap_next_data(lf_fap_outbox *o, const lf_fap_io *io, uint8_t *scratch, unsigned self,
+                     lf_ns now, lf_ns budget_end, lf_fap_sm_counts *c);
 #endif

@@ -24,10 +24,10 @@ fap_port_options *fapx_options_port(fapx_options *o)
 
 void lf_fapx_fill_defaults(fapx_options *o)
 {
-    if (!o->idc_us)         o->idc_us = 15000000u;
-    if (!o->id_answer_us)   o->id_answer_us = 1000000u;
-    if (!o->data_done_us)   o->data_done_us = 15000000u;
-    if (!o->send_budget_us) o->send_budget_us = 10000000u;
+    if (!o->idc_us)         o->idc_us = LF_FAP_DEFAULT_IDC / LF_NS_PER_US;
+    if (!o->id_answer_us)   o->id_answer_us = LF_FAP_DEFAULT_ID_ANSWER / LF_NS_PER_US;
+    if (!o->data_done_us)   o->data_done_us = LF_FAP_DEFAULT_DATA_DONE / LF_NS_PER_US;
+    if (!o->send_budget_us) o->send_budget_us = LF_FAP_DEFAULT_BUDGET / LF_NS_PER_US;
     if (!o->reopen_us)      o->reopen_us = 200000u;
     if (!o->rx_depth)       o->rx_depth = FAPX_DEFAULT_RX_DEPTH;
     if (!o->tx_depth)       o->tx_depth = FAPX_DEFAULT_TX_DEPTH;
@@ -103,9 +103,15 @@ fail:
     return err;
 }
 
+/* A master is node 0, a slave 1..31. */
+static int mode_id_ok(unsigned mode, unsigned id)
+{
+    return mode == FAPX_MASTER ? id == 0 : mode == FAPX_SLAVE && id != 0 && id <= FAPX_MAX_ID;
+}
+
 int lf_fapx_start(fapx *h, unsigned mode, unsigned id)
 {
-    if (mode == FAPX_MASTER ? id != 0 : (mode != FAPX_SLAVE || id == 0 || id > FAPX_MAX_ID))
+    if (!mode_id_ok(mode, id))
         return -EINVAL;
     lf_fapx_stop(h);
     pthread_mutex_lock(&h->lock);
@@ -177,8 +183,7 @@ int fapx_open(fapx **out, const char *path, const fapx_options *o)
 {
     if (!out || !path || !o)
         return -EINVAL;
-    if (o->mode == FAPX_MASTER ? o->id != 0
-                               : (o->mode != FAPX_SLAVE || o->id == 0 || o->id > FAPX_MAX_ID))
+    if (!mode_id_ok(o->mode, o->id))   /* before the port is opened */
         return -EINVAL;
     fapx *h;
     int rc = lf_fapx_create(&h, path, o);

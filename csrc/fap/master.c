@@ -89,25 +89,13 @@ static void poll_next(lf_fap_master *m, lf_ns now)
     after_cycle(m, now);
 }
 
-/* One more DATA frame of the master's slot, or on to polling. */
+/* One more DATA frame of the master's slot (1), or on to polling (0). */
 static int slot_next(lf_fap_master *m, lf_ns now)
 {
-    while (now < m->wait_deadline) {
-        uint8_t dst;
-        uint16_t len;
-        if (!m->io.tx_pop || !m->io.tx_pop(m->io.ctx, &dst, m->scratch, &len))
-            return 0;
-        if (dst == 0 || dst > LF_FAP_MAX_ID ||
-            lf_fap_outbox_put(&m->out, LF_FAP_DATA, dst, 0, m->scratch, len) != 0) {
-            m->c.tx_dropped++;
-            continue;
-        }
-        m->state = LF_M_SLOT;
-        m->c.data_tx++;
-        return 1;
-    }
-    m->c.budget_cutoffs++;
-    return 0;
+    if (!lf_fap_next_data(&m->out, &m->io, m->scratch, 0, now, m->wait_deadline, &m->c))
+        return 0;
+    m->state = LF_M_SLOT;
+    return 1;
 }
 
 static void start_data_cycle(lf_fap_master *m, lf_ns now)

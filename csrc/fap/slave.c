@@ -19,22 +19,10 @@ void lf_fap_slave_init(lf_fap_slave *s, unsigned id, const lf_fap_timing *t, con
 /* Next DATA of our turn, or DATA_DONE when the queue is empty or the budget spent. */
 static void turn_next(lf_fap_slave *s, lf_ns now)
 {
-    while (now < s->budget_end) {
-        uint8_t dst;
-        uint16_t len;
-        if (!s->io.tx_pop || !s->io.tx_pop(s->io.ctx, &dst, s->scratch, &len))
-            goto done;
-        if (dst == s->id || dst > LF_FAP_MAX_ID ||
-            lf_fap_outbox_put(&s->out, LF_FAP_DATA, dst, s->id, s->scratch, len) != 0) {
-            s->c.tx_dropped++;
-            continue;
-        }
+    if (lf_fap_next_data(&s->out, &s->io, s->scratch, s->id, now, s->budget_end, &s->c)) {
         s->state = LF_S_TURN;
-        s->c.data_tx++;
         return;
     }
-    s->c.budget_cutoffs++;
-done:
     s->state = LF_S_DONE;
     lf_fap_outbox_put(&s->out, LF_FAP_DATA_DONE, 0, s->id, NULL, 0);
 }

@@ -25,3 +25,23 @@ int lf_fap_outbox_put(lf_fap_outbox *o, unsigned msg, unsigned dst, unsigned src
     o->dst = (uint8_t)dst;
     return 0;
 }
+
+int lf_fap_next_data(lf_fap_outbox *o, const lf_fap_io *io, uint8_t *scratch, unsigned self,
+                     lf_ns now, lf_ns budget_end, lf_fap_sm_counts *c)
+{
+    while (now < budget_end) {
+        uint8_t dst;
+        uint16_t len;
+        if (!io->tx_pop || !io->tx_pop(io->ctx, &dst, scratch, &len))
+            return 0;
+        if (dst == self || dst > LF_FAP_MAX_ID ||
+            lf_fap_outbox_put(o, LF_FAP_DATA, dst, self, scratch, len) != 0) {
+            c->tx_dropped++;
+            continue;
+        }
+        c->data_tx++;
+        return 1;
+    }
+    c->budget_cutoffs++;
+    return 0;
+}

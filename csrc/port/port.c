@@ -229,13 +229,14 @@ void lf_port_release(fap_port *p)
     pthread_mutex_unlock(&p->st_mu);
 }
 
-int lf_port_mark_gone(fap_port *p, int err)
+void lf_port_note_error(fap_port *p, int err)
 {
+    if (!lf_port_errno_vanished(-err))
+        return;
     pthread_mutex_lock(&p->st_mu);
     if (!p->gone_err)
         p->gone_err = err;
     pthread_mutex_unlock(&p->st_mu);
-    return err;
 }
 
 fap_rs485_mode fap_port_mode(const fap_port *p)

@@ -9,6 +9,46 @@
 
 #include "common/mono_clock.h"
 
+/* ---- fd primitives shared by read, write and echo ----------------------- */
+
+/* One non-blocking read: >0 bytes, 0 when nothing is queued, or a negative
+ * error (-EIO when the tty hung up and reads as end of file). */
+static ssize_t read_some(fap_port *p, int fd, void *buf, size_t n)
+{
+    for (;;) {
+        ssize_t r = p->be->read(p->ctx, fd, buf, n);
+        if (r > 0)
+            return r;
+        if (r == 0)
+            return -EIO;
+        if (errno == EINTR)
+            continue;
+        if (errno == EAGAIN || errno == EWOULDBLOCK)
+            return 0;
+        return -errno;
+    }
+}
+
+/* One poll for events on fd, bounded by deadline. Returns 0 with *revents
+ * set (0 after a timeout or EINTR: the caller looks again), -ETIMEDOUT if
+ * the deadline has already passed, or a negative error (-EBADF: fd closed). */
+static int poll_until(fap_port *p, int fd, short events, int64_t deadline, short *revents)
+{
+    *revents = 0;
+    int64_t now = lf_now_ns();
+    if (now >= deadline)
+        return -ETIMEDOUT;
+    struct pollfd pf = {.fd = fd, .events = events};
+    int r = p->be->poll(p->ctx, &pf, 1, lf_poll_timeout_ms(deadline, now));
+    if (r < 0)
+        return errno == EINTR ? 0 : -errno;
+    if (r > 0 && (pf.revents & POLLNVAL))
+        return -EBADF;
+    if (r > 0)
+        *revents = pf.revents;
+    return 0;
+}
+
 /* ---- input parked before an echo-suppressed write (rx_mu held) ----------- */
 
 /* Largest backlog we park; beyond it the bytes stay queued in the kernel
@@ -42,20 +82,12 @@ static int pend_fill(fap_port *p, int fd)
     while (p->pend_len < PEND_MAX) {
         if (pend_reserve(p, 256) < 0)
             break;   /* no memory: leave the rest in the kernel */
-        ssize_t r = p->be->read(p->ctx, fd, p->pend + p->pend_len, 256);
-        if (r > 0) {
-            p->pend_len += (size_t)r;
-            continue;
-        }
-        if (r == 0) {
-            err = -EIO;   /* hung up */
+        ssize_t r = read_some(p, fd, p->pend + p->pend_len, 256);
+        if (r <= 0) {
+            err = (int)r;   /* 0: the queue is empty */
             break;
         }
-        if (errno == EINTR)
-            continue;
-        if (errno != EAGAIN && errno != EWOULDBLOCK)
-            err = -errno;
-        break;
+        p->pend_len += (size_t)r;
     }
     if (p->pend_len > before) {
         pthread_mutex_lock(&p->st_mu);
@@ -99,20 +131,12 @@ static int echo_take(fap_port *p, int fd, echo_state *es)
         size_t want = es->n - es->got;
         if (want > sizeof tmp)
             want = sizeof tmp;
-        ssize_t r = p->be->read(p->ctx, fd, tmp, want);
-        if (r > 0) {
-            if (memcmp(tmp, es->sent + es->got, (size_t)r) != 0)
-                es->mismatch = 1;
-            es->got += (size_t)r;
-            continue;
-        }
-        if (r == 0)
-            return -EIO;   /* hung up */
-        if (errno == EINTR)
-            continue;
-        if (errno == EAGAIN || errno == EWOULDBLOCK)
-            return 0;
-        return -errno;
+        ssize_t r = read_some(p, fd, tmp, want);
+        if (r <= 0)
+            return (int)r;   /* 0: the rest has not arrived yet */
+        if (memcmp(tmp, es->sent + es->got, (size_t)r) != 0)
+            es->mismatch = 1;
+        es->got += (size_t)r;
     }
     return 0;
 }
@@ -125,15 +149,12 @@ static int echo_finish(fap_port *p, int fd, echo_state *es, int64_t deadline)
             return err;
         if (es->got >= es->n)
             return es->mismatch ? FAP_PORT_ECOLLISION : 0;
-        int64_t now = lf_now_ns();
-        if (now >= deadline)
-            return es->mismatch ? FAP_PORT_ECOLLISION : -ETIMEDOUT;
-        struct pollfd pf = {.fd = fd, .events = POLLIN};
-        int r = p->be->poll(p->ctx, &pf, 1, lf_poll_timeout_ms(deadline, now));
-        if (r < 0 && errno != EINTR)
-            return -errno;
-        if (r > 0 && (pf.revents & POLLNVAL))
-            return -EBADF;
+        short rev;
+        err = poll_until(p, fd, POLLIN, deadline, &rev);
+        if (err == -ETIMEDOUT && es->mismatch)
+            return FAP_PORT_ECOLLISION;
+        if (err)
+            return err;
         /* POLLHUP/POLLERR: the read above reports it next round. */
     }
 }
@@ -172,26 +193,16 @@ static int write_all(fap_port *p, int fd, const uint8_t *buf, size_t n,
             return -errno;
         /* Output queue full: wait for room, consuming echo meanwhile so the
          * input queue cannot fill up and stall a long write. */
-        int64_t now = lf_now_ns();
-        if (now >= deadline)
-            return -ETIMEDOUT;
-        struct pollfd pf = {.fd = fd, .events = (short)(POLLOUT | (es ? POLLIN : 0))};
-        int r = p->be->poll(p->ctx, &pf, 1, lf_poll_timeout_ms(deadline, now));
-        if (r < 0) {
-            if (errno == EINTR)
-                continue;
-            return -errno;
-        }
-        if (r == 0)
-            continue;
-        if (pf.revents & POLLNVAL)
-            return -EBADF;
-        if (es && (pf.revents & POLLIN)) {
-            int err = echo_take(p, fd, es);
+        short rev;
+        int err = poll_until(p, fd, (short)(POLLOUT | (es ? POLLIN : 0)), deadline, &rev);
+        if (err)
+            return err;
+        if (es && (rev & POLLIN)) {
+            err = echo_take(p, fd, es);
             if (err)
                 return err;
         }
-        if ((pf.revents & (POLLHUP | POLLERR)) && !(pf.revents & (POLLOUT | POLLIN)))
+        if ((rev & (POLLHUP | POLLERR)) && !(rev & (POLLOUT | POLLIN)))
             return -EIO;
     }
     return 0;
@@ -283,8 +294,7 @@ ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
 out:
     if (echo)
         pthread_mutex_unlock(&p->rx_mu);
-    if (err < 0 && err > -4096 && lf_port_errno_vanished(-err))
-        lf_port_mark_gone(p, err);
+    lf_port_note_error(p, err);
     pthread_mutex_lock(&p->st_mu);
     p->stats.tx_bytes += written;
     p->stats.echo_bytes += es.got;
@@ -314,57 +324,32 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
     ssize_t result = 0;
     short hup = 0;
     int parked = 0;
-    for (;;) {
-        if (n == 0)
-            break;
+    while (n > 0) {
         /* rx_mu only around read(): a write reading back its echo holds it,
          * so a concurrent reader never sees our own bytes. */
         pthread_mutex_lock(&p->rx_mu);
-        ssize_t r;
-        int e = 0;
         if (p->pend_len) {
-            r = (ssize_t)pend_take(p, buf, n);
+            result = (ssize_t)pend_take(p, buf, n);
             parked = 1;   /* received earlier: last_rx_ns already set */
         } else {
-            r = p->be->read(p->ctx, fd, buf, n);
-            e = errno;
+            result = read_some(p, fd, buf, n);
         }
         pthread_mutex_unlock(&p->rx_mu);
-        if (r > 0) {
-            result = r;
-            break;
-        }
-        if (r == 0) {   /* a hung-up tty reads as end of file */
-            result = -EIO;
-            break;
-        }
-        if (e == EINTR)
-            continue;
-        if (e != EAGAIN && e != EWOULDBLOCK) {
-            result = -e;
-            break;
-        }
+        if (result != 0)
+            break;   /* bytes, or an error */
         if (hup) {   /* poll said hang-up and there is nothing to read */
             result = -EIO;
             break;
         }
-        int64_t now = lf_now_ns();
-        if (deadline_ns == 0 || now >= deadline_ns)
-            break;   /* result 0: deadline */
-        struct pollfd pf = {.fd = fd, .events = POLLIN};
-        int pr = p->be->poll(p->ctx, &pf, 1, lf_poll_timeout_ms(deadline_ns, now));
-        if (pr < 0) {
-            if (errno == EINTR)
-                continue;
-            result = -errno;
-            break;
+        short rev;
+        err = poll_until(p, fd, POLLIN, deadline_ns, &rev);   /* deadline 0 has passed */
+        if (err) {
+            if (err != -ETIMEDOUT)
+                result = err;
+            break;   /* -ETIMEDOUT: result 0, the deadline */
         }
-        if (pr > 0 && (pf.revents & POLLNVAL)) {
-            result = -EBADF;
-            break;
-        }
-        if (pr > 0 && !(pf.revents & POLLIN))
-            hup = pf.revents & (POLLHUP | POLLERR);
+        if (rev && !(rev & POLLIN))
+            hup = rev & (POLLHUP | POLLERR);
     }
     pthread_mutex_lock(&p->st_mu);
     if (result > 0) {
@@ -375,8 +360,8 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
         p->stats.read_errors++;
     }
     pthread_mutex_unlock(&p->st_mu);
-    if (result < 0 && lf_port_errno_vanished((int)-result))
-        lf_port_mark_gone(p, (int)result);
+    if (result < 0)
+        lf_port_note_error(p, (int)result);
     lf_port_release(p);
     return result;
 }
@@ -396,8 +381,7 @@ int fap_port_flush(fap_port *p)
         }
         if (p->be->tcflush(p->ctx, fd, TCIOFLUSH) < 0) {
             err = -errno;
-            if (lf_port_errno_vanished(-err))
-                lf_port_mark_gone(p, err);
+            lf_port_note_error(p, err);
         }
         lf_port_release(p);
     }

@@ -13,6 +13,7 @@
  * under a poll() in progress).
  */
 #include "fap_vbus.h"
+#include "common/mono_timerfd.h"
 #include "vbus/vbus_capture.h"
 #include "vbus/vbus_pty.h"
 #include "vbus/vbus_wire.h"
@@ -53,13 +54,11 @@ typedef struct vbus_port {
 
 struct fap_vbus {
     unsigned n_ports;
-    unsigned baud;
     char *dir;
     int own_dir;              /* we created dir: remove it at close */
     vbus_port port[FAP_VBUS_MAX_PORTS];
     lf_wire wire;
     lf_capture cap;
-    lf_ns t0;
     int evfd, tfd;
     int infd;                 /* inotify: nodes opening/closing the slaves */
     int tracking;             /* attach tracking works (else: all attached) */
@@ -267,12 +266,7 @@ static void arm_timer(fap_vbus *b, lf_ns deadline)
 {
     if (deadline == b->timer_armed)
         return;
-    struct itimerspec its;
-    memset(&its, 0, sizeof its);
-    if (deadline != LF_NEVER) {
-        its.it_value = lf_ns_to_timespec(deadline > 0 ? deadline : 1);
-    }
-    timerfd_settime(b->tfd, TFD_TIMER_ABSTIME, &its, NULL);
+    lf_timerfd_arm_at(b->tfd, deadline);
     b->timer_armed = deadline;
 }
 
@@ -533,9 +527,8 @@ int fap_vbus_open(fap_vbus **out, const fap_vbus_options *o)
     pthread_mutex_init(&b->mu, NULL);
     pthread_cond_init(&b->cv, NULL);
     b->n_ports = o->n_ports;
-    b->baud = o->baud;
     b->timer_armed = LF_NEVER;
-    b->t0 = lf_now_ns();
+    lf_ns t0 = lf_now_ns();   /* capture times count from here */
 
     lf_wire_sink sink = { .ctx = b, .deliver = sink_deliver, .collision = sink_collision,
                           .fault = sink_fault };
@@ -573,7 +566,7 @@ int fap_vbus_open(fap_vbus **out, const fap_vbus_options *o)
             goto fail;
     }
     if (o->capture_path) {
-        err = lf_capture_open(&b->cap, o->capture_path, b->t0, o->n_ports, o->baud,
+        err = lf_capture_open(&b->cap, o->capture_path, t0, o->n_ports, o->baud,
                               o->echo, o->seed);
         if (err)
             goto fail;

@@ -13,11 +13,18 @@ static unsigned long long rel_us(const lf_capture *c, lf_ns t)
     return t > c->t0 ? (unsigned long long)((t - c->t0) / LF_NS_PER_US) : 0ull;
 }
 
+/* A stdio call just failed: keep its errno if it is the first error. */
+static void keep_first_error(lf_capture *c)
+{
+    if (!c->error)
+        c->error = errno ? errno : EIO;
+}
+
 /* Something went into the stdio buffer: flush it within LF_CAPTURE_FLUSH_NS. */
 static void note_write(lf_capture *c, int failed)
 {
-    if (failed && !c->error)
-        c->error = errno ? errno : EIO;
+    if (failed)
+        keep_first_error(c);
     if (c->dirty_since == LF_NEVER)
         c->dirty_since = lf_now_ns();
 }
@@ -113,8 +120,8 @@ void lf_capture_tick(lf_capture *c, lf_ns now)
     if (c->line_n && now >= c->line_next + c->char_ns)
         line_emit(c);
     if (c->dirty_since != LF_NEVER && now >= c->dirty_since + LF_CAPTURE_FLUSH_NS) {
-        if (fflush(c->f) != 0 && !c->error)
-            c->error = errno ? errno : EIO;
+        if (fflush(c->f) != 0)
+            keep_first_error(c);
         c->dirty_since = LF_NEVER;
     }
 }
@@ -124,9 +131,8 @@ int lf_capture_close(lf_capture *c)
     if (!c->f)
         return 0;
     line_emit(c);
-    int bad = fclose(c->f) != 0;
-    if (bad && !c->error)
-        c->error = errno ? errno : EIO;
+    if (fclose(c->f) != 0)
+        keep_first_error(c);
     c->f = NULL;
     return c->error ? -c->error : 0;
 }

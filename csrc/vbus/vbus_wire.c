@@ -93,6 +93,11 @@ uint64_t lf_wire_receivers(const lf_wire *w, unsigned sender, lf_ns now)
     return to;
 }
 
+static void flip_random_bit(lf_wire_port *pt, uint8_t *v)
+{
+    *v ^= (uint8_t)(1u << (rng_next(&pt->rng) & 7u));
+}
+
 /* Decide the fate of one byte sent by pt. Returns 0 to drop it, 1 to keep
  * it (*v possibly corrupted); counts[reason] records what happened. The
  * draws depend only on this port's settings and history: reproducible. */
@@ -105,7 +110,7 @@ static int fault_byte(lf_wire_port *pt, uint8_t *v, size_t counts[LF_WIRE_REASON
     }
     if (pt->corrupt_next) {
         pt->corrupt_next--;
-        *v ^= (uint8_t)(1u << (rng_next(&pt->rng) & 7u));
+        flip_random_bit(pt, v);
         counts[LF_WIRE_CORRUPT_NEXT]++;
         return 1;
     }
@@ -114,7 +119,7 @@ static int fault_byte(lf_wire_port *pt, uint8_t *v, size_t counts[LF_WIRE_REASON
         return 0;
     }
     if (pt->bit_error_rate > 0.0 && rng_unit(&pt->rng) < pt->bit_error_rate) {
-        *v ^= (uint8_t)(1u << (rng_next(&pt->rng) & 7u));
+        flip_random_bit(pt, v);
         counts[LF_WIRE_BIT_ERROR]++;
     }
     return 1;

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import signal
-import sys
 import threading
 
 
@@ -59,5 +58,4 @@ def run(args: argparse.Namespace) -> int:
     print(f"stats bytes_in={st.bytes_in} bytes_out={st.bytes_out} collisions={st.collisions} "
           f"bit_errors={st.bit_errors} dropped={st.dropped} overflow={st.overflow} "
           f"disconnects={st.disconnects}", flush=True)
-    sys.stdout.flush()
     return 0
