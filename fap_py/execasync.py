@@ -33,6 +33,7 @@ from enum import IntEnum
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 from ._native import ffi, lib
+from ._util import Closing, check_int, from_cdata
 from .errors import ClosedError, FapError, FapTimeoutError, FrameError, InvalidValueError, error_from_code
 from .fap import RS485, RS485Mode, port_options   # the line options every fap_py node takes
 
@@ -81,12 +82,8 @@ def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
 
 
 def _check_node(node: int, *, allow_broadcast: bool = False) -> int:
-    if not isinstance(node, int) or isinstance(node, bool):
-        raise ExecValueError(f"node must be an int, not {type(node).__name__}")
-    top = 255 if allow_broadcast else 254
-    if not 1 <= node <= top:
-        raise ExecValueError(f"node {node} out of range 1..{top}")
-    return node
+    return check_int(node, "node", 1, BROADCAST if allow_broadcast else BROADCAST - 1,
+                     error=ExecValueError, type_error=ExecValueError)
 
 
 def _check_data(data: BytesLike) -> bytes:
@@ -311,12 +308,6 @@ def _checked(name: str, kind: str, value: Any) -> Any:
 
 # ---- engine ---------------------------------------------------------------------
 
-
-
-def _stats_dict(cdata: Any, ctype: str) -> Dict[str, int]:
-    return {f[0]: int(getattr(cdata, f[0])) for f in ffi.typeof(ctype).fields}
-
-
 @dataclass(frozen=True)
 class MasterStats:
     """``execMasterStats``: counters since the master was opened."""
@@ -349,7 +340,7 @@ class SlaveStats:
     rx_frames: int
 
 
-class Master:
+class Master(Closing):
     """Exec async master on one port.
 
     ``timeout`` is per attempt (end of our frame to end of the reply);
@@ -370,6 +361,7 @@ class Master:
     def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
                  timeout: float = 0.1, retries: int = 3, rs485: Optional[RS485] = None) -> None:
         self._m: Any = None
+        self._lock = threading.Lock()
         self.path = os.fspath(port)
         popts = port_options(baudrate, rs485)
         mopts = ffi.new("execMasterOptions *")
@@ -379,7 +371,6 @@ class Master:
         out = ffi.new("execMaster **")
         _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
         self._m = out[0]
-        self._lock = threading.Lock()
         self._reply = ffi.new("byte[]", MAX_DATA)
         self._reply_len = ffi.new("word *")
         log.info("exec async master on %s", self.path)
@@ -415,12 +406,14 @@ class Master:
         payload = _check_data(data)
         with self._lock:
             m = self._handle()
-            log.debug("-> node %d seq %d %s", node, lib.execMasterNextSeq(m, node), payload.hex())
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("-> node %d seq %d %s", node, lib.execMasterNextSeq(m, node), payload.hex())
             rc = lib.execMasterTransact(m, node, payload, len(payload), self._reply, MAX_DATA,
                                         self._reply_len)
             _raise_for(rc, f"node {node}", self.path)
             reply = bytes(ffi.buffer(self._reply, self._reply_len[0]))
-        log.debug("<- node %d %s", node, reply.hex())
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("<- node %d %s", node, reply.hex())
         return reply
 
     def broadcast(self, data: BytesLike = b"") -> None:
@@ -447,14 +440,11 @@ class Master:
         with self._lock:
             lib.execMasterResetSequence(self._handle())
 
-    def _stats_raw(self) -> Any:
-        st = ffi.new("execMasterStats *")
-        lib.execMasterGetStats(self._handle(), st)
-        return st
-
     @property
     def stats(self) -> MasterStats:
-        return MasterStats(**_stats_dict(self._stats_raw(), "execMasterStats"))
+        st = ffi.new("execMasterStats *")
+        lib.execMasterGetStats(self._handle(), st)
+        return from_cdata(MasterStats, st)
 
     def close(self) -> None:
         """Close the port (waits for a transaction in progress). Idempotent."""
@@ -466,16 +456,6 @@ class Master:
     @property
     def closed(self) -> bool:
         return self._m is None
-
-    def __enter__(self) -> "Master":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        if getattr(self, "_m", None) is not None:
-            self.close()
 
 
 @dataclass(frozen=True)
@@ -515,7 +495,7 @@ def fap_py_exec_slave_handler(ctx: Any, req: Any, reply: Any, cap: int) -> int:
     return slave._dispatch(req, reply, cap)
 
 
-class Slave:
+class Slave(Closing):
     """Exec async slave for ``node`` (1..254) on one port.
 
     ``handler(request)`` returns the reply bytes (0..255), or ``None`` for
@@ -535,6 +515,10 @@ class Slave:
     def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
                  node: int, handler: Handler, rs485: Optional[RS485] = None) -> None:
         self._s: Any = None
+        self._thread: Optional[threading.Thread] = None
+        self._lock = threading.Lock()
+        self._idle = threading.Condition(self._lock)
+        self._serving = 0        # serve() calls inside C: close() waits for them
         _check_node(node)
         if not callable(handler):
             raise ExecValueError("handler must be callable")
@@ -543,10 +527,6 @@ class Slave:
         self._handler = handler
         self._pending_error: Optional[BaseException] = None
         self.error: Optional[BaseException] = None
-        self._thread: Optional[threading.Thread] = None
-        self._lock = threading.Lock()
-        self._idle = threading.Condition(self._lock)
-        self._serving = 0        # serve() calls inside C: close() waits for them
         popts = port_options(baudrate, rs485)
         sopts = ffi.new("execSlaveOptions *")
         lib.execSlaveOptionsInit(sopts)
@@ -559,10 +539,16 @@ class Slave:
         self._s = out[0]
         log.info("exec async slave %d on %s", node, self.path)
 
+    def _handle(self) -> Any:
+        if self._s is None:
+            raise ClosedError(f"{self.path}: slave closed")
+        return self._s
+
     def _dispatch(self, req: Any, reply: Any, cap: int) -> int:
         try:
             request = Request(int(req.node), int(req.seq), bytes(ffi.buffer(req.data, req.len)))
-            log.debug("slave %d <- seq %d %s", self.node, request.seq, request.data.hex())
+            if log.isEnabledFor(logging.DEBUG):
+                log.debug("slave %d <- seq %d %s", self.node, request.seq, request.data.hex())
             out = self._handler(request)
             if out is None or request.broadcast:
                 return -1
@@ -573,7 +559,8 @@ class Slave:
             self._pending_error = exc
             return -1
         ffi.memmove(reply, out, len(out))
-        log.debug("slave %d -> seq %d %s", self.node, request.seq, out.hex())
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("slave %d -> seq %d %s", self.node, request.seq, out.hex())
         return len(out)
 
     def serve(self, timeout: Optional[float] = None) -> ServeResult:
@@ -581,9 +568,7 @@ class Slave:
         ``timeout`` seconds (None = until one comes or :meth:`stop`)."""
         ms = -1 if timeout is None else max(0, int(round(timeout * 1000)))
         with self._lock:
-            s = self._s
-            if s is None:
-                raise ClosedError(f"{self.path}: slave closed")
+            s = self._handle()
             self._serving += 1
         try:
             rc = lib.execSlaveServe(s, ms)
@@ -610,8 +595,7 @@ class Slave:
     def start(self) -> "Slave":
         """Serve in a background (daemon) thread until :meth:`stop` / :meth:`close`."""
         with self._lock:
-            if self._s is None:
-                raise ClosedError(f"{self.path}: slave closed")
+            self._handle()
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"exec-slave-{self.node}",
                                                 daemon=True)
@@ -630,18 +614,13 @@ class Slave:
     def reopen(self) -> None:
         """Open the device again after it vanished (serve() raised PortError)."""
         with self._lock:
-            if self._s is None:
-                raise ClosedError(f"{self.path}: slave closed")
-            _raise_for(lib.fap_port_reopen(lib.execSlavePort(self._s)), "reopen", self.path)
+            _raise_for(lib.fap_port_reopen(lib.execSlavePort(self._handle())), "reopen", self.path)
 
     @property
     def stats(self) -> SlaveStats:
-        s = self._s
-        if s is None:
-            raise ClosedError(f"{self.path}: slave closed")
         st = ffi.new("execSlaveStats *")
-        lib.execSlaveGetStats(s, st)
-        return SlaveStats(**_stats_dict(st, "execSlaveStats"))
+        lib.execSlaveGetStats(self._handle(), st)
+        return from_cdata(SlaveStats, st)
 
     def close(self) -> None:
         """Stop serving (also serve() calls in other threads) and close the port. Idempotent."""
@@ -656,16 +635,6 @@ class Slave:
     @property
     def closed(self) -> bool:
         return self._s is None
-
-    def __enter__(self) -> "Slave":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        if getattr(self, "_s", None) is not None:
-            self.close()
 
 
 __all__ = [

@@ -39,8 +39,9 @@ from dataclasses import dataclass, fields
 from typing import (TYPE_CHECKING, Any, AsyncIterator, Callable, Dict, Iterable, Iterator,
                     List, Optional, Tuple, Union)
 
+from ._util import Closing, check_int, from_cdata, slice_ms
 from .errors import (ClosedError, FapError, FapTimeoutError, InvalidValueError,
-                     QueueFullError, error_from_code)
+                     NotInitialisedError, QueueFullError, error_from_code)
 
 if TYPE_CHECKING:  # pragma: no cover
     from .fap_aio import AsyncPump
@@ -137,6 +138,13 @@ def _error(code: int, what: str, path: Optional[str] = None, detail: str = "") -
     return error_from_code(code, what, path)
 
 
+_CLASSIC_TEXT = {1: "BAD (port could not be opened, or baud rate not 9600..115200)",
+                 2: "E_PARAM (wrong mode, or a slave-list call on a slave)",
+                 3: "E_VALUE (ID or size out of range, slave listed twice or not listed)",
+                 4: "E_INIT (fapInit/fapConfig not done, or the handle was closed)",
+                 5: "E_RES (queue full or empty)"}
+
+
 def classic_check(code: int, what: str) -> None:
     """Raise the exception for a vendor-API (``fap.h``) return code; GOOD passes.
 
@@ -145,16 +153,9 @@ def classic_check(code: int, what: str) -> None:
     :class:`QueueFullError` (from ``fapTx``; ``fapRx`` returns it for "nothing
     received", which callers test for before calling this).
     """
-    from .errors import NotInitialisedError
-
-    text = {1: "BAD (port could not be opened, or baud rate not 9600..115200)",
-            2: "E_PARAM (wrong mode, or a slave-list call on a slave)",
-            3: "E_VALUE (ID or size out of range, slave listed twice or not listed)",
-            4: "E_INIT (fapInit/fapConfig not done, or the handle was closed)",
-            5: "E_RES (queue full or empty)"}
     if code == 0:
         return
-    msg = f"{what}: {text.get(code, f'unknown code {code}')}"
+    msg = f"{what}: {_CLASSIC_TEXT.get(code, f'unknown code {code}')}"
     if code in (2, 3):
         raise InvalidValueError(msg)
     if code == 4:
@@ -167,11 +168,7 @@ def classic_check(code: int, what: str) -> None:
 # -- argument checks (before anything reaches C) -----------------------------
 
 def _int(value: Any, what: str, lo: int, hi: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise InvalidTypeError(f"{what} must be an int, not {type(value).__name__}")
-    if not lo <= value <= hi:
-        raise InvalidValueError(f"{what} must be in {lo}..{hi}, not {value}")
-    return int(value)
+    return check_int(value, what, lo, hi, error=InvalidValueError, type_error=InvalidTypeError)
 
 
 def _slave_id(value: Any, what: str = "slave id") -> int:
@@ -218,10 +215,7 @@ def _deadline(timeout: Optional[float]) -> Optional[float]:
 
 def _slice_ms(deadline: Optional[float]) -> int:
     """Milliseconds for the next wait inside C: at most WAIT_SLICE."""
-    if deadline is None:
-        return int(WAIT_SLICE * 1000)
-    left = deadline - time.monotonic()
-    return max(0, min(int(WAIT_SLICE * 1000), math.ceil(left * 1000)))
+    return slice_ms(deadline, int(WAIT_SLICE * 1000))
 
 
 # -- value types -------------------------------------------------------------
@@ -287,16 +281,21 @@ class RS485:
         return po
 
 
+def _line_options(rs485: Optional[RS485]) -> RS485:
+    """``rs485`` checked, ``None`` = the port layer's defaults."""
+    if rs485 is None:
+        return RS485()
+    if not isinstance(rs485, RS485):
+        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    return rs485
+
+
 def port_options(baudrate: int, rs485: Optional[RS485] = None) -> Any:
     """A new cffi ``fap_port_options *`` for ``baudrate`` and ``rs485``
     (``None`` = the port layer's defaults: direction mode AUTO, no echo
     suppression, exclusive). Raises before anything reaches C."""
-    if isinstance(baudrate, bool) or not isinstance(baudrate, int) or baudrate <= 0:
-        raise InvalidValueError(f"baudrate must be a positive int, not {baudrate!r}")
-    if rs485 is None:
-        rs485 = RS485()
-    elif not isinstance(rs485, RS485):
-        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    baudrate = _int(baudrate, "baudrate", 1, _U32)   # the same check as Node's
+    rs485 = _line_options(rs485)
     ffi, lib = _native()
     po = ffi.new("fap_port_options *")
     lib.fap_port_options_init(po)
@@ -378,16 +377,13 @@ class Stats:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-_STATS_FIELDS = [f.name for f in fields(Stats)]
-
-
 def _mask_ids(mask: int) -> List[int]:
     return [i for i in range(1, MAX_ID + 1) if mask >> i & 1]
 
 
 # -- nodes --------------------------------------------------------------------
 
-class Node:
+class Node(Closing):
     """What masters and slaves share: one C engine on one serial port.
 
     Not instantiated directly: use :class:`Master` or :class:`Slave`. A node
@@ -422,11 +418,7 @@ class Node:
         self.path: str = os.fsdecode(port)     #: the serial device
         self.baudrate: int = _int(baudrate, "baudrate", 1, _U32)
         self.id: int = node_id                 #: this node's FAP ID (master 0)
-        if rs485 is None:
-            rs485 = RS485()
-        elif not isinstance(rs485, RS485):
-            raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
-        self.rs485: RS485 = rs485              #: the RS-485 options asked for
+        self.rs485: RS485 = _line_options(rs485)   #: the RS-485 options asked for
         ffi, lib = _native()
         self._ffi, self._lib = ffi, lib
         opts = ffi.new("fapx_options *")
@@ -446,7 +438,7 @@ class Node:
                 setattr(opts, attr, _int(value, name, 1, 1 << 20))
         self._rx_depth = opts.rx_depth or lib.FAPX_DEFAULT_RX_DEPTH
         self._ev_depth = opts.ev_depth or lib.FAPX_DEFAULT_EV_DEPTH
-        rs485.apply_to(lib.fapx_options_port(opts), self.baudrate)  # &opts->port (opaque to cffi)
+        self.rs485.apply_to(lib.fapx_options_port(opts), self.baudrate)  # &opts->port (opaque to cffi)
         out = ffi.new("fapx **")
         code = lib.fapx_open(out, os.fsencode(self.path), opts)
         if code < 0:
@@ -459,6 +451,9 @@ class Node:
     # -- lifetime -------------------------------------------------------
     def _label(self) -> str:
         return "master" if self._mode == 0 else f"slave {self.id}"
+
+    def _closed_error(self) -> ClosedError:
+        return ClosedError(f"{self._label()} on {self.path} is closed")
 
     def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
         """fn(handle, *args) with this thread counted in as a user of the handle.
@@ -474,7 +469,7 @@ class Node:
         try:
             with self._lock:
                 if self._closing:
-                    raise ClosedError(f"{self._label()} on {self.path} is closed")
+                    raise self._closed_error()
                 self._users += 1
                 entered = True
                 h = self._h
@@ -526,23 +521,11 @@ class Node:
                 self._idle.notify_all()
         log.info("%s on %s closed", self._label(), self.path)
 
-    def __enter__(self) -> "Node":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     async def __aenter__(self) -> "Node":
         return self
 
     async def __aexit__(self, *exc: object) -> None:
         await self.aclose()
-
-    def __del__(self) -> None:  # a forgotten node must not leave its engine running
-        try:
-            self.close()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
 
     def __repr__(self) -> str:
         state = "closed" if self._closing else "open"
@@ -566,7 +549,7 @@ class Node:
         """A snapshot of the engine's counters."""
         st = self._ffi.new("fapx_stats *")
         self._call(self._lib.fapx_get_stats, st)
-        return Stats(**{name: getattr(st, name) for name in _STATS_FIELDS})
+        return from_cdata(Stats, st)
 
     @property
     def rx_pending(self) -> int:
@@ -615,7 +598,8 @@ class Node:
                     break
         if code < 0:
             raise _error(code, "send")
-        log.debug("%s: queued %d bytes for %d", self._label(), len(payload), dest)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: queued %d bytes for %d", self._label(), len(payload), dest)
 
     def flush(self, timeout: Optional[float] = None) -> None:
         """Wait until everything :meth:`send` queued is on the wire.
@@ -656,7 +640,8 @@ class Node:
             n = self._call(lib.fapx_rx_wait, buf, MAX_DATA, src, wait_ms)
         if n >= 0:
             msg = Message(int(src[0]), ffi.buffer(buf, n)[:])
-            log.debug("%s: received %d bytes from %d", self._label(), n, msg.source)
+            if log.isEnabledFor(logging.DEBUG):   # per message: no label built for nothing
+                log.debug("%s: received %d bytes from %d", self._label(), n, msg.source)
             return msg
         if n in (-_errno.EAGAIN, -_errno.ETIMEDOUT):
             return None
@@ -723,10 +708,15 @@ class Node:
             return None
         raise _error(code, "event")
 
-    def _next_event(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]:
+    def _take_stashed(self) -> Optional[SlaveEvent]:
+        """The oldest event wait_active took and kept, if any."""
         with self._lock:
-            if self._stash:
-                return self._stash.pop(0)
+            return self._stash.pop(0) if self._stash else None
+
+    def _next_event(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]:
+        ev = self._take_stashed()
+        if ev is not None:
+            return ev
         pump = self._pump
         if pump is not None:
             ev = pump.take_event()
@@ -767,13 +757,13 @@ class Node:
 
         with self._lock:
             if self._closing:
-                raise ClosedError(f"{self._label()} on {self.path} is closed")
+                raise self._closed_error()
             pump = self._pump
         pump = AsyncPump.for_running_loop(self, pump)
         with self._lock:
             if self._closing:
                 pump.stop()
-                raise ClosedError(f"{self._label()} on {self.path} is closed")
+                raise self._closed_error()
             self._pump = pump
         return pump
 
@@ -798,9 +788,9 @@ class Node:
         """``await``-able :meth:`wait_event`."""
         if timeout is not None:
             _seconds(timeout, "timeout")
-        with self._lock:
-            if self._stash:
-                return self._stash.pop(0)
+        ev = self._take_stashed()
+        if ev is not None:
+            return ev
         return await self._aio().get_event(timeout)
 
     async def aevents(self, timeout: Optional[float] = None) -> AsyncIterator[SlaveEvent]:

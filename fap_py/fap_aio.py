@@ -175,7 +175,7 @@ class AsyncPump:
     async def _wait(self, waiters: Deque["asyncio.Future[Any]"], queue: Deque[Any],
                     timeout: Optional[float], what: str) -> Any:
         if self.stopped:
-            raise ClosedError(f"{self.node._label()} on {self.node.path} is closed")
+            raise self.node._closed_error()
         fut = self.loop.create_future()
         waiters.append(fut)
         timer = None
@@ -237,7 +237,7 @@ class AsyncPump:
             self.reading = False
             if not self.loop.is_closed():
                 self.loop.remove_reader(self.fd)
-        self._fail_waiters(ClosedError(f"{self.node._label()} on {self.node.path} is closed"))
+        self._fail_waiters(self.node._closed_error())
 
     def stop(self) -> None:
         """Detach from the loop before the handle (and its fd) is closed. Idempotent."""

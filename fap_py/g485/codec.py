@@ -180,7 +180,7 @@ def check_byte(body: bytes) -> int:
 def frame(address_byte: int, pid: int, data: bytes = b"") -> bytes:
     """A frame from its raw fields, unchecked (the encoders below validate first)."""
     body = bytes((address_byte, len(data) + 2, pid)) + data
-    return START + body + bytes((~sum(body) & 0xFF,))
+    return START + body + bytes((check_byte(body),))
 
 
 _frame = frame
@@ -227,9 +227,7 @@ def exact_packet(chunk: bytes) -> Optional[Packet]:
     if length + HEADER_SIZE != n or chunk[2] == 0xFE or sum(chunk) & 0xFF != FRAME_SUM:
         return None
     kind = classify(chunk[2], length, chunk[4])
-    if kind is None:
-        return None
-    return Packet(kind, chunk[2] >> 1, chunk[4], chunk[5:-1], chunk[-1], chunk)
+    return None if kind is None else _packet(kind, chunk)
 
 
 # -- argument checks ---------------------------------------------------------
@@ -471,7 +469,7 @@ class Parser:
             if end > n:
                 break
             frame = bytes(buf[i:end])
-            expected = ~sum(frame[2:-1]) & 0xFF
+            expected = check_byte(frame[2:-1])
             if expected != frame[-1]:
                 events.append(Discarded(frame, ParseIssue.BAD_CHECK,
                                         f"check 0x{frame[-1]:02x}, expected 0x{expected:02x}"))
@@ -483,7 +481,7 @@ class Parser:
                                         f"address byte 0x{frame[2]:02x} length {length} "
                                         f"PID 0x{frame[4]:02x}"))
             else:
-                events.append(Packet(kind, frame[2] >> 1, frame[4], frame[5:-1], frame[-1], frame))
+                events.append(_packet(kind, frame))
             pos = end
         if pos:
             del buf[:pos]

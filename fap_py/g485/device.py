@@ -33,6 +33,9 @@ class RegisterSpec(NamedTuple):
     saved: bool = True
 
 
+#: discarded whole frames a device notes in its error word (other discards are not frames)
+_DISCARD_ERRORS = {ParseIssue.BAD_CHECK: ErrorBit.BAD_CHECK, ParseIssue.UNKNOWN_PACKET: ErrorBit.MALFORMED}
+
 #: seed V11: ProtocolVer, DeviceMainClass, DeviceSubClass, HardwareVer, SoftwareVer
 DEFAULT_IDENTITY = (11, 1, 1, 1, 1)
 
@@ -192,13 +195,11 @@ class SimDevice:
             self.asleep = False  # baud detection consumed this burst
             return None
         if isinstance(event, Discarded):
-            if event.issue is ParseIssue.BAD_CHECK and event.data[2] != codec.SMA_R \
-                    and event.data[2] >> 1 in (self.address, BROADCAST):
-                # not executed, not answered, and the check byte keeps its old value
-                self.error_word |= ErrorBit.BAD_CHECK
-            elif event.issue is ParseIssue.UNKNOWN_PACKET and event.data[2] >> 1 in (self.address, BROADCAST) \
-                    and event.data[2] != codec.SMA_R:
-                self.error_word |= ErrorBit.MALFORMED
+            # a whole frame for this device (or broadcast) that it cannot use: not executed,
+            # not answered, and the check byte keeps its old value
+            bit = _DISCARD_ERRORS.get(event.issue)
+            if bit and event.data[2] != codec.SMA_R and event.data[2] >> 1 in (self.address, BROADCAST):
+                self.error_word |= bit
             return None
         kind = event.kind
         target = event.address

@@ -261,17 +261,22 @@ class G485Master:
         """Send ``frame`` and return its reply (PID ``pid``, LENGTH byte ``length``) decoded."""
         return codec.decode_frame(self._exchange_raw(frame, codec.reply_prefix(pid, length), timeout))
 
-    def _recover(self, error: G485Error) -> None:
-        """Between attempts: count, flush stale input, maybe wake the device."""
-        self.stats.retries += 1
+    def _after_failure(self, error: G485Error) -> None:
+        """After a failed attempt (retried or not): count a missing reply, maybe wake
+        the device before the next packet, drop stale input."""
         if isinstance(error, NoResponseError):
             self.stats.no_response += 1
             if self.wake_up and self.wake_after_no_response:
                 self._wake_pending = True
-        elif isinstance(error, (HandshakeMismatchError, RereadMismatchError)):
-            self.stats.check_mismatches += 1
         self._io.flush_input()
         self._parser.clear()
+
+    def _recover(self, error: G485Error) -> None:
+        """Between attempts: count the retry (and a failed check), then :meth:`_after_failure`."""
+        self.stats.retries += 1
+        if isinstance(error, (HandshakeMismatchError, RereadMismatchError)):
+            self.stats.check_mismatches += 1
+        self._after_failure(error)
         log.info("%s retry after: %s", self.name, error)
 
     def _run(self, attempt: Any, retries: Optional[int], *args: Any) -> Any:
@@ -299,12 +304,7 @@ class G485Master:
                 return attempt(*args)
             except RETRYABLE_ERRORS as exc:
                 error = exc
-        if isinstance(error, NoResponseError):
-            self.stats.no_response += 1
-            if self.wake_up and self.wake_after_no_response:
-                self._wake_pending = True
-        self._io.flush_input()
-        self._parser.clear()
+        self._after_failure(error)
         raise error
 
     def _handshake_once(self, address: int, timeout: Optional[float]) -> int:

@@ -91,15 +91,9 @@ class Transport:
                 continue
             if not ready:
                 return b""
-            try:
-                data = os.read(self.fd, n)  # type: ignore[arg-type]
-            except BlockingIOError:
-                continue
-            except OSError as exc:
-                raise PortError(exc.errno or errno.EIO, None, self.name) from None
-            if not data:
-                raise PortError(errno.EIO, "port hung up (end of file)", self.name)
-            return data
+            data = self._read_fd(n)
+            if data:
+                return data
 
     def read_within(self, n: int, timeout: float) -> bytes:
         """Fast path of fd ports (``fast``): one ``poll`` of up to ``timeout`` seconds,
@@ -112,6 +106,10 @@ class Transport:
             raise ClosedError(f"{self.name}: port closed")
         if not self._poll.poll(math.ceil(timeout * 1000.0)):  # type: ignore[union-attr]
             return b""
+        return self._read_fd(n)
+
+    def _read_fd(self, n: int) -> bytes:
+        """One ``os.read`` after ``poll`` said readable; b"" if nothing was there after all."""
         try:
             data = os.read(self.fd, n)  # type: ignore[arg-type]
         except BlockingIOError:
