@@ -37,10 +37,11 @@ import os
 import threading
 import time
 from dataclasses import dataclass
-from typing import List, Optional, Union
+from typing import Any, List, Optional, Union
 
 from ._native import ffi, lib
-from .fap import RS485, port_options   # the line options every fap_py node takes
+from ._util import Closing, check_int, from_cdata, slice_ms
+from .fap import RS485, InvalidTypeError, port_options   # the line options every fap_py node takes
 from .errors import (
     ClosedError,
     FapTimeoutError,
@@ -148,12 +149,15 @@ class Message:
 
 
 def _check_address(address: int) -> int:
-    if not isinstance(address, int) or not 0 <= address <= 255:
-        raise InvalidValueError(f"address must be 0..255, not {address!r}")
-    return address
+    return check_int(address, "address", 0, 255,
+                     error=InvalidValueError, type_error=InvalidTypeError)
 
 
 def _check_data(data: bytes) -> bytes:
+    # bytes(3) would be three zero bytes and bytes("x") a TypeError: accept
+    # only byte buffers, so a wrong argument is a clear fap_py error.
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
     data = bytes(data)
     if len(data) > MAX_DATA:
         raise InvalidValueError(f"a mikroC frame carries 0..{MAX_DATA} data bytes, not {len(data)}")
@@ -229,7 +233,6 @@ class NodeStats:
 _SLICE_MS = 200   # longest single wait in C, so close() is noticed
 
 
-
 def _timeout_ms(timeout: Optional[float]) -> int:
     if timeout is None:
         return -1
@@ -242,7 +245,7 @@ def _timeout_ms(timeout: Optional[float]) -> int:
     return min(math.ceil(t * 1000.0), 0x7FFFFFFF)
 
 
-class _Node:
+class _Node(Closing):
     _buffer_size = 7
 
     def __init__(self, port_path: PathLike, baudrate: int, rs485: Optional[RS485]) -> None:
@@ -262,18 +265,6 @@ class _Node:
     def _init_ctx(self) -> None:
         raise NotImplementedError
 
-    def __enter__(self) -> "_Node":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:
-        try:
-            self.close()
-        except Exception:  # interpreter shutdown
-            pass
-
     @property
     def closed(self) -> bool:
         return not getattr(self, "_open", False)
@@ -292,11 +283,14 @@ class _Node:
         if not getattr(self, "_open", False):
             raise ClosedError(f"{type(self).__name__} on {self.path} is closed")
 
-    @property
-    def stats(self) -> NodeStats:
+    def _c_stats(self) -> Any:
         st = ffi.new("mikrocRS485_stats *")
         lib.mikrocRS485_CtxGetStats(self._ctx, st)
-        return NodeStats(st.frames, st.errors, st.overruns, st.ignored, st.damaged)
+        return st
+
+    @property
+    def stats(self) -> NodeStats:
+        return from_cdata(NodeStats, self._c_stats())
 
     def _send(self, data: bytes, address: int) -> None:
         with self._tx_lock:
@@ -311,9 +305,8 @@ class _Node:
         while True:
             if self._closing:
                 raise ClosedError(f"{type(self).__name__} on {self.path} was closed")
-            left = _SLICE_MS if end is None else max(0, math.ceil((end - time.monotonic()) * 1000.0))
-            r = lib.mikrocRS485_CtxPoll(self._ctx, buf, min(left, _SLICE_MS))
-            if r != 0 or (end is not None and left <= _SLICE_MS):
+            r = lib.mikrocRS485_CtxPoll(self._ctx, buf, slice_ms(end, _SLICE_MS))
+            if r != 0 or (end is not None and time.monotonic() >= end):
                 return r
 
     def _receive(self, timeout: Optional[float], from_master: bool) -> Message:
@@ -326,17 +319,18 @@ class _Node:
                 raise FapTimeoutError(f"{self.path}: no mikroC frame within {timeout} s")
             if r < 0:
                 raise error_from_code(r, "receive", self.path)
-            st = ffi.new("mikrocRS485_stats *")
-            lib.mikrocRS485_CtxGetStats(self._ctx, st)
+            if r & lib.MIKROC_RS485_POLL_ERROR:
+                err = _frame_error(self._c_stats().last_rx_error)
+                log.debug("%s: %s", self.path, err)
+                raise err
             raw = bytes(ffi.buffer(buf, self._buffer_size))
-        if r & lib.MIKROC_RS485_POLL_ERROR:
-            err = _frame_error(st.last_rx_error)
-            log.debug("%s: %s", self.path, err)
-            raise err
-        address = raw[6] if self._buffer_size == 7 else st.last_address
-        msg = Message(address, raw[0:raw[3]], from_master)
+            msg = Message(self._frame_address(raw), raw[0:raw[3]], from_master)
         log.debug("%s: rx %s", self.path, msg)
         return msg
+
+    def _frame_address(self, raw: bytes) -> int:
+        """The address of the frame just received (the master's buffer holds it in byte 6)."""
+        return raw[6]
 
 
 class Master(_Node):
@@ -360,7 +354,6 @@ class Master(_Node):
         (not when a receive() is already running in another thread)."""
         _check_address(address)
         data = _check_data(data)
-        self._check_open()
         # Skipped while another thread already waits in receive(): that
         # thread owns the receive side, and what it gets is its business.
         if self._lock.acquire(blocking=False):
@@ -371,7 +364,8 @@ class Master(_Node):
                 self._lock.release()
             if r < 0:
                 raise error_from_code(r, "flush", self.path)
-        log.debug("%s: tx to %d %s", self.path, address, data.hex())
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: tx to %d %s", self.path, address, data.hex())
         self._send(data, address)
 
     def receive(self, timeout: Optional[float] = 1.0) -> Message:
@@ -403,10 +397,15 @@ class Slave(_Node):
     def _init_ctx(self) -> None:
         lib.mikrocRS485_CtxInitSlave(self._ctx, self.address)
 
+    def _frame_address(self, raw: bytes) -> int:
+        # own or BROADCAST: a slave's 6-byte buffer has no room for it, the C context keeps it
+        return int(self._c_stats().last_address)
+
     def send(self, data: bytes = b"") -> None:
         """Reply with 0..3 bytes (from this slave's address)."""
         data = _check_data(data)
-        log.debug("%s: tx from %d %s", self.path, self.address, data.hex())
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("%s: tx from %d %s", self.path, self.address, data.hex())
         self._send(data, self.address)
 
     def receive(self, timeout: Optional[float] = 1.0) -> Message:

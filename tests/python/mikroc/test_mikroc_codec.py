@@ -97,3 +97,15 @@ def test_roundtrip_all_addresses():
                 frame = encode(address, data, from_master=master)
                 assert 0x96 not in frame[1:-1] and 0xA9 not in frame[1:-1]
                 assert decode(frame) == Message(address, data, master)
+
+
+def test_wrong_argument_types_are_fap_errors() -> None:
+    from fap_py.errors import InvalidValueError
+    from fap_py.mikroc import encode
+
+    for bad_data in (3, "abc", [1, 2]):
+        with pytest.raises(InvalidValueError):
+            encode(7, bad_data)  # type: ignore[arg-type]
+    for bad_address in (True, 1.0, "7", 256, -1):
+        with pytest.raises(InvalidValueError):
+            encode(bad_address, b"")  # type: ignore[arg-type]
