@@ -14,26 +14,18 @@ from .errors import (
     FapError,
     FapTimeoutError,
     FrameError,
+    InvalidTypeError,
     InvalidValueError,
     NotInitialisedError,
+    NotMasterError,
     PortError,
     QueueFullError,
-)
-
-from .fap import (
-    RS485,
-    EventKind,
-    InvalidTypeError,
-    Master,
-    Message,
-    NotMasterError,
-    RS485Mode,
-    Slave,
-    SlaveEvent,
     SlaveExistsError,
-    Stats,
     UnknownSlaveError,
 )
+from .fap import Master, Slave
+from .fap_types import EventKind, Message, SlaveEvent, Stats
+from .rs485 import RS485, RS485Mode
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 

@@ -22,6 +22,22 @@ class InvalidValueError(FapError, ValueError):
     """An argument is out of range or of the wrong kind (C: E_VALUE/E_PARAM)."""
 
 
+class InvalidTypeError(InvalidValueError, TypeError):
+    """An argument has the wrong type (also a ``TypeError``)."""
+
+
+class NotMasterError(InvalidValueError):
+    """A slave-list operation was asked of a slave node (C: -EPERM)."""
+
+
+class SlaveExistsError(InvalidValueError):
+    """add_slave: the slave is already listed (C: -EEXIST)."""
+
+
+class UnknownSlaveError(InvalidValueError):
+    """The slave is not listed on this master (C: -ENOENT)."""
+
+
 class NotInitialisedError(FapError):
     """The bus or engine is not initialised / configured yet (C: E_INIT)."""
 
@@ -57,9 +73,14 @@ class PortError(FapError, OSError):
         self.path = path
 
 
-# libfap's own negative codes (include/fap_port.h)
-FAP_PORT_ECOLLISION = -10001
-FAP_PORT_ECLOSED = -10002
+def _port_codes() -> "tuple[int, int]":
+    """libfap's own negative codes (include/fap_port.h), from the compiled core."""
+    from ._native import lib
+
+    return int(lib.FAP_PORT_ECOLLISION), int(lib.FAP_PORT_ECLOSED)
+
+
+FAP_PORT_ECOLLISION, FAP_PORT_ECLOSED = _port_codes()
 
 
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:

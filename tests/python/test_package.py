@@ -18,8 +18,9 @@ def test_native_extension_reports_core_version() -> None:
     assert fap_py.native_version() == fap_py.__version__
 
 
-def test_cli_help_lists_subcommands() -> None:
-    out = subprocess.run([sys.executable, "-m", "fap_py", "--help"],
+def test_cli_help_lists_subcommands(tmp_path: Path) -> None:
+    # cwd outside the source tree: its fap_py/ (no compiled _native) must not shadow the install
+    out = subprocess.run([sys.executable, "-m", "fap_py", "--help"], cwd=tmp_path,
                          check=True, capture_output=True, text=True).stdout
     assert "usage: fap" in out
     assert "version" in out
