@@ -28,8 +28,8 @@ import math
 import select
 import threading
 import time
-from typing import Any, Callable, Iterator, Optional, Set, TypeVar
 from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Optional, Set, TypeVar
 
 from .errors import ClosedError
 
@@ -261,7 +261,8 @@ class NativeHandle:
             loop = fut.get_loop()
             done = threading.Event()
 
-            def detach(fut: "asyncio.Future[bool]" = fut, done: threading.Event = done) -> None:
+            def detach(fut: "asyncio.Future[bool]" = fut, done: threading.Event = done,
+                       loop: asyncio.AbstractEventLoop = loop) -> None:
                 loop.remove_reader(fut.fap_fd)  # type: ignore[attr-defined]
                 if not fut.done():
                     fut.set_exception(self._closed_error())

@@ -36,10 +36,17 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 from ._handle import NativeHandle, deadline_of
 from ._native import ffi, lib
 from ._stats import stats_from_c
-from ._validate import U32, check_bool, check_bytes, check_int, check_path, check_seconds, timeout_ms
-from .errors import (ClosedError, FapError, FapTimeoutError, FrameError, InvalidTypeError,
-                     InvalidValueError, error_from_code)
-from .rs485 import RS485, RS485Mode, port_options   # the line options every fap_py node takes
+from ._validate import check_bytes, check_int, check_path, check_seconds, timeout_ms
+from .errors import (
+    ClosedError,
+    FapError,
+    FapTimeoutError,
+    FrameError,
+    InvalidTypeError,
+    InvalidValueError,
+    error_from_code,
+)
+from .rs485 import RS485, RS485Mode, port_options  # the line options every fap_py node takes
 
 log = logging.getLogger("fap_py.execasync")
 
@@ -90,7 +97,7 @@ def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
     raise error_from_code(code, what, path)
 
 
-_ERR = {"error": ExecValueError, "type_error": ExecTypeError}
+_ERR: Dict[str, Any] = {"error": ExecValueError, "type_error": ExecTypeError}
 
 
 def _check_node(node: int, *, allow_broadcast: bool = False) -> int:
@@ -210,7 +217,7 @@ class StructLayout:
                 raise ExecValueError(f"field name {name!r} must be an identifier")
             if not isinstance(kind, str):
                 raise ExecTypeError(f"field {name!r}: type must be a str, not {type(kind).__name__}")
-            count = check_int(f[2], f"field {name!r} count", 1, 0xFFFF, **_ERR) if len(f) == 3 else 1  # type: ignore[misc]
+            count = check_int(f[2], f"field {name!r} count", 1, 0xFFFF, **_ERR) if len(f) == 3 else 1
             if kind not in _CTYPES:
                 raise ExecValueError(f"field {name!r}: unknown type {kind!r} "
                                      f"(one of {' '.join(_CTYPES)})")
@@ -222,7 +229,7 @@ class StructLayout:
             raise ExecValueError("field names must be unique")
         ctype_fields = [(n, _CTYPES[k] * c if (c > 1 or k == "bytes") else _CTYPES[k])
                         for n, k, c in specs]
-        self._struct = type("ExecStruct", (ctypes.Structure,), {"_fields_": ctype_fields})
+        self._struct: Any = type("ExecStruct", (ctypes.Structure,), {"_fields_": ctype_fields})
         self._specs = specs
         self.native_size = ctypes.sizeof(self._struct)
         if self.native_size > 0xFFFF:

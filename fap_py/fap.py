@@ -43,9 +43,18 @@ from ._native import ffi as _ffi
 from ._native import lib as _lib
 from ._stats import stats_from_c
 from ._validate import check_baud, check_bytes, check_int, check_path, check_seconds
-from .errors import (ClosedError, FapError, FapTimeoutError, InvalidTypeError,
-                     InvalidValueError, NotMasterError, QueueFullError, SlaveExistsError,
-                     UnknownSlaveError, error_from_code)
+from .errors import (
+    ClosedError,
+    FapError,
+    FapTimeoutError,
+    InvalidTypeError,
+    InvalidValueError,
+    NotMasterError,
+    QueueFullError,
+    SlaveExistsError,
+    UnknownSlaveError,
+    error_from_code,
+)
 from .fap_aio import AsyncPump
 from .fap_classic import classic_check
 from .fap_types import MASTER_ID, MAX_DATA, MAX_ID, EventKind, Message, SlaveEvent, Stats, mask_ids

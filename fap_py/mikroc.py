@@ -32,6 +32,7 @@ is for this node raises a :class:`MikrocFrameError` subclass from
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -40,15 +41,13 @@ from typing import Any, List, Optional, Union
 from ._handle import NativeHandle, deadline_of, slice_ms
 from ._native import ffi, lib
 from ._stats import stats_from_c
-from ._validate import check_baud, check_bool, check_bytes, check_int, check_path, check_timeout
+from ._validate import check_bool, check_bytes, check_int, check_path, check_timeout
 from .errors import (
-    ClosedError,
     FapTimeoutError,
     FrameError,
-    InvalidValueError,
     error_from_code,
 )
-from .rs485 import RS485, port_options   # the line options every fap_py node takes
+from .rs485 import RS485, port_options  # the line options every fap_py node takes
 
 __all__ = [
     "BROADCAST",
