@@ -11,7 +11,9 @@ parallel hierarchies.
 from __future__ import annotations
 
 import errno as _errno
+import functools
 import os
+from typing import Dict
 
 
 class FapError(Exception):
@@ -73,22 +75,31 @@ class PortError(FapError, OSError):
         self.path = path
 
 
-def _port_codes() -> "tuple[int, int]":
-    """libfap's own negative codes (include/fap_port.h), from the compiled core."""
+@functools.lru_cache(maxsize=None)
+def _port_codes() -> Dict[str, int]:
+    """libfap's own negative codes (include/fap_port.h), from the compiled core.
+
+    Looked up on first use, so that importing this module (and the pure-Python
+    parts of fap_py) does not need the extension."""
     from ._native import lib
 
-    return int(lib.FAP_PORT_ECOLLISION), int(lib.FAP_PORT_ECLOSED)
+    return {"FAP_PORT_ECOLLISION": int(lib.FAP_PORT_ECOLLISION),
+            "FAP_PORT_ECLOSED": int(lib.FAP_PORT_ECLOSED)}
 
 
-FAP_PORT_ECOLLISION, FAP_PORT_ECLOSED = _port_codes()
+def __getattr__(name: str) -> int:
+    if name in ("FAP_PORT_ECOLLISION", "FAP_PORT_ECLOSED"):
+        return _port_codes()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
     """Map a negative libfap port-layer return code to an exception instance."""
     prefix = f"{what}: " if what else ""
-    if code == FAP_PORT_ECOLLISION:
+    codes = _port_codes()
+    if code == codes["FAP_PORT_ECOLLISION"]:
         return BusCollisionError(f"{prefix}bus collision (echo differs from what was sent)")
-    if code == FAP_PORT_ECLOSED:
+    if code == codes["FAP_PORT_ECLOSED"]:
         return ClosedError(f"{prefix}port closed")
     err = -code
     if err == _errno.ETIMEDOUT:

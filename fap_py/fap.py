@@ -606,6 +606,8 @@ class Master(Node):
         Raises:
             FapTimeoutError: not all active within ``timeout`` seconds.
         """
+        if ids is not None and (isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable)):
+            raise InvalidTypeError(f"ids must be an iterable of slave IDs, not {type(ids).__name__}")
         want = None if ids is None else {_slave_id(i) for i in ids}
         deadline = _deadline(timeout)
         while True:

@@ -7,6 +7,7 @@ cffi.
 from __future__ import annotations
 
 from ._native import lib
+from ._validate import check_int
 from .errors import FapError, InvalidValueError, NotInitialisedError, QueueFullError
 
 __all__ = ["classic_check"]
@@ -25,6 +26,7 @@ def classic_check(code: int, what: str) -> None:
     :class:`QueueFullError` (from ``fapTx``; ``fapRx`` returns it for "nothing
     received", which callers test for before calling this).
     """
+    code = check_int(code, "code", -(1 << 63), (1 << 64) - 1)
     if code == lib.GOOD:
         return
     msg = f"{what}: {_CLASSIC_TEXT.get(code, f'unknown code {code}')}"

@@ -56,6 +56,9 @@ def _c_default_baud() -> int:
 DEFAULT_BAUD: int = _c_default_baud()
 
 
+_PO_TYPE = ffi.typeof("fap_port_options *")
+
+
 def _default(name: str) -> Any:
     return field(default=_D[name])
 
@@ -98,7 +101,9 @@ class RS485:
 
         The one place that maps Python line options onto the C port layer.
         """
-        po.baud = baudrate
+        if not isinstance(po, ffi.CData) or ffi.typeof(po) is not _PO_TYPE:
+            raise InvalidTypeError(f"po must be a cffi 'fap_port_options *', not {po!r}")
+        po.baud = check_baud(baudrate)
         po.rs485_mode = int(self.mode)
         for name in _INT_FIELDS:
             setattr(po, name, getattr(self, name))

@@ -28,8 +28,8 @@ from typing import Any, Dict, Iterable, List, Optional, Union
 from ._handle import NativeHandle
 from ._native import ffi, lib
 from ._stats import stats_from_c
-from ._validate import check_bool, check_int, check_seconds
-from .errors import InvalidTypeError, InvalidValueError, error_from_code
+from ._validate import check_bool, check_int, check_path, check_seconds
+from .errors import InvalidTypeError, InvalidValueError, PortError, error_from_code
 
 __all__ = [
     "MAX_PORTS",
@@ -268,8 +268,12 @@ def _fields(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
 
 def parse_capture(lines: Iterable[str]) -> Capture:
     """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+    if isinstance(lines, (str, bytes)) or not isinstance(lines, Iterable):
+        raise InvalidTypeError(f"lines must be an iterable of str, not {type(lines).__name__}")
     cap = Capture()
     for lineno, raw in enumerate(lines, 1):
+        if not isinstance(raw, str):
+            raise InvalidTypeError(f"line {lineno}: expected str, not {type(raw).__name__}")
         line = raw.strip()
         if not line:
             continue
@@ -304,6 +308,12 @@ def parse_capture(lines: Iterable[str]) -> Capture:
 
 def read_capture(path: PathLike) -> Capture:
     """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``."""
-    with open(Path(path), "r", encoding="ascii") as fh:
-        return parse_capture(fh)
+    p = Path(check_path(path, "path"))
+    try:
+        with open(p, encoding="ascii") as fh:
+            return parse_capture(fh)
+    except OSError as exc:
+        raise PortError(exc.errno or 0, exc.strerror, str(p)) from exc
+    except UnicodeDecodeError as exc:
+        raise CaptureFormatError(f"{p}: not an ASCII capture file ({exc.reason})") from exc
 
