@@ -104,19 +104,25 @@ def test_stats_dataclasses_name_every_c_counter() -> None:
 
 def test_rs485_defaults_are_the_c_port_layers() -> None:
     from fap_py._native import ffi, lib
-    from fap_py.rs485 import DEFAULT_BAUD, RS485
+    from fap_py.rs485 import DEFAULT_BAUD, RS485, RS485Mode, c_defaults
 
     po = ffi.new("fap_port_options *")
     lib.fap_port_options_init(po)
-    d = RS485()
-    assert int(d.mode) == po.rs485_mode and DEFAULT_BAUD == po.baud
-    for name, _ in ffi.typeof("fap_port_options").fields:
-        if name in ("baud", "rs485_mode"):
-            continue
-        assert int(getattr(d, name)) == getattr(po, name), name
-    # and what a node hands to C with no options is exactly C's default struct
-    mine = RS485().apply_to(ffi.new("fap_port_options *"), po.baud)
+    assert DEFAULT_BAUD == po.baud
+    # Python has no defaults of its own: RS485() leaves C's struct untouched
+    mine = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(mine)
+    RS485().apply_to(mine, po.baud)
     assert bytes(ffi.buffer(mine)) == bytes(ffi.buffer(po))
+    d = c_defaults()
+    assert d["mode"] == po.rs485_mode
+    for name, _ in ffi.typeof("fap_port_options").fields:
+        if name not in ("baud", "rs485_mode"):
+            assert d[name] == getattr(po, name), name
+    # and a field that is given is what C gets
+    RS485(mode=RS485Mode.NONE, turnaround_us=7, exclusive=False).apply_to(mine, 9600)
+    assert (mine.rs485_mode, mine.turnaround_us, mine.exclusive, mine.baud) == (
+        lib.FAP_RS485_NONE, 7, 0, 9600)
 
 
 def test_exec_master_defaults_are_the_c_engines(tmp_path: Path) -> None:

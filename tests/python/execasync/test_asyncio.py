@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 from fap_py.errors import ClosedError
 from fap_py.execasync import Master, Request, ServeResult, Slave
@@ -24,13 +25,14 @@ def test_aserve_answers_without_a_thread() -> None:
         async with Slave(bus.paths[1], node=3, handler=handler, rs485=LINE) as slave:
             server = asyncio.create_task(slave.aserve_forever())
             loop = asyncio.get_running_loop()
-            with Master(bus.paths[0], timeout=0.5, rs485=LINE) as master:
+            with Master(bus.paths[0], timeout=0.5, rs485=LINE) as master, \
+                    ThreadPoolExecutor(max_workers=1) as pool:
                 for i in range(5):
                     data = bytes([i, 1, 2])
-                    # the blocking master runs in an executor; the slave stays in the loop
-                    reply = await loop.run_in_executor(None, master.transact, 3, data)
+                    # the blocking master runs in one worker; the slave stays in the loop
+                    reply = await loop.run_in_executor(pool, master.transact, 3, data)
                     assert reply == data[::-1]
-            assert threading.active_count() <= threads + 1   # + the executor's worker only
+                    assert threading.active_count() <= threads + 1   # + that worker only
             assert slave.stats.processed == 5
             await slave.aclose()
             await asyncio.wait_for(server, 2)     # aserve_forever ends on close

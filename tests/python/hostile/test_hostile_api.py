@@ -125,10 +125,10 @@ def hostile_values(name: str) -> List[Any]:
     if any(w in last for w in ("timeout", "cycle", "budget", "gap", "interval")):
         return BAD_TIMES
     if last == "mode":
-        return [True, 99, -1, "AUTO", None, NAN]
+        return [True, 99, -1, "AUTO", NAN]
     if last == "exclusive":
-        return [1, 0, None, "x"]
-    if last in ("rx_queue", "retries", "baud"):       # None = the C default
+        return [1, 0, "x", 1.0]
+    if last in ("rx_queue", "retries", "baud", "turnaround_us"):       # None = the C default
         return [b for b in BAD_INTS if b is not None]
     return BAD_INTS
 
