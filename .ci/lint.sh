@@ -7,7 +7,7 @@ export DEBIAN_FRONTEND=noninteractive
 start=$(date +%s)
 
 if [ -f .venv/bin/activate ]; then . .venv/bin/activate; fi
-python3 -m pip install -q 'mypy>=1.8' 'ruff>=0.4' >/dev/null
+python3 -m pip install -q 'mypy>=1.8' 'ruff>=0.4' >/dev/null   # the [lint] extra, without rebuilding fap_py
 command -v cppcheck >/dev/null || { apt-get update -q && apt-get install -y -q cppcheck; }
 
 echo "== mypy (fap_py)"
