@@ -467,6 +467,14 @@ class Parser:
                 continue
             end = i + HEADER_SIZE + length
             if end > n:
+                if buf[i + 2] == SMA_R and self._request_after(i + 1):
+                    # FF FF FF LEN is a reply header only if nothing better fits: after the
+                    # wake-up preamble (FF FF FF FF) it is the request FF FF ADDR starting one
+                    # byte later, complete and well-checked, that this header swallows
+                    events.append(Discarded(bytes(buf[i:i + 1]), ParseIssue.GARBAGE,
+                                            "0xff before a request (wake-up preamble)"))
+                    pos = i + 1
+                    continue
                 break
             frame = bytes(buf[i:end])
             expected = check_byte(frame[2:-1])
@@ -486,6 +494,18 @@ class Parser:
         if pos:
             del buf[:pos]
         return events
+
+    def _request_after(self, j: int) -> bool:
+        """True if a whole, well-checked request frame starts at buffer offset ``j``."""
+        buf = self._buf
+        if len(buf) - j < HEADER_SIZE + MIN_LENGTH or buf[j:j + 2] != START or buf[j + 2] == SMA_R:
+            return False
+        length = buf[j + 3]
+        end = j + HEADER_SIZE + length
+        if length < MIN_LENGTH or length > MAX_LENGTH or end > len(buf):
+            return False
+        frame = bytes(buf[j:end])
+        return check_byte(frame[2:-1]) == frame[-1] and classify(frame[2], length, frame[4]) is not None
 
     def expire(self) -> List[Event]:
         """The line went idle: drop held partial frames byte by byte, re-parsing the rest."""
