@@ -199,6 +199,25 @@ class Port(Closing):
             return b""
         raise port_error(got, "read", self.path)
 
+    def read_until(self, n: int, deadline_ns: int) -> bytes:
+        """Up to ``n`` bytes (1..MAX_READ), waiting for the first until the absolute
+        ``deadline_ns`` (``time.monotonic_ns()``; 0 = do not wait): b"" then.
+
+        The lean form of :meth:`read` for protocol loops: ``n`` and
+        ``deadline_ns`` must be ints (a bad one raises InvalidValueError).
+        """
+        p = self._p
+        if p is None:
+            raise ClosedError(f"{self.path}: port closed")
+        if not 0 < n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
+            raise InvalidValueError(f"read_until({n}, {deadline_ns}) out of range")
+        got = self._lib.fap_port_read(p, self._buf, n, deadline_ns)
+        if got > 0:
+            return self._buffer[:got]
+        if got == 0:
+            return b""
+        raise port_error(got, "read", self.path)
+
     def flush_input(self) -> None:
         """Discard bytes received and not read yet (and unsent output)."""
         rc = self._lib.fap_port_flush(self._handle())

@@ -49,6 +49,7 @@ _ReadPlan = Tuple[bytes, bytes, int, int, int]
 #: one exchange a flow asks for: frame to send, reply prefix awaited (None: no reply), timeout
 Step = Tuple[bytes, Optional[bytes], Optional[float]]
 Flow = Generator[Step, Optional[bytes], Any]
+_GENERATOR = type((lambda: (yield))())
 
 
 class Check(Enum):
@@ -83,6 +84,10 @@ def _lock_for(name: str) -> threading.RLock:
         if lock is None:
             lock = _port_locks[name] = threading.RLock()
         return lock
+
+
+def _debug() -> bool:
+    return log.isEnabledFor(logging.DEBUG)
 
 
 def _as_check(check: Union[Check, str, None], default: Check) -> Check:
@@ -164,22 +169,22 @@ class ReplyWaiter:
         m = self._m
         parser = m._parser
         if not parser.buffered and is_exact_reply(chunk, self._prefix):
-            if m._debug():
+            if _debug():
                 log.debug("%s rx %s", m.name, chunk.hex(" "))
             return chunk
         size = self.size
         for ev in parser.feed(chunk):
             if isinstance(ev, codec.Packet):
                 if ev.kind in REPLY_KINDS and ev.pid == self._pid and len(ev.raw) == size:
-                    if m._debug():
+                    if _debug():
                         log.debug("%s rx %s", m.name, ev.raw.hex(" "))
                     return ev.raw
                 # our own echo, another master, or a late reply to an abandoned request
                 m.stats.ignored_frames += 1
-                if m._debug():
+                if _debug():
                     log.debug("%s rx ignored %s: %s", m.name, ev.kind.value, ev.raw.hex(" "))
                 continue
-            if m._debug():
+            if _debug():
                 log.debug("%s rx discarded (%s, %s): %s", m.name, ev.issue.name, ev.detail, ev.data.hex(" "))
             if ev.issue is ParseIssue.BAD_CHECK:
                 m.stats.frame_errors += 1
@@ -270,7 +275,6 @@ class G485Master:
         # encoded once: the frames of the hot transactions
         self._read_plans: Dict[Tuple[int, int, int], _ReadPlan] = {}
         self._handshake_requests: Dict[int, bytes] = {}
-        self._debug = lambda: log.isEnabledFor(logging.DEBUG)
 
     # -- context management ----------------------------------------------------
 
@@ -305,9 +309,9 @@ class G485Master:
         if self._wake_pending:
             self._wake_pending = False
             frame = WAKE_UP_PREAMBLE + frame
-            if self._debug():
+            if _debug():
                 log.debug("%s tx (wake-up preamble) %s", self.name, frame.hex(" "))
-        elif self._debug():
+        elif _debug():
             log.debug("%s tx %s", self.name, frame.hex(" "))
         self._parser.clear()
         self._sent = len(frame)
@@ -369,8 +373,19 @@ class G485Master:
                 deadline = min(deadline, time.monotonic() + waiter.settle)
             chunk = io.read_some(waiter.wanted(), deadline)  # type: ignore[union-attr]
 
-    def _drive(self, flow: Flow) -> Any:
+    def _read_none(self, plan: _ReadPlan, address: int) -> bytes:
+        """:meth:`_read_flow` with ``Check.NONE`` and no flow object (the hot path).
+
+        Not a flow: :meth:`_run` calls it directly (``_drive`` passes a value that is
+        not a generator straight through)."""
+        reply = self._exchange_raw(plan[0], plan[1], None)
+        self._device_check[address] = reply[-1]  # type: ignore[index]
+        return reply[5:-1]  # type: ignore[index]
+
+    def _drive(self, flow: Any) -> Any:
         """Run one attempt of a transaction: every exchange its flow asks for."""
+        if type(flow) is not _GENERATOR:
+            return flow  # an attempt that did its own exchange (the hot path)
         exchange = self._exchange_raw
         try:
             step = next(flow)
@@ -455,7 +470,7 @@ class G485Master:
             reply = yield (codec.encode_read_request(address, register, 1), codec.reply_prefix(register, 3),
                            timeout)
             self._device_check[address] = reply[-1]  # type: ignore[index]
-            if self._debug():
+            if _debug():
                 log.debug("%s guard: device %s check byte now 0x%02x (packet's 0x%02x)",
                           self.name, address, reply[-1], mdoc)  # type: ignore[index]
             register += 1
@@ -637,7 +652,9 @@ class G485Master:
         plan = self._read_plans.get((address, register, count))
         if (check is None and timeout is None and retries is None and plan is not None
                 and plan[2] is address and plan[3] is register and plan[4] is count):
-            return self._run(self._read_flow, None, plan, address, self.check, None)  # the hot path
+            if self.check is Check.NONE:  # the hot path: one exchange, no flow to build
+                return self._run(self._read_none, None, plan, address)
+            return self._run(self._read_flow, None, plan, address, self.check, None)
         make, r, *args = self._plan_read(address, register, count, check, timeout, retries)
         return self._run(make, r, *args)
 
@@ -790,14 +807,14 @@ class G485Master:
         if not isinstance(data, (bytes, bytearray, memoryview)):
             raise G485ValueError(f"data must be bytes-like, not {type(data).__name__}")
         with self._lock:
-            if self._debug():
+            if _debug():
                 log.debug("%s tx raw %s", self.name, bytes(data).hex(" "))
             self._io.write(bytes(data))  # type: ignore[union-attr]
 
     def send_wake_up(self) -> None:
         """Send the wake-up preamble now (e.g. after powering the bus)."""
         with self._lock:
-            if self._debug():
+            if _debug():
                 log.debug("%s tx wake-up %s", self.name, WAKE_UP_PREAMBLE.hex(" "))
             self._io.write(WAKE_UP_PREAMBLE)  # type: ignore[union-attr]
 

@@ -51,7 +51,7 @@ class PortIO:
         p = self.port
         self.name = p.path
         self.baudrate = p.baudrate
-        self._read = p.read
+        self._read = p.read_until
         self._write = p.write
 
     @property
@@ -65,15 +65,15 @@ class PortIO:
 
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (``time.monotonic()``) for the first."""
-        return self._read(n, deadline_ns=math.ceil(deadline * 1e9))
+        return self._read(n, max(1, math.ceil(deadline * 1e9)))
 
     def read_within(self, n: int, timeout: float) -> bytes:
         """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
-        return self._read(n, deadline_ns=time.monotonic_ns() + math.ceil(timeout * 1e9))
+        return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
     def read_nowait(self, n: int) -> bytes:
         """What is there now, up to ``n`` bytes (b"" if nothing)."""
-        return self._read(n, deadline_ns=0)
+        return self._read(n, 0)
 
     def write(self, data: bytes) -> None:
         """Write all of ``data`` (direction switching, drain and echo check in C)."""
@@ -91,7 +91,7 @@ class PortIO:
         """
         read = self._read
         try:
-            while read(4096, deadline_ns=0):
+            while read(4096, 0):
                 pass
         except (PortError, ClosedError):
             pass  # a vanished port: the next read or write reports it
