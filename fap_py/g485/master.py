@@ -424,9 +424,10 @@ class G485Master:
     # -- flows: the transactions, without I/O ------------------------------------------
 
     def _handshake_request(self, address: int) -> bytes:
-        request = self._handshake_requests.get(address)
+        request = self._handshake_requests.get(address) if type(address) is int else None
         if request is None:
-            request = self._handshake_requests[address] = codec.encode_handshake_request(address)
+            request = codec.encode_handshake_request(address)  # validates
+            self._handshake_requests[address] = request
         return request
 
     def _handshake_flow(self, address: int, timeout: Optional[float]) -> Flow:
@@ -561,7 +562,10 @@ class G485Master:
 
     def _plan_read(self, address: int, register: int, count: int, check: Union[Check, str, None],
                    timeout: Optional[float], retries: Optional[int]) -> Tuple[Any, ...]:
-        plan = self._read_plans.get((address, register, count))
+        try:
+            plan = self._read_plans.get((address, register, count))
+        except TypeError:
+            plan = None
         # the same int objects as when cached (True == 1 and 1.0 == 1 must not hit)
         if plan is None or plan[2] is not address or plan[3] is not register or plan[4] is not count:
             plan = self._read_plan(address, register, count)
@@ -649,7 +653,10 @@ class G485Master:
              check: Union[Check, str, None] = None, timeout: Optional[float] = None,
              retries: Optional[int] = None) -> bytes:
         """User-Register-Read transaction: ``count`` registers from ``register`` (1..100)."""
-        plan = self._read_plans.get((address, register, count))
+        try:
+            plan = self._read_plans.get((address, register, count))
+        except TypeError:  # unhashable arguments: the codec says what is wrong with them
+            plan = None
         if (check is None and timeout is None and retries is None and plan is not None
                 and plan[2] is address and plan[3] is register and plan[4] is count):
             if self.check is Check.NONE:  # the hot path: one exchange, no flow to build
@@ -792,6 +799,7 @@ class G485Master:
 
         With ``save`` the new ID is stored in EEPROM (Set 0x7C) so it survives a reset.
         """
+        whole(address, "address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
         whole(new_address, "new address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
         flag(save, "save")
         if address in self._non_real_time:
