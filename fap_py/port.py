@@ -104,8 +104,6 @@ class Port(Closing):
             raise InvalidValueError(f"bad device path {path!r}")
         self.path = os.fsdecode(raw)
         po = port_options(baudrate, rs485)  # validates baud and options before C sees them
-        if po.baud == 0:
-            raise InvalidValueError("baudrate must be > 0")
         self.rs485: RS485 = rs485 if rs485 is not None else RS485()
         ffi, lib = _native()
         self._ffi, self._lib = ffi, lib
@@ -188,7 +186,7 @@ class Port(Closing):
         if deadline_ns is None:
             deadline_ns = 0 if timeout is None else (
                 time.monotonic_ns() + math.ceil(check_timeout(timeout) * 1e9))
-        if not 0 < n <= MAX_READ or type(n) is not int:
+        if type(n) is not int or not 0 < n <= MAX_READ:
             if isinstance(n, bool) or not isinstance(n, int):
                 raise InvalidTypeError(f"n must be an int, not {type(n).__name__}")
             n = max(1, min(n, MAX_READ))
@@ -209,7 +207,8 @@ class Port(Closing):
         p = self._p
         if p is None:
             raise ClosedError(f"{self.path}: port closed")
-        if not 0 < n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
+        if type(n) is not int or type(deadline_ns) is not int or not 0 < n <= MAX_READ \
+                or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"read_until({n}, {deadline_ns}) out of range")
         got = self._lib.fap_port_read(p, self._buf, n, deadline_ns)
         if got > 0:
