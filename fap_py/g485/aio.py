@@ -131,7 +131,8 @@ class AsyncG485Master:
         m = self.master
         io = m._io
         io.flush_input()  # type: ignore[union-attr]  # a late reply to an earlier request is not this one's
-        self._watch()
+        if self._watching < 0:  # first exchange, or after the port failed
+            self._watch()
         io.write(m._wire(frame))  # type: ignore[union-attr]
         if prefix is None:
             return None
@@ -161,7 +162,9 @@ class AsyncG485Master:
         m = self.master
         if m._io is None or m._io.closed or self._closed:
             raise ClosedError(f"{m.name}: master closed")
-        m._before()
+        if m._gone:
+            m._before()  # reopen: the fd may be a new one
+            self._unwatch()
         m.stats.transactions += 1
         tries = (m.retries if retries is None else retries) + 1
         n = 0
