@@ -159,6 +159,14 @@ class AsyncG485Master:
             return done.value
 
     async def _run_locked(self, make_flow: Callable[..., Flow], retries: Optional[int], *args: Any) -> Any:
+        return await self._attempts(self._flow_attempt, retries, make_flow, *args)
+
+    async def _flow_attempt(self, make_flow: Callable[..., Flow], *args: Any) -> Any:
+        return await self._drive(make_flow(*args))
+
+    async def _attempts(self, attempt: Callable[..., Any], retries: Optional[int], *args: Any) -> Any:
+        """``await attempt(*args)`` until it succeeds or the retries are used up (the lock is held);
+        the bookkeeping between attempts is the sync master's."""
         m = self.master
         if m._io is None or m._io.closed or self._closed:
             raise ClosedError(f"{m.name}: master closed")
@@ -170,7 +178,7 @@ class AsyncG485Master:
         n = 0
         while True:
             try:
-                return await self._drive(make_flow(*args))
+                return await attempt(*args)
             except RETRYABLE_ERRORS as exc:
                 n += 1
                 if n >= tries:
@@ -208,8 +216,23 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(self.master.read, address, register, count, check=check, timeout=timeout,
                                     retries=retries)
-        make, r, *args = self.master._plan_read(address, register, count, check, timeout, retries)
+        m = self.master
+        if check is None and timeout is None and retries is None and m.check is Check.NONE:
+            plan = m._read_plans.get((address, register, count)) if type(address) is int else None
+            if plan is not None and plan[3] is register and plan[4] is count:
+                return await self._read_none(plan, address)  # the hot path: one exchange, no flow
+        make, r, *args = m._plan_read(address, register, count, check, timeout, retries)
         return await self._run(make, r, *args)
+
+    async def _read_none(self, plan: Any, address: int) -> bytes:
+        """:meth:`G485Master._read_none` on the loop: no flow object."""
+        async with self._begin():
+            return await self._attempts(self._read_none_attempt, None, plan, address)
+
+    async def _read_none_attempt(self, plan: Any, address: int) -> bytes:
+        reply = await self._exchange(plan[0], plan[1], None)
+        self.master._device_check[address] = reply[-1]  # type: ignore[index]
+        return reply[5:-1]  # type: ignore[index]
 
     async def write(self, address: int, register: int, data: Data, *,
                     check: Union[Check, str, None] = None, timeout: Optional[float] = None,
