@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Three simulated G485 fans on a virtual RS-485 bus, driven by the master.
 
-Shows a checked read, a write, saving to EEPROM, the error word, an ID
+Shows a scan, a checked read, a write, a refused write, saving to EEPROM, the error word, an ID
 change and a synchronised (non-real-time) write applied by one broadcast.
 
     python examples/g485/fan_bus.py        (add -v to see every frame)
@@ -12,7 +12,7 @@ import logging
 import sys
 import tempfile
 
-from fap_py.g485 import ErrorBit, G485Master, SetCommand, SimDevice, Simulator
+from fap_py.g485 import ErrorBit, G485Master, SetCommand, SimDevice, Simulator, WriteRefusedError
 from fap_py.vbus import VirtualBus
 
 SPEED = 8  # a private register: fan speed in percent
@@ -34,11 +34,15 @@ def run(eeprom_dir: str) -> int:
     fans = [SimDevice(n, identity=(11, 3, 1, 1, 2), eeprom_path=f"{eeprom_dir}/fan{n}.json", on_apply=show)
             for n in (1, 2, 3)]
     with VirtualBus(ports=2) as bus, Simulator(bus.paths[1], fans), G485Master(bus.paths[0]) as master:
+        print("fans on the bus:", master.scan(range(1, 9), timeout=0.05))
         print("identity of fan 1 (registers 1..7):", list(master.read(1, 1, 7)))
         print("fan 2 to 40 %:")
         master.write(2, SPEED, 40)
         master.set(2, SetCommand.SAVE_EEPROM)
-        master.write(3, 1, 0, check="none")  # register 1 is read-only
+        try:
+            master.write(3, 1, 0)  # register 1 is read-only: the device refuses, its check byte stays
+        except WriteRefusedError as exc:
+            print("refused:", exc)
         word = master.error_word(3)
         print(f"fan 3 error word after writing a read-only register: 0x{word:04x}",
               "(READ_ONLY)" if word & ErrorBit.READ_ONLY else "")

@@ -6,6 +6,7 @@
     fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom
     fap g485 error-word --port /dev/ttyUSB0 --address 1
     fap g485 handshake --port /dev/ttyUSB0 --address 1
+    fap g485 scan --port /dev/ttyUSB0 --rs485 soft
 """
 from __future__ import annotations
 
@@ -26,6 +27,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     def common(q: argparse.ArgumentParser, master: bool = True) -> None:
         q.add_argument("--port", required=True, help="device path or pyserial URL")
         q.add_argument("--baud", type=int, default=115200)
+        q.add_argument("--rs485", choices=["auto", "kernel", "soft", "none"], default="auto",
+                       help="direction control of a device path (default: %(default)s)")
+        q.add_argument("--rts-before", type=float, default=0.0, metavar="MS", help="RTS lead, ms")
+        q.add_argument("--rts-after", type=float, default=0.0, metavar="MS", help="RTS tail, ms")
+        q.add_argument("--rts-polarity", choices=["high", "low"], default="high")
         if master:
             q.add_argument("--address", type=_int, required=True, help="device ID 1..126 (0 = broadcast)")
             q.add_argument("--timeout", type=float, default=0.1, help="reply timeout, seconds")
@@ -41,6 +47,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="lose the first burst after power-on/reset (baud detection)")
     s.add_argument("--seed", type=int, default=0, help="seed of bulk-mode discards")
     s.set_defaults(func=run_sim)
+
+    c = cmds.add_parser("scan", help="list the IDs that answer (each confirmed by reading its ID register)")
+    common(c, master=False)
+    c.add_argument("--timeout", type=float, default=0.02, help="reply timeout per ID, seconds")
+    c.add_argument("--retries", type=int, default=0)
+    c.add_argument("--first", type=_int, default=1)
+    c.add_argument("--last", type=_int, default=126)
+    c.set_defaults(func=run_scan)
 
     r = cmds.add_parser("read", help="read registers")
     common(r)
@@ -81,7 +95,7 @@ def run_sim(args: argparse.Namespace) -> int:
     done = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: done.set())
-    with Simulator(args.port, devices, baudrate=args.baud) as sim:
+    with Simulator(args.port, devices, baudrate=args.baud, rs485=_rs485(args)) as sim:
         print(f"simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}", flush=True)
         while not done.wait(0.5):
             if sim.error is not None:
@@ -89,10 +103,31 @@ def run_sim(args: argparse.Namespace) -> int:
     return 0
 
 
-def _master(args: argparse.Namespace):
+def _rs485(args: argparse.Namespace):
+    """Line options for a device path (None for a pyserial URL: it has its own)."""
+    from fap_py.fap import RS485, RS485Mode
+
+    if "://" in args.port:
+        return None
+    mode = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL, "soft": RS485Mode.SOFT_RTS,
+            "none": RS485Mode.NONE}[args.rs485]
+    return RS485(mode=mode, rts_active_high=args.rts_polarity == "high",
+                 delay_before_send_us=round(args.rts_before * 1000), delay_after_send_us=round(args.rts_after * 1000))
+
+
+def _master(args: argparse.Namespace, **kwargs: object):
     from fap_py.g485 import G485Master
 
-    return G485Master(args.port, args.baud, timeout=args.timeout, retries=args.retries, check=args.check)
+    kwargs.setdefault("check", getattr(args, "check", "handshake"))
+    return G485Master(args.port, args.baud, timeout=args.timeout, retries=args.retries, rs485=_rs485(args),
+                      **kwargs)
+
+
+def run_scan(args: argparse.Namespace) -> int:
+    with _master(args) as m:
+        found = m.scan(range(args.first, args.last + 1))
+    print(" ".join(map(str, found)) if found else "no device answered")
+    return 0 if found else 1
 
 
 def run_read(args: argparse.Namespace) -> int:

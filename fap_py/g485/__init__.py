@@ -16,7 +16,7 @@ from .device import RegisterSpec, SimDevice
 from .errors import (BroadcastReadError, CheckByteError, CheckMismatchError, DeviceErrorWordError, EchoMismatchError,
                      G485Error,
                      G485FrameError, G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
-                     UnexpectedReplyError)
+                     UnexpectedReplyError, WriteRefusedError)
 from .master import Check, G485Master, MasterStats
 from .simulator import Simulator
 
@@ -28,6 +28,6 @@ __all__ = [
     "RegisterSpec", "SimDevice",
     "BroadcastReadError", "CheckByteError", "CheckMismatchError", "DeviceErrorWordError", "G485Error",
     "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError", "RereadMismatchError",
-    "UnexpectedReplyError",
+    "UnexpectedReplyError", "WriteRefusedError",
     "Check", "G485Master", "MasterStats", "Simulator",
 ]

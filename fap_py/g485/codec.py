@@ -248,9 +248,10 @@ def _check_address(address: int, *, broadcast_ok: bool, what: str) -> None:
 
 def check_register_span(register: int, count: int) -> None:
     """Raise G485ValueError unless registers register..register+count-1 lie in 1..100."""
-    if not isinstance(register, int) or not MIN_REGISTER <= register <= MAX_REGISTER:
+    if (isinstance(register, bool) or not isinstance(register, int)
+            or not MIN_REGISTER <= register <= MAX_REGISTER):
         raise G485ValueError(f"register {register!r} outside 1..100")
-    if not isinstance(count, int) or count < 1:
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
         raise G485ValueError(f"count {count!r} must be at least 1")
     if register + count - 1 > MAX_REGISTER:
         raise G485ValueError(f"registers {register}..{register + count - 1} run past 100")
@@ -259,6 +260,12 @@ def check_register_span(register: int, count: int) -> None:
 def _as_data(data: Data) -> bytes:
     if isinstance(data, int) and not isinstance(data, bool):
         data = [data]
+    elif isinstance(data, (list, tuple)):
+        if any(isinstance(v, bool) for v in data):
+            raise G485ValueError("register data must be ints 0..255, not bools")
+    elif not isinstance(data, (bytes, bytearray, memoryview)):
+        raise G485ValueError(f"register data must be bytes, ints 0..255 or one int, "
+                             f"not {type(data).__name__}")
     try:
         return bytes(data)
     except (ValueError, TypeError) as exc:
@@ -297,7 +304,7 @@ def encode_handshake_request(address: int) -> bytes:
 
 def encode_handshake_response(value: int) -> bytes:
     """Handshake-Response carrying the slave's SDOC/SDIC."""
-    if not 0 <= value <= 0xFF:
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFF:
         raise G485ValueError(f"handshake value {value} outside 0..255")
     return _frame(SMA_R, HPID, bytes((value,)))
 
@@ -310,7 +317,7 @@ def encode_error_word_request(address: int) -> bytes:
 
 def encode_error_word_response(word: int) -> bytes:
     """Get-Error-Word-Response, ERRH first."""
-    if not 0 <= word <= 0xFFFF:
+    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
         raise G485ValueError(f"error word {word} outside 0..0xffff")
     return _frame(SMA_R, EPID, bytes((word >> 8, word & 0xFF)))
 
@@ -376,6 +383,8 @@ def _packet(kind: PacketKind, frame: bytes) -> Packet:
 
 def decode_frame(frame: bytes) -> Packet:
     """Decode exactly one frame; raise a G485FrameError subclass saying what is wrong."""
+    if not isinstance(frame, (bytes, bytearray, memoryview)):
+        raise G485ValueError(f"a frame is bytes, not {type(frame).__name__}")
     frame = bytes(frame)
     if len(frame) < HEADER_SIZE + MIN_LENGTH or frame[:2] != START:
         raise G485FrameError(f"not a G485 frame (must start FF FF, at least 6 bytes): {frame.hex(' ')}")
@@ -438,6 +447,8 @@ class Parser:
 
     def feed(self, data: bytes) -> List[Event]:
         """Add bytes; return the packets and discards they complete, in order."""
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise G485ValueError(f"feed takes bytes, not {type(data).__name__}")
         buf = self._buf
         buf += data
         events: List[Event] = []
@@ -467,6 +478,14 @@ class Parser:
                 continue
             end = i + HEADER_SIZE + length
             if end > n:
+                if buf[i + 2] == SMA_R and self._request_after(i + 1):
+                    # FF FF FF LEN is a reply header only if nothing better fits: after the
+                    # wake-up preamble (FF FF FF FF) it is the request FF FF ADDR starting one
+                    # byte later, complete and well-checked, that this header swallows
+                    events.append(Discarded(bytes(buf[i:i + 1]), ParseIssue.GARBAGE,
+                                            "0xff before a request (wake-up preamble)"))
+                    pos = i + 1
+                    continue
                 break
             frame = bytes(buf[i:end])
             expected = check_byte(frame[2:-1])
@@ -486,6 +505,18 @@ class Parser:
         if pos:
             del buf[:pos]
         return events
+
+    def _request_after(self, j: int) -> bool:
+        """True if a whole, well-checked request frame starts at buffer offset ``j``."""
+        buf = self._buf
+        if len(buf) - j < HEADER_SIZE + MIN_LENGTH or buf[j:j + 2] != START or buf[j + 2] == SMA_R:
+            return False
+        length = buf[j + 3]
+        end = j + HEADER_SIZE + length
+        if length < MIN_LENGTH or length > MAX_LENGTH or end > len(buf):
+            return False
+        frame = bytes(buf[j:end])
+        return check_byte(frame[2:-1]) == frame[-1] and classify(frame[2], length, frame[4]) is not None
 
     def expire(self) -> List[Event]:
         """The line went idle: drop held partial frames byte by byte, re-parsing the rest."""

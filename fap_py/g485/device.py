@@ -61,10 +61,25 @@ class SimDevice:
                  eeprom_path: Optional[Union[str, os.PathLike]] = None,
                  bulk_discard_rate: float = 0.25, seed: int = 0, wake_up_loss: bool = False,
                  on_apply: Optional[Callable[["SimDevice", int, int], None]] = None) -> None:
-        if not codec.MIN_SLAVE_ADDRESS <= address <= codec.MAX_SLAVE_ADDRESS:
-            raise G485ValueError(f"device address {address} outside 1..126")
-        if len(identity) != 5 or not all(0 <= v <= 255 for v in identity):
+        _whole(address, "device address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
+        try:
+            identity = tuple(identity)
+        except TypeError:
+            raise G485ValueError("identity must be 5 byte values (registers 1..5)") from None
+        if len(identity) != 5 or not all(type(v) is int and 0 <= v <= 255 for v in identity):
             raise G485ValueError("identity must be 5 byte values (registers 1..5)")
+        if isinstance(bulk_discard_rate, bool) or not isinstance(bulk_discard_rate, (int, float)) \
+                or not 0.0 <= bulk_discard_rate <= 1.0:  # also false for NaN
+            raise G485ValueError(f"bulk_discard_rate must be a probability 0..1, not {bulk_discard_rate!r}")
+        _whole(seed, "seed", -(1 << 63), (1 << 63) - 1)
+        if not isinstance(wake_up_loss, bool):
+            raise G485ValueError(f"wake_up_loss must be a bool, not {type(wake_up_loss).__name__}")
+        if on_apply is not None and not callable(on_apply):
+            raise G485ValueError("on_apply must be callable or None")
+        if eeprom_path is not None and not isinstance(eeprom_path, (str, os.PathLike)):
+            raise G485ValueError(f"eeprom_path must be a path, not {type(eeprom_path).__name__}")
+        if private is not None and not isinstance(private, dict):
+            raise G485ValueError(f"private must be a dict of register specs, not {type(private).__name__}")
         self.specs: List[RegisterSpec] = [RegisterSpec("", 0, False)] * 101
         for reg, value in enumerate(identity, start=1):
             self.specs[reg] = RegisterSpec("R", value, False)
@@ -73,10 +88,13 @@ class SimDevice:
         for reg in range(8, 101):
             self.specs[reg] = RegisterSpec("RW", 0, True)
         for reg, spec in (private or {}).items():
-            if not 8 <= reg <= 100:
-                raise G485ValueError(f"private register {reg} outside 8..100")
-            spec = RegisterSpec(*spec)
-            if spec.access not in ("R", "W", "RW") or not 0 <= spec.initial <= 255:
+            _whole(reg, "private register", 8, 100)
+            try:
+                spec = RegisterSpec(*spec)
+            except TypeError:
+                raise G485ValueError(f"bad spec for register {reg}: {spec!r}") from None
+            if (spec.access not in ("R", "W", "RW") or type(spec.initial) is not int
+                    or not 0 <= spec.initial <= 255 or not isinstance(spec.saved, bool)):
                 raise G485ValueError(f"bad spec for register {reg}: {spec}")
             self.specs[reg] = spec
         self.eeprom_path = os.fspath(eeprom_path) if eeprom_path is not None else None
@@ -175,6 +193,8 @@ class SimDevice:
 
     def set_register(self, register: int, value: int) -> None:
         """Change a register from the device side (a sensor value, say)."""
+        _whole(register, "register", codec.MIN_REGISTER, codec.MAX_REGISTER)
+        _whole(value, "register value", 0, 255)
         with self.lock:
             self.registers[register] = value
             self.applied[register] = value
@@ -183,6 +203,8 @@ class SimDevice:
 
     def handle(self, event: Union[Packet, Discarded]) -> Optional[bytes]:
         """Process one parser event; return the reply frame to send, if any."""
+        if not isinstance(event, (Packet, Discarded)):
+            raise G485ValueError(f"event must be a Packet or Discarded, not {type(event).__name__}")
         lock = self.lock
         lock.acquire()  # explicit acquire/release: cheaper than ``with`` on the hot path
         try:
@@ -220,8 +242,10 @@ class SimDevice:
         if kind is PacketKind.READ_REQUEST:
             return self._read(event.pid, event.data[0])
         if kind is PacketKind.WRITE:
-            self.check_byte = event.check  # SDOC: received correctly
-            self._write(event.pid, event.data)
+            if self._write(event.pid, event.data):
+                self.check_byte = event.check  # SDOC: received correctly and accepted
+            # refused (read-only register, bad value): the check byte keeps its old value,
+            # which is how the master's handshake learns of the refusal
             return None
         if kind is PacketKind.HANDSHAKE_REQUEST:
             return codec.encode_handshake_response(self.check_byte)
@@ -248,21 +272,23 @@ class SimDevice:
         self.check_byte = reply[-1]  # SDIC
         return reply
 
-    def _write(self, register: int, data: bytes) -> None:
+    def _write(self, register: int, data: bytes) -> bool:
+        """Store (and maybe perform) a write; False if the whole packet is refused."""
         last = register + len(data) - 1
         for reg in range(register, last + 1):
             if self.specs[reg].access == "R":
                 self.error_word |= ErrorBit.READ_ONLY
-                return  # the whole packet is refused
+                return False  # the whole packet is refused
         if register <= 7 <= last and not codec.MIN_SLAVE_ADDRESS <= data[7 - register] <= codec.MAX_SLAVE_ADDRESS:
             self.error_word |= ErrorBit.BAD_VALUE
-            return
+            return False
         self.registers[register:last + 1] = data
         if self.real_time:
             self._perform(register, last)
         else:
             for reg in range(register, last + 1):
                 self._pending[reg] = data[reg - register]
+        return True
 
     def _set(self, cmd: SetCommand) -> None:
         if cmd is SetCommand.FACTORY_RESET:
@@ -298,6 +324,14 @@ class SimDevice:
         """Registers written in Non-Real-Time mode, not yet performed."""
         with self.lock:
             return dict(self._pending)
+
+
+def _whole(value: object, what: str, lo: int, hi: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise G485ValueError(f"{what} must be an int, not {type(value).__name__}")
+    if not lo <= value <= hi:
+        raise G485ValueError(f"{what} {value} outside {lo}..{hi}")
+    return value
 
 
 def _runs(regs: Iterable[int]) -> List[Tuple[int, int]]:

@@ -63,6 +63,11 @@ class HandshakeMismatchError(CheckMismatchError):
         self.got = got
 
 
+class WriteRefusedError(HandshakeMismatchError):
+    """After a write the device's check byte is the one it held before: the device
+    refused the packet (a read-only register, a value it rejects) or never got it."""
+
+
 class RereadMismatchError(CheckMismatchError):
     """Re-reading the registers (or error word) gave different values."""
 

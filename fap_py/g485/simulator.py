@@ -1,16 +1,18 @@
 """G485 device simulator on a port: one thread per port, any number of devices.
 
-The thread blocks in ``poll`` (no busy-waiting) on the port and on a
-wake-up pipe, feeds what it reads to one parser (a chunk that is exactly one
-frame, the common case, becomes its packet directly: ``codec.exact_packet``),
-hands every event to every device on the port (each decides whether it is
-addressed) and writes the replies. A partial frame left when the line goes idle is expired after
+The port is a device path opened through libfap's port layer (exclusive: a
+second simulator or master on the same path gets a busy error), or a
+pyserial URL/object or raw fd through the thin adapter. The thread blocks
+in ``poll`` (no busy-waiting) on the port and on a wake-up pipe, feeds what
+it reads to one parser (a chunk that is exactly one frame, the common case,
+becomes its packet directly: ``codec.exact_packet``), hands every event to
+every device on the port (each decides whether it is addressed) and writes
+the replies. A partial frame left when the line goes idle is expired after
 ``idle_timeout``. On a shared bus the simulator also hears the other
 devices' replies; they are addressed to the master (127) and ignored.
 """
 from __future__ import annotations
 
-import errno
 import logging
 import os
 import select
@@ -18,11 +20,13 @@ import threading
 import time
 from typing import Any, Iterable, List, Optional, Sequence, Union
 
+from ..errors import PortError
+from ..fap import RS485
 from .codec import Discarded, Packet, Parser, exact_packet
 from .device import SimDevice
-from ..errors import PortError
 from .errors import G485ValueError
-from .transport import PortSpec, Transport
+from .master import seconds
+from .transport import PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485.sim")
 
@@ -33,21 +37,26 @@ class Simulator:
     Use as a context manager, or call :meth:`start` and :meth:`stop`.
     ``idle_timeout``: seconds of silence after which a partial frame is
     dropped (default 20 ms, or 5 character times at slow baud rates).
+    ``rs485``: line options of a device path (:class:`fap_py.RS485`).
     """
 
     def __init__(self, port: PortSpec, devices: Iterable[SimDevice] = (), *, baudrate: int = 115200,
-                 idle_timeout: Optional[float] = None, **serial_kwargs: Any) -> None:
-        self._io = Transport(port, baudrate=baudrate, **serial_kwargs)
-        self.name = self._io.name
-        # a port opened by path can be opened again after it hung up (a disconnect)
-        self._reopen_args = ((self.name,), dict(baudrate=baudrate, **serial_kwargs)) \
-            if isinstance(port, (str, os.PathLike)) else None
-        self.reopened = 0
+                 idle_timeout: Optional[float] = None, rs485: Optional[RS485] = None,
+                 **serial_kwargs: Any) -> None:
+        self._stopping = True  # until the port is open: stop() has nothing to do
         self.devices: List[SimDevice] = []
-        for device in devices:
-            self.add(device)
+        try:
+            for device in devices:
+                self.add(device)
+        except TypeError:
+            raise G485ValueError("devices must be an iterable of SimDevice") from None
+        self.idle_timeout = None if idle_timeout is None else seconds(idle_timeout, "idle_timeout")
+        self._io = open_io(port, baudrate, rs485=rs485, **serial_kwargs)
+        self.name = self._io.name
+        self.reopened = 0
         # silence after which a partial frame is dropped: 20 ms, or 5 characters at slow rates
-        self.idle_timeout = idle_timeout if idle_timeout is not None else max(0.02, 50.0 / baudrate)
+        if self.idle_timeout is None:
+            self.idle_timeout = max(0.02, 50.0 / self._io.baudrate)
         self._parser = Parser()
         self._thread: Optional[threading.Thread] = None
         self._stop_r, self._stop_w = os.pipe()
@@ -58,8 +67,10 @@ class Simulator:
 
     def add(self, device: SimDevice) -> SimDevice:
         """Put a device on this port (IDs must differ)."""
+        if not isinstance(device, SimDevice):
+            raise G485ValueError(f"a device must be a SimDevice, not {type(device).__name__}")
         if any(d.address == device.address for d in self.devices):
-            raise G485ValueError(f"a device with ID {device.address} is already on {self.name}")
+            raise G485ValueError(f"a device with ID {device.address} is already on this port")
         self.devices.append(device)
         return device
 
@@ -96,9 +107,15 @@ class Simulator:
     def __exit__(self, *exc: object) -> None:
         self.stop()
 
+    def __del__(self) -> None:
+        try:
+            self.stop()
+        except Exception:  # pragma: no cover - half-built object, interpreter shutdown
+            pass
+
     def _serve(self) -> None:
         try:
-            if self._io.fast:
+            if self._io.fd is not None:
                 self._serve_fd()
             else:
                 self._serve_generic()
@@ -113,60 +130,59 @@ class Simulator:
         stop_only.register(stop_r, select.POLLIN)
         while True:  # once per (re)opened port
             fd = self._io.fd
-            assert fd is not None
+            if fd is None or fd < 0:  # the device is gone: wait for it (no spinning)
+                if stop_only.poll(50):
+                    return
+                self._reopen()
+                continue
             poller = select.poll()
             poller.register(fd, select.POLLIN)
             poller.register(stop_r, select.POLLIN)
-            if not self._serve_open_fd(fd, poller, stop_only):
+            if not self._serve_open_fd(poller, stop_only):
                 return
 
-    def _serve_open_fd(self, fd: int, poller: "select.poll", stop_only: "select.poll") -> bool:
+    def _serve_open_fd(self, poller: "select.poll", stop_only: "select.poll") -> bool:
         """Serve until stopped (False) or until the port was opened again (True)."""
         stop_r = self._stop_r
         parser = self._parser
+        io = self._io
         while True:
-            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)
+            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)  # type: ignore[operator]
             if not ready:
                 self._dispatch(parser.expire())
                 continue
-            for rfd, flags in ready:
-                if rfd == stop_r:
+            if any(rfd == stop_r for rfd, _ in ready):
+                return False
+            try:
+                data = io.read_nowait(4096)
+            except PortError:
+                if self._stopping:
                     return False
-                try:
-                    data = os.read(fd, 4096)
-                except BlockingIOError:
-                    continue
-                except OSError as exc:
-                    if self._stopping:
-                        return False
-                    if not flags & (select.POLLHUP | select.POLLERR):
-                        raise PortError(exc.errno or errno.EIO, None, self.name) from None
-                    data = b""
-                if data:
-                    # fast path: the chunk is exactly one frame (the common case), no Parser pass
-                    packet = None if parser.buffered else exact_packet(data)
-                    self._dispatch(parser.feed(data) if packet is None else (packet,))
-                    continue
-                # hung up (EIO or end of file): nobody on the other side of the pty yet, or
-                # the port was disconnected; wait (no spinning), then try the path again
-                if stop_only.poll(50):
-                    return False
-                if self._reopen():
-                    return True
+                data = b""
+            else:
+                if not data and not any(flags & (select.POLLHUP | select.POLLERR) for _, flags in ready):
+                    continue  # a spurious wake-up
+            if data:
+                # fast path: the chunk is exactly one frame (the common case), no Parser pass
+                packet = None if parser.buffered else exact_packet(data)
+                self._dispatch(parser.feed(data) if packet is None else (packet,))
+                continue
+            # hung up (EIO or end of file): nobody on the other side of the pty yet, or
+            # the port was disconnected (the port layer has closed its fd, whose number
+            # may be reused: never poll it again); wait (no spinning), then try the path again
+            if stop_only.poll(50):
+                return False
+            if isinstance(io, PortIO):
+                self._reopen()
+                return True
 
     def _reopen(self) -> bool:
-        if self._reopen_args is None:
-            return False
-        args, kwargs = self._reopen_args
+        if not isinstance(self._io, PortIO):
+            return False  # a raw fd or pyserial object: wait for the other side
         try:
-            fresh = Transport(*args, **kwargs)
+            self._io.reopen()
         except PortError:
             return False  # not back yet
-        if not fresh.fast:
-            fresh.close()
-            return False
-        self._io.close()
-        self._io = fresh
         self._parser.clear()
         self.reopened += 1
         log.info("%s reopened after a hang-up", self.name)
@@ -174,7 +190,7 @@ class Simulator:
 
     def _serve_generic(self) -> None:
         while not self._stopping:
-            deadline = time.monotonic() + (self.idle_timeout if self._parser.buffered else 0.05)
+            deadline = time.monotonic() + (self.idle_timeout if self._parser.buffered else 0.05)  # type: ignore[operator]
             data = self._io.read_some(4096, deadline)
             if data:
                 self._dispatch(self._parser.feed(data))

@@ -1,17 +1,21 @@
-"""Byte transport for the G485 master and simulator: one open serial port.
+"""Where the G485 master and simulator get their bytes: one small interface, two kinds of port.
 
-Two paths, one interface:
+* a device path (``/dev/ttyUSB0``, a pty, a virtual-bus port) is opened
+  through libfap's C port layer (:class:`fap_py.port.Port`): RS-485 direction
+  control (kernel / soft RTS), echo suppression, turnaround, the exclusive
+  lock, deadline reads and reopen, exactly as every other protocol gets them;
+* a pyserial URL (``socket://``, ``rfc2217://``, ``loop://``, ``spy://``), an
+  open pyserial object or a raw fd goes through :class:`SerialIO`, a thin
+  adapter over pyserial's own ``read``/``write`` (so ``spy://`` logs both
+  directions) or over ``os.read``/``os.write`` for a raw fd.
 
-* a POSIX serial device or pty opened by pyserial (or a raw fd): ``poll``
-  on the fd, then ``os.read`` of exactly the bytes wanted and ``os.write``
-  of whole frames: no per-byte Python work, no busy-waiting, and no
-  ``tcsetattr`` per call (pyserial's ``timeout`` setter reconfigures the
-  port every time it is changed);
-* any other pyserial object (``loop://``, ``socket://``, ``rfc2217://``,
-  or a port in pyserial's ``rs485_mode``): its own ``read``/``write``.
+Both offer ``read_some(n, deadline)``, ``read_within(n, timeout)``,
+``read_nowait(n)``, ``write(data)``, ``flush_input()``, ``reopen()`` and
+``close()``; ``fd`` is the descriptor to poll (None when there is none).
 """
 from __future__ import annotations
 
+import dataclasses
 import errno
 import math
 import os
@@ -22,94 +26,159 @@ from typing import Any, Optional, Union
 
 import serial
 
-from ..errors import ClosedError, PortError
+from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
+from ..fap import RS485
+from ..port import Port
+from .errors import EchoMismatchError, G485ValueError
 
-try:  # the POSIX implementation behind serial.Serial on Linux
-    from serial.serialposix import Serial as _PosixSerial
-except ImportError:  # pragma: no cover - non-POSIX
-    _PosixSerial = None  # type: ignore[assignment,misc]
-
-
-PortSpec = Union[str, "serial.SerialBase", int]
+PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
 
 
-class Transport:
-    """A port: ``read_some(n, deadline)``, ``write(data)``, ``flush_input()``."""
+def _is_url(name: str) -> bool:
+    return "://" in name
 
-    def __init__(self, port: PortSpec, *, baudrate: int = 115200, **serial_kwargs: Any) -> None:
-        self.fd: Optional[int] = None
+
+class PortIO:
+    """A device path through the C port layer (see :class:`fap_py.port.Port`)."""
+
+    fast = True  # one read returns what the C layer got: the master's exact-reply path applies
+
+    def __init__(self, path: str, baudrate: int, rs485: Optional[RS485]) -> None:
+        try:
+            self.port = Port(path, baudrate, rs485)
+        except InvalidValueError as exc:
+            raise G485ValueError(str(exc)) from None
+        p = self.port
+        self.name = p.path
+        self.baudrate = p.baudrate
+        self._read = p.read_until
+        self._write = p.write
+
+    @property
+    def fd(self) -> Optional[int]:
+        """The descriptor to poll (-1 while the device is gone)."""
+        return self.port.fd
+
+    @property
+    def closed(self) -> bool:
+        return self.port.closed
+
+    def read_some(self, n: int, deadline: float) -> bytes:
+        """Up to ``n`` bytes, waiting until ``deadline`` (``time.monotonic()``) for the first."""
+        return self._read(n, max(1, math.ceil(deadline * 1e9)))
+
+    def read_within(self, n: int, timeout: float) -> bytes:
+        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
+        return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+
+    def read_nowait(self, n: int) -> bytes:
+        """What is there now, up to ``n`` bytes (b"" if nothing)."""
+        return self._read(n, 0)
+
+    def write(self, data: bytes) -> None:
+        """Write all of ``data`` (direction switching, drain and echo check in C)."""
+        try:
+            self._write(data)
+        except BusCollisionError as exc:
+            raise EchoMismatchError(f"{self.name}: {exc}") from None
+
+    def flush_input(self) -> None:
+        """Drop bytes received but not read.
+
+        By reading them, not with ``tcflush``: the port layer's flush also
+        drops output, and on a pty (a virtual bus) a request written but not
+        yet taken by the far end would be lost with it.
+        """
+        read = self._read
+        try:
+            while read(4096, 0):
+                pass
+        except (PortError, ClosedError):
+            pass  # a vanished port: the next read or write reports it
+
+    def reopen(self) -> None:
+        """Open the same path again (raises PortError while it is not back)."""
+        self.port.reopen()
+
+    def close(self) -> None:
+        self.port.close()
+
+
+class SerialIO:
+    """A pyserial URL or object, or a raw fd: the same interface as :class:`PortIO`.
+
+    ``echo``: every write is read back and compared (what the C layer's echo
+    suppression does for device paths).
+    """
+
+    fast = False
+
+    def __init__(self, port: Union[str, "serial.SerialBase", int], baudrate: int, *, echo: bool = False,
+                 **serial_kwargs: Any) -> None:
         self.serial: Optional[serial.SerialBase] = None
+        self.fd: Optional[int] = None
         self._owns = False
-        self._poll: Optional[select.poll] = None
+        self.echo = echo
         self.baudrate = baudrate
+        self.closed = False
         if isinstance(port, int) and not isinstance(port, bool):
+            if port < 0:
+                raise G485ValueError(f"fd must be >= 0, not {port}")
             self.fd = port
             self.name = f"fd {port}"
+            self._poll = select.poll()
+            self._poll.register(port, select.POLLIN)
         elif isinstance(port, serial.SerialBase):
             self.serial = port
             self.name = str(port.port)
             self.baudrate = port.baudrate
-        elif isinstance(port, (str, os.PathLike)):
-            self.name = os.fspath(port)
+        else:
+            self.name = str(port)
             try:
                 self.serial = serial.serial_for_url(self.name, baudrate=baudrate, timeout=0.05,
                                                     **serial_kwargs)
+            except (ValueError, TypeError) as exc:
+                raise G485ValueError(f"{self.name}: {exc}") from None
             except serial.SerialException as exc:
                 err = getattr(exc, "errno", None)
                 raise PortError(err or errno.EIO, None if err else str(exc), self.name) from None
             self._owns = True
-        else:
-            raise TypeError(f"port must be a path/URL, a pyserial object or an fd, not {port!r}")
-        ser = self.serial
-        if (ser is not None and _PosixSerial is not None and isinstance(ser, _PosixSerial)
-                and ser.is_open and getattr(ser, "rs485_mode", None) is None):
-            self.fd = ser.fileno()
-        if self.fd is not None:
-            self._poll = select.poll()
-            self._poll.register(self.fd, select.POLLIN)
-        self.closed = False
 
-    @property
-    def fast(self) -> bool:
-        """True when I/O goes straight to the fd."""
-        return self._poll is not None
+    def _check(self) -> None:
+        if self.closed:
+            raise ClosedError(f"{self.name}: port closed")
 
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (monotonic) for the first; b"" on timeout."""
-        if self.closed:
-            raise ClosedError(f"{self.name}: port closed")
-        poll = self._poll
+        self._check()
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return b""
-            if poll is None:
+            if self.fd is None:
                 return self._read_serial(n, remaining)
-            try:
-                ready = poll.poll(math.ceil(remaining * 1000.0))
-            except InterruptedError:  # pragma: no cover - PEP 475 retries already
-                continue
-            if not ready:
+            if not self._poll.poll(math.ceil(remaining * 1000.0)):
                 return b""
             data = self._read_fd(n)
             if data:
                 return data
 
     def read_within(self, n: int, timeout: float) -> bytes:
-        """Fast path of fd ports (``fast``): one ``poll`` of up to ``timeout`` seconds,
-        then one ``os.read`` of up to ``n`` bytes; b"" if nothing was readable.
+        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
+        return self.read_some(n, time.monotonic() + timeout)
 
-        The caller goes on with :meth:`read_some` if the chunk is not what it
-        wants, so a spurious wake-up returns b"" instead of retrying here.
-        """
-        if self.closed:
-            raise ClosedError(f"{self.name}: port closed")
-        if not self._poll.poll(math.ceil(timeout * 1000.0)):  # type: ignore[union-attr]
-            return b""
-        return self._read_fd(n)
+    def read_nowait(self, n: int) -> bytes:
+        """What is there now, up to ``n`` bytes."""
+        self._check()
+        if self.fd is not None:
+            return self._read_fd(n) if self._poll.poll(0) else b""
+        try:
+            waiting = self.serial.in_waiting  # type: ignore[union-attr]
+            return self.serial.read(min(n, waiting)) if waiting else b""  # type: ignore[union-attr]
+        except (serial.SerialException, OSError) as exc:
+            raise PortError(getattr(exc, "errno", None) or errno.EIO, str(exc), self.name) from None
 
     def _read_fd(self, n: int) -> bytes:
-        """One ``os.read`` after ``poll`` said readable; b"" if nothing was there after all."""
         try:
             data = os.read(self.fd, n)  # type: ignore[arg-type]
         except BlockingIOError:
@@ -131,40 +200,46 @@ class Transport:
                 return first
             waiting = ser.in_waiting
             return first + (ser.read(min(n - 1, waiting)) if waiting else b"")
-        except serial.SerialException as exc:
+        except (serial.SerialException, OSError) as exc:
             raise PortError(getattr(exc, "errno", None) or errno.EIO, str(exc), self.name) from None
 
     def write(self, data: bytes) -> None:
-        """Write all of ``data``."""
-        if self.closed:
-            raise ClosedError(f"{self.name}: port closed")
+        """Write all of ``data`` (and read its echo back when ``echo`` is on)."""
+        self._check()
         if self.fd is None:
             try:
                 self.serial.write(data)  # type: ignore[union-attr]
-            except serial.SerialException as exc:
+            except (serial.SerialException, OSError) as exc:
                 raise PortError(getattr(exc, "errno", None) or errno.EIO, str(exc), self.name) from None
-            return
-        try:
-            done = os.write(self.fd, data)
-        except BlockingIOError:
-            done = 0
-        except OSError as exc:
-            raise PortError(exc.errno or errno.EIO, None, self.name) from None
-        if done == len(data):
-            return
-        view = memoryview(data)[done:]  # a partial write (full tty buffer): finish it
-        while view:
-            try:
-                done = os.write(self.fd, view)
-            except BlockingIOError:
-                select.select([], [self.fd], [], 1.0)
-                continue
-            except OSError as exc:
-                raise PortError(exc.errno or errno.EIO, None, self.name) from None
-            view = view[done:]
+        else:
+            view = memoryview(data)
+            while view:
+                try:
+                    done = os.write(self.fd, view)
+                except BlockingIOError:
+                    select.select([], [self.fd], [], 1.0)
+                    continue
+                except OSError as exc:
+                    raise PortError(exc.errno or errno.EIO, None, self.name) from None
+                view = view[done:]
+        if self.echo:
+            self._read_echo(data)
+
+    def _read_echo(self, frame: bytes) -> None:
+        deadline = time.monotonic() + 0.02 + len(frame) * 20.0 / max(1, self.baudrate)
+        got = b""
+        while len(got) < len(frame):
+            chunk = self.read_some(len(frame) - len(got), deadline)
+            if not chunk:
+                raise EchoMismatchError(f"{self.name}: echo incomplete ({len(got)} of {len(frame)} "
+                                        "bytes): is echo really on?")
+            got += chunk
+        if got != frame:
+            raise EchoMismatchError(f"{self.name}: echo {got.hex(' ')} differs from sent "
+                                    f"{frame.hex(' ')} (collision or line fault)")
 
     def flush_input(self) -> None:
-        """Drop bytes received but not read (before a retry)."""
+        """Drop bytes received but not read."""
         if self.closed:
             return
         try:
@@ -175,6 +250,10 @@ class Transport:
         except (OSError, termios.error, serial.SerialException):
             pass  # a socket or a vanished port: the next read reports it
 
+    def reopen(self) -> None:
+        """pyserial objects and raw fds are not reopened here."""
+        raise PortError(errno.ENOTSUP, "reopen needs a device path", self.name)
+
     def close(self) -> None:
         """Close the port if this object opened it."""
         if self.closed:
@@ -182,3 +261,42 @@ class Transport:
         self.closed = True
         if self._owns and self.serial is not None:
             self.serial.close()
+
+
+IO = Union[PortIO, SerialIO]
+
+
+def open_io(port: PortSpec, baudrate: int, *, rs485: Optional[RS485] = None, echo: bool = False,
+            **serial_kwargs: Any) -> IO:
+    """The transport for ``port``: :class:`PortIO` for a device path, :class:`SerialIO` otherwise.
+
+    ``echo`` turns on echo suppression (the C layer's for a device path).
+    Every bad argument raises a :class:`~fap_py.g485.errors.G485ValueError`.
+    """
+    if isinstance(baudrate, bool) or not isinstance(baudrate, int):
+        raise G485ValueError(f"baudrate must be an int, not {type(baudrate).__name__}")
+    if not 1 <= baudrate <= 0xFFFFFFFF:
+        raise G485ValueError(f"baudrate must be a positive number of baud, not {baudrate}")
+    if rs485 is not None and not isinstance(rs485, RS485):
+        raise G485ValueError(f"rs485 must be an fap_py.RS485, not {type(rs485).__name__}")
+    if not isinstance(echo, bool):
+        raise G485ValueError(f"echo must be a bool, not {type(echo).__name__}")
+    if isinstance(port, os.PathLike):
+        port = os.fspath(port)
+    if isinstance(port, str) and not _is_url(port):
+        if serial_kwargs:
+            raise G485ValueError(f"pyserial options {sorted(serial_kwargs)} apply to pyserial URLs "
+                                 "and objects only; a device path takes rs485=fap_py.RS485(...)")
+        if echo:
+            rs485 = dataclasses.replace(rs485 or RS485(), echo_suppression=True)
+        return PortIO(port, baudrate, rs485)
+    if rs485 is not None:
+        raise G485ValueError("RS-485 options need a device path (the C port layer); "
+                             "pyserial URLs and objects carry their own")
+    if not isinstance(port, (str, int, serial.SerialBase)) or isinstance(port, bool):
+        raise G485ValueError(f"port must be a device path, a pyserial URL or object, or an fd, "
+                             f"not {type(port).__name__}")
+    return SerialIO(port, baudrate, echo=echo, **serial_kwargs)
+
+
+__all__ = ["IO", "PortIO", "PortSpec", "SerialIO", "open_io"]

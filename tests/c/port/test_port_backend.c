@@ -516,6 +516,75 @@ static void test_turnaround_deadline(void)
     tp_close(&t);
 }
 
+/* ---- a G485 transaction on an RS-485 port ---------------------------------- */
+
+/* The bytes fap_py.g485 sends and gets for "read register 7 of device 2"
+ * (tests/vectors/g485.json has the format): the pure-Python codec's frames
+ * cross the port layer like every other protocol's. Soft RTS: RTS on,
+ * request, drain, RTS off, then the reply is read within its deadline. Kernel
+ * mode: the UART gets SER_RS485_ENABLED and nobody toggles RTS by hand. */
+static const uint8_t g485_request[] = {0xff, 0xff, 0x05, 0x03, 0x07, 0x01, 0xef};
+static const uint8_t g485_reply[] = {0xff, 0xff, 0xff, 0x03, 0x07, 0x02, 0xf4};
+
+static void g485_exchange(fap_port *p, test_pty *t)
+{
+    CHECK_EQ(fap_port_write(p, g485_request, sizeof g485_request), (ssize_t)sizeof g485_request);
+    uint8_t req[sizeof g485_request];
+    CHECK_EQ(tp_read_exact(t->master, req, sizeof req, 1000), sizeof req);
+    CHECK_MEM(req, g485_request, sizeof req);
+    CHECK_EQ(write(t->master, g485_reply, sizeof g485_reply), (ssize_t)sizeof g485_reply);
+    uint8_t got[16];
+    size_t have = 0;
+    int64_t deadline = fap_port_now_ns() + 2000000000LL;
+    while (have < sizeof g485_reply) {
+        ssize_t r = fap_port_read(p, got + have, sizeof got - have, deadline);
+        MUST(r > 0);
+        have += (size_t)r;
+    }
+    CHECK_EQ(have, sizeof g485_reply);
+    CHECK_MEM(got, g485_reply, sizeof g485_reply);
+}
+
+static void test_g485_transaction_soft_rts(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    o.baud = 115200;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.nev = 0;
+    g485_exchange(p, &t);
+    MUST(f.nev == 4);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    CHECK_EQ(f.ev[1].kind, EV_WRITE);
+    CHECK_EQ(f.ev[1].value, (int64_t)sizeof g485_request);
+    CHECK_EQ(f.ev[2].kind, EV_DRAIN);
+    CHECK_EQ(f.ev[3].kind, EV_RTS_CLEAR);   /* released before the reply comes */
+    fap_port_close(p);
+    tp_close(&t);
+}
+
+static void test_g485_transaction_kernel(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    fap_port_options o = opts_mode(FAP_RS485_KERNEL);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK(f.rs485.flags & SER_RS485_ENABLED);
+    f.nev = 0;
+    g485_exchange(p, &t);
+    for (int i = 0; i < f.nev; i++)
+        CHECK(f.ev[i].kind != EV_RTS_SET && f.ev[i].kind != EV_RTS_CLEAR);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
 UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
           UNIT(test_auto_gets_kernel), UNIT(test_kernel_set_einval),
           UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
@@ -524,4 +593,5 @@ UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
           UNIT(test_soft_rts_released_after_error),
           UNIT(test_eintr_and_partial_writes), UNIT(test_read_error_paths),
-          UNIT(test_turnaround_deadline))
+          UNIT(test_turnaround_deadline),
+          UNIT(test_g485_transaction_soft_rts), UNIT(test_g485_transaction_kernel))

@@ -258,3 +258,27 @@ def test_master_port_disconnect_raises_port_error(net):
     bus.disconnect(0, 0.1)
     with pytest.raises(PortError):
         master.read(1, 7)
+
+
+def test_master_and_simulator_take_rs485_line_options(vbus):
+    """The same RS485 options as every other protocol: turnaround and echo suppression on the
+    bus; an explicit kernel / soft-RTS mode is refused by a pty exactly as for FAP."""
+    from fap_py.errors import PortError
+    from fap_py.fap import RS485, RS485Mode
+    from fap_py.vbus import VirtualBus
+
+    quiet = RS485(mode=RS485Mode.NONE, turnaround_us=300)
+    with Simulator(vbus.paths[1], [SimDevice(6)], rs485=quiet) as sim, \
+            G485Master(vbus.paths[0], rs485=quiet, timeout=FAST) as master:
+        assert master._io.port.mode is RS485Mode.NONE and master._io.port.rs485.turnaround_us == 300
+        master.write(6, 8, [1, 2])
+        assert master.read(6, 8, 2) == b"\x01\x02"
+        assert sim.error is None
+    for mode in (RS485Mode.KERNEL, RS485Mode.SOFT_RTS):
+        with pytest.raises(PortError) as info:
+            G485Master(vbus.paths[0], rs485=RS485(mode=mode))
+        assert info.value.errno == 25  # ENOTTY: a pty has no RTS line nor RS-485 ioctls
+    with VirtualBus(ports=2, echo=True, seed=3) as bus, Simulator(bus.paths[1], [SimDevice(5)]), \
+            G485Master(bus.paths[0], rs485=RS485(echo_suppression=True), timeout=FAST) as master:
+        assert master.read(5, 7) == b"\x05"
+        assert master._io.port.stats.echo_bytes > 0

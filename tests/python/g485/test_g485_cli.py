@@ -29,7 +29,7 @@ def fap(capsys):
 def sim_process(vbus, tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "fap_py", "g485", "sim", "--port", vbus.paths[1],
                              "--address", "1", "--address", "4", "--eeprom-dir", str(tmp_path)],
-                            stdout=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, text=True, cwd=tmp_path)  # the installed package
     assert "simulating G485 devices 1, 4" in proc.stdout.readline()
     yield vbus.paths[0], tmp_path
     proc.terminate()

@@ -1,0 +1,243 @@
+"""The C port layer (``include/fap_port.h``) for Python code: one open serial device.
+
+:class:`Port` opens a device path with a baud rate and the RS-485 line
+options every libfap protocol uses (:class:`fap_py.fap.RS485`: direction
+mode kernel / soft RTS / none, RTS delays, echo suppression, turnaround,
+exclusive lock) and offers what a pure-Python protocol needs: write all
+bytes, read with a deadline, flush input, reopen after the device vanished.
+
+Every call goes into C; cffi releases the GIL around it, so a thread blocked
+in :meth:`Port.read` does not hold up the rest of the program.
+
+>>> from fap_py.port import Port
+>>> with Port("/dev/ttyUSB0", 115200) as port:             # doctest: +SKIP
+...     port.write(b"\\x01\\x02")
+...     reply = port.read(16, timeout=0.1)
+"""
+from __future__ import annotations
+
+import errno as _errno
+import math
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Optional, Union
+
+from ._util import Closing, from_cdata
+from .errors import ClosedError, FapError, InvalidValueError, PortError, error_from_code
+from .fap import RS485, InvalidTypeError, RS485Mode, _native, port_options
+
+PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
+
+#: the longest single read (the C layer takes any size; this bounds the buffer)
+MAX_READ = 4096
+#: fap_port_read's "wait forever"
+_FOREVER_NS = (1 << 63) - 1
+
+
+class PortBusyError(PortError):
+    """Another process (or another Port) holds the device: the exclusive lock (EBUSY)."""
+
+
+class PortGoneError(PortError):
+    """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
+
+
+_GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
+
+
+def port_error(code: int, what: str, path: Optional[str]) -> FapError:
+    """The exception for a negative ``fap_port_*`` return code."""
+    err = -code
+    if err == _errno.EBUSY:
+        return PortBusyError(err, f"{what}: port busy (held by another process or port)", path)
+    if err in _GONE:
+        return PortGoneError(err, f"{what}: {os.strerror(err)} (device gone)", path)
+    return error_from_code(code, what, path)
+
+
+@dataclass
+class PortStats:
+    """Counters of one port (``fap_port_stats``)."""
+
+    tx_bytes: int = 0
+    rx_bytes: int = 0
+    echo_bytes: int = 0
+    collisions: int = 0
+    write_errors: int = 0
+    read_errors: int = 0
+    reopens: int = 0
+
+
+def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) -> float:
+    """``value`` as seconds: a finite int/float >= 0 (> 0 unless ``zero_ok``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidTypeError(f"{what} must be a number of seconds, not {type(value).__name__}")
+    value = float(value)
+    if not math.isfinite(value) or value < 0 or (value == 0 and not zero_ok):
+        raise InvalidValueError(f"{what} must be a finite number of seconds "
+                                f"{'>= 0' if zero_ok else '> 0'}, not {value}")
+    return value
+
+
+class Port(Closing):
+    """One serial device opened through libfap's port layer.
+
+    :param path: the device (``/dev/ttyUSB0``, a pty, a virtual-bus port).
+    :param baudrate: any standard termios rate.
+    :param rs485: line options (:class:`fap_py.fap.RS485`); None = the port
+        layer's defaults (mode AUTO, exclusive lock, no echo suppression).
+
+    Raises :class:`PortBusyError` when another opener holds the device,
+    :class:`~fap_py.errors.InvalidValueError` for a bad baud rate or option,
+    :class:`~fap_py.errors.PortError` for anything else the OS refuses.
+    One thread reads at a time (the read buffer is the port's own); writes
+    may come from another thread (the C layer serialises them).
+    """
+
+    def __init__(self, path: PathLike, baudrate: int = 115200, rs485: Optional[RS485] = None) -> None:
+        self._p: Any = None
+        if not isinstance(path, (str, bytes, os.PathLike)):
+            raise InvalidTypeError(f"path must be a str or path, not {type(path).__name__}")
+        raw = os.fsencode(path)
+        if not raw or b"\0" in raw:
+            raise InvalidValueError(f"bad device path {path!r}")
+        self.path = os.fsdecode(raw)
+        po = port_options(baudrate, rs485)  # validates baud and options before C sees them
+        self.rs485: RS485 = rs485 if rs485 is not None else RS485()
+        ffi, lib = _native()
+        self._ffi, self._lib = ffi, lib
+        out = ffi.new("fap_port **")
+        rc = lib.fap_port_open(out, raw, po)
+        if rc:
+            raise port_error(rc, "open", self.path)
+        self._p = out[0]
+        self._buf = ffi.new("unsigned char[]", MAX_READ)
+        self._buffer = ffi.buffer(self._buf)
+        self.baudrate = int(lib.fap_port_baud(self._p))
+
+    # -- lifetime ------------------------------------------------------------
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` ran."""
+        return self._p is None
+
+    def close(self) -> None:
+        """Close the device (restores its previous RS-485 configuration). Idempotent."""
+        p, self._p = getattr(self, "_p", None), None
+        if p is not None:
+            self._lib.fap_port_close(p)
+
+    def _handle(self) -> Any:
+        p = self._p
+        if p is None:
+            raise ClosedError(f"{self.path}: port closed")
+        return p
+
+    def __repr__(self) -> str:
+        state = "closed" if self._p is None else f"{self.baudrate} baud, {self.mode.name}"
+        return f"<Port {self.path} {state}>"
+
+    # -- state -----------------------------------------------------------------
+
+    @property
+    def fd(self) -> int:
+        """The file descriptor (for poll / an event loop); -1 while the device is gone."""
+        return int(self._lib.fap_port_fd(self._handle()))
+
+    def fileno(self) -> int:
+        """The file descriptor (see :attr:`fd`)."""
+        return self.fd
+
+    @property
+    def mode(self) -> RS485Mode:
+        """The direction mode in force (never AUTO once open)."""
+        return RS485Mode(self._lib.fap_port_mode(self._handle()))
+
+    @property
+    def stats(self) -> PortStats:
+        """Byte, echo, collision, error and reopen counters."""
+        st = self._ffi.new("fap_port_stats *")
+        self._lib.fap_port_get_stats(self._handle(), st)
+        return from_cdata(PortStats, st)
+
+    # -- I/O ---------------------------------------------------------------------
+
+    def write(self, data: Union[bytes, bytearray, memoryview]) -> int:
+        """Write every byte (turnaround wait, direction switching, drain, echo check).
+
+        Raises :class:`~fap_py.errors.BusCollisionError` when echo suppression
+        reads back something else, :class:`PortGoneError` when the device vanished.
+        """
+        if not isinstance(data, (bytes, bytearray, memoryview)):
+            raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
+        rc = self._lib.fap_port_write(self._handle(), self._ffi.from_buffer(data), len(data))
+        if rc < 0:
+            raise port_error(rc, "write", self.path)
+        return int(rc)
+
+    def read(self, n: int = MAX_READ, timeout: Optional[float] = None, *,
+             deadline_ns: Optional[int] = None) -> bytes:
+        """Up to ``n`` bytes, waiting for the first until ``timeout`` seconds
+        (or the absolute ``deadline_ns`` of ``time.monotonic_ns()``) pass:
+        b"" then. Neither given: do not wait."""
+        p = self._handle()
+        if deadline_ns is None:
+            deadline_ns = 0 if timeout is None else (
+                time.monotonic_ns() + math.ceil(check_timeout(timeout) * 1e9))
+        if type(n) is not int or not 0 < n <= MAX_READ:
+            if isinstance(n, bool) or not isinstance(n, int):
+                raise InvalidTypeError(f"n must be an int, not {type(n).__name__}")
+            n = max(1, min(n, MAX_READ))
+        got = self._lib.fap_port_read(p, self._buf, n, min(deadline_ns, _FOREVER_NS))
+        if got > 0:
+            return self._buffer[:got]
+        if got == 0:
+            return b""
+        raise port_error(got, "read", self.path)
+
+    def read_until(self, n: int, deadline_ns: int) -> bytes:
+        """Up to ``n`` bytes (1..MAX_READ), waiting for the first until the absolute
+        ``deadline_ns`` (``time.monotonic_ns()``; 0 = do not wait): b"" then.
+
+        The lean form of :meth:`read` for protocol loops: ``n`` and
+        ``deadline_ns`` must be ints (a bad one raises InvalidValueError).
+        """
+        p = self._p
+        if p is None:
+            raise ClosedError(f"{self.path}: port closed")
+        if type(n) is not int or type(deadline_ns) is not int or not 0 < n <= MAX_READ \
+                or not 0 <= deadline_ns <= _FOREVER_NS:
+            raise InvalidValueError(f"read_until({n}, {deadline_ns}) out of range")
+        got = self._lib.fap_port_read(p, self._buf, n, deadline_ns)
+        if got > 0:
+            return self._buffer[:got]
+        if got == 0:
+            return b""
+        raise port_error(got, "read", self.path)
+
+    def flush_input(self) -> None:
+        """Discard bytes received and not read yet (and unsent output)."""
+        rc = self._lib.fap_port_flush(self._handle())
+        if rc < 0:
+            raise port_error(rc, "flush", self.path)
+
+    def reopen(self) -> None:
+        """Close and open the same path again with the same options (after an unplug).
+
+        Raises the open error if the device is not back yet; the port stays
+        usable for further attempts.
+        """
+        rc = self._lib.fap_port_reopen(self._handle())
+        if rc < 0:
+            raise port_error(rc, "reopen", self.path)
+
+
+def now_ns() -> int:
+    """CLOCK_MONOTONIC now in ns: the clock of ``deadline_ns`` (same as ``time.monotonic_ns``)."""
+    return time.monotonic_ns()
+
+
+__all__ = ["MAX_READ", "Port", "PortBusyError", "PortGoneError", "PortStats", "RS485", "RS485Mode",
+           "check_timeout", "now_ns", "port_error"]

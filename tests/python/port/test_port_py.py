@@ -1,0 +1,190 @@
+"""fap_py.port.Port: the C port layer as a Python object, on real ptys and the virtual bus."""
+from __future__ import annotations
+
+import os
+import threading
+import time
+import tty
+from collections.abc import Iterator
+
+import pytest
+
+from fap_py.errors import ClosedError, FapError, InvalidValueError, PortError
+from fap_py.fap import RS485, RS485Mode
+from fap_py.port import MAX_READ, Port, PortBusyError, PortGoneError
+
+
+@pytest.fixture
+def pty() -> Iterator[tuple[int, str]]:
+    """A raw pty pair: the far end's fd and the path a Port opens."""
+    far, near = os.openpty()
+    tty.setraw(far)
+    name = os.ttyname(near)
+    os.close(near)
+    yield far, name
+    os.close(far)
+
+
+def test_write_read_round_trip_and_stats(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name, 115200) as port:
+        assert port.mode is RS485Mode.NONE  # AUTO on a pty: no kernel RS-485
+        assert port.baudrate == 115200 and port.fd >= 0 and port.fileno() == port.fd
+        assert port.write(b"\x01\x02\x03") == 3
+        assert os.read(far, 16) == b"\x01\x02\x03"
+        os.write(far, b"hello")
+        assert port.read(16, timeout=1.0) == b"hello"
+        st = port.stats
+        assert (st.tx_bytes, st.rx_bytes) == (3, 5)
+        assert "115200" in repr(port)
+    assert port.closed and "closed" in repr(port)
+
+
+def test_read_deadline_returns_empty(pty: tuple[int, str]) -> None:
+    _, name = pty
+    with Port(name) as port:
+        t0 = time.monotonic()
+        assert port.read(8, timeout=0.05) == b""
+        assert 0.04 <= time.monotonic() - t0 < 2.0
+        assert port.read(8) == b""  # no timeout: do not wait
+        assert port.read_until(8, 0) == b""
+        assert port.read_until(8, time.monotonic_ns() + 10_000_000) == b""
+
+
+def test_flush_input_discards(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name) as port:
+        os.write(far, b"stale")
+        deadline = time.monotonic() + 2
+        while port.read(1, timeout=0.01) == b"" and time.monotonic() < deadline:
+            pass  # until the first byte is there (the rest is queued behind it)
+        port.flush_input()
+        assert port.read(8, timeout=0.02) == b""
+
+
+def test_second_opener_is_busy(pty: tuple[int, str]) -> None:
+    _, name = pty
+    with Port(name):
+        with pytest.raises(PortBusyError) as info:
+            Port(name)
+        assert isinstance(info.value, PortError) and info.value.errno == 16 and "busy" in str(info.value)
+    Port(name).close()  # free again after close
+
+
+def test_non_exclusive_ports_share(pty: tuple[int, str]) -> None:
+    _, name = pty
+    shared = RS485(exclusive=False)
+    with Port(name, rs485=shared), Port(name, rs485=shared):
+        pass
+
+
+def test_explicit_kernel_mode_refused_by_a_pty(pty: tuple[int, str]) -> None:
+    _, name = pty
+    for mode in (RS485Mode.KERNEL, RS485Mode.SOFT_RTS):
+        with pytest.raises(PortError) as info:
+            Port(name, rs485=RS485(mode=mode))
+        assert info.value.errno == 25  # ENOTTY
+
+
+@pytest.mark.parametrize("args", [("/nonexistent/tty",), ("",), ("a\0b",)])
+def test_bad_paths(args: tuple) -> None:
+    with pytest.raises(FapError):
+        Port(*args)
+
+
+@pytest.mark.parametrize("baud", [0, -1, 12345, 2**40, 1.5, "9600", True])
+def test_bad_baud(pty: tuple[int, str], baud: object) -> None:
+    _, name = pty
+    with pytest.raises(InvalidValueError):
+        Port(name, baud)  # type: ignore[arg-type]
+
+
+def test_bad_arguments_and_closed(pty: tuple[int, str]) -> None:
+    _, name = pty
+    port = Port(name)
+    with pytest.raises(InvalidValueError):
+        port.write("text")  # type: ignore[arg-type]
+    for timeout in (float("nan"), float("inf"), -1, "1"):
+        with pytest.raises(InvalidValueError):
+            port.read(4, timeout=timeout)  # type: ignore[arg-type]
+    with pytest.raises(InvalidValueError):
+        port.read("4")  # type: ignore[arg-type]
+    with pytest.raises(InvalidValueError):
+        port.read_until(MAX_READ + 1, 0)
+    assert port.read(10**9, timeout=0.001) == b""  # n is clamped to MAX_READ
+    with pytest.raises(InvalidValueError):
+        Port(name, rs485="soft")  # type: ignore[arg-type]
+    with pytest.raises(InvalidValueError):
+        Port(5)  # type: ignore[arg-type]
+    port.close()
+    port.close()
+    for call in (lambda: port.write(b"x"), lambda: port.read(1), lambda: port.fd, lambda: port.flush_input(),
+                 lambda: port.reopen(), lambda: port.stats, lambda: port.mode):
+        with pytest.raises(ClosedError):
+            call()
+
+
+def test_blocking_read_releases_the_gil(pty: tuple[int, str]) -> None:
+    """While one thread waits in fap_port_read, another Python thread keeps running."""
+    _, name = pty
+    counted = 0
+    stop = threading.Event()
+
+    def count() -> None:
+        nonlocal counted
+        while not stop.is_set():
+            counted += 1
+
+    with Port(name) as port:
+        t = threading.Thread(target=count)
+        t.start()
+        try:
+            before = counted
+            assert port.read(1, timeout=0.3) == b""
+            during = counted - before
+        finally:
+            stop.set()
+            t.join()
+    assert during > 1000
+
+
+def test_reopen_after_the_device_vanished() -> None:
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(ports=2, seed=3) as bus, Port(bus.paths[0]) as port, Port(bus.paths[1]) as other:
+        bus.disconnect(0, 0.1)
+        with pytest.raises(PortGoneError):
+            while True:
+                port.read(1, timeout=1.0)
+        deadline = time.monotonic() + 10
+        while True:
+            try:
+                port.reopen()
+                break
+            except PortError:
+                assert time.monotonic() < deadline
+                time.sleep(0.02)  # polling for the device to come back (it is a separate clock)
+        assert port.stats.reopens == 1
+        port.write(b"back")
+        assert other.read(4, timeout=2.0) == b"back"
+
+
+def test_echo_suppression_on_an_echo_bus() -> None:
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(ports=2, echo=True, seed=3) as bus, \
+            Port(bus.paths[0], rs485=RS485(echo_suppression=True)) as port, Port(bus.paths[1]) as other:
+        port.write(b"\x10\x20\x30")
+        assert other.read(3, timeout=2.0) == b"\x10\x20\x30"
+        assert port.read(3, timeout=0.05) == b""  # its own echo was read back and dropped
+        assert port.stats.echo_bytes == 3
+
+
+def test_turnaround_waits_after_the_last_received_byte(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name, rs485=RS485(turnaround_us=50_000)) as port:
+        os.write(far, b"x")
+        assert port.read(1, timeout=1.0) == b"x"
+        t0 = time.monotonic()
+        port.write(b"y")
+        assert time.monotonic() - t0 >= 0.04
