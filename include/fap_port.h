@@ -122,6 +122,21 @@ int fap_port_auto_errno(const fap_port *p);
 int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
                           uint32_t *delay_before_ms, uint32_t *delay_after_ms);
 
+/* The baud rates fap_port_open accepts, ascending: the i-th one, or 0
+ * past the end. Tools list them when a rate is refused. */
+unsigned fap_port_baud_rate(size_t i);
+
+/* What a device is set to now, read without changing anything (for port
+ * listings). Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty
+ * open side effect of raising DTR/RTS applies), reads termios and
+ * TIOCGRS485, closes. Fills *baud (0 if not a standard rate) and, when
+ * the driver answers TIOCGRS485, the RS-485 flags and delays; returns 0 if
+ * the kernel has RS-485 for it, -ENOTTY if the driver has none (pty,
+ * most USB adapters), or the -errno of open/tcgetattr. NULL pointers
+ * are skipped. */
+int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
+                   uint32_t *delay_before_ms, uint32_t *delay_after_ms);
+
 #ifdef __cplusplus
 }
 #endif
