@@ -324,7 +324,12 @@ def exit_code_for(exc: BaseException) -> int:
 
 
 def error_line(exc: BaseException) -> str:
+    """``fap: error: ...``: one line, no ``[Errno N]`` prefix."""
     text = str(exc) or type(exc).__name__
+    if isinstance(exc, OSError) and exc.strerror:
+        text = exc.strerror
+        if exc.filename and str(exc.filename) not in text:
+            text = f"{exc.filename}: {text}"
     return f"fap: error: {text.splitlines()[0] if text else type(exc).__name__}"
 
 
