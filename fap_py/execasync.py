@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
+from . import _trace   # wire bytes on fap_py.wire.exec at DEBUG
 from ._native import ffi, lib
 from ._util import Closing, check_int, from_cdata
 from .errors import ClosedError, FapError, FapTimeoutError, FrameError, InvalidValueError, error_from_code
@@ -371,6 +372,7 @@ class Master(Closing):
         out = ffi.new("execMaster **")
         _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
         self._m = out[0]
+        self._tap = _trace.attach(lib.execMasterSetTrace, self._m, "exec", self.path)
         self._reply = ffi.new("byte[]", MAX_DATA)
         self._reply_len = ffi.new("word *")
         log.info("exec async master on %s", self.path)
@@ -537,6 +539,7 @@ class Slave(Closing):
                                      lib.fap_py_exec_slave_handler, self._self_handle),
                    "open", self.path)
         self._s = out[0]
+        self._tap = _trace.attach(lib.execSlaveSetTrace, self._s, "exec", self.path)
         log.info("exec async slave %d on %s", node, self.path)
 
     def _handle(self) -> Any:

@@ -39,6 +39,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, List, Optional, Union
 
+from . import _trace   # wire bytes on fap_py.wire.mikroc at DEBUG
 from ._native import ffi, lib
 from ._util import Closing, check_int, from_cdata, slice_ms
 from .fap import RS485, InvalidTypeError, port_options   # the line options every fap_py node takes
@@ -260,6 +261,7 @@ class _Node(Closing):
         if r < 0:
             raise error_from_code(r, "open", self.path)
         self._open = True
+        self._tap = _trace.attach(lib.mikrocRS485_CtxSetTrace, self._ctx, "mikroc", self.path)
         log.debug("%s opened %s at %d baud", type(self).__name__, self.path, baudrate)
 
     def _init_ctx(self) -> None:

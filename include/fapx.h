@@ -57,6 +57,9 @@ typedef struct fapx_options {
     fap_port_options port;    /* baud (any termios rate; the classic API allows
                                  9600..115200), RS-485 direction mode, RTS
                                  polarity and delays, echo, turnaround */
+    fap_trace_fn trace;       /* wire trace hook from the very first frame
+                                 (NULL = none; see fapx_set_trace) */
+    void *trace_ctx;
 } fapx_options;
 
 /* Events, read with fapx_event_get() (and optionally passed to the callback). */

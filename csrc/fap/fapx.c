@@ -84,6 +84,8 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     pthread_condattr_destroy(&ca);
     pthread_mutex_init(&h->lock, NULL);
     lf_trace_init(&h->trace);
+    if (o.trace)   /* before the engine starts: it sees the first frame */
+        lf_trace_set(&h->trace, o.trace, o.trace_ctx);
     err = fap_port_open(&h->port, path, &o.port);
     if (err < 0) {
         pthread_cond_destroy(&h->cond);
