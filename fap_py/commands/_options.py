@@ -68,7 +68,8 @@ class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescript
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
         # no "(default: None/False)" noise on flags and optional values
-        if action.default in (None, False, argparse.SUPPRESS) or "%(default)" in text:
+        if action.default is None or action.default is False or action.default == argparse.SUPPRESS \
+                or "%(default)" in text or "(default" in text:
             return text
         if isinstance(action, (argparse._HelpAction, argparse._VersionAction)):
             return text

@@ -79,7 +79,7 @@ class View:
     stats: Dict[str, Any] = field(default_factory=dict)
     active: List[int] = field(default_factory=list)
     messages: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=6))
-    events: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=6))
+    events: Deque[str] = field(default_factory=lambda: collections.deque(maxlen=8))
     fault: str = ""
     last_elapsed: float = 0.0
 
@@ -177,6 +177,9 @@ def _traffic(args: argparse.Namespace, bus: Any, master: "Master", slaves: List[
         now = time.monotonic()
         if now >= end:
             break
+        if silenced and view.fault and now - view.t0 >= silence_at + silence_for:
+            out.event(f"{_stamp(view)} fault over: slave {victim.id} talks again")
+            view.fault = ""
         if args.faults and not silenced and now - view.t0 >= silence_at:
             bus.silence(1 + slaves.index(victim), silence_for)
             silenced = True
@@ -304,8 +307,10 @@ class _Live:
                 "Ctrl-C ends")
         if t:
             line = (f"goodput [bold]{t['goodput']:.0f} B/s[/] of {t['capacity']:.0f} B/s wire "
-                    f"capacity ({t['goodput'] / t['capacity']:.0%}); bus load {t['utilisation']:.0%}; "
-                    f"CRC errors {t['crc_errors']}")
+                    f"capacity ({t['goodput'] / t['capacity']:.0%}); "
+                    + (f"bus load {t['utilisation']:.0%}; " if v.paced else
+                       f"{t['wire_bytes'] / t['seconds']:.0f} B/s on the unpaced wire; ")
+                    + f"CRC errors {t['crc_errors']}")
         else:
             line = "starting..."
         if v.fault:

@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap exec encode --node 5 --seq 1 414243")
     e.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast")
     e.add_argument("--seq", type=integer, default=0, help="sequence number 0..255")
-    e.add_argument("data", type=hexbytes, nargs="?", default=b"", help="payload, hex")
+    e.add_argument("data", type=hexbytes, nargs="?", default=b"",
+                   help="payload, hex (default: empty)")
     add_output_options(e)
     e.set_defaults(func=run_encode)
 
@@ -79,7 +80,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_link_options(c, timeout_default=0.05, retries_default=0)
     c.add_argument("--first", type=integer, default=1, help="first node to try")
     c.add_argument("--last", type=integer, default=254, help="last node to try")
-    c.add_argument("--probe", type=hexbytes, default=b"", help="request payload sent, hex")
+    c.add_argument("--probe", metavar="HEX", type=hexbytes, default=b"",
+                   help="request payload sent to each node, hex (default: empty)")
     c.set_defaults(func=run_scan)
 
 

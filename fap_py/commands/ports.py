@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap ports\nfap ports --all --json\nfap ports --device /dev/pts/3")
     p.add_argument("--all", action="store_true",
                    help="also the ports pyserial lists without a known device (ttyS* with no UART)")
-    p.add_argument("--device", metavar="PATH", action="append", default=[],
+    p.add_argument("--device", metavar="PATH", action="append",
                    help="probe this path too (e.g. a pty of `fap bus`); repeatable")
     p.add_argument("--no-probe", action="store_true",
                    help="do not open the ports (opening a tty raises DTR/RTS)")
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             continue   # legacy 8250 slots without a UART behind them
         rows.append({"device": p.device, "description": p.description, "hwid": p.hwid})
         seen.add(p.device)
-    for path in args.device:
+    for path in args.device or ():
         if path not in seen:
             rows.append({"device": path, "description": "given with --device", "hwid": "n/a"})
     for row in rows:
