@@ -15,21 +15,23 @@ from ._options import UsageError, hexbytes
 
 
 def add_payload_options(parser: argparse.ArgumentParser, *, what: str = "payload") -> None:
-    """``DATA...`` (hex, or text with ``--text``); none and a non-terminal
-    stdin: one payload per stdin line."""
+    """``DATA...`` (hex, or text with ``--text``); ``-`` reads one payload
+    per stdin line."""
     parser.add_argument("data", nargs="*", metavar="DATA",
-                        help=f"{what}s to send, hex (e.g. 0102 or '01 02'); none: read one "
-                        "per line from stdin when stdin is not a terminal")
+                        help=f"{what}s to send, hex (e.g. 0102 or '01 02'); '-' reads one "
+                        "per line from stdin")
     parser.add_argument("--text", action="store_true",
                         help="DATA and stdin lines are text (UTF-8), not hex")
 
 
 def payloads(args: argparse.Namespace, *, allow_empty: bool = True) -> List[bytes]:
     """The payloads of the command line, or of stdin."""
-    items: List[str] = list(args.data)
-    if not items and not sys.stdin.isatty():
-        items = [line.rstrip("\r\n") for line in sys.stdin]
-        items = [line for line in items if line.strip()]
+    items: List[str] = []
+    for item in args.data:
+        if item == "-":
+            items.extend(line.rstrip("\r\n") for line in sys.stdin if line.strip())
+        else:
+            items.append(item)
     out: List[bytes] = []
     for item in items:
         if args.text:
@@ -40,7 +42,7 @@ def payloads(args: argparse.Namespace, *, allow_empty: bool = True) -> List[byte
             except argparse.ArgumentTypeError as exc:
                 raise UsageError(f"{exc} (use --text for text payloads)") from None
     if not out and not allow_empty:
-        raise UsageError("nothing to send: give DATA or pipe payloads into stdin")
+        raise UsageError("nothing to send: give DATA, or '-' and payloads on stdin")
     return out
 
 

@@ -263,12 +263,23 @@ def _jsonable(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+def _prepare(obj: Any) -> Any:
+    """Enums by name (an IntEnum would otherwise be written as its number)."""
+    if isinstance(obj, Enum):
+        return obj.name.lower()
+    if isinstance(obj, dict):
+        return {k: _prepare(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_prepare(v) for v in obj]
+    return obj
+
+
 def emit(args: argparse.Namespace, obj: Dict[str, Any], human_text: Optional[str]) -> None:
     """With ``--json``: ``obj`` as one JSON line (bytes as hex, enums by
     name); else ``human_text`` (nothing if None). Flushed either way, so a
     pipe sees each line at once."""
     if getattr(args, "json", False):
-        text: Optional[str] = json.dumps(obj, default=_jsonable, separators=(",", ":"))
+        text: Optional[str] = json.dumps(_prepare(obj), default=_jsonable, separators=(",", ":"))
     else:
         text = human_text
     if text is not None:

@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m = add_command(cmds, "master", aliases=["poll"],
                     help="send requests to a node and print its replies",
                     example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
-                    "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json")
+                    "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
     line(m)
     add_link_options(m, timeout_default=0.1, retries_default=3)
     m.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast (no reply)")

@@ -57,7 +57,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = add_command(cmds, "slave", help="run a slave: send when polled, print what arrives",
                     example="fap fap slave --port /dev/ttyUSB1 --id 3 --count 0\n"
-                    "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text")
+                    "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text -")
     common(s)
     s.add_argument("--id", type=integer, required=True, help="this slave's ID, 1..31")
     s.add_argument("--to", type=integer, default=0, help="destination of DATA (0 = master)")
