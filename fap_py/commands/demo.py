@@ -35,7 +35,7 @@ TICK = 0.02                  #: seconds between traffic rounds
 # Protocol timing shortened for the demo (vendor defaults: 15 s, 1 s, 15 s).
 DEMO_TIMING = dict(id_cycle=0.2, id_answer_timeout=0.1, data_done_timeout=0.3)
 TTY_DURATION, PLAIN_DURATION = 10.0, 3.0
-BER = 0.00002              #: --faults: per-byte probability of a flipped bit
+BER = 0.00005              #: --faults: per-byte probability of a flipped bit
 
 
 def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None:
