@@ -90,8 +90,8 @@ def stop_on_sigterm() -> Iterator[threading.Event]:
 
 class Progress:
     """A progress bar on stderr (rich) when stderr is a terminal and not
-    ``--json``; silent otherwise. Found devices are printed on stdout by the
-    caller as they answer, above the bar."""
+    ``--json``; silent otherwise. Found devices are printed by the caller as
+    they answer (rich's live display keeps plain prints above the bar)."""
 
     def __init__(self, total: int, label: str, enabled: bool) -> None:
         self._bar: Any = None
@@ -103,7 +103,10 @@ class Progress:
 
             self._bar = RichProgress(TextColumn("{task.description}"), BarColumn(),
                                      MofNCompleteColumn(), TimeRemainingColumn(),
-                                     console=Console(stderr=True), transient=True)
+                                     console=Console(stderr=True), transient=True,
+                                     # lines printed on a terminal stdout go above the bar;
+                                     # a redirected stdout keeps them (never into stderr)
+                                     redirect_stdout=sys.stdout.isatty(), redirect_stderr=False)
             self._task = self._bar.add_task(label, total=total)
 
     def __enter__(self) -> "Progress":
@@ -119,13 +122,6 @@ class Progress:
         if self._bar is not None:
             self._bar.update(self._task, advance=1,
                              **({"description": description} if description else {}))
-
-    def print(self, text: str) -> None:
-        """A line on stdout that does not break the bar."""
-        if self._bar is not None and sys.stdout.isatty():
-            self._bar.console.print(text, markup=False, highlight=False)
-        else:
-            print(text, flush=True)
 
 
 def scan(ids: List[int], probe: Callable[[int], Optional[Any]], *, label: str,

@@ -209,3 +209,58 @@ def test_ports_lists_and_probes(fap, bus) -> None:
     r = fap("ports", "--device", "/nonexistent/tty", "--json")
     row = _json(r.lines())[-1]
     assert row["rs485"] == "unknown" and "No such file" in row["error"]
+
+
+def test_vv_logs_wire_bytes_through_the_command(bus) -> None:
+    from .conftest import run_proc
+
+    frame = execasync.encode(2, b"\x0a\x0b", 0)
+    with execasync.Slave(bus.paths[1], node=2, handler=lambda q: q.data, rs485=LINE).start():
+        r = run_proc("exec", "master", "--port", bus.paths[0], *NONE, "--node", "2", "0a0b",
+                     "-vv")
+    assert r.code == 0, r.err
+    assert f"fap_py.wire.exec DEBUG {bus.paths[0]} tx ok {len(frame)} bytes: {frame.hex(' ')}" \
+        in r.err
+    assert f"fap_py.wire.exec DEBUG {bus.paths[0]} rx ok {len(frame)} bytes: {frame.hex(' ')}" \
+        in r.err
+    r = run_proc("exec", "master", "--port", bus.paths[0], *NONE, "--node", "2", "0a0b",
+                 "--timeout", "0.01", "--retries", "0")
+    assert "fap_py.wire" not in r.err          # not without -vv
+
+
+def test_scan_progress_bar_on_a_terminal(bus, tmp_path) -> None:
+    """Under a pty: a progress bar on stderr; with stdout redirected the found
+    nodes still land in stdout, never in the bar's stream."""
+    import os
+    import pty
+    import select
+
+    out_file = tmp_path / "found.txt"
+    with execasync.Slave(bus.paths[1], node=7, handler=lambda q: b"", rs485=LINE).start():
+        master_fd, slave_fd = pty.openpty()
+        with open(out_file, "w") as out:
+            p = subprocess.Popen(fap_cmd("exec", "scan", "--port", bus.paths[0], *NONE,
+                                         "--last", "12", "--timeout", "0.05"),
+                                 stdin=slave_fd, stdout=out, stderr=slave_fd,
+                                 env=dict(os.environ, COLUMNS="100", TERM="xterm"))
+        os.close(slave_fd)
+        screen = b""
+        while True:
+            r, _, _ = select.select([master_fd], [], [], 0.5)
+            if r:
+                try:
+                    chunk = os.read(master_fd, 65536)
+                except OSError:
+                    break
+                if not chunk:
+                    break
+                screen += chunk
+            elif p.poll() is not None:
+                break
+        p.wait(30)
+        os.close(master_fd)
+    assert p.returncode == 0
+    text = screen.decode(errors="replace")
+    assert "exec node" in text and "/12" in text          # the bar: label and n/total
+    found = out_file.read_text().splitlines()
+    assert found[0] == "node 7 answers: (empty)" and found[-1] == "1 of 12 nodes answered: 7"
