@@ -32,6 +32,8 @@ from dataclasses import asdict, is_dataclass
 from enum import Enum
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
 
+from ..errors import FapError, InvalidValueError
+
 #: Exit codes of every ``fap`` command (docs/cli.md).
 EXIT_OK = 0           #: success
 EXIT_BUS = 1          #: the operation failed on the bus (no reply, refused, CRC ...)
@@ -52,11 +54,11 @@ RS485_CHOICES = ("auto", "kernel", "soft", "none")
 log = logging.getLogger("fap_py.cli")
 
 
-class UsageError(Exception):
+class UsageError(InvalidValueError):
     """A bad argument found after parsing (exit 2)."""
 
 
-class BusError(Exception):
+class BusError(FapError):
     """The operation failed on the bus, already reported or worth one line (exit 1)."""
 
 
