@@ -91,12 +91,13 @@ def test_fap_bad_frame_flagged(wire: Records) -> None:
 def test_exec_and_mikroc_wire_bytes(wire: Records) -> None:
     with VirtualBus(ports=2) as bus:
         with execasync.Slave(bus.paths[1], node=4, handler=lambda q: q.data, rs485=LINE).start(), \
-                execasync.Master(bus.paths[0], rs485=LINE) as em:
+                execasync.Master(bus.paths[0], rs485=LINE, timeout=WAIT, retries=0) as em:
             assert em.transact(4, b"\x10ab") == b"\x10ab"
-        frame = execasync.encode(4, b"\x10ab", 0)
-        recs = [r for r in wire.records if r.name == "fap_py.wire.exec"]
-        assert [(r.wire_dir, r.wire_bytes) for r in recs].count(("tx", frame)) == 2  # request, echo
-        assert [(r.wire_dir, r.wire_bytes) for r in recs].count(("rx", frame)) == 2
+        frame = execasync.encode(4, b"\x10ab", 0)   # the echo reply has the same bytes
+        recs = [(r.wire_dir, r.wire_bytes, r.wire_status) for r in wire.records
+                if r.name == "fap_py.wire.exec"]
+        # master: tx request, rx reply; slave: rx request, tx reply (two threads: any order)
+        assert sorted(recs) == sorted([("tx", frame, "ok")] * 2 + [("rx", frame, "ok")] * 2), recs
         with mikroc.Slave(bus.paths[1], address=5, rs485=LINE) as ms, \
                 mikroc.Master(bus.paths[0], rs485=LINE) as mm:
             mm.send(5, b"ab")
