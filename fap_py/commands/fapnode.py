@@ -103,8 +103,9 @@ def _loop(args: argparse.Namespace, node: Any, to: int, data: List[bytes], is_ma
             try:
                 node.flush(timeout=args.wait)
             except FapTimeoutError:
-                emit(args, {"event": "unsent", "frames": node.tx_pending()},
-                     f"{node.tx_pending()} messages still queued (not polled within {args.wait} s)")
+                left = node.tx_pending
+                emit(args, {"event": "unsent", "frames": left},
+                     f"{left} messages still queued (not polled within {args.wait} s)")
         st = node.stats()
         emit(args, {"event": "stats", **st.as_dict()},
              f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "

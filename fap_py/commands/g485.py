@@ -193,7 +193,11 @@ def run_scan(args: argparse.Namespace) -> int:
         raise UsageError(f"need 1 <= --first <= --last <= 126, not {args.first}..{args.last}")
     with _master(args) as m:
         def probe(address: int):
+            # A handshake reply carries no address: a device answering later than
+            # --timeout would be credited to the next ID. A second handshake to the
+            # same ID confirms a hit (the master drops stale input before each request).
             try:
+                m.handshake(address)
                 return m.handshake(address)
             except G485Error:
                 return None

@@ -42,13 +42,14 @@ def test_exec_master_and_slave_processes(fap, bus) -> None:
         ready = json.loads(slave.stdout.readline())       # readiness line before any request
         assert ready == {"event": "ready", "node": 5, "port": bus.paths[1], "baud": 115200}
         r = fap("exec", "master", "--port", bus.paths[0], *NONE, "--node", "5", "--json",
-                "--count", "2", "--interval", "0", "0102", "aa bb")
+                "--count", "2", "--interval", "0", "--timeout", "1", "0102", "aa bb")
         assert r.code == 0, r.err
         objs = _json(r.lines())
         assert [(o["event"], o.get("seq"), o.get("data")) for o in objs[:4]] == [
             ("reply", 0, "0102"), ("reply", 1, "aabb"), ("reply", 2, "0102"), ("reply", 3, "aabb")]
         assert objs[-1]["event"] == "stats" and objs[-1]["transactions"] == 4
-        r = fap("exec", "master", "--port", bus.paths[0], *NONE, "--node", "5", "03")
+        r = fap("exec", "master", "--port", bus.paths[0], *NONE, "--node", "5", "--timeout", "1",
+                "03")
         assert r.lines()[0] == "node 5 seq 0: 03"   # a new master starts at seq 0
     finally:
         lines = _stop(slave)
@@ -61,14 +62,16 @@ def test_exec_master_and_slave_processes(fap, bus) -> None:
 def test_exec_master_reads_stdin(fap, bus, monkeypatch) -> None:
     with execasync.Slave(bus.paths[1], node=7, handler=lambda q: q.data[::-1], rs485=LINE).start():
         monkeypatch.setattr("sys.stdin", io.StringIO("0102\n\n0304\n"))
-        r = fap("exec", "master", "--port", bus.paths[0], *NONE, "--node", "7", "-")
+        r = fap("exec", "master", "--port", bus.paths[0], *NONE, "--node", "7", "--timeout", "1",
+                "-")
     assert r.code == 0 and r.lines()[:2] == ["node 7 seq 0: 02 01", "node 7 seq 1: 04 03"]
 
 
 def test_exec_scan_finds_the_nodes(fap, bus) -> None:
     with execasync.Slave(bus.paths[1], node=3, handler=lambda q: b"hi", rs485=LINE).start(), \
             execasync.Slave(bus.paths[2], node=6, handler=lambda q: b"", rs485=LINE).start():
-        r = fap("exec", "scan", "--port", bus.paths[0], *NONE, "--last", "8", "--json")
+        r = fap("exec", "scan", "--port", bus.paths[0], *NONE, "--last", "8", "--timeout", "0.5",
+                "--json")
         assert r.code == 0, r.err
         objs = _json(r.lines())
         assert [(o["node"], o["reply"]) for o in objs if o["event"] == "found"] == [(3, "6869"),
@@ -176,7 +179,7 @@ def test_g485_scan_and_read(fap, bus) -> None:
                 "--json")
         assert r.code == 0 and len(r.lines()) == 2, r.err
         assert json.loads(r.lines()[0])["values"] == json.loads(r.lines()[1])["values"]
-        r = fap("g485", "scan", "--port", bus.paths[0], "--last", "6", "--timeout", "0.5",
+        r = fap("g485", "scan", "--port", bus.paths[0], "--last", "6", "--timeout", "1",
                 "--json")
         assert r.code == 0, r.err
         objs = _json(r.lines())
@@ -219,7 +222,7 @@ def test_vv_logs_wire_bytes_through_the_command(bus) -> None:
     frame = execasync.encode(2, b"\x0a\x0b", 0)
     with execasync.Slave(bus.paths[1], node=2, handler=lambda q: q.data, rs485=LINE).start():
         r = run_proc("exec", "master", "--port", bus.paths[0], *NONE, "--node", "2", "0a0b",
-                     "-vv")
+                     "--timeout", "2", "--retries", "0", "-vv")
     assert r.code == 0, r.err
     assert f"fap_py.wire.exec DEBUG {bus.paths[0]} tx ok {len(frame)} bytes: {frame.hex(' ')}" \
         in r.err
