@@ -195,7 +195,7 @@ def run_scan(args: argparse.Namespace) -> int:
         def probe(address: int):
             # A handshake reply carries no address: a device answering later than
             # --timeout would be credited to the next ID. A second handshake to the
-            # same ID confirms a hit (the master drops stale input before each request).
+            # same ID confirms a hit: one stray late reply cannot answer both.
             try:
                 m.handshake(address)
                 return m.handshake(address)
