@@ -245,7 +245,7 @@ def test_scan_progress_bar_on_a_terminal(bus, tmp_path) -> None:
         master_fd, slave_fd = pty.openpty()
         with open(out_file, "w") as out:
             p = subprocess.Popen(fap_cmd("exec", "scan", "--port", bus.paths[0], *NONE,
-                                         "--last", "12", "--timeout", "0.05"),
+                                         "--last", "12", "--timeout", "0.5"),
                                  stdin=slave_fd, stdout=out, stderr=slave_fd,
                                  env=dict(os.environ, COLUMNS="100", TERM="xterm"))
         os.close(slave_fd)
