@@ -58,7 +58,7 @@ def test_demo_json_counters_are_the_engines() -> None:
 
 
 def test_demo_faults_show_inactive_and_recovery() -> None:
-    r = run_proc("demo", "--json", "--faults", "--duration", "4", "--slaves", "2")
+    r = run_proc("demo", "--json", "--faults", "--duration", "6", "--slaves", "2")
     assert r.code == 0, r.err
     objs = [json.loads(line) for line in r.out.splitlines()]
     texts = [o["text"] for o in objs if o["event"] == "bus"]
