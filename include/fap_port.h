@@ -126,14 +126,16 @@ int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
  * past the end. Tools list them when a rate is refused. */
 unsigned fap_port_baud_rate(size_t i);
 
-/* What a device is set to now, read without changing anything (for port
- * listings). Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty
- * open side effect of raising DTR/RTS applies), reads termios and
- * TIOCGRS485, closes. Fills *baud (0 if not a standard rate) and, when
- * the driver answers TIOCGRS485, the RS-485 flags and delays; returns 0 if
- * the kernel has RS-485 for it, -ENOTTY if the driver has none (pty,
- * most USB adapters), or the -errno of open/tcgetattr. NULL pointers
- * are skipped. */
+/* What a device is set to now, without changing it (for port listings).
+ * Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty open side
+ * effect of raising DTR/RTS applies), reads termios and TIOCGRS485, writes
+ * the same RS-485 config back with TIOCSRS485 (a no-op where it works),
+ * closes. Fills *baud (0 if not a standard rate) and, when the driver
+ * answers TIOCGRS485, the RS-485 flags and delays. Returns 0 if the
+ * kernel can switch RS-485 mode on this port, 1 if the driver reports an
+ * RS-485 config but refuses to set one (a plain 16550), -ENOTTY if the
+ * driver has no RS-485 (pty, most USB adapters), or the -errno of
+ * open/tcgetattr. NULL pointers are skipped. */
 int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
                    uint32_t *delay_before_ms, uint32_t *delay_after_ms);
 

@@ -36,6 +36,10 @@ int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
         *delay_before_ms = r.delay_rts_before_send;
     if (delay_after_ms)
         *delay_after_ms = r.delay_rts_after_send;
+    /* Can the driver switch it? Writing back exactly what it reported changes
+     * nothing; a plain 16550 (8250) answers TIOCGRS485 but refuses this. */
+    if (ioctl(fd, TIOCSRS485, &r) < 0)
+        err = errno == ENOTTY || errno == EINVAL || errno == EOPNOTSUPP ? 1 : -errno;
 out:
     close(fd);
     return err;

@@ -1,8 +1,10 @@
 """``fap ports``: the machine's serial ports and whether each does kernel RS-485.
 
 Ports come from pyserial's ``list_ports``; each one is then probed through
-the C port layer (``fap_port_probe``: termios and ``TIOCGRS485``, nothing
-changed). A driver without RS-485 answers ENOTTY ("no").
+the C port layer (``fap_port_probe``: termios, ``TIOCGRS485`` and the same
+config written back with ``TIOCSRS485``, nothing changed). A driver
+without RS-485 answers ENOTTY ("no"); a plain 16550 reports a config but
+cannot set one ("read-only").
 """
 from __future__ import annotations
 
@@ -41,12 +43,12 @@ def probe(path: str) -> Dict[str, Any]:
     after = ffi.new("uint32_t *")
     r = lib.fap_port_probe(os.fsencode(path), baud, flags, before, after)
     info: Dict[str, Any] = {}
-    if r == 0 or r == -errno.ENOTTY:
+    if r in (0, 1, -errno.ENOTTY):
         info["baud"] = int(baud[0]) or None
-    if r == 0:
+    if r in (0, 1):
         names = [n for bit, n in _RS485_FLAGS if flags[0] & bit]
-        info.update(rs485="yes", rs485_enabled=bool(flags[0] & 1), rs485_flags=names,
-                    rts_before_ms=int(before[0]), rts_after_ms=int(after[0]))
+        info.update(rs485="yes" if r == 0 else "read-only", rs485_enabled=bool(flags[0] & 1),
+                    rs485_flags=names, rts_before_ms=int(before[0]), rts_after_ms=int(after[0]))
     elif r == -errno.ENOTTY:
         info["rs485"] = "no"
     else:
@@ -79,9 +81,10 @@ def run(args: argparse.Namespace) -> int:
 def _human(row: Dict[str, Any]) -> str:
     text = f"{row['device']:<16} {row['description']}"
     rs = row.get("rs485")
-    if rs == "yes":
+    if rs in ("yes", "read-only"):
         state = "enabled" if row["rs485_enabled"] else "disabled"
-        text += (f"  | RS-485: kernel, {state} ({','.join(row['rs485_flags']) or 'no flags'}, "
+        kind = "kernel" if rs == "yes" else "reported but not settable (use --rs485 soft)"
+        text += (f"  | RS-485: {kind}, {state} ({','.join(row['rs485_flags']) or 'no flags'}, "
                  f"RTS delays {row['rts_before_ms']}/{row['rts_after_ms']} ms)")
     elif rs == "no":
         text += "  | RS-485: no kernel support (ENOTTY)"
