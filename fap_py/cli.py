@@ -1,27 +1,46 @@
-"""The ``fap`` console command: ``fap --help`` lists the subcommands."""
+"""The ``fap`` console command: ``fap --help`` lists the subcommands.
+
+Each module in :mod:`fap_py.commands` (not starting with ``_``) defines
+``register(subparsers)``; the shared options, output and error path live in
+:mod:`fap_py.commands._options`. docs/cli.md documents every command.
+"""
 from __future__ import annotations
 
-import argparse
 import importlib
 import logging
 import pkgutil
 import sys
+from typing import List, Optional
 
 from . import __version__, commands
-from .errors import FapError
+from .commands._options import (
+    EXIT_CODES, EXIT_USAGE, Parser, add_global_flags, run_command, split_global_flags,
+)
+
+EXAMPLE = """\
+examples:
+  fap demo                                  # live FAP bus in this terminal, no hardware
+  fap ports                                 # serial ports and their RS-485 support
+  fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 --interval 0.5
+  fap g485 scan --port /dev/ttyUSB0 --json
+
+exit codes:
+""" + "\n".join(f"  {code:<4} {text}" for code, text in EXIT_CODES.items())
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser() -> Parser:
+    parser = Parser(
         prog="fap",
         description="RS-485 toolkit: FAP, exec async, mikroC RS-485 and Gicren G485 "
         "on real serial ports and on a virtual multi-drop bus.",
+        epilog=EXAMPLE,
     )
     parser.add_argument("--version", action="version", version=f"fap_py {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0,
-                        help="log more (-v info, -vv every frame at debug)")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    add_global_flags(parser, top=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
     for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
         module = importlib.import_module(f"{commands.__name__}.{info.name}")
         register = getattr(module, "register", None)
         if register is not None:
@@ -29,21 +48,29 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
+def setup_logging(verbose: int, debug: bool) -> None:
+    """-v info, -vv (or --debug) debug; the wire loggers (``fap_py.wire.*``)
+    log every frame at debug."""
+    level = logging.WARNING if not (verbose or debug) else \
+        logging.INFO if verbose == 1 and not debug else logging.DEBUG
+    logging.basicConfig(level=level, stream=sys.stderr,
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    logging.getLogger().setLevel(level)
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    rest, verbose, debug = split_global_flags(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
-    args = parser.parse_args(argv)
-    level = {0: logging.WARNING, 1: logging.INFO}.get(args.verbose, logging.DEBUG)
-    logging.basicConfig(level=level, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    try:
+        args = parser.parse_args(rest)
+    except SystemExit as exc:          # --help, --version, usage errors
+        return int(exc.code or 0) if isinstance(exc.code, int) else EXIT_USAGE
+    args.verbose, args.debug = verbose, debug
+    setup_logging(verbose, debug)
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
-    try:
-        return int(args.func(args) or 0)
-    except KeyboardInterrupt:
-        return 130
-    except FapError as exc:
-        print(f"fap: error: {exc}", file=sys.stderr)
-        return 1
+    return run_command(args.func, args)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
+from . import _trace  # wire bytes on fap_py.wire.exec at DEBUG
 from ._handle import NativeHandle, deadline_of
 from ._native import ffi, lib
 from ._stats import stats_from_c
@@ -405,6 +406,7 @@ class Master(NativeHandle):
         out = ffi.new("execMaster **")
         _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
         self._adopt(out[0])
+        self._tap = _trace.attach(lib.execMasterSetTrace, self._h, "exec", self.path)
         self._reply = ffi.new("byte[]", MAX_DATA)
         self._reply_len = ffi.new("word *")
         log.info("exec async master on %s", self.path)
@@ -571,6 +573,7 @@ class Slave(NativeHandle):
                                      lib.fap_py_exec_slave_handler, self._self_handle),
                    "open", self.path)
         self._adopt(out[0])
+        self._tap = _trace.attach(lib.execSlaveSetTrace, self._h, "exec", self.path)
         log.info("exec async slave %d on %s", node, self.path)
 
     def _label(self) -> str:

@@ -199,6 +199,10 @@ class Node(NativeHandle):
         self._rx_depth = opts.rx_depth or lib.FAPX_DEFAULT_RX_DEPTH
         self._ev_depth = opts.ev_depth or lib.FAPX_DEFAULT_EV_DEPTH
         self.rs485.apply_to(lib.fapx_options_port(opts), self.baudrate)  # &opts->port (opaque to cffi)
+        from . import _trace
+        self._tap = _trace.tap_for("fap", self.path)   # wire bytes at DEBUG (fap_py/_trace.py)
+        if self._tap is not None:                      # set before open: sees the first frame
+            opts.trace, opts.trace_ctx = lib.fap_py_trace, self._tap.handle
         out = ffi.new("fapx **")
         code = lib.fapx_open(out, os.fsencode(self.path), opts)
         if code < 0:

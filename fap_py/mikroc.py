@@ -38,6 +38,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, List, Optional, Union
 
+from . import _trace  # wire bytes on fap_py.wire.mikroc at DEBUG
 from ._handle import NativeHandle, deadline_of, slice_ms
 from ._native import ffi, lib
 from ._stats import stats_from_c
@@ -254,6 +255,7 @@ class _Node(NativeHandle):
             lib.fap_port_close(out[0])
             raise error_from_code(r, "bind", self.path)
         self._adopt(out[0])
+        self._tap = _trace.attach(lib.mikrocRS485_CtxSetTrace, self._ctx, "mikroc", self.path)
         log.debug("%s opened %s at %d baud", type(self).__name__, self.path, baudrate)
 
     def _init_ctx(self) -> None:

@@ -41,6 +41,7 @@
 
 #include "exec_async.h"
 #include "fap_port.h"
+#include "fap_trace.h"
 
 #ifdef __cplusplus
 extern "C" {
@@ -93,6 +94,12 @@ void execMasterGetStats(execMaster *m, execMasterStats *out);
 /* The underlying port (for fap_port_get_stats); owned by the master. */
 fap_port *execMasterPort(execMaster *m);
 void execMasterClose(execMaster *m);   /* NULL accepted */
+/* Install (or with NULL remove) the wire trace hook (fap_trace.h): every
+ * request sent and every frame received (replies, bad frames, partial
+ * replies abandoned at a retry or at the end of the transaction), called
+ * on the thread inside execMasterTransact/Broadcast. When this returns the
+ * previous hook is not running. Not from inside the hook. */
+void execMasterSetTrace(execMaster *m, fap_trace_fn fn, void *ctx);
 
 /* ---- slave ------------------------------------------------------------- */
 
@@ -152,6 +159,9 @@ void execSlaveGetStats(execSlave *s, execSlaveStats *out);
 fap_port *execSlavePort(execSlave *s);
 /* Close; no thread may be inside execSlaveServe. NULL accepted. */
 void execSlaveClose(execSlave *s);
+/* The same for a slave: every frame heard (any node, good or bad) and
+ * every reply sent, on the thread inside execSlaveServe. */
+void execSlaveSetTrace(execSlave *s, fap_trace_fn fn, void *ctx);
 
 #ifdef __cplusplus
 }

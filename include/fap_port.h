@@ -122,6 +122,23 @@ int fap_port_auto_errno(const fap_port *p);
 int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
                           uint32_t *delay_before_ms, uint32_t *delay_after_ms);
 
+/* The baud rates fap_port_open accepts, ascending: the i-th one, or 0
+ * past the end. Tools list them when a rate is refused. */
+unsigned fap_port_baud_rate(size_t i);
+
+/* What a device is set to now, without changing it (for port listings).
+ * Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty open side
+ * effect of raising DTR/RTS applies), reads termios and TIOCGRS485, writes
+ * the same RS-485 config back with TIOCSRS485 (a no-op where it works),
+ * closes. Fills *baud (0 if not a standard rate) and, when the driver
+ * answers TIOCGRS485, the RS-485 flags and delays. Returns 0 if the
+ * kernel can switch RS-485 mode on this port, 1 if the driver reports an
+ * RS-485 config but refuses to set one (a plain 16550), -ENOTTY if the
+ * driver has no RS-485 (pty, most USB adapters), or the -errno of
+ * open/tcgetattr. NULL pointers are skipped. */
+int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
+                   uint32_t *delay_before_ms, uint32_t *delay_after_ms);
+
 #ifdef __cplusplus
 }
 #endif

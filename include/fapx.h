@@ -24,6 +24,7 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <fap_port.h>
+#include <fap_trace.h>
 
 #ifdef __cplusplus
 extern "C" {
@@ -56,6 +57,9 @@ typedef struct fapx_options {
     fap_port_options port;    /* baud (any termios rate; the classic API allows
                                  9600..115200), RS-485 direction mode, RTS
                                  polarity and delays, echo, turnaround */
+    fap_trace_fn trace;       /* wire trace hook from the very first frame
+                                 (NULL = none; see fapx_set_trace) */
+    void *trace_ctx;
 } fapx_options;
 
 /* Events, read with fapx_event_get() (and optionally passed to the callback). */
@@ -149,6 +153,11 @@ int  fapx_event_wait(fapx *h, fapx_event *ev, int timeout_ms);
 int  fapx_notify_fd(fapx *h);
 /* Install (or with NULL remove) the engine-thread callback. */
 void fapx_set_callback(fapx *h, fapx_callback cb, void *ctx);
+/* Install (or with NULL remove) the wire trace hook (fap_trace.h): called
+ * on the engine thread with every frame sent and every frame (or rejected
+ * candidate) received. When this returns, the previous hook is not
+ * running and will not be called again. Not from inside the hook. */
+void fapx_set_trace(fapx *h, fap_trace_fn fn, void *ctx);
 
 void fapx_get_stats(fapx *h, fapx_stats *out);
 /* Queue fill levels right now. */

@@ -45,6 +45,7 @@
 
 #include <stdint.h>
 #include <fap_port.h>
+#include <fap_trace.h>
 
 #ifdef __cplusplus
 extern "C" {
@@ -162,6 +163,8 @@ typedef struct mikrocRS485_ctx {
     uint8_t rx[MIKROC_RS485_RXBUF];  /* bytes read from the port, not fed yet */
     uint16_t rx_pos, rx_len;
     mikrocRS485_stats stats;
+    fap_trace_fn trace;              /* wire trace hook, see mikrocRS485_CtxSetTrace */
+    void *trace_ctx;
 } mikrocRS485_ctx;
 
 /* Initialise as master / as slave at `address` (0..255; see docs on 50,
@@ -226,6 +229,13 @@ int mikrocRS485_CtxSend(mikrocRS485_ctx *c, const char *data_buffer,
 int mikrocRS485_CtxResetRx(mikrocRS485_ctx *c);
 
 void mikrocRS485_CtxGetStats(const mikrocRS485_ctx *c, mikrocRS485_stats *out);
+/* Install (or with NULL remove) the wire trace hook (fap_trace.h): every
+ * frame sent and every frame received (any address; damaged ones with
+ * their status), called on the thread inside CtxSend / CtxReceiveByte
+ * (CtxReceive, CtxPoll). Call after CtxInit* (which clears it) and while
+ * no other thread is inside a call on this context: a context has no lock
+ * of its own. */
+void mikrocRS485_CtxSetTrace(mikrocRS485_ctx *c, fap_trace_fn fn, void *ctx);
 
 /* ---- 3. vendor routines (documented prototypes) -------------------------
  * They use two global contexts, one master and one slave. */

@@ -151,3 +151,65 @@ int lf_exec_rx_in_frame(const struct execAsyncStateDef *s)
 {
     return s->Phase >= PH_NODE && s->Phase <= PH_CRC_LO;  /* not the skip of a reported overflow */
 }
+
+/* ---- trace tap: the bytes of the frame in progress ---- */
+
+static void tap_add(lf_exec_tap *t, byte v)
+{
+    if (t->n < sizeof t->raw)
+        t->raw[t->n++] = v;
+}
+
+static fap_trace_status trace_status(byte status)
+{
+    switch (status) {
+    case EXEC_ASYNC_GOOD: return FAP_TRACE_OK;
+    case EXEC_ASYNC_BAD_CRC: return FAP_TRACE_BAD_CRC;
+    case EXEC_ASYNC_OVERFLOW: return FAP_TRACE_TRUNCATED;
+    default: return FAP_TRACE_BAD_FRAME;
+    }
+}
+
+boolean lf_exec_byte_in_traced(byte v, struct execAsyncStateDef *s, byte *buf,
+                               lf_exec_tap *t, lf_trace *tr, int64_t now)
+{
+    byte before = s->Phase;
+    boolean done = execAsyncByteIn(v, s, buf);
+    if (!lf_trace_on(tr)) {
+        t->n = 0;
+        t->reported = 0;
+        return done;
+    }
+    if (t->reported) {             /* the last frame was reported: start afresh */
+        t->n = 0;
+        if (t->restart) {
+            tap_add(t, EXEC_ASYNC_DLE);
+            tap_add(t, EXEC_ASYNC_STX);
+        }
+        t->reported = t->restart = 0;
+    }
+    if (before == PH_HUNT)
+        t->n = 0;                  /* noise between frames is not kept */
+    tap_add(t, v);
+    if (done) {
+        /* a DLE STX that cut this frame short belongs to the next one */
+        t->restart = s->Phase == PH_NODE;
+        size_t len = t->restart && t->n >= 2 ? t->n - 2 : t->n;
+        lf_trace_emit(tr, FAP_TRACE_RX, trace_status(s->Status), now, t->raw, len);
+        t->reported = 1;
+    } else if (s->Phase == PH_HUNT) {
+        t->n = 0;
+    } else if (s->Phase == PH_HUNT_DLE) {
+        t->n = 0;
+        tap_add(t, EXEC_ASYNC_DLE);
+    }
+    return done;
+}
+
+void lf_exec_tap_abandon(lf_exec_tap *t, lf_trace *tr, int64_t now)
+{
+    if (!t->reported && t->n > 1 && lf_trace_on(tr))   /* a lone DLE is no frame */
+        lf_trace_emit(tr, FAP_TRACE_RX, FAP_TRACE_TRUNCATED, now, t->raw, t->n);
+    t->n = 0;
+    t->reported = t->restart = 0;
+}

@@ -9,6 +9,7 @@
 #include <string.h>
 
 #include "common/mono_clock.h"
+#include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "execasync/stats_atomic.h"
 
@@ -25,6 +26,8 @@ struct execMaster {
     byte rxbuf[EXEC_ASYNC_MAX_DATA];
     byte txbuf[EXEC_ASYNC_MAX_FRAME];
     execMasterStats stats;           /* updated and read atomically */
+    lf_trace trace;                  /* wire trace hook (fap_trace.h) */
+    lf_exec_tap tap;                 /* raw bytes of the reply in progress; under lock */
 };
 
 void execMasterOptionsInit(execMasterOptions *o)
@@ -54,6 +57,7 @@ int execMasterOpen(execMaster **out, const char *path, const fap_port_options *p
         return err;
     }
     pthread_mutex_init(&m->lock, NULL);
+    lf_trace_init(&m->trace);
     m->reply_timeout_us = o->reply_timeout_us ? o->reply_timeout_us : DEFAULT_REPLY_TIMEOUT_US;
     m->retries = o->retries;
     *out = m;
@@ -90,7 +94,10 @@ static int run_transaction(execMaster *m, lf_exec_mtx *t, word n)
             if (t->attempt > 0)
                 LF_STAT_INC(m->stats.retries);
             memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
+            lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
             ssize_t w = fap_port_write(m->port, m->txbuf, n);
+            lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                          lf_now_ns(), m->txbuf, n);
             if (w < 0)
                 return (int)w;
             LF_STAT_INC(m->stats.tx_frames);
@@ -103,8 +110,9 @@ static int run_transaction(execMaster *m, lf_exec_mtx *t, word n)
             return (int)r;
         /* Decode the whole chunk: a good reply may follow a bad frame. */
         lf_exec_mact pending = LF_EXEC_M_WAIT;
+        lf_ns now = r > 0 && lf_trace_on(&m->trace) ? lf_now_ns() : 0;
         for (ssize_t i = 0; i < r; i++) {
-            if (!execAsyncByteIn(chunk[i], &m->rx, m->rxbuf))
+            if (!lf_exec_byte_in_traced(chunk[i], &m->rx, m->rxbuf, &m->tap, &m->trace, now))
                 continue;
             lf_exec_mact a = lf_exec_mtx_on_frame(t, &m->rx);
             count_frame(m, t);
@@ -144,6 +152,8 @@ int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
     int err = fap_port_flush(m->port);
     if (!err)
         err = run_transaction(m, &t, n);
+    if (err)
+        lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
     /* Always move on: if the slave processed it and only the replies were
      * lost, reusing seq would make it resend an old reply to new data. */
     m->seq.next[node] = lf_exec_seq_next(seq);
@@ -178,6 +188,8 @@ int execMasterBroadcast(execMaster *m, const byte *data, word len)
     word n = execAsyncBufferOut(EXEC_ASYNC_BROADCAST, (byte *)data, m->txbuf, (byte)len, seq);
     m->seq.next[EXEC_ASYNC_BROADCAST] = lf_exec_seq_next(seq);
     ssize_t w = fap_port_write(m->port, m->txbuf, n);
+    lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                  lf_now_ns(), m->txbuf, n);
     if (w >= 0) {
         LF_STAT_INC(m->stats.broadcasts);
         LF_STAT_INC(m->stats.tx_frames);
@@ -223,5 +235,12 @@ void execMasterClose(execMaster *m)
         return;
     fap_port_close(m->port);
     pthread_mutex_destroy(&m->lock);
+    lf_trace_destroy(&m->trace);
     free(m);
+}
+
+void execMasterSetTrace(execMaster *m, fap_trace_fn fn, void *ctx)
+{
+    if (m)
+        lf_trace_set(&m->trace, fn, ctx);
 }

@@ -47,6 +47,8 @@ struct execSlave {
     size_t window_end;                 /* pending[..window_end) arrived while we sent */
     int taint;                         /* the frame being decoded had a byte in the window */
     execSlaveStats stats;
+    lf_trace trace;                    /* wire trace hook (fap_trace.h) */
+    lf_exec_tap tap;                   /* raw bytes of the request in progress */
 };
 
 void execSlaveOptionsInit(execSlaveOptions *o)
@@ -83,6 +85,7 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
         free(s);
         return err;
     }
+    lf_trace_init(&s->trace);
     s->handler = handler;
     s->ctx = ctx;
     s->turnaround = port ? (lf_ns)port->turnaround_us * LF_NS_PER_US : 0;
@@ -137,6 +140,9 @@ static int send_last_reply(execSlave *s)
      * already shows it */
     LF_STAT_INC(s->stats.replies);
     ssize_t w = fap_port_write(s->port, s->last_frame, s->last_len);
+    lf_trace_emit(&s->trace, FAP_TRACE_TX,
+                  w == (ssize_t)s->last_len ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                  lf_now_ns(), s->last_frame, s->last_len);
     if (w == FAP_PORT_ECOLLISION)
         LF_STAT_INC(s->stats.collisions);   /* someone talked over our reply */
     return w < 0 && w != FAP_PORT_ECOLLISION ? (int)w : 0;
@@ -252,7 +258,8 @@ int execSlaveServe(execSlave *s, int timeout_ms)
         while (s->pos < s->len) {
             size_t i = s->pos++;
             int in_window = i < s->window_end;
-            if (!execAsyncByteIn(s->pending[i], &s->rx, s->rxbuf)) {
+            if (!lf_exec_byte_in_traced(s->pending[i], &s->rx, s->rxbuf, &s->tap, &s->trace,
+                                        s->last_rx)) {
                 if (in_window && lf_exec_rx_in_frame(&s->rx))
                     s->taint = 1;
                 continue;
@@ -299,5 +306,12 @@ void execSlaveClose(execSlave *s)
         return;
     fap_port_close(s->port);
     close(s->stop_fd);
+    lf_trace_destroy(&s->trace);
     free(s);
+}
+
+void execSlaveSetTrace(execSlave *s, fap_trace_fn fn, void *ctx)
+{
+    if (s)
+        lf_trace_set(&s->trace, fn, ctx);
 }

@@ -150,10 +150,17 @@ static int sm_tx_pop(void *ctx, uint8_t *dst, uint8_t *data, uint16_t *len)
 static void on_frame(void *ctx, const lf_fap_frame *f, lf_ns now)
 {
     fapx *h = ctx;
+    lf_trace_emit(&h->trace, FAP_TRACE_RX, FAP_TRACE_OK, now, f->raw, f->raw_len);
     if (h->mode == FAPX_MASTER)
         lf_fap_master_on_frame(&h->m, f, now);
     else
         lf_fap_slave_on_frame(&h->s, f, now);
+}
+
+static void on_bad_frame(void *ctx, const uint8_t *raw, size_t len, int why, lf_ns now)
+{
+    fapx *h = ctx;
+    lf_trace_emit(&h->trace, FAP_TRACE_RX, (fap_trace_status)why, now, raw, len);
 }
 
 /* ---- port ---- */
@@ -200,6 +207,9 @@ static void drain_outbox(fapx *h)
             break;
         if (!h->port_down) {
             ssize_t r = fap_port_write(h->port, o->buf, o->len);
+            lf_trace_emit(&h->trace, FAP_TRACE_TX,
+                          r == (ssize_t)o->len ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                          lf_now_ns(), o->buf, o->len);
             if (r == (ssize_t)o->len || r == FAP_PORT_ECOLLISION) {
                 h->ec.frames_tx++;
                 h->ec.bytes_tx += o->len;
@@ -289,6 +299,7 @@ void *lf_fapx_engine_main(void *arg)
     lf_ns gap = h->o.gap_us ? (lf_ns)h->o.gap_us * LF_NS_PER_US
                             : lf_fap_default_gap(fap_port_baud(h->port));
     lf_fap_decoder_init(&h->dec, gap);
+    lf_fap_decoder_set_bad(&h->dec, on_bad_frame, h);
     if (h->mode == FAPX_MASTER)
         lf_fap_master_init(&h->m, &t, &io, now);
     else

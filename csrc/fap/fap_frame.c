@@ -7,6 +7,7 @@
  * frame that follows it. */
 #include "fap/fap_frame.h"
 #include "common/crc16.h"
+#include "fap_trace.h"
 #include <string.h>
 
 size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
@@ -46,9 +47,22 @@ void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap)
     d->gap = gap > 0 ? gap : lf_fap_default_gap(0);
 }
 
+void lf_fap_decoder_set_bad(lf_fap_decoder *d, lf_fap_bad_cb cb, void *ctx)
+{
+    d->bad = cb;
+    d->bad_ctx = ctx;
+}
+
 void lf_fap_decoder_reset(lf_fap_decoder *d)
 {
     d->n = 0;
+}
+
+/* Tell the trace hook about a rejected candidate: its first len bytes. */
+static void report_bad(const lf_fap_decoder *d, size_t len, int why, lf_ns now)
+{
+    if (d->bad)
+        d->bad(d->bad_ctx, d->buf, len < d->n ? len : d->n, why, now);
 }
 
 /* Drop k bytes from the front of the buffer. */
@@ -103,6 +117,7 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             return;
         unsigned size = (unsigned)d->buf[8] | ((unsigned)d->buf[9] << 8);
         if (size < LF_FAP_HDR_LEN || size > LF_FAP_HDR_LEN + LF_FAP_MAX_DATA) {
+            report_bad(d, 10, FAP_TRACE_BAD_FRAME, now);
             reject(d, &d->c.framing_errors);
             continue;
         }
@@ -110,6 +125,7 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             return;
         unsigned msg = d->buf[10];
         if (msg > LF_FAP_ID || (msg == LF_FAP_DATA) != (size > LF_FAP_HDR_LEN)) {
+            report_bad(d, 11, FAP_TRACE_BAD_FRAME, now);
             reject(d, &d->c.framing_errors);
             continue;
         }
@@ -118,12 +134,14 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             return;
         uint16_t want = (uint16_t)(d->buf[size] | (d->buf[size + 1] << 8));
         if (lf_crc16_ccitt(d->buf + LF_FAP_MARKER_LEN, size - LF_FAP_MARKER_LEN) != want) {
+            report_bad(d, total, FAP_TRACE_BAD_CRC, now);
             reject(d, &d->c.crc_errors);
             continue;
         }
         lf_fap_frame f = {
             .msg = (uint8_t)msg, .dst = d->buf[11], .src = d->buf[12],
             .len = (uint16_t)(size - LF_FAP_HDR_LEN), .data = d->buf + LF_FAP_HDR_LEN,
+            .raw = d->buf, .raw_len = total,
         };
         d->c.frames++;
         if (cb)
@@ -142,6 +160,7 @@ void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void 
     if (d->n == 0 || now < d->last_byte + d->gap)
         return;
     d->c.gap_timeouts++;
+    report_bad(d, d->n, FAP_TRACE_TRUNCATED, now);
     /* Everything held is equally stale: keep rejecting first bytes until
      * the rescan either empties the buffer or reports what it finds. */
     while (d->n > 0) {

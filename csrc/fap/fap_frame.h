@@ -33,6 +33,8 @@ typedef struct lf_fap_frame {
     uint8_t  msg, dst, src;
     uint16_t len;                        /* data length */
     const uint8_t *data;                 /* points into the decoder's buffer */
+    const uint8_t *raw;                  /* the whole frame as received (trace) */
+    size_t raw_len;
 } lf_fap_frame;
 
 /* Encode one frame into out (cap >= 15 + len). Returns the frame length,
@@ -52,6 +54,10 @@ typedef struct lf_fap_rx_counts {
 } lf_fap_rx_counts;
 
 typedef void (*lf_fap_frame_cb)(void *ctx, const lf_fap_frame *f, lf_ns now);
+/* A rejected candidate frame (for trace hooks): its bytes and why
+ * (a fap_trace_status: BAD_CRC, BAD_FRAME, TRUNCATED). Bytes skipped while
+ * looking for a marker are noise, not frames, and are not reported. */
+typedef void (*lf_fap_bad_cb)(void *ctx, const uint8_t *raw, size_t len, int why, lf_ns now);
 
 typedef struct lf_fap_decoder {
     uint8_t buf[LF_FAP_MAX_FRAME];
@@ -59,12 +65,16 @@ typedef struct lf_fap_decoder {
     lf_ns   last_byte;       /* arrival time of the newest held byte */
     lf_ns   gap;             /* inter-byte gap that abandons a partial frame */
     lf_fap_rx_counts c;
+    lf_fap_bad_cb bad;       /* optional, see lf_fap_decoder_set_bad */
+    void *bad_ctx;
 } lf_fap_decoder;
 
 /* Inter-byte gap default: the longer of 4 character times and 10 ms. */
 lf_ns lf_fap_default_gap(unsigned baud);
 
 void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap);
+/* Report rejected candidates to cb (NULL = not at all). */
+void lf_fap_decoder_set_bad(lf_fap_decoder *d, lf_fap_bad_cb cb, void *ctx);
 /* Feed n bytes that arrived at `now`; every valid frame completed by them
  * is reported through cb (frame data is valid during the call only).
  * Feeding never applies the inter-byte gap: a driver that was itself

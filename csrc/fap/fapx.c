@@ -83,10 +83,14 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     pthread_cond_init(&h->cond, &ca);
     pthread_condattr_destroy(&ca);
     pthread_mutex_init(&h->lock, NULL);
+    lf_trace_init(&h->trace);
+    if (o.trace)   /* before the engine starts: it sees the first frame */
+        lf_trace_set(&h->trace, o.trace, o.trace_ctx);
     err = fap_port_open(&h->port, path, &o.port);
     if (err < 0) {
         pthread_cond_destroy(&h->cond);
         pthread_mutex_destroy(&h->lock);
+        lf_trace_destroy(&h->trace);
         goto fail;
     }
     *out = h;
@@ -176,6 +180,7 @@ void lf_fapx_destroy(fapx *h)
     lf_ring_free(&h->ev);
     pthread_cond_destroy(&h->cond);
     pthread_mutex_destroy(&h->lock);
+    lf_trace_destroy(&h->trace);
     free(h);
 }
 
@@ -451,6 +456,12 @@ int fapx_event_wait(fapx *h, fapx_event *ev, int timeout_ms)
 int fapx_notify_fd(fapx *h)
 {
     return h ? h->notify_fd : -EINVAL;
+}
+
+void fapx_set_trace(fapx *h, fap_trace_fn fn, void *ctx)
+{
+    if (h)
+        lf_trace_set(&h->trace, fn, ctx);
 }
 
 void fapx_set_callback(fapx *h, fapx_callback cb, void *ctx)

@@ -11,6 +11,7 @@
 #include "fap/master.h"
 #include "fap/slave.h"
 #include "fap/ring.h"
+#include "common/trace.h"
 
 typedef struct lf_fapx_item {    /* a queued DATA frame (rx: src; tx: dst) */
     uint8_t  peer;
@@ -44,6 +45,7 @@ struct fapx {
     int notify_set;               /* notify_fd currently readable */
     fapx_callback cb;
     void *cb_ctx;
+    lf_trace trace;               /* wire trace hook (own lock, see trace.h) */
     fapx_stats stats;             /* published snapshot */
 
     /* ---- fds ---- */

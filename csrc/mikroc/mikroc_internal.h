@@ -2,10 +2,18 @@
  * vendor-style global routines. */
 #ifndef LF_MIKROC_INTERNAL_H
 #define LF_MIKROC_INTERNAL_H
+#include <stddef.h>
+#include <stdint.h>
 #include "fap_port.h"
+#include "fap_trace.h"
 
 /* Open path with opts (NULL = port defaults) and baud (0 = keep opts').
  * 0 and *out set, or a negative error. */
 int lf_mikroc_port_open(fap_port **out, const char *path, unsigned baud,
                         const fap_port_options *opts);
+
+/* Call c->trace (set) with one frame, stamped now. */
+struct mikrocRS485_ctx;
+void lf_mikroc_trace(struct mikrocRS485_ctx *c, fap_trace_dir dir, fap_trace_status status,
+                     const uint8_t *data, size_t len);
 #endif

@@ -160,6 +160,9 @@ int mikrocRS485_CtxSend(mikrocRS485_ctx *c, const char *data_buffer,
                                    master ? address : c->address, master);
         ssize_t w = n < 0 ? n : fap_port_write(c->port, frame, (size_t)n);
         r = w < 0 ? (int)w : 0;
+        if (c->trace && n > 0)
+            lf_mikroc_trace(c, FAP_TRACE_TX, w == n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                            frame, (size_t)n);
     }
     c->stats.last_send_error = r;
     return r;

@@ -3,6 +3,8 @@
 #include <string.h>
 
 #include "mikroc_rs485.h"
+#include "mikroc/mikroc_internal.h"
+#include "fap_port.h"
 
 void mikrocRS485_CtxInitMaster(mikrocRS485_ctx *c)
 {
@@ -70,9 +72,25 @@ void mikrocRS485_CtxReceiveByte(mikrocRS485_ctx *c, char *data_buffer, uint8_t b
     if (c->role == MIKROC_RS485_ROLE_NONE || !data_buffer)
         return;
     mikrocRS485_frame f;
+    /* what the decoder holds before this byte: the frame's raw bytes if it ends */
+    uint8_t raw[2 + sizeof c->dec.raw];
+    size_t held = 0;
+    if (c->trace && c->dec.in_frame) {
+        raw[held++] = MIKROC_RS485_START_BYTE;
+        memcpy(raw + held, c->dec.raw, c->dec.n);
+        held += c->dec.n;
+    }
     int r = mikrocRS485_DecoderFeed(&c->dec, byte, &f);
     if (r == MIKROC_RS485_MORE)
         return;
+    if (c->trace && held) {
+        if (r != MIKROC_RS485_EABORT)   /* a start byte belongs to the next frame */
+            raw[held++] = byte;
+        lf_mikroc_trace(c, FAP_TRACE_RX, r == MIKROC_RS485_FRAME ? FAP_TRACE_OK :
+                        r == MIKROC_RS485_ECRC ? FAP_TRACE_BAD_CRC :
+                        r == MIKROC_RS485_EABORT ? FAP_TRACE_TRUNCATED : FAP_TRACE_BAD_FRAME,
+                        raw, held);
+    }
     if (r == MIKROC_RS485_FRAME) {
         if (right_direction(c, f.datalen) && accepts_address(c, f.address))
             deliver(c, data_buffer, &f);
@@ -86,6 +104,22 @@ void mikrocRS485_CtxReceiveByte(mikrocRS485_ctx *c, char *data_buffer, uint8_t b
         c->stats.errors++;
         c->stats.last_rx_error = r;
     }
+}
+
+void lf_mikroc_trace(mikrocRS485_ctx *c, fap_trace_dir dir, fap_trace_status status,
+                     const uint8_t *data, size_t len)
+{
+    fap_trace_frame fr = {.dir = dir, .status = status, .t_ns = fap_port_now_ns(),
+                          .data = data, .len = len};
+    c->trace(c->trace_ctx, &fr);
+}
+
+void mikrocRS485_CtxSetTrace(mikrocRS485_ctx *c, fap_trace_fn fn, void *ctx)
+{
+    if (!c)
+        return;
+    c->trace = fn;
+    c->trace_ctx = ctx;
 }
 
 void mikrocRS485_CtxGetStats(const mikrocRS485_ctx *c, mikrocRS485_stats *out)

@@ -34,6 +34,19 @@ int lf_port_baud_to_speed(unsigned baud, speed_t *out)
     return -EINVAL;
 }
 
+unsigned lf_port_speed_to_baud(speed_t speed)
+{
+    for (size_t i = 0; i < sizeof baud_table / sizeof baud_table[0]; i++)
+        if (baud_table[i].speed == speed)
+            return baud_table[i].baud;
+    return 0;
+}
+
+unsigned fap_port_baud_rate(size_t i)
+{
+    return i < sizeof baud_table / sizeof baud_table[0] ? baud_table[i].baud : 0;
+}
+
 /* Raw 8N1, no flow control. VMIN=1 VTIME=0 with O_NONBLOCK: an empty queue
  * reads as EAGAIN (with VMIN=0 n_tty returns 0, indistinguishable from a
  * hang-up), and the deadline is ours, via poll. */

@@ -9,14 +9,17 @@ import argparse
 import signal
 import threading
 
+from ._options import add_command, add_output_options, baud, emit
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "bus", help="run a virtual multi-drop RS-485 bus of pseudo-terminals",
+    p = add_command(
+        sub, "bus", help="run a virtual multi-drop RS-485 bus of pseudo-terminals",
         description="Create N pty ports that behave as one 2-wire RS-485 bus: every byte "
-        "written on one port reaches every other port. Runs until SIGINT/SIGTERM.")
-    p.add_argument("--ports", type=int, default=3, help="number of ports, 2..64 (default 3)")
-    p.add_argument("--baud", type=int, default=0,
+        "written on one port reaches every other port. Runs until SIGINT/SIGTERM.",
+        example="fap bus --ports 4 --link-dir /tmp/bus --baud 115200")
+    p.add_argument("--ports", type=int, default=3, help="number of ports, 2..64")
+    p.add_argument("--baud", metavar="N", type=baud, default=None,
                    help="pace delivery at 10 bits/byte and detect collisions (default: unpaced)")
     p.add_argument("--echo", action="store_true", help="deliver each byte back to its sender too")
     p.add_argument("--link-dir", metavar="DIR",
@@ -26,7 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="per-byte probability of one flipped bit, every port")
     p.add_argument("--drop-rate", type=float, default=0.0, metavar="X",
                    help="per-byte probability of a dropped byte, every port")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random faults (default 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random faults")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
@@ -45,17 +49,19 @@ def run(args: argparse.Namespace) -> int:
             if args.ber or args.drop_rate:
                 bus.set_fault(None, bit_error_rate=args.ber, drop_rate=args.drop_rate)
             for i, path in enumerate(bus.paths):
-                print(f"port{i} {path}")
+                emit(args, {"event": "port", "index": i, "path": path}, f"port{i} {path}")
             mode = f"{args.baud} baud" if args.baud else "unpaced"
-            print(f"ready ({len(bus.paths)} ports, {mode}{', echo' if args.echo else ''})",
-                  flush=True)
+            emit(args, {"event": "ready", "ports": len(bus.paths), "baud": args.baud,
+                        "echo": args.echo},
+                 f"ready ({len(bus.paths)} ports, {mode}{', echo' if args.echo else ''})")
             while not stop.wait(0.2):   # signal handlers run between waits
                 pass
             st = bus.stats()
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)
-    print(f"stats bytes_in={st.bytes_in} bytes_out={st.bytes_out} collisions={st.collisions} "
-          f"bit_errors={st.bit_errors} dropped={st.dropped} overflow={st.overflow} "
-          f"disconnects={st.disconnects}", flush=True)
+    keys = ("bytes_in", "bytes_out", "collisions", "bit_errors", "dropped", "overflow",
+            "disconnects")
+    emit(args, {"event": "stats", **{k: getattr(st, k) for k in keys}},
+         "stats " + " ".join(f"{k}={getattr(st, k)}" for k in keys))
     return 0

@@ -1,124 +1,185 @@
-"""``fap exec``: exec async frames, master polls and a slave, from the shell.
+"""``fap exec``: exec async frames, a master, a slave and a node scan.
 
     fap exec encode --node 5 --seq 1 414243
     fap exec decode 100205014142431003b9ec
-    fap exec poll --port /dev/ttyUSB0 --node 5 0102 --count 3
-    fap exec broadcast --port /dev/ttyUSB0 ff00
+    fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 3
+    fap exec master --port /dev/ttyUSB0 --node 255 ff00          # broadcast
     fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo
+    fap exec scan --port /dev/ttyUSB0 --first 1 --last 32
 """
 from __future__ import annotations
 
 import argparse
-import signal
-import threading
+from dataclasses import asdict
 
-
-def _int(text: str) -> int:
-    return int(text, 0)
-
-
-def _hex(text: str) -> bytes:
-    try:
-        return bytes.fromhex(text)
-    except ValueError as exc:
-        raise argparse.ArgumentTypeError(f"not hex bytes: {text!r}") from exc
+from ._node import add_payload_options, payloads, repetitions, scan, show, stop_on_sigterm
+from ._options import (
+    BusError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
+    add_repeat_options, emit, hexbytes, integer, rs485_from_args,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("exec", help="exec async protocol: encode/decode, master polls, a slave")
-    cmds = p.add_subparsers(dest="exec_command", metavar="ACTION", required=True)
+    p = add_command(sub, "exec", help="exec async protocol: master, slave, scan, encode/decode",
+                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102")
+    cmds = add_actions(p, "exec_command")
 
-    e = cmds.add_parser("encode", help="print the frame for node, seq and data")
-    e.add_argument("--node", type=_int, required=True)
-    e.add_argument("--seq", type=_int, default=0)
-    e.add_argument("data", type=_hex, nargs="?", default=b"", help="payload, hex")
+    e = add_command(cmds, "encode", help="print the frame for node, seq and data",
+                    example="fap exec encode --node 5 --seq 1 414243")
+    e.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast")
+    e.add_argument("--seq", type=integer, default=0, help="sequence number 0..255")
+    e.add_argument("data", type=hexbytes, nargs="?", default=b"",
+                   help="payload, hex (default: empty)")
+    add_output_options(e)
     e.set_defaults(func=run_encode)
 
-    d = cmds.add_parser("decode", help="decode frames from hex bytes")
-    d.add_argument("data", type=_hex, help="received bytes, hex")
+    d = add_command(cmds, "decode", help="decode frames from hex bytes (exit 1 if any is bad "
+                    "or the input ends inside a frame)",
+                    example="fap exec decode 100205014142431003b9ec")
+    d.add_argument("data", type=hexbytes, help="received bytes, hex")
+    add_output_options(d)
     d.set_defaults(func=run_decode)
 
     def line(q: argparse.ArgumentParser) -> None:
-        q.add_argument("--port", required=True, help="serial device path")
-        q.add_argument("--baud", type=int, default=115200)
-        q.add_argument("--rs485-mode", choices=["auto", "kernel", "soft_rts", "none"],
-                       default="auto")
+        add_port_options(q)
         q.add_argument("--echo-suppression", action="store_true",
-                       help="read back and drop our own bytes (2-wire adapters)")
+                       help="read back and drop our own bytes (2-wire adapters that hear themselves)")
+        add_output_options(q)
 
-    m = cmds.add_parser("poll", help="poll a node and print its replies")
+    m = add_command(cmds, "master", aliases=["poll"],
+                    help="send requests to a node and print its replies",
+                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
+                    "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
     line(m)
-    m.add_argument("--node", type=_int, required=True, help="1..254")
-    m.add_argument("--timeout", type=float, default=0.1, help="per attempt, seconds")
-    m.add_argument("--retries", type=int, default=3)
-    m.add_argument("--count", type=int, default=1)
-    m.add_argument("data", type=_hex, nargs="?", default=b"", help="payload, hex")
-    m.set_defaults(func=run_poll)
+    add_link_options(m, timeout_default=0.1, retries_default=3)
+    m.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast (no reply)")
+    add_repeat_options(m)
+    add_payload_options(m, what="request")
+    m.set_defaults(func=run_master)
 
-    b = cmds.add_parser("broadcast", help="send to every slave (node 255)")
+    b = add_command(cmds, "broadcast", help="send to every slave (node 255), no reply",
+                    example="fap exec broadcast --port /dev/ttyUSB0 ff00")
     line(b)
-    b.add_argument("data", type=_hex, nargs="?", default=b"", help="payload, hex")
+    add_payload_options(b)
     b.set_defaults(func=run_broadcast)
 
-    s = cmds.add_parser("slave", help="answer as a node until interrupted")
+    s = add_command(cmds, "slave", help="answer as a node until interrupted",
+                    example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
     line(s)
-    s.add_argument("--node", type=_int, required=True, help="1..254")
+    s.add_argument("--node", type=integer, required=True, help="1..254")
     s.add_argument("--reply", default="echo",
-                   help="'echo' (default), 'none' or a fixed reply in hex")
-    s.add_argument("--turnaround-us", type=int, default=0,
+                   help="'echo', 'none' or a fixed reply in hex")
+    s.add_argument("--turnaround-us", type=integer, default=0,
                    help="quiet time before each reply, microseconds")
-    s.add_argument("--max-requests", type=int, default=0, help="stop after N (0 = never)")
+    s.add_argument("--max-requests", type=integer, default=0, help="stop after N (0 = never)")
     s.set_defaults(func=run_slave)
+
+    c = add_command(cmds, "scan", help="find the nodes that answer (progress bar on a terminal)",
+                    example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
+    line(c)
+    add_link_options(c, timeout_default=0.05, retries_default=0)
+    c.add_argument("--first", type=integer, default=1, help="first node to try")
+    c.add_argument("--last", type=integer, default=254, help="last node to try")
+    c.add_argument("--probe", metavar="HEX", type=hexbytes, default=b"",
+                   help="request payload sent to each node, hex (default: empty)")
+    c.set_defaults(func=run_scan)
 
 
 def _rs485(args: argparse.Namespace, turnaround_us: int = 0):
-    from fap_py.execasync import RS485, RS485Mode
-
-    return RS485(mode=RS485Mode[args.rs485_mode.upper()],
-                 echo_suppression=bool(args.echo_suppression), turnaround_us=turnaround_us)
+    return rs485_from_args(args, echo_suppression=bool(args.echo_suppression),
+                           turnaround_us=turnaround_us)
 
 
 def run_encode(args: argparse.Namespace) -> int:
     from fap_py.execasync import encode
 
-    print(encode(args.node, args.data, args.seq).hex())
+    frame = encode(args.node, args.data, args.seq)
+    emit(args, {"frame": frame, "node": args.node, "seq": args.seq, "data": args.data}, frame.hex())
     return 0
 
 
 def run_decode(args: argparse.Namespace) -> int:
-    from fap_py.execasync import Decoder
+    from fap_py.execasync import Decoder, MAX_FRAME
 
-    frames = Decoder().feed(args.data)
+    dec = Decoder()
+    frames = dec.feed(args.data)
     for f in frames:
-        print(f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
-    return 0 if frames and all(f.ok for f in frames) else 1
+        emit(args, {"node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
+             f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
+    # what the decoder still holds after the last complete frame: a truncated frame
+    tail = _unfinished(args.data, frames)
+    if tail:
+        emit(args, {"status": "truncated", "bytes": tail},
+             f"truncated frame: {len(tail)} bytes after the last complete frame "
+             f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
+    if not frames and not tail:
+        emit(args, {"status": "no_frame", "bytes": args.data},
+             f"no exec async frame in {len(args.data)} bytes")
+    return 0 if frames and not tail and all(f.ok for f in frames) else 1
 
 
-def run_poll(args: argparse.Namespace) -> int:
-    from fap_py.execasync import ExecAsyncError, Master
+def _unfinished(data: bytes, frames: list) -> bytes:
+    """Bytes after the last frame the decoder completed that start a frame
+    (DLE STX ...): they were cut off."""
+    from fap_py.execasync import Decoder, encode
 
+    # The decoder reports only complete frames; find where the last one ended
+    # by re-feeding prefixes (inputs are command-line sized).
+    if not data:
+        return b""
+    end = 0
+    if frames:
+        dec = Decoder()
+        seen = 0
+        for i in range(len(data)):
+            seen += len(dec.feed(data[i:i + 1]))
+            if seen == len(frames):
+                end = i + 1
+                break
+    rest = data[end:]
+    start_marker = encode(1)[:2]    # DLE STX: what every frame starts with
+    k = rest.find(start_marker)
+    return rest[k:] if k >= 0 else b""
+
+
+def run_master(args: argparse.Namespace) -> int:
+    from fap_py.execasync import BROADCAST, ExecAsyncError, Master
+
+    data = payloads(args) or [b""]
     failed = 0
     with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
                 rs485=_rs485(args)) as master:
-        for _ in range(args.count):
-            seq = master.next_seq(args.node)
-            try:
-                reply = master.transact(args.node, args.data)
-                print(f"node {args.node} seq {seq}: {reply.hex()}")
-            except ExecAsyncError as exc:
-                failed += 1
-                print(f"node {args.node} seq {seq}: {exc}")
+        for _ in repetitions(args):
+            for req in data:
+                if args.node == BROADCAST:
+                    master.broadcast(req)
+                    emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+                    continue
+                seq = master.next_seq(args.node)
+                try:
+                    reply = master.transact(args.node, req)
+                    emit(args, {"event": "reply", "node": args.node, "seq": seq, "data": reply},
+                         f"node {args.node} seq {seq}: {show(reply)}")
+                except ExecAsyncError as exc:
+                    failed += 1
+                    emit(args, {"event": "error", "node": args.node, "seq": seq,
+                                "error": str(exc)}, f"node {args.node} seq {seq}: {exc}")
         st = master.stats
-        print(f"{st.transactions} transactions, {st.retries} retries, {st.failures} failed, "
-              f"{st.corrupt} corrupt frames")
-    return 1 if failed else 0
+        emit(args, {"event": "stats", **asdict(st)},
+             f"{st.transactions} transactions, {st.retries} retries, {st.failures} failed, "
+             f"{st.corrupt} corrupt frames")
+    if failed:
+        raise BusError(f"{failed} of the requests to node {args.node} failed")
+    return 0
 
 
 def run_broadcast(args: argparse.Namespace) -> int:
     from fap_py.execasync import Master
 
     with Master(args.port, args.baud, rs485=_rs485(args)) as master:
-        master.broadcast(args.data)
+        for req in payloads(args) or [b""]:
+            master.broadcast(req)
+            emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
     return 0
 
 
@@ -126,27 +187,54 @@ def run_slave(args: argparse.Namespace) -> int:
     from fap_py.errors import ClosedError
     from fap_py.execasync import Request, Slave
 
-    fixed = None if args.reply in ("echo", "none") else _hex(args.reply)
+    fixed = None if args.reply in ("echo", "none") else hexbytes(args.reply)
 
     def handler(req: Request):
         kind = "broadcast" if req.broadcast else f"seq {req.seq}"
-        print(f"{kind}: {req.data.hex()}", flush=True)
+        emit(args, {"event": "request", "node": args.node, "seq": req.seq,
+                    "broadcast": req.broadcast, "data": req.data}, f"{kind}: {req.data.hex()}")
         if args.reply == "none":
             return None
         return req.data if fixed is None else fixed
 
     with Slave(args.port, args.baud, node=args.node, handler=handler,
-               rs485=_rs485(args, args.turnaround_us)) as slave:
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, lambda *_: slave.stop())
+               rs485=_rs485(args, args.turnaround_us)) as slave, stop_on_sigterm() as done:
+        emit(args, {"event": "ready", "node": args.node, "port": args.port, "baud": args.baud},
+             f"ready: exec async slave node {args.node} on {args.port} at {args.baud} baud "
+             f"(reply: {args.reply})")
         served = 0
         try:
-            while not args.max_requests or served < args.max_requests:
-                # slices: Python runs signal handlers (Ctrl-C) between them
+            while not done.is_set() and (not args.max_requests or served < args.max_requests):
+                # slices: Python runs signal handlers between them
                 served += slave.serve(0.2) != 0
-        except (ClosedError, KeyboardInterrupt):
+        except ClosedError:
             pass
         st = slave.stats
-        print(f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
-              f"corrupt {st.corrupt}, ignored {st.ignored}")
+        emit(args, {"event": "stats", **asdict(st)},
+             f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
+             f"corrupt {st.corrupt}, ignored {st.ignored}")
     return 0
+
+
+def run_scan(args: argparse.Namespace) -> int:
+    from fap_py.execasync import ExecAsyncError, Master
+
+    if not 1 <= args.first <= args.last <= 254:
+        from ._options import UsageError
+        raise UsageError(f"need 1 <= --first <= --last <= 254, not {args.first}..{args.last}")
+    with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
+                rs485=_rs485(args)) as master:
+        def probe(node: int):
+            try:
+                return master.transact(node, args.probe)
+            except ExecAsyncError:
+                return None
+
+        found = scan(list(range(args.first, args.last + 1)), probe, label="exec node",
+                     progress=not args.json,
+                     found=lambda n, r: emit(args, {"event": "found", "node": n, "reply": r},
+                                             f"node {n} answers: {show(r)}"))
+    emit(args, {"event": "summary", "found": found, "tried": args.last - args.first + 1},
+         f"{len(found)} of {args.last - args.first + 1} nodes answered"
+         + (f": {', '.join(map(str, found))}" if found else ""))
+    return 0 if found else 1

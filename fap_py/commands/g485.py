@@ -1,85 +1,100 @@
-"""``fap g485``: run simulated G485 devices on a port, or talk to devices as the master.
+"""``fap g485``: Gicren G485 devices: simulate them, talk to them as the master, scan.
 
     fap g485 sim --port /dev/pts/3 --address 1 --address 2 --eeprom-dir /tmp/g485
-    fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --count 7
+    fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7
     fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10
     fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom
     fap g485 error-word --port /dev/ttyUSB0 --address 1
-    fap g485 handshake --port /dev/ttyUSB0 --address 1
-    fap g485 scan --port /dev/ttyUSB0 --rs485 soft
+    fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0 --interval 1
+    fap g485 scan --port /dev/ttyUSB0
+
 """
 from __future__ import annotations
 
 import argparse
 import os
-import signal
-import threading
+import time
+from typing import Any
 
-
-def _int(text: str) -> int:
-    return int(text, 0)
+from ._node import repetitions, scan, stop_on_sigterm
+from ._options import (
+    UsageError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
+    add_repeat_options, emit, integer, rs485_from_args,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("g485", help="Gicren G485: device simulator and master transactions")
-    cmds = p.add_subparsers(dest="g485_command", metavar="ACTION", required=True)
+    p = add_command(sub, "g485", help="Gicren G485: device simulator, master transactions, scan",
+                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+    cmds = add_actions(p, "g485_command")
 
-    def common(q: argparse.ArgumentParser, master: bool = True) -> None:
-        q.add_argument("--port", required=True, help="device path or pyserial URL")
-        q.add_argument("--baud", type=int, default=115200)
-        q.add_argument("--rs485", choices=["auto", "kernel", "soft", "none"], default="auto",
-                       help="direction control of a device path (default: %(default)s)")
-        q.add_argument("--rts-before", type=float, default=0.0, metavar="MS", help="RTS lead, ms")
-        q.add_argument("--rts-after", type=float, default=0.0, metavar="MS", help="RTS tail, ms")
-        q.add_argument("--rts-polarity", choices=["high", "low"], default="high")
-        if master:
-            q.add_argument("--address", type=_int, required=True, help="device ID 1..126 (0 = broadcast)")
-            q.add_argument("--timeout", type=float, default=0.1, help="reply timeout, seconds")
-            q.add_argument("--retries", type=int, default=2)
-            q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake")
+    def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True) -> None:
+        add_port_options(q)
+        add_link_options(q, timeout_default=0.1, retries_default=2)
+        add_output_options(q)
+        if address:
+            q.add_argument("--address", type=integer, required=True,
+                           help="device ID 1..126 (0 = broadcast)")
+        q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake",
+                       help="how a write or set is confirmed")
+        if repeat:
+            add_repeat_options(q)
 
-    s = cmds.add_parser("sim", help="simulate devices on a port until interrupted")
-    common(s, master=False)
-    s.add_argument("--address", type=_int, action="append", required=True,
+    s = add_command(cmds, "sim", help="simulate devices on a port until interrupted",
+                    example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
+    add_port_options(s)
+    add_output_options(s)
+    s.add_argument("--address", type=integer, action="append", required=True,
                    help="a device ID to simulate (repeat for several devices)")
     s.add_argument("--eeprom-dir", help="keep each device's EEPROM in DIR/g485-<ID>.json")
     s.add_argument("--wake-up-loss", action="store_true",
                    help="lose the first burst after power-on/reset (baud detection)")
-    s.add_argument("--seed", type=int, default=0, help="seed of bulk-mode discards")
+    s.add_argument("--seed", type=integer, default=0, help="seed of bulk-mode discards")
     s.set_defaults(func=run_sim)
 
-    c = cmds.add_parser("scan", help="list the IDs that answer (each confirmed by reading its ID register)")
-    common(c, master=False)
-    c.add_argument("--timeout", type=float, default=0.02, help="reply timeout per ID, seconds")
-    c.add_argument("--retries", type=int, default=0)
-    c.add_argument("--first", type=_int, default=1)
-    c.add_argument("--last", type=_int, default=126)
-    c.set_defaults(func=run_scan)
-
-    r = cmds.add_parser("read", help="read registers")
-    common(r)
-    r.add_argument("--register", type=_int, required=True)
-    r.add_argument("--count", type=_int, default=1)
+    r = add_command(cmds, "read", help="read registers",
+                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+    master(r)
+    r.add_argument("--register", type=integer, required=True, help="first register")
+    r.add_argument("--registers", type=integer, default=1, help="how many registers")
     r.set_defaults(func=run_read)
 
-    w = cmds.add_parser("write", help="write registers")
-    common(w)
-    w.add_argument("--register", type=_int, required=True)
-    w.add_argument("values", type=_int, nargs="+")
+    w = add_command(cmds, "write", help="write registers",
+                    example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
+    master(w, repeat=False)
+    w.add_argument("--register", type=integer, required=True, help="first register")
+    w.add_argument("values", type=integer, nargs="+", help="register values 0..255")
     w.set_defaults(func=run_write)
 
-    t = cmds.add_parser("set", help="send a Set command (factory_reset, save_eeprom, reset, ...)")
-    common(t)
+    t = add_command(cmds, "set", help="send a Set command (factory_reset, save_eeprom, reset, ...)",
+                    example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
+    master(t, repeat=False)
     t.add_argument("command", help="SetCommand name or value")
     t.set_defaults(func=run_set)
 
-    e = cmds.add_parser("error-word", help="read the error word")
-    common(e)
+    e = add_command(cmds, "error-word", help="read the error word",
+                    example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
+    master(e)
     e.set_defaults(func=run_error_word)
 
-    h = cmds.add_parser("handshake", help="read the device's check byte")
-    common(h)
+    h = add_command(cmds, "handshake", help="read the device's check byte",
+                    example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
+    master(h)
     h.set_defaults(func=run_handshake)
+
+    c = add_command(cmds, "scan", help="find the devices that answer a handshake "
+                    "(progress bar on a terminal, devices printed as they answer)",
+                    example="fap g485 scan --port /dev/ttyUSB0 --first 1 --last 126")
+    master(c, repeat=False, address=False)
+    c.set_defaults(timeout=0.05, retries=0)
+    c.add_argument("--first", type=integer, default=1, help="first ID to try")
+    c.add_argument("--last", type=integer, default=126, help="last ID to try")
+    c.set_defaults(func=run_scan)
+
+
+def _rs485(args: argparse.Namespace) -> Any:
+    """Line options for a device path; None for a pyserial URL (it has its own)."""
+    return None if "://" in args.port else rs485_from_args(args)
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -92,55 +107,44 @@ def run_sim(args: argparse.Namespace) -> int:
             os.makedirs(args.eeprom_dir, exist_ok=True)
         devices.append(SimDevice(address, eeprom_path=path, wake_up_loss=args.wake_up_loss,
                                  seed=args.seed + address))
-    done = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: done.set())
-    with Simulator(args.port, devices, baudrate=args.baud, rs485=_rs485(args)) as sim:
-        print(f"simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}", flush=True)
-        while not done.wait(0.5):
+    t0 = time.monotonic()
+    with stop_on_sigterm() as done, Simulator(args.port, devices, baudrate=args.baud,
+                                                  rs485=_rs485(args)) as sim:
+        emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
+             f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
+        while not done.wait(0.2):
             if sim.error is not None:
                 raise sim.error
+        replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
+    emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
+                "packets": events, "replies": replies, "reopened": reopened},
+         f"summary: {events} packets handled, {replies} replies sent, port reopened "
+         f"{reopened} times, {time.monotonic() - t0:.1f} s")
     return 0
 
 
-def _rs485(args: argparse.Namespace):
-    """Line options for a device path (None for a pyserial URL: it has its own)."""
-    from fap_py.fap import RS485, RS485Mode
-
-    if "://" in args.port:
-        return None
-    mode = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL, "soft": RS485Mode.SOFT_RTS,
-            "none": RS485Mode.NONE}[args.rs485]
-    return RS485(mode=mode, rts_active_high=args.rts_polarity == "high",
-                 delay_before_send_us=round(args.rts_before * 1000), delay_after_send_us=round(args.rts_after * 1000))
-
-
-def _master(args: argparse.Namespace, **kwargs: object):
+def _master(args: argparse.Namespace):
     from fap_py.g485 import G485Master
 
-    kwargs.setdefault("check", getattr(args, "check", "handshake"))
-    return G485Master(args.port, args.baud, timeout=args.timeout, retries=args.retries, rs485=_rs485(args),
-                      **kwargs)
-
-
-def run_scan(args: argparse.Namespace) -> int:
-    with _master(args) as m:
-        found = m.scan(range(args.first, args.last + 1))
-    print(" ".join(map(str, found)) if found else "no device answered")
-    return 0 if found else 1
+    return G485Master(args.port, args.baud, timeout=args.timeout or 0.001, retries=args.retries,
+                      check=args.check, rs485=_rs485(args))
 
 
 def run_read(args: argparse.Namespace) -> int:
     with _master(args) as m:
-        data = m.read(args.address, args.register, args.count)
-    for i, value in enumerate(data):
-        print(f"register {args.register + i}: {value} (0x{value:02x})")
+        for _ in repetitions(args):
+            data = m.read(args.address, args.register, args.registers)
+            emit(args, {"address": args.address, "register": args.register, "values": list(data)},
+                 "\n".join(f"register {args.register + i}: {v} (0x{v:02x})"
+                           for i, v in enumerate(data)))
     return 0
 
 
 def run_write(args: argparse.Namespace) -> int:
     with _master(args) as m:
         m.write(args.address, args.register, args.values)
+    emit(args, {"address": args.address, "register": args.register, "written": args.values},
+         f"wrote {len(args.values)} registers from {args.register}")
     return 0
 
 
@@ -152,6 +156,7 @@ def run_set(args: argparse.Namespace) -> int:
         pass
     with _master(args) as m:
         m.set(args.address, command)  # type: ignore[arg-type]
+    emit(args, {"address": args.address, "set": args.command}, f"set {args.command}: done")
     return 0
 
 
@@ -159,12 +164,42 @@ def run_error_word(args: argparse.Namespace) -> int:
     from fap_py.g485 import describe_error_word
 
     with _master(args) as m:
-        word = m.error_word(args.address)
-    print(f"0x{word:04x} ({describe_error_word(word)})")
+        for _ in repetitions(args):
+            word = m.error_word(args.address)
+            emit(args, {"address": args.address, "error_word": word,
+                        "text": describe_error_word(word)},
+                 f"0x{word:04x} ({describe_error_word(word)})")
     return 0
 
 
 def run_handshake(args: argparse.Namespace) -> int:
     with _master(args) as m:
-        print(f"0x{m.handshake(args.address):02x}")
+        for _ in repetitions(args):
+            check = m.handshake(args.address)
+            emit(args, {"address": args.address, "check": check}, f"0x{check:02x}")
     return 0
+
+
+def run_scan(args: argparse.Namespace) -> int:
+    from fap_py.g485 import G485Error
+
+    if not 1 <= args.first <= args.last <= 126:
+        raise UsageError(f"need 1 <= --first <= --last <= 126, not {args.first}..{args.last}")
+    with _master(args) as m:
+        def probe(address: int):
+            # G485 replies carry no address: a late reply could be credited to
+            # the next ID. master.scan discards stale input and confirms a hit
+            # by reading register 7 (the ID) back.
+            try:
+                return address if m.scan([address]) else None
+            except G485Error:
+                return None
+
+        found = scan(list(range(args.first, args.last + 1)), probe, label="G485 ID",
+                     progress=not args.json,
+                     found=lambda a, _: emit(args, {"event": "found", "address": a},
+                                             f"device {a} answers (ID register confirms)"))
+    tried = args.last - args.first + 1
+    emit(args, {"event": "summary", "found": found, "tried": tried},
+         f"{len(found)} of {tried} IDs answered" + (f": {', '.join(map(str, found))}" if found else ""))
+    return 0 if found else 1

@@ -3,14 +3,19 @@ from __future__ import annotations
 
 import argparse
 
+from ._options import add_command, add_output_options, emit
+
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("version", help="print the fap_py and libfap versions")
+    p = add_command(sub, "version", help="print the fap_py and libfap versions",
+                    example="fap version --json")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     import fap_py
 
-    print(f"fap_py {fap_py.__version__}, libfap core {fap_py.native_version()}")
+    emit(args, {"fap_py": fap_py.__version__, "libfap": fap_py.native_version()},
+         f"fap_py {fap_py.__version__}, libfap core {fap_py.native_version()}")
     return 0

@@ -23,18 +23,18 @@ def test_poll_a_slave(capsys: pytest.CaptureFixture) -> None:
     with VirtualBus(ports=2) as bus, \
             Slave(bus.paths[1], node=7, handler=lambda r: r.data[::-1],
                   rs485=RS485(mode=RS485Mode.NONE)).start():
-        rc = main(["exec", "poll", "--port", bus.paths[0], "--rs485-mode", "none",
-                   "--node", "7", "--count", "2", "0102"])
+        rc = main(["exec", "poll", "--port", bus.paths[0], "--rs485", "none",
+                   "--node", "7", "--count", "2", "--interval", "0", "0102"])
     out = capsys.readouterr().out
     assert rc == 0
-    assert "node 7 seq 0: 0201" in out and "node 7 seq 1: 0201" in out
+    assert "node 7 seq 0: 02 01" in out and "node 7 seq 1: 02 01" in out
 
 
 def test_slave_command_answers(capsys: pytest.CaptureFixture) -> None:
     with VirtualBus(ports=2) as bus:
         result = []
         t = threading.Thread(target=lambda: result.append(main(
-            ["exec", "slave", "--port", bus.paths[1], "--rs485-mode", "none", "--node", "3",
+            ["exec", "slave", "--port", bus.paths[1], "--rs485", "none", "--node", "3",
              "--reply", "c0ffee", "--max-requests", "1"])))
         t.start()
         # the slave may open its port after our first attempt: short attempts, many

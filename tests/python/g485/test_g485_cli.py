@@ -40,17 +40,17 @@ def sim_process(vbus, tmp_path):
 def test_cli_transactions_against_simulator_process(sim_process, fap):
     port, eeprom_dir = sim_process
     base = ["--port", port, "--timeout", "0.2"]
-    r = fap("read", *base, "--address", "4", "--register", "1", "--count", "7")
+    r = fap("read", *base, "--address", "4", "--register", "1", "--registers", "7")
     assert r.returncode == 0, r.stderr
     assert "register 7: 4 (0x04)" in r.stdout
     assert fap("write", *base, "--address", "4", "--register", "8", "0x32", "7").returncode == 0
-    assert "register 9: 7" in fap("read", *base, "--address", "4", "--register", "8", "--count", "2").stdout
+    assert "register 9: 7" in fap("read", *base, "--address", "4", "--register", "8", "--registers", "2").stdout
     assert fap("set", *base, "--address", "4", "save_eeprom").returncode == 0
     assert (eeprom_dir / "g485-4.json").exists()
     assert fap("error-word", *base, "--address", "1").stdout.startswith("0x0000")
     assert fap("handshake", *base, "--address", "1").stdout.startswith("0x")
     r = fap("read", *base, "--address", "0", "--register", "1")
-    assert r.returncode == 1 and "cannot be broadcast" in r.stderr
+    assert r.returncode == 2 and "cannot be broadcast" in r.stderr   # usage error
     r = fap("read", *base, "--address", "9", "--register", "1", "--retries", "0")
     assert r.returncode == 1 and "no reply" in r.stderr
 

@@ -80,7 +80,7 @@ def test_fap_bus_runs_until_sigint(tmp_path: Path) -> None:
 def test_fap_bus_sigterm_and_bad_arguments(tmp_path: Path) -> None:
     bad = subprocess.run([sys.executable, "-m", "fap_py", "bus", "--ports", "1"],
                          capture_output=True, text=True, timeout=30, cwd=tmp_path)
-    assert bad.returncode == 1
+    assert bad.returncode == 2   # usage error (docs/cli.md)
     assert "fap: error" in bad.stderr and "ports" in bad.stderr
     proc, lines = _start(["--ports", "2", "--ber", "0.5", "--drop-rate", "0.1"], tmp_path)
     try:

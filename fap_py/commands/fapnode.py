@@ -1,0 +1,150 @@
+"""``fap fap master|slave``: a FAP node (libfap's C engine) on a port.
+
+Sends each payload (arguments or stdin lines) to ``--to``, then prints the
+messages that arrive during ``--interval``; ``--count`` repeats (0 = until
+Ctrl-C). The master also prints slave events (active/inactive).
+
+    fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f
+    fap fap slave --port /dev/ttyUSB1 --id 3 --count 0
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any, List
+
+from ._node import add_payload_options, payloads, show, stop_on_sigterm
+from ._options import (
+    BusError, UsageError, add_actions, add_command, add_output_options, add_port_options,
+    add_repeat_options, emit, integer, rs485_from_args, seconds,
+)
+
+
+def _ids(text: str) -> List[int]:
+    try:
+        ids = [int(x, 0) for x in text.replace(",", " ").split()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a list of IDs: {text!r}") from None
+    if not ids or any(not 1 <= i <= 31 for i in ids):
+        raise argparse.ArgumentTypeError(f"slave IDs are 1..31: {text!r}")
+    return ids
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = add_command(sub, "fap", help="FAP (libfap) master or slave on a port",
+                    example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f")
+    cmds = add_actions(p, "fap_command")
+
+    def common(q: argparse.ArgumentParser) -> None:
+        add_port_options(q)
+        add_output_options(q)
+        add_repeat_options(q)
+        q.add_argument("--wait", metavar="S", type=seconds, default=5.0,
+                       help="longest wait for the bus to come up (master: a listed slave "
+                       "active; slave: polled by the master) before sending")
+        add_payload_options(q)
+
+    m = add_command(cmds, "master", help="run the master (ID 0): poll slaves, send, print what arrives",
+                    example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f\n"
+                    "fap fap master --port /dev/ttyUSB0 --slaves 3 --count 0 --json   # listen")
+    common(m)
+    m.add_argument("--slaves", type=_ids, required=True, metavar="IDS",
+                   help="slave IDs to poll, e.g. 3,7,12")
+    m.add_argument("--to", type=integer, help="destination slave of DATA (default: the first of --slaves)")
+    m.add_argument("--id-cycle", metavar="S", type=seconds, default=1.0,
+                   help="seconds between ID cycles while a slave is inactive (vendor: 15)")
+    m.set_defaults(func=run_master)
+
+    s = add_command(cmds, "slave", help="run a slave: send when polled, print what arrives",
+                    example="fap fap slave --port /dev/ttyUSB1 --id 3 --count 0\n"
+                    "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text -")
+    common(s)
+    s.add_argument("--id", type=integer, required=True, help="this slave's ID, 1..31")
+    s.add_argument("--to", type=integer, default=0, help="destination of DATA (0 = master)")
+    s.set_defaults(func=run_slave)
+
+
+def _print_message(args: argparse.Namespace, msg: Any) -> None:
+    src = "master" if msg.source == 0 else f"slave {msg.source}"
+    emit(args, {"event": "rx", "from": msg.source, "data": msg.data},
+         f"<- {src}: {show(msg.data)}")
+
+
+def _print_events(args: argparse.Namespace, node: Any) -> None:
+    for ev in node.events():
+        emit(args, {"event": ev.kind.name.lower(), "slave": ev.id},
+             f"event: slave {ev.id} {ev.kind.name.lower().replace('slave_', '')}")
+
+
+def _loop(args: argparse.Namespace, node: Any, to: int, data: List[bytes], is_master: bool) -> None:
+    """Send, then collect for --interval; --count times (0 = until a signal)."""
+    from fap_py.errors import FapTimeoutError
+
+    with stop_on_sigterm() as done:
+        i = 0
+        while not done.is_set() and (args.count == 0 or i < args.count):
+            for d in data:
+                node.send(d, to, timeout=args.wait)
+                dst = "master" if to == 0 else f"slave {to}"
+                emit(args, {"event": "tx", "to": to, "data": d}, f"-> {dst}: {show(d)}")
+            end = time.monotonic() + args.interval
+            while not done.is_set():
+                left = end - time.monotonic()
+                if left <= 0:
+                    break
+                try:
+                    _print_message(args, node.recv(timeout=min(left, 0.2)))
+                except FapTimeoutError:
+                    pass
+                if is_master:
+                    _print_events(args, node)
+            i += 1
+        if data and not done.is_set():
+            try:
+                node.flush(timeout=args.wait)
+            except FapTimeoutError:
+                left = node.tx_pending
+                emit(args, {"event": "unsent", "frames": left},
+                     f"{left} messages still queued (not polled within {args.wait} s)")
+        st = node.stats()
+        emit(args, {"event": "stats", **st.as_dict()},
+             f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
+             f"CRC errors {st.crc_errors}")
+
+
+def run_master(args: argparse.Namespace) -> int:
+    from fap_py import Master
+    from fap_py.errors import FapTimeoutError
+
+    to = args.to if args.to is not None else args.slaves[0]
+    if to not in args.slaves:
+        raise UsageError(f"--to {to} is not one of --slaves {args.slaves}")
+    data = payloads(args)
+    with Master(args.port, args.baud, slaves=args.slaves, id_cycle=args.id_cycle,
+                id_answer_timeout=min(1.0, args.id_cycle), rs485=rs485_from_args(args)) as master:
+        emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "slaves": args.slaves,
+                    "rs485": master.rs485_mode},
+             f"ready: FAP master on {args.port} at {args.baud} baud, slaves "
+             f"{', '.join(map(str, args.slaves))} (RS-485 {master.rs485_mode.name})")
+        if data:
+            try:
+                master.wait_active([to], timeout=args.wait)
+            except FapTimeoutError:
+                raise BusError(f"slave {to} did not answer the ID query within {args.wait} s") \
+                    from None
+        _print_events(args, master)
+        _loop(args, master, to, data, True)
+    return 0
+
+
+def run_slave(args: argparse.Namespace) -> int:
+    from fap_py import Slave
+
+    data = payloads(args)
+    with Slave(args.port, args.baud, id=args.id, rs485=rs485_from_args(args)) as slave:
+        emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "id": args.id,
+                    "rs485": slave.rs485_mode},
+             f"ready: FAP slave {args.id} on {args.port} at {args.baud} baud "
+             f"(RS-485 {slave.rs485_mode.name})")
+        _loop(args, slave, args.to, data, False)
+    return 0

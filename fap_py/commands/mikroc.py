@@ -1,0 +1,111 @@
+"""``fap mikroc master|slave``: mikroC RS-485 (3-byte messages) on a port.
+
+    fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 --interval 0.5
+    fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo
+"""
+from __future__ import annotations
+
+import argparse
+from dataclasses import asdict
+
+from ._node import add_payload_options, payloads, repetitions, show, stop_on_sigterm
+from ._options import (
+    BusError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
+    add_repeat_options, emit, hexbytes, integer, rs485_from_args,
+)
+
+BAUD_DEFAULT = 19200   # the mikroC library's usual rate
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = add_command(sub, "mikroc", help="mikroC RS-485: master requests, a slave that answers",
+                    example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203")
+    cmds = add_actions(p, "mikroc_command")
+
+    m = add_command(cmds, "master", help="send 0..3 bytes to a slave and print its reply",
+                    example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
+                    "--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address 50 01   "
+                    "# broadcast, no reply")
+    add_port_options(m, baud_default=BAUD_DEFAULT)
+    add_link_options(m, timeout_default=0.2, retries_default=0)
+    add_output_options(m)
+    m.add_argument("--address", type=integer, required=True, help="slave address (50 = broadcast)")
+    add_repeat_options(m)
+    add_payload_options(m, what="message (0..3 bytes)")
+    m.set_defaults(func=run_master)
+
+    s = add_command(cmds, "slave", help="answer as a slave until interrupted",
+                    example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
+    add_port_options(s, baud_default=BAUD_DEFAULT)
+    add_output_options(s)
+    s.add_argument("--address", type=integer, required=True, help="this slave's address")
+    s.add_argument("--reply", default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
+    s.add_argument("--max-requests", type=integer, default=0, help="stop after N (0 = never)")
+    s.set_defaults(func=run_slave)
+
+
+def run_master(args: argparse.Namespace) -> int:
+    from fap_py.errors import FapTimeoutError, FrameError
+    from fap_py.mikroc import BROADCAST, Master
+
+    data = payloads(args) or [b""]
+    failed = 0
+    with Master(args.port, args.baud, rs485=rs485_from_args(args)) as master:
+        for _ in repetitions(args):
+            for req in data:
+                if args.address == BROADCAST:
+                    master.send(args.address, req)
+                    emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+                    continue
+                for attempt in range(args.retries + 1):
+                    try:
+                        reply = master.request(args.address, req, timeout=args.timeout)
+                    except (FapTimeoutError, FrameError) as exc:
+                        if attempt < args.retries:
+                            continue
+                        failed += 1
+                        emit(args, {"event": "error", "address": args.address, "error": str(exc)},
+                             f"slave {args.address}: {exc}")
+                    else:
+                        emit(args, {"event": "reply", "address": reply.address, "data": reply.data},
+                             f"slave {reply.address}: {show(reply.data)}")
+                    break
+        st = master.stats
+        emit(args, {"event": "stats", **asdict(st)},
+             f"{st.frames} frames, {st.errors} errors, {st.damaged} damaged, {st.ignored} ignored")
+    if failed:
+        raise BusError(f"{failed} requests to slave {args.address} got no valid reply")
+    return 0
+
+
+def run_slave(args: argparse.Namespace) -> int:
+    from fap_py.errors import ClosedError, FapTimeoutError, FrameError
+    from fap_py.mikroc import BROADCAST, Slave
+
+    fixed = None if args.reply in ("echo", "none") else hexbytes(args.reply)
+    with Slave(args.port, args.baud, args.address, rs485=rs485_from_args(args)) as slave, \
+            stop_on_sigterm() as done:
+        emit(args, {"event": "ready", "address": args.address, "port": args.port,
+                    "baud": args.baud},
+             f"ready: mikroC slave {args.address} on {args.port} at {args.baud} baud "
+             f"(reply: {args.reply})")
+        served = 0
+        while not done.is_set() and (not args.max_requests or served < args.max_requests):
+            try:
+                msg = slave.receive(timeout=0.2)
+            except FapTimeoutError:
+                continue
+            except FrameError as exc:
+                emit(args, {"event": "bad_frame", "error": str(exc)}, f"bad frame: {exc}")
+                continue
+            except ClosedError:
+                break
+            served += 1
+            emit(args, {"event": "request", "address": msg.address, "data": msg.data},
+                 f"{'broadcast' if msg.address == BROADCAST else 'request'}: {show(msg.data)}")
+            if args.reply != "none" and msg.address != BROADCAST:
+                slave.send(msg.data if fixed is None else fixed)
+        st = slave.stats
+        emit(args, {"event": "stats", **asdict(st)},
+             f"{st.frames} frames, {st.errors} errors, {st.damaged} damaged, {st.ignored} ignored")
+    return 0

@@ -1,0 +1,95 @@
+"""``fap ports``: the machine's serial ports and whether each does kernel RS-485.
+
+Ports come from pyserial's ``list_ports``; each one is then probed through
+the C port layer (``fap_port_probe``: termios, ``TIOCGRS485`` and the same
+config written back with ``TIOCSRS485``, nothing changed). A driver
+without RS-485 answers ENOTTY ("no"); a plain 16550 reports a config but
+cannot set one ("read-only").
+"""
+from __future__ import annotations
+
+import argparse
+import errno
+import os
+from typing import Any, Dict, List
+
+from ._options import add_command, add_output_options, emit
+
+# linux/serial.h SER_RS485_* bits: the kernel ABI, named for the listing
+_RS485_FLAGS = ((1 << 0, "enabled"), (1 << 1, "rts_on_send"), (1 << 2, "rts_after_send"),
+                (1 << 4, "rx_during_tx"), (1 << 5, "terminate_bus"))
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = add_command(sub, "ports", help="list serial ports, their RS-485 support and configuration",
+                    example="fap ports\nfap ports --all --json\nfap ports --device /dev/pts/3")
+    p.add_argument("--all", action="store_true",
+                   help="also the ports pyserial lists without a known device (ttyS* with no UART)")
+    p.add_argument("--device", metavar="PATH", action="append",
+                   help="probe this path too (e.g. a pty of `fap bus`); repeatable")
+    p.add_argument("--no-probe", action="store_true",
+                   help="do not open the ports (opening a tty raises DTR/RTS)")
+    add_output_options(p)
+    p.set_defaults(func=run)
+
+
+def probe(path: str) -> Dict[str, Any]:
+    """What the C port layer reads from ``path``: baud and RS-485 state."""
+    from .._native import ffi, lib
+
+    baud = ffi.new("unsigned *")
+    flags = ffi.new("uint32_t *")
+    before = ffi.new("uint32_t *")
+    after = ffi.new("uint32_t *")
+    r = lib.fap_port_probe(os.fsencode(path), baud, flags, before, after)
+    info: Dict[str, Any] = {}
+    if r in (0, 1, -errno.ENOTTY):
+        info["baud"] = int(baud[0]) or None
+    if r in (0, 1):
+        names = [n for bit, n in _RS485_FLAGS if flags[0] & bit]
+        info.update(rs485="yes" if r == 0 else "read-only", rs485_enabled=bool(flags[0] & 1),
+                    rs485_flags=names, rts_before_ms=int(before[0]), rts_after_ms=int(after[0]))
+    elif r == -errno.ENOTTY:
+        info["rs485"] = "no"
+    else:
+        info.update(rs485="unknown", error=os.strerror(-r))
+    return info
+
+
+def run(args: argparse.Namespace) -> int:
+    from serial.tools import list_ports
+
+    rows: List[Dict[str, Any]] = []
+    seen = set()
+    for p in sorted(list_ports.comports(include_links=False), key=lambda p: p.device):
+        if not args.all and p.hwid in ("n/a", None) and p.device.startswith("/dev/ttyS"):
+            continue   # legacy 8250 slots without a UART behind them
+        rows.append({"device": p.device, "description": p.description, "hwid": p.hwid})
+        seen.add(p.device)
+    for path in args.device or ():
+        if path not in seen:
+            rows.append({"device": path, "description": "given with --device", "hwid": "n/a"})
+    for row in rows:
+        if not args.no_probe:
+            row.update(probe(row["device"]))
+        emit(args, row, _human(row))
+    if not rows:
+        emit(args, {"event": "none"}, "no serial ports found (try --all, or --device PATH)")
+    return 0
+
+
+def _human(row: Dict[str, Any]) -> str:
+    text = f"{row['device']:<16} {row['description']}"
+    rs = row.get("rs485")
+    if rs in ("yes", "read-only"):
+        state = "enabled" if row["rs485_enabled"] else "disabled"
+        kind = "kernel" if rs == "yes" else "reported but not settable (use --rs485 soft)"
+        text += (f"  | RS-485: {kind}, {state} ({','.join(row['rs485_flags']) or 'no flags'}, "
+                 f"RTS delays {row['rts_before_ms']}/{row['rts_after_ms']} ms)")
+    elif rs == "no":
+        text += "  | RS-485: no kernel support (ENOTTY)"
+    elif rs == "unknown":
+        text += f"  | RS-485: unknown ({row['error']})"
+    if row.get("baud"):
+        text += f", {row['baud']} baud"
+    return text
