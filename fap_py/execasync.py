@@ -400,7 +400,7 @@ class Master(Closing):
         """Poll ``node`` (1..254) with ``data``; return its reply.
 
         Raises :class:`NoReplyError` / :class:`CorruptReplyError` when every
-        attempt failed (the sequence number moves on anyway).
+        attempt failed (the node restarts at sequence number 0).
         """
         _check_node(node)
         payload = _check_data(data)
