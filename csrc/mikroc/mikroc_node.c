@@ -90,6 +90,8 @@ void mikrocRS485_CtxReceiveByte(mikrocRS485_ctx *c, char *data_buffer, uint8_t b
 
 void mikrocRS485_CtxGetStats(const mikrocRS485_ctx *c, mikrocRS485_stats *out)
 {
+    if (!c || !out)
+        return;
     *out = c->stats;
 }
 
