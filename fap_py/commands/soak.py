@@ -111,9 +111,14 @@ class Sampler(threading.Thread):
 def _child(kind: str, path: str, node: int, baud: int, seed: int, rate: float,
            until: float = 0.0) -> "subprocess.Popen[bytes]":
     """A slave process; a FAP one queues `rate` messages/s for `until` seconds."""
+    import fap_py
+
+    # run from the directory holding the fap_py this process uses, so the
+    # child imports the same (built) package, not a source tree in the cwd
+    home = os.path.dirname(os.path.dirname(os.path.abspath(fap_py.__file__)))
     return subprocess.Popen([sys.executable, "-m", "fap_py.commands.soak", "--child", kind, path,
                              str(node), str(baud), str(seed), str(rate), str(until)],
-                            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
+                            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, cwd=home)
 
 
 def _fap_slave_child(path: str, sid: int, baud: int, seed: int, rate: float, until: float) -> int:
@@ -251,8 +256,11 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     t_start = time.monotonic()
     for i in range(1, n + 1):
         start_slave(i)
+    # Windows generous for the virtual bus: a pty write returns before the
+    # bytes' wire time (up to ~4 KiB wait in the relay), so a deadline
+    # counted from the write is early by that backlog (docs/reliability.md).
     master = Master(bus.paths[0], a.baud, slaves=list(range(1, n + 1)), id_cycle=0.5,
-                    id_answer_timeout=0.2, data_done_timeout=0.5, reopen_interval=0.05,
+                    id_answer_timeout=0.5, data_done_timeout=1.0, reopen_interval=0.05,
                     event_queue=4096)
     t0 = time.monotonic()
     sent: Dict[Tuple[int, int], int] = {}          # (dst, seq) -> 1
@@ -289,7 +297,10 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
         t = threading.Thread(target=fn, daemon=True)
         t.start()
         threads.append(t)
-    master.wait_active(timeout=10)
+    try:
+        master.wait_active(timeout=10)
+    except Exception as e:               # reported below as losses, not a crash
+        log.warning("slaves not all active at the start: %s", e)
     # faults: kill slave 1 at 1/3 (back after 2 s), master port gone at 2/3 for 1 s
     kill_at, restart_at, disc_at = a.seconds / 3, a.seconds / 3 + 2.0, 2 * a.seconds / 3
     killed = restarted = disconnected = False
@@ -607,7 +618,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drop-rate", type=float, default=2e-5, help="per byte, every port")
     p.add_argument("--timeout", type=float, default=0.1, help="exec async reply timeout, seconds")
     p.add_argument("--retries", type=int, default=3, help="exec async retries")
-    p.add_argument("--master-rate", type=float, default=60.0, help="FAP messages/s the master queues")
+    p.add_argument("--master-rate", type=float, default=25.0, help="FAP messages/s the master queues")
     p.add_argument("--slave-rate", type=float, default=10.0, help="FAP messages/s each slave queues")
     p.add_argument("--check8-seconds", type=float, default=5.0, help="mikroC / G485 channel run time")
     p.add_argument("--check8-ber", type=float, default=0.01, help="mikroC / G485 channel bit error rate")
