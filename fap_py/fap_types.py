@@ -88,6 +88,9 @@ class Stats:
     port_lost: int           #: times the port failed
     port_reopened: int       #: times it came back
     unexpected: int          #: valid frames that fit no protocol state
+    ev_dropped: int          #: events lost to a full event queue
+    tx_to_inactive: int      #: master: DATA sent to a slave not active at the time
+    tx_unconfirmed: int      #: master: DATA sent to a slave then marked inactive
 
     def as_dict(self) -> Dict[str, int]:
         """The counters as a plain dict."""

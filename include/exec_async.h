@@ -152,6 +152,14 @@ word execPackData(byte *Buffer, struct execStructDef VCONST *Descriptor);
 /* Packed big-endian -> native. Return the native size (see terminator). */
 word execUnPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor);
 word execUnPackData(byte *Buffer, struct execStructDef VCONST *Descriptor);
+/* The vendor prototypes above return a 16-bit word: when the size to
+ * return (packed size for Pack, native size for UnPack) exceeds 65535 they
+ * return 0 and write nothing, never a wrapped size. These variants do the
+ * same work for any size and return it as a size_t (libfap extension). */
+size_t execPackDataExWide(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor);
+size_t execPackDataWide(byte *Buffer, struct execStructDef VCONST *Descriptor);
+size_t execUnPackDataExWide(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor);
+size_t execUnPackDataWide(byte *Buffer, struct execStructDef VCONST *Descriptor);
 
 #ifdef __cplusplus
 }

@@ -104,6 +104,14 @@ typedef struct fapx_stats {
     uint64_t write_errors;             /* failed port writes */
     uint64_t port_lost, port_reopened;
     uint64_t unexpected;               /* valid frames that fit no protocol state */
+    /* Losses (appended; docs/reliability.md). FAP has no acknowledgement,
+     * so the master counts what it cannot have delivered: */
+    uint64_t ev_dropped;               /* events lost to a full event queue (the
+                                          callback still saw them) */
+    uint64_t tx_to_inactive;           /* master: DATA sent to a slave that was not
+                                          active (unlisted, or inactive) at the time */
+    uint64_t tx_unconfirmed;           /* master: DATA sent to a slave that was then
+                                          marked inactive (no DATA_DONE after it) */
 } fapx_stats;
 
 void fapx_options_init(fapx_options *o);

@@ -154,9 +154,9 @@ int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
         err = run_transaction(m, &t, n);
     if (err)
         lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
-    /* Always move on: if the slave processed it and only the replies were
-     * lost, reusing seq would make it resend an old reply to new data. */
-    m->seq.next[node] = lf_exec_seq_next(seq);
+    /* Never reuse seq (the slave may have processed it and only the replies
+     * were lost); after a failure restart the node at 0 (seq_logic.h). */
+    lf_exec_mseq_finish(&m->seq, node, seq, err == 0);
     if (!err) {
         LF_STAT_INC(m->stats.replies);
         word len = m->rx.Length;

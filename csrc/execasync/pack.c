@@ -36,53 +36,80 @@ static void convert_item(byte *dst, const byte *src, unsigned size)
 }
 
 /* Native size: the terminator's Offset, else the end of the furthest item. */
-static word native_size(struct execStructDef VCONST *d)
+static size_t native_size(struct execStructDef VCONST *d)
 {
-    unsigned end = 0;
+    size_t end = 0;
     for (; d->Size; d++) {
-        unsigned e = (unsigned)d->Offset + (unsigned)d->Size * item_count(d);
+        size_t e = (size_t)d->Offset + (size_t)d->Size * item_count(d);
         if (e > end)
             end = e;
     }
-    return d->Offset ? d->Offset : (word)end;
+    return d->Offset ? d->Offset : end;
+}
+
+static size_t packed_size(struct execStructDef VCONST *d)
+{
+    size_t n = 0;
+    for (; d->Size; d++)
+        n += (size_t)d->Size * item_count(d);
+    return n;
 }
 
 /* In place needs ascending, non-overlapping items (packed data is never
  * ahead of the native data it comes from). */
 static int ascending(struct execStructDef VCONST *d)
 {
-    unsigned end = 0;
+    size_t end = 0;
     for (; d->Size; d++) {
         if (d->Offset < end)
             return 0;
-        end = (unsigned)d->Offset + (unsigned)d->Size * item_count(d);
+        end = (size_t)d->Offset + (size_t)d->Size * item_count(d);
     }
     return 1;
 }
 
-word execPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
+/* The vendor prototypes return a word: a size that does not fit is
+ * reported as 0 with nothing written (never a wrapped size); the Wide
+ * variants return size_t. */
+#define FITS_WORD(n) ((n) <= 0xFFFFu)
+
+size_t execPackDataExWide(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
 {
-    unsigned pos = 0;
+    size_t pos = 0;
     for (struct execStructDef VCONST *d = Descriptor; d->Size; d++) {
         for (unsigned i = 0; i < item_count(d); i++) {
             convert_item(Target + pos, Source + d->Offset + (size_t)i * d->Size, d->Size);
             pos += d->Size;
         }
     }
-    return (word)pos;
+    return pos;
 }
 
-word execPackData(byte *Buffer, struct execStructDef VCONST *Descriptor)
+word execPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
+{
+    if (!FITS_WORD(packed_size(Descriptor)))
+        return 0;
+    return (word)execPackDataExWide(Target, Source, Descriptor);
+}
+
+size_t execPackDataWide(byte *Buffer, struct execStructDef VCONST *Descriptor)
 {
     if (!ascending(Descriptor))
         return 0;
     /* forward: every item moves down (or stays), never over unread data */
-    return execPackDataEx(Buffer, Buffer, Descriptor);
+    return execPackDataExWide(Buffer, Buffer, Descriptor);
 }
 
-word execUnPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
+word execPackData(byte *Buffer, struct execStructDef VCONST *Descriptor)
 {
-    unsigned pos = 0;
+    if (!FITS_WORD(packed_size(Descriptor)))
+        return 0;
+    return (word)execPackDataWide(Buffer, Descriptor);
+}
+
+size_t execUnPackDataExWide(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
+{
+    size_t pos = 0;
     for (struct execStructDef VCONST *d = Descriptor; d->Size; d++) {
         for (unsigned i = 0; i < item_count(d); i++) {
             convert_item(Target + d->Offset + (size_t)i * d->Size, Source + pos, d->Size);
@@ -92,15 +119,22 @@ word execUnPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *D
     return native_size(Descriptor);
 }
 
-word execUnPackData(byte *Buffer, struct execStructDef VCONST *Descriptor)
+word execUnPackDataEx(byte *Target, byte *Source, struct execStructDef VCONST *Descriptor)
+{
+    if (!FITS_WORD(native_size(Descriptor)))
+        return 0;
+    return (word)execUnPackDataExWide(Target, Source, Descriptor);
+}
+
+size_t execUnPackDataWide(byte *Buffer, struct execStructDef VCONST *Descriptor)
 {
     if (!ascending(Descriptor))
         return 0;
     /* backward: every item moves up (or stays), so start with the last one */
-    unsigned n = 0, pos = 0;
+    size_t n = 0, pos = 0;
     for (struct execStructDef VCONST *d = Descriptor; d->Size; d++) {
         n++;
-        pos += (unsigned)d->Size * item_count(d);
+        pos += (size_t)d->Size * item_count(d);
     }
     while (n--) {
         struct execStructDef VCONST *d = Descriptor + n;
@@ -110,4 +144,11 @@ word execUnPackData(byte *Buffer, struct execStructDef VCONST *Descriptor)
         }
     }
     return native_size(Descriptor);
+}
+
+word execUnPackData(byte *Buffer, struct execStructDef VCONST *Descriptor)
+{
+    if (!FITS_WORD(native_size(Descriptor)))
+        return 0;
+    return (word)execUnPackDataWide(Buffer, Descriptor);
 }

@@ -9,7 +9,7 @@ void lf_exec_mtx_start(lf_exec_mtx *t, uint8_t node, uint8_t seq,
     t->node = node;
     t->seq = seq;
     t->attempt = 0;
-    t->max_attempts = retries + 1;
+    t->max_attempts = (unsigned long long)retries + 1;
     t->timeout = timeout;
     t->deadline = 0;
     t->last_error = -ETIMEDOUT;
@@ -49,6 +49,11 @@ lf_exec_mact lf_exec_mtx_on_time(lf_exec_mtx *t, lf_ns now)
     if (now < t->deadline)
         return LF_EXEC_M_WAIT;
     return retry_or_fail(t, -ETIMEDOUT);
+}
+
+void lf_exec_mseq_finish(lf_exec_mseq *m, uint8_t node, uint8_t seq, int ok)
+{
+    m->next[node] = ok ? lf_exec_seq_next(seq) : 0;
 }
 
 lf_exec_sact lf_exec_sseq_classify(const lf_exec_sseq *s, const struct execAsyncStateDef *st)

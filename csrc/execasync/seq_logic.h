@@ -34,8 +34,8 @@ typedef enum lf_exec_mevent {
 
 typedef struct lf_exec_mtx {
     uint8_t node, seq;
-    unsigned attempt;        /* attempts sent so far */
-    unsigned max_attempts;   /* 1 + retries */
+    unsigned long long attempt;       /* attempts sent so far */
+    unsigned long long max_attempts;  /* 1 + retries: wide, so UINT_MAX retries do not wrap */
     lf_ns timeout;           /* per attempt */
     lf_ns deadline;          /* of the current attempt */
     int last_error;          /* -ETIMEDOUT or -EBADMSG when failing */
@@ -46,6 +46,12 @@ typedef struct lf_exec_mtx {
 typedef struct lf_exec_mseq {
     uint8_t next[256];
 } lf_exec_mseq;
+
+/* A transaction to node with seq has ended. Success moves on (1..255);
+ * failure restarts the node at 0: it may have missed any number of our
+ * messages, so any other number could equal the one it last processed and
+ * fetch a stale reply. 0 is always processed fresh. */
+void lf_exec_mseq_finish(lf_exec_mseq *m, uint8_t node, uint8_t seq, int ok);
 
 void lf_exec_mtx_start(lf_exec_mtx *t, uint8_t node, uint8_t seq,
                        unsigned retries, lf_ns timeout);

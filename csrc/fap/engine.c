@@ -59,6 +59,9 @@ static void publish_locked(fapx *h)
     st->port_lost = h->ec.port_lost;
     st->port_reopened = h->ec.port_reopened;
     st->unexpected = c->unexpected;
+    st->ev_dropped = h->ec.ev_dropped;
+    st->tx_to_inactive = c->tx_to_inactive;
+    st->tx_unconfirmed = c->tx_unconfirmed;
     if (h->mode == FAPX_MASTER)
         h->active_pub = h->m.active & consistent_ids_locked(h);
 }
@@ -80,8 +83,10 @@ static void call_back(fapx *h, int type, unsigned id, lf_ns now)
 static void push_event(fapx *h, int type, unsigned id, lf_ns now)
 {
     pthread_mutex_lock(&h->lock);
-    publish_locked(h);
     fapx_event *ev = lf_ring_tail(&h->ev);
+    if (!ev)
+        h->ec.ev_dropped++;
+    publish_locked(h);
     if (ev) {                       /* a full event queue keeps the oldest events */
         ev->type = type;
         ev->id = id;
@@ -157,6 +162,16 @@ static void on_frame(void *ctx, const lf_fap_frame *f, lf_ns now)
         lf_fap_slave_on_frame(&h->s, f, now);
 }
 
+/* Option microseconds -> ns, saturated at LF_FAP_MAX_TIMING_NS (~3 years):
+ * a bigger uint64 value would overflow the signed multiply, and deadlines
+ * (now + timing) must stay below LF_NEVER. */
+#define LF_FAP_MAX_TIMING_NS ((lf_ns)100000000000000000LL)
+static lf_ns us_ns(uint64_t us)
+{
+    return us >= (uint64_t)(LF_FAP_MAX_TIMING_NS / LF_NS_PER_US) ? LF_FAP_MAX_TIMING_NS
+                                                                 : (lf_ns)us * LF_NS_PER_US;
+}
+
 static void on_bad_frame(void *ctx, const uint8_t *raw, size_t len, int why, lf_ns now)
 {
     fapx *h = ctx;
@@ -171,7 +186,7 @@ static void port_lost(fapx *h, lf_ns now)
         return;
     h->port_down = 1;
     h->ec.port_lost++;
-    h->reopen_at = now + (lf_ns)h->o.reopen_us * LF_NS_PER_US;
+    h->reopen_at = now + us_ns(h->o.reopen_us);
     lf_fap_decoder_reset(&h->dec);
     push_event(h, FAPX_EV_PORT_LOST, h->id, now);
 }
@@ -186,7 +201,7 @@ static void try_reopen(fapx *h, lf_ns now)
         lf_fap_decoder_reset(&h->dec);
         push_event(h, FAPX_EV_PORT_REOPENED, h->id, now);
     } else {
-        h->reopen_at = now + (lf_ns)h->o.reopen_us * LF_NS_PER_US;
+        h->reopen_at = now + us_ns(h->o.reopen_us);
     }
 }
 
@@ -284,19 +299,20 @@ static lf_ns min_ns(lf_ns a, lf_ns b)
     return a < b ? a : b;
 }
 
+
 void *lf_fapx_engine_main(void *arg)
 {
     fapx *h = arg;
     uint8_t rbuf[4096];
     lf_ns now = lf_now_ns();
     lf_fap_timing t = {
-        .idc = (lf_ns)h->o.idc_us * LF_NS_PER_US,
-        .id_answer = (lf_ns)h->o.id_answer_us * LF_NS_PER_US,
-        .data_done = (lf_ns)h->o.data_done_us * LF_NS_PER_US,
-        .send_budget = (lf_ns)h->o.send_budget_us * LF_NS_PER_US,
+        .idc = us_ns(h->o.idc_us),
+        .id_answer = us_ns(h->o.id_answer_us),
+        .data_done = us_ns(h->o.data_done_us),
+        .send_budget = us_ns(h->o.send_budget_us),
     };
     lf_fap_io io = { .ctx = h, .tx_pop = sm_tx_pop, .deliver = sm_deliver, .event = sm_event };
-    lf_ns gap = h->o.gap_us ? (lf_ns)h->o.gap_us * LF_NS_PER_US
+    lf_ns gap = h->o.gap_us ? us_ns(h->o.gap_us)
                             : lf_fap_default_gap(fap_port_baud(h->port));
     lf_fap_decoder_init(&h->dec, gap);
     lf_fap_decoder_set_bad(&h->dec, on_bad_frame, h);

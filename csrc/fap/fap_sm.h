@@ -61,6 +61,8 @@ typedef struct lf_fap_sm_counts {
     uint64_t tx_dropped;         /* queued frames with an impossible destination */
     uint64_t unexpected;         /* valid frames that fit no state (late answers...) */
     uint64_t budget_cutoffs;     /* turns ended by the send budget with data left */
+    uint64_t tx_to_inactive;     /* master: DATA sent to a slave not active at the time */
+    uint64_t tx_unconfirmed;     /* master: DATA sent to a slave that then missed DATA_DONE */
 } lf_fap_sm_counts;
 
 /* The single frame waiting to be transmitted. */

@@ -12,6 +12,8 @@
 
 void fapx_options_init(fapx_options *o)
 {
+    if (!o)
+        return;
     memset(o, 0, sizeof *o);
     o->mode = FAPX_MASTER;
     fap_port_options_init(&o->port);

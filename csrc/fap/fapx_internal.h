@@ -23,6 +23,7 @@ typedef struct lf_fapx_item {    /* a queued DATA frame (rx: src; tx: dst) */
 typedef struct lf_engine_counts {
     uint64_t frames_tx, bytes_tx, write_errors, collisions;
     uint64_t port_lost, port_reopened, rx_dropped;
+    uint64_t ev_dropped;          /* events lost to a full event queue */
 } lf_engine_counts;
 
 struct fapx {

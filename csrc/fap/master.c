@@ -94,6 +94,11 @@ static int slot_next(lf_fap_master *m, lf_ns now)
 {
     if (!lf_fap_next_data(&m->out, &m->io, m->scratch, 0, now, m->wait_deadline, &m->c))
         return 0;
+    unsigned dst = m->out.dst;       /* 1..31: next_data dropped the rest */
+    if ((m->listed & m->active) >> dst & 1u)
+        m->unconfirmed[dst]++;
+    else
+        m->c.tx_to_inactive++;       /* nobody known to listen: most likely lost */
     m->state = LF_M_SLOT;
     return 1;
 }
@@ -210,6 +215,7 @@ void lf_fap_master_on_frame(lf_fap_master *m, const lf_fap_frame *f, lf_ns now)
         if (f->dst == 0 && m->state == LF_M_POLL_WAIT && m->out.len == 0 &&
             f->src == m->cur) {
             m->c.polls++;
+            m->unconfirmed[f->src] = 0;
             poll_next(m, now);
             return;
         }
@@ -236,6 +242,8 @@ void lf_fap_master_on_timer(lf_fap_master *m, lf_ns now)
         if (now >= m->wait_deadline) {
             m->c.data_done_timeouts++;
             m->active &= ~(1u << m->cur);
+            m->c.tx_unconfirmed += m->unconfirmed[m->cur];
+            m->unconfirmed[m->cur] = 0;
             emit_event(m, LF_FAP_EV_SLAVE_INACTIVE, m->cur, now);
             start_id_cycle(m, now);
         }

@@ -24,6 +24,9 @@ typedef struct lf_fap_master {
     lf_fap_outbox out;
     uint8_t scratch[LF_FAP_MAX_DATA];
     lf_fap_sm_counts c;
+    /* DATA sent to slave i since its last DATA_DONE: counted as
+     * c.tx_unconfirmed if it is marked inactive instead (FAP has no ack). */
+    uint32_t unconfirmed[LF_FAP_MAX_ID + 1];
 } lf_fap_master;
 
 void lf_fap_master_init(lf_fap_master *m, const lf_fap_timing *t, const lf_fap_io *io, lf_ns now);

@@ -124,6 +124,8 @@ void mikrocRS485_CtxSetTrace(mikrocRS485_ctx *c, fap_trace_fn fn, void *ctx)
 
 void mikrocRS485_CtxGetStats(const mikrocRS485_ctx *c, mikrocRS485_stats *out)
 {
+    if (!c || !out)
+        return;
     *out = c->stats;
 }
 

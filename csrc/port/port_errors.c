@@ -23,7 +23,7 @@ const char *fap_port_strerror(int err)
     case FAP_PORT_ECLOSED: return "port closed";
     default: break;
     }
-    int e = err < 0 ? -err : err;
+    long e = err < 0 ? -(long)err : err;   /* -INT_MIN does not fit an int */
     /* strerrordesc_np: thread-safe, no locale, NULL for unknown numbers. */
     const char *s = (e > 0 && e < 4096) ? strerrordesc_np(e) : NULL;
     return s ? s : "unknown error";

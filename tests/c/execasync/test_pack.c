@@ -180,7 +180,41 @@ static void test_empty_descriptor(void)
     CHECK_EQ(b[0], 7);
 }
 
-UNIT_MAIN(UNIT(test_layout_has_padding), UNIT(test_pack_ex), UNIT(test_unpack_ex),
+/* Issue 12 defect 4: 80,000 bytes used to report 14,464 (80000 mod 65536).
+ * The word-returning vendor functions report 0 and write nothing; the Wide
+ * variants return the real size. */
+static void test_size_beyond_word(void)
+{
+    enum { HALF = 40000, TOTAL = 2 * HALF };
+    /* terminator 0: the native size is the furthest end, 80000 */
+    static struct execStructDef VCONST big[] = {
+        {0, 1, HALF}, {HALF, 2, HALF / 2}, {0, 0, 0},
+    };
+    byte *src = malloc(TOTAL), *dst = malloc(TOTAL), *back = malloc(TOTAL);
+    REQUIRE(src && dst && back);
+    for (unsigned i = 0; i < TOTAL; i++)
+        src[i] = (byte)(i * 7 + 1);
+    memset(dst, 0xAA, TOTAL);
+    CHECK_EQ(execPackDataEx(dst, src, big), 0);          /* not 14464 */
+    CHECK_EQ(dst[0], 0xAA);                              /* nothing written */
+    CHECK_EQ(execPackDataExWide(dst, src, big), TOTAL);
+    CHECK_EQ(execUnPackDataEx(back, dst, big), 0);
+    CHECK_EQ(execUnPackDataExWide(back, dst, big), TOTAL);
+    CHECK_MEM(back, src, TOTAL);                         /* round trip */
+    memcpy(back, src, TOTAL);
+    CHECK_EQ(execPackData(back, big), 0);
+    CHECK_MEM(back, src, TOTAL);                         /* untouched */
+    CHECK_EQ(execPackDataWide(back, big), TOTAL);
+    CHECK_MEM(back, dst, TOTAL);
+    CHECK_EQ(execUnPackData(back, big), 0);
+    CHECK_EQ(execUnPackDataWide(back, big), TOTAL);
+    CHECK_MEM(back, src, TOTAL);
+    free(src);
+    free(dst);
+    free(back);
+}
+
+UNIT_MAIN(UNIT(test_size_beyond_word), UNIT(test_layout_has_padding), UNIT(test_pack_ex), UNIT(test_unpack_ex),
           UNIT(test_round_trip_in_place), UNIT(test_round_trip_extremes),
           UNIT(test_ex_any_order), UNIT(test_terminator_without_size),
           UNIT(test_opaque_item_size), UNIT(test_empty_descriptor))

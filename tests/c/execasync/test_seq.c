@@ -2,6 +2,7 @@
  * master retries (timeout, CRC error, stray frames) and the slave's
  * process / resend / ignore decisions. */
 #include <errno.h>
+#include <limits.h>
 
 #include "execasync/seq_logic.h"
 #include "unit.h"
@@ -122,6 +123,74 @@ static void test_slave_rules(void)
     CHECK_EQ(lf_exec_sseq_classify(&s, &f), LF_EXEC_S_BROADCAST); /* never "retried" */
 }
 
-UNIT_MAIN(UNIT(test_numbering_rule), UNIT(test_master_reply_first_time),
+/* Issue 12 defect 1: a pulled cable makes 254 transactions to node 4 fail;
+ * the slave misses them all. With a counter that just moves on, the 255th
+ * message carries the SeqNo the slave last processed, the slave takes it as
+ * a retry and resends its old reply, which the master would accept. After
+ * a failure the master must restart the node at 0, processed fresh. */
+static void test_no_stale_reply_after_254_failures(void)
+{
+    lf_exec_mseq m;
+    memset(&m, 0, sizeof m);
+    lf_exec_sseq slave = {.node = 4};
+    /* some successful traffic first: the slave processes 0, 1 .. 9 */
+    for (int i = 0; i < 10; i++) {
+        uint8_t seq = m.next[4];
+        struct execAsyncStateDef f = frame(EXEC_ASYNC_GOOD, 4, seq);
+        CHECK_EQ(lf_exec_sseq_classify(&slave, &f), LF_EXEC_S_PROCESS);
+        lf_exec_sseq_commit(&slave, seq);
+        lf_exec_mseq_finish(&m, 4, seq, 1);
+    }
+    uint8_t last_processed = slave.last_seq;
+    CHECK_EQ(last_processed, 9);
+    /* 254 failed transactions, every attempt lost on the wire */
+    for (int i = 0; i < 254; i++) {
+        uint8_t seq = m.next[4];
+        lf_exec_mtx t;
+        lf_exec_mtx_start(&t, 4, seq, 2, 5 * LF_NS_PER_MS);
+        lf_ns now = 0;
+        lf_exec_mact a;
+        do {
+            lf_exec_mtx_sent(&t, now);
+            now += 5 * LF_NS_PER_MS;
+        } while ((a = lf_exec_mtx_on_time(&t, now)) == LF_EXEC_M_SEND);
+        CHECK_EQ(a, LF_EXEC_M_FAIL);
+        lf_exec_mseq_finish(&m, 4, seq, 0);
+        CHECK_EQ(m.next[4], 0);
+    }
+    /* the cable is back: the next message must not look like a retry */
+    uint8_t seq = m.next[4];
+    struct execAsyncStateDef f = frame(EXEC_ASYNC_GOOD, 4, seq);
+    CHECK(seq != last_processed);
+    CHECK_EQ(lf_exec_sseq_classify(&slave, &f), LF_EXEC_S_PROCESS);
+    /* and the slave's old reply (seq 9) is not taken for the answer */
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 4, seq, 0, 5 * LF_NS_PER_MS);
+    lf_exec_mtx_sent(&t, 0);
+    struct execAsyncStateDef stale = frame(EXEC_ASYNC_GOOD, 4, last_processed);
+    CHECK_EQ(lf_exec_mtx_on_frame(&t, &stale), LF_EXEC_M_WAIT);
+    /* after the fresh 0 is answered, numbering goes on 1, 2 .. */
+    lf_exec_sseq_commit(&slave, seq);
+    lf_exec_mseq_finish(&m, 4, seq, 1);
+    CHECK_EQ(m.next[4], 1);
+    CHECK_EQ(m.next[5], 0);          /* other nodes untouched */
+}
+
+/* Issue 12 defect 5: retries = UINT_MAX must not wrap to one attempt. */
+static void test_retries_uint_max_does_not_wrap(void)
+{
+    lf_exec_mtx t;
+    lf_exec_mtx_start(&t, 3, 1, UINT_MAX, 1);
+    lf_ns now = 0;
+    for (int i = 0; i < 1000; i++) {
+        lf_exec_mtx_sent(&t, now);
+        now += 1;
+        CHECK_EQ(lf_exec_mtx_on_time(&t, now), LF_EXEC_M_SEND);
+    }
+    CHECK_EQ(t.attempt, 1000);
+}
+
+UNIT_MAIN(UNIT(test_no_stale_reply_after_254_failures), UNIT(test_retries_uint_max_does_not_wrap),
+          UNIT(test_numbering_rule), UNIT(test_master_reply_first_time),
           UNIT(test_master_timeout_retries_then_fails), UNIT(test_master_crc_error_retries_at_once),
           UNIT(test_master_ignores_stray_frames), UNIT(test_slave_rules))
