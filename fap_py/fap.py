@@ -238,10 +238,12 @@ class RS485:
     """
 
     mode: RS485Mode = RS485Mode.AUTO
-    rts_active_high: bool = True     #: RTS level while sending
-    delay_before_send_us: int = 0    #: RTS asserted -> first bit
-    delay_after_send_us: int = 0     #: last bit -> RTS released
-    rx_during_tx: bool = False       #: kernel mode: keep the receiver on while sending
+    #: RTS pin level while sending (every mode); None: the device's own
+    #: RS-485 config decides (FAP_PORT_KEEP), else high
+    rts_active_high: Optional[bool] = None
+    delay_before_send_us: Optional[int] = None  #: RTS to sending level -> first bit; None: the device's
+    delay_after_send_us: Optional[int] = None   #: last bit -> RTS back; None: the device's
+    rx_during_tx: Optional[bool] = None  #: kernel mode: receiver on while sending; None: the device's
     echo_suppression: bool = False   #: read back and drop our own bytes (2-wire adapters)
     echo_timeout_us: int = 0         #: wait for the echo; 0 = 20 char times + 20 ms
     turnaround_us: int = 0           #: quiet time after the last received byte before sending
@@ -253,10 +255,16 @@ class RS485:
             object.__setattr__(self, "mode", RS485Mode(self.mode))
         except ValueError as exc:
             raise InvalidValueError(f"RS485.mode must be an RS485Mode, not {self.mode!r}") from exc
+        keep = ("rts_active_high", "delay_before_send_us", "delay_after_send_us", "rx_during_tx")
         for name in ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
                      "turnaround_us", "write_timeout_us"):
-            _int(getattr(self, name), f"RS485.{name}", 0, _U32)
+            if name not in keep:
+                _int(getattr(self, name), f"RS485.{name}", 0, _U32)
+            elif getattr(self, name) is not None:   # UINT_MAX is FAP_PORT_KEEP_DELAY
+                _int(getattr(self, name), f"RS485.{name}", 0, _U32 - 1)
         for name in ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive"):
+            if name in keep and getattr(self, name) is None:
+                continue
             if not isinstance(getattr(self, name), bool):
                 raise InvalidTypeError(f"RS485.{name} must be a bool")
 
@@ -269,10 +277,14 @@ class RS485:
         """
         po.baud = baudrate
         po.rs485_mode = int(self.mode)
-        po.rts_active_high = int(self.rts_active_high)
-        po.delay_before_send_us = self.delay_before_send_us
-        po.delay_after_send_us = self.delay_after_send_us
-        po.rx_during_tx = int(self.rx_during_tx)
+        _, lib = _native()
+        keep, keep_delay = lib.FAP_PORT_KEEP, lib.FAP_PORT_KEEP_DELAY
+        po.rts_active_high = keep if self.rts_active_high is None else int(self.rts_active_high)
+        po.delay_before_send_us = (keep_delay if self.delay_before_send_us is None
+                                   else self.delay_before_send_us)
+        po.delay_after_send_us = (keep_delay if self.delay_after_send_us is None
+                                  else self.delay_after_send_us)
+        po.rx_during_tx = keep if self.rx_during_tx is None else int(self.rx_during_tx)
         po.echo_suppression = int(self.echo_suppression)
         po.echo_timeout_us = self.echo_timeout_us
         po.turnaround_us = self.turnaround_us
