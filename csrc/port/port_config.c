@@ -118,6 +118,12 @@ static int kernel_rs485_enable(const fap_port *p, int fd, lf_port_conn *c)
         want.delay_rts_before_send = us_to_ms_up(p->opt.delay_before_send_us);
     if (p->opt.delay_after_send_us != FAP_PORT_KEEP_DELAY)
         want.delay_rts_after_send = us_to_ms_up(p->opt.delay_after_send_us);
+    c->rts_active_high = rs485_active_high(&want);
+    /* The open asserted RTS, and a driver switching RS-485 on leaves the pin
+     * as it is until its first transmission: put it at the receive level
+     * while RTS writes still count (best effort: the driver owns it next). */
+    if (!(saved.flags & SER_RS485_ENABLED))
+        (void)lf_port_rts(p, fd, c, 0);
     err = kernel_rs485_set(p, fd, c, &saved, &want);
     if (err == 0) {
         c->rts_active_high = rs485_active_high(&want);
