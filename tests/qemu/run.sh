@@ -47,17 +47,25 @@ fi
 
 # libfap (the tree under test) cross-built, statically linked programs.
 root=$cache/root
-rm -rf "$root" && mkdir -p "$root/gen/common"
+rm -rf "$root" "$root.obj" && mkdir -p "$root/gen/common"
 printf '#define LF_VERSION "qemu-suite"\n' > "$root/gen/common/version_config.h"
 mapfile -t libsrc < <(find "$src/csrc" -name '*.c' | sort)
 cflags=(-O1 -g0 -std=gnu11 -D_GNU_SOURCE -Wall -Wextra -Werror -I"$src/include" -I"$src/csrc" -I"$root/gen")
-xcc() { aarch64-linux-gnu-gcc "${cflags[@]}" -static "$@" -lpthread -lrt -lm; }
-pids=()
-xcc -o "$root/rs485_checks" "$here/rs485_checks.c" "${libsrc[@]}" & pids+=($!)
-xcc -o "$root/classic_noclose" "$here/classic_noclose.c" "${libsrc[@]}" & pids+=($!)
-xcc -o "$root/fap_master" "$src/examples/fap/fap_master.c" "${libsrc[@]}" & pids+=($!)
-cc "${cflags[@]}" -o "$cache/fap_slave_host" "$src/examples/fap/fap_slave.c" "${libsrc[@]}" -lpthread -lrt -lm & pids+=($!)
-for pid in "${pids[@]}"; do wait "$pid"; done
+# Each library source compiled once per architecture into an archive.
+build_lib() {   # build_lib CC OUTDIR
+  local cc=$1 out=$2; mkdir -p "$out"
+  printf '%s\n' "${libsrc[@]}" | xargs -P "$(nproc)" -I{} sh -c \
+    'out=$1 src=$2 cc=$3; shift 3; exec "$cc" "$@" -c "$src" -o "$out/$(echo "$src" | md5sum | cut -c1-12).o"' \
+    sh "$out" {} "$cc" "${cflags[@]}"
+  ar rcs "$out/libfap.a" "$out"/*.o
+}
+build_lib aarch64-linux-gnu-gcc "$root.obj/aarch64"
+build_lib cc "$root.obj/host"
+xlink() { aarch64-linux-gnu-gcc "${cflags[@]}" -static "$@" "$root.obj/aarch64/libfap.a" -lpthread -lrt -lm; }
+xlink -o "$root/rs485_checks" "$here/rs485_checks.c"
+xlink -o "$root/classic_noclose" "$here/classic_noclose.c"
+xlink -o "$root/fap_master" "$src/examples/fap/fap_master.c"
+cc "${cflags[@]}" -o "$cache/fap_slave_host" "$src/examples/fap/fap_slave.c" "$root.obj/host/libfap.a" -lpthread -lrt -lm
 cp "$cache/bb/bin/busybox" "$root/busybox"
 cp "$(find "$cache/k" -name virtio_mmio.ko)" "$(find "$cache/k" -name virtio_console.ko)" "$root/"
 cp "$here/init.sh" "$root/init"
