@@ -551,6 +551,29 @@ static void test_soft_rts_released_after_error(void)
     tp_close(&t);
 }
 
+/* NONE mode never touches the kernel RS-485 config or the RTS line, even
+ * on a device that has both. */
+static void test_none_touches_nothing(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.rs485.flags |= SER_RS485_ENABLED;
+    struct serial_rs485 before = f.rs485;
+    fap_port_options o = opts_mode(FAP_RS485_NONE);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_write(p, "n", 1), 1);
+    fap_port_close(p);
+    for (int i = 0; i < f.nev; i++)
+        CHECK(f.ev[i].kind != EV_GRS485 && f.ev[i].kind != EV_SRS485 &&
+              f.ev[i].kind != EV_RTS_SET && f.ev[i].kind != EV_RTS_CLEAR);
+    CHECK_EQ(f.nsets, 0);
+    CHECK_MEM(&f.rs485, &before, sizeof before);
+    tp_close(&t);
+}
+
 /* ---- EINTR, partial writes, read errors, turnaround ----------------------- */
 
 static void test_eintr_and_partial_writes(void)
@@ -639,6 +662,7 @@ UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
           UNIT(test_auto_does_not_hide_a_dying_device),
           UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
+          UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
           UNIT(test_soft_rts_released_after_error),
           UNIT(test_eintr_and_partial_writes), UNIT(test_read_error_paths),
