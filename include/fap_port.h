@@ -31,13 +31,24 @@ typedef enum fap_rs485_mode {
     FAP_RS485_NONE = 3      /* auto-direction transceiver, USB adapter, pty */
 } fap_rs485_mode;
 
+/* "Not given": keep what the device's own RS-485 config (TIOCGRS485: the
+ * device tree, an earlier program) says. The defaults of
+ * fap_port_options_init; see docs/port.md. */
+#define FAP_PORT_KEEP        (-1)   /* rts_active_high, rx_during_tx */
+#define FAP_PORT_KEEP_DELAY  (~0u)  /* delay_before_send_us, delay_after_send_us */
+
 typedef struct fap_port_options {
     unsigned baud;                 /* any standard termios rate; default 115200 */
     fap_rs485_mode rs485_mode;     /* default FAP_RS485_AUTO */
-    int rts_active_high;           /* RTS level while sending: 1 high (default), 0 low */
-    unsigned delay_before_send_us; /* RTS asserted -> first bit (kernel: ms, rounded up) */
-    unsigned delay_after_send_us;  /* last bit -> RTS released (kernel: ms, rounded up) */
-    int rx_during_tx;              /* kernel mode: SER_RS485_RX_DURING_TX (default 0) */
+    int rts_active_high;           /* RTS pin level while sending, in every mode:
+                                      1 high, 0 low, FAP_PORT_KEEP (default) the
+                                      device's config, else high */
+    unsigned delay_before_send_us; /* RTS to the sending level -> first bit (kernel:
+                                      ms, rounded up); FAP_PORT_KEEP_DELAY (default)
+                                      the device's config, else 0 */
+    unsigned delay_after_send_us;  /* last bit -> RTS back (same rules) */
+    int rx_during_tx;              /* kernel mode: SER_RS485_RX_DURING_TX, 0/1, or
+                                      FAP_PORT_KEEP (default): the device's */
     int echo_suppression;          /* read back and drop our own bytes (2-wire adapters) */
     unsigned echo_timeout_us;      /* how long to wait for the echo; 0 = 20 char times + 20 ms */
     unsigned turnaround_us;        /* minimum quiet time after the last received byte
@@ -71,7 +82,8 @@ void fap_port_options_init(fap_port_options *o);
 int fap_port_open(fap_port **out, const char *path, const fap_port_options *o);
 
 /* Close the port (restores the RS-485 config the port had before, if we
- * changed it). NULL is accepted. */
+ * changed it: kernel mode, and soft-RTS mode on a device whose kernel
+ * RS-485 was on). NULL is accepted. */
 void fap_port_close(fap_port *p);
 
 /* Close and open the same path again with the same options (after a USB
@@ -115,8 +127,9 @@ const char *fap_port_strerror(int err);
  * the mode was explicit. */
 int fap_port_auto_errno(const fap_port *p);
 
-/* Kernel mode: the RS-485 config the driver accepted, which may differ from
- * the request (drivers clamp delays, drop flags they lack). Fills whichever
+/* Kernel mode: the RS-485 config the driver accepted, read back with
+ * TIOCGRS485 after setting it; it may differ from the request (drivers
+ * clamp delays, drop flags they lack). Fills whichever
  * pointers are not NULL (flags are SER_RS485_* bits, delays in ms) and
  * returns 0, or -ENOTTY when the port is not in FAP_RS485_KERNEL mode. */
 int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
@@ -138,6 +151,13 @@ unsigned fap_port_baud_rate(size_t i);
  * open/tcgetattr. NULL pointers are skipped. */
 int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
                    uint32_t *delay_before_ms, uint32_t *delay_after_ms);
+
+/* The direction settings in force, in any mode, after "not given" was
+ * resolved: RTS pin level while sending (1 high, 0 low) and the delays
+ * in us (kernel mode: what the driver accepted). NULL pointers are
+ * skipped. Returns 0, or -EINVAL for a NULL port. */
+int fap_port_rts_settings(const fap_port *p, int *active_high,
+                          unsigned *delay_before_us, unsigned *delay_after_us);
 
 #ifdef __cplusplus
 }

@@ -373,10 +373,11 @@ int main(int argc, char **argv)
      * during the run does not favour either side. */
     enum { ROUNDS = 11 };
     double win = seconds / 2 > 0.2 ? seconds / 2 : 0.2;
-    double fc[ROUNDS], mc[ROUNDS], ratio[ROUNDS];
+    double fc[ROUNDS];
     fap_pair fp;
     fap_pair_open(&fp);
 #ifdef HAVE_LIBMODBUS
+    double mc[ROUNDS], ratio[ROUNDS];   /* the peer's table lines only */
     mb_pair mp;
     int have_mb = mb_pair_open(&mp) == 0;
 #endif
@@ -384,10 +385,8 @@ int main(int argc, char **argv)
         fc[r] = measure_cycles(&fp, win);
 #ifdef HAVE_LIBMODBUS
         mc[r] = have_mb ? measure_modbus(&mp, 1, win) : 0;
-#else
-        mc[r] = 0;
-#endif
         ratio[r] = mc[r] > 0 ? fc[r] / mc[r] : 0;
+#endif
     }
     fap_pair_close(&fp);
     double cyc = median(fc, ROUNDS);

@@ -5,12 +5,16 @@
  * starts it again with the new configuration, keeping queued data).
  * Between fapInit and fapConfig: fapTx queues (sent once configured),
  * fapRx reports E_RES, fapAddSlave/fapRemSlave edit the list a master will
- * use (fapConfig as a slave discards it). All calls are thread-safe. */
+ * use (fapConfig as a slave discards it). All calls are thread-safe.
+ * The vendor API has no close: at normal process exit (atexit) the port is
+ * closed, which gives it back its original RS-485 configuration. */
 #include "fap.h"
 #include "fapx.h"
 #include "fap/fapx_internal.h"
 #include <errno.h>
 #include <pthread.h>
+#include <stdlib.h>
+#include <unistd.h>
 #include <string.h>
 
 static pthread_rwlock_t g_lock = PTHREAD_RWLOCK_INITIALIZER;
@@ -46,6 +50,23 @@ void fapClassicClose(void)
     lf_fapx_destroy(h);
 }
 
+static pthread_once_t g_atexit_once = PTHREAD_ONCE_INIT;
+static pid_t g_owner_pid;
+
+static void classic_at_exit(void)
+{
+    /* A forked child that calls exit() has no engine threads and must not
+     * take the parent's port configuration away. */
+    if (getpid() == g_owner_pid)
+        fapClassicClose();
+}
+
+static void classic_register_atexit(void)
+{
+    g_owner_pid = getpid();
+    (void)atexit(classic_at_exit);   /* a full atexit table: nothing restored at exit */
+}
+
 static int classic_baud(usys b)
 {
     return b == 9600 || b == 19200 || b == 38400 || b == 57600 || b == 115200;
@@ -69,6 +90,8 @@ usys fapInit(char *devName, usys baudRate)
         if (lf_fapx_create(&g_h, devName, &o) < 0) {
             g_h = NULL;
             rc = BAD;
+        } else {
+            pthread_once(&g_atexit_once, classic_register_atexit);
         }
     }
     pthread_rwlock_unlock(&g_lock);

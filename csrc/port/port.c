@@ -18,7 +18,10 @@ void fap_port_options_init(fap_port_options *o)
     memset(o, 0, sizeof *o);
     o->baud = 115200;
     o->rs485_mode = FAP_RS485_AUTO;
-    o->rts_active_high = 1;
+    o->rts_active_high = FAP_PORT_KEEP;
+    o->rx_during_tx = FAP_PORT_KEEP;
+    o->delay_before_send_us = FAP_PORT_KEEP_DELAY;
+    o->delay_after_send_us = FAP_PORT_KEEP_DELAY;
     o->exclusive = 1;
 }
 
@@ -40,8 +43,10 @@ static int validate_options(const fap_port_options *in, fap_port_options *out)
     default:
         return -EINVAL;
     }
-    out->rts_active_high = out->rts_active_high != 0;
-    out->rx_during_tx = out->rx_during_tx != 0;
+    if (out->rts_active_high != FAP_PORT_KEEP)
+        out->rts_active_high = out->rts_active_high != 0;
+    if (out->rx_during_tx != FAP_PORT_KEEP)
+        out->rx_during_tx = out->rx_during_tx != 0;
     out->echo_suppression = out->echo_suppression != 0;
     out->exclusive = out->exclusive != 0;
     return 0;
@@ -319,5 +324,23 @@ int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
         *delay_before_ms = r.delay_rts_before_send;
     if (delay_after_ms)
         *delay_after_ms = r.delay_rts_after_send;
+    return 0;
+}
+
+int fap_port_rts_settings(const fap_port *p, int *active_high,
+                          unsigned *delay_before_us, unsigned *delay_after_us)
+{
+    if (!p)
+        return -EINVAL;
+    fap_port *mp = (fap_port *)p;
+    pthread_mutex_lock(&mp->st_mu);
+    lf_port_conn c = p->conn;
+    pthread_mutex_unlock(&mp->st_mu);
+    if (active_high)
+        *active_high = c.rts_active_high;
+    if (delay_before_us)
+        *delay_before_us = c.delay_before_us;
+    if (delay_after_us)
+        *delay_after_us = c.delay_after_us;
     return 0;
 }

@@ -76,36 +76,116 @@ static uint32_t us_to_ms_up(unsigned us)
     return (uint32_t)(((uint64_t)us + 999u) / 1000u);   /* no wrap near UINT_MAX */
 }
 
-/* Kernel RS-485: save the current config, then enable ours. The kernel
- * may clean the struct (clamp delays, drop flags); keep what it returns. */
-static int kernel_rs485_enable(const fap_port *p, int fd, lf_port_conn *c)
+/* The device's own RS-485 config (device tree, an earlier program): 0, or
+ * the ioctl's negative errno (-ENOTTY: the device has none). */
+static int kernel_rs485_get(const fap_port *p, int fd, struct serial_rs485 *r)
 {
-    struct serial_rs485 saved, want;
-    memset(&saved, 0, sizeof saved);
-    if (p->be->ioctl(p->ctx, fd, TIOCGRS485, &saved) < 0)
+    memset(r, 0, sizeof *r);
+    return p->be->ioctl(p->ctx, fd, TIOCGRS485, r) < 0 ? -errno : 0;
+}
+
+/* Set r, then read back what the driver kept (it clamps delays, drops
+ * flags it lacks) into c->rs485_active. c->rs485_saved is restored at close. */
+static int kernel_rs485_set(const fap_port *p, int fd, lf_port_conn *c,
+                            const struct serial_rs485 *saved, struct serial_rs485 *r)
+{
+    if (p->be->ioctl(p->ctx, fd, TIOCSRS485, r) < 0)
         return -errno;
-    memset(&want, 0, sizeof want);
-    want.flags = SER_RS485_ENABLED;
-    /* The flags are the logical RTS level while / after sending. */
-    want.flags |= p->opt.rts_active_high ? SER_RS485_RTS_ON_SEND : SER_RS485_RTS_AFTER_SEND;
-    if (p->opt.rx_during_tx)
-        want.flags |= SER_RS485_RX_DURING_TX;
-    want.delay_rts_before_send = us_to_ms_up(p->opt.delay_before_send_us);
-    want.delay_rts_after_send = us_to_ms_up(p->opt.delay_after_send_us);
-    if (p->be->ioctl(p->ctx, fd, TIOCSRS485, &want) < 0)
-        return -errno;
-    c->rs485_saved = saved;
-    c->rs485_active = want;
+    c->rs485_saved = *saved;
     c->rs485_restore = 1;
+    struct serial_rs485 got;
+    if (kernel_rs485_get(p, fd, &got) == 0)
+        *r = got;
+    c->rs485_active = *r;
     return 0;
 }
 
-int lf_port_rts(const fap_port *p, int fd, int on)
+/* The polarity the device's config describes: the kernel's flags are the
+ * pin level while sending (RTS_ON_SEND) or after it (RTS_AFTER_SEND);
+ * neither or both means RTS_ON_SEND (the kernel's own choice). */
+static int rs485_active_high(const struct serial_rs485 *r)
+{
+    return !((r->flags & SER_RS485_RTS_AFTER_SEND) && !(r->flags & SER_RS485_RTS_ON_SEND));
+}
+
+/* Kernel RS-485: start from the device's config, so what the user did not
+ * give (FAP_PORT_KEEP) stays as the board has it; what the user gave wins. */
+static int kernel_rs485_enable(const fap_port *p, int fd, lf_port_conn *c)
+{
+    struct serial_rs485 saved, want;
+    int err = kernel_rs485_get(p, fd, &saved);
+    if (err)
+        return err;
+    want = saved;
+    want.flags |= SER_RS485_ENABLED;
+    if (p->opt.rts_active_high != FAP_PORT_KEEP) {
+        want.flags &= ~(uint32_t)(SER_RS485_RTS_ON_SEND | SER_RS485_RTS_AFTER_SEND);
+        want.flags |= p->opt.rts_active_high ? SER_RS485_RTS_ON_SEND : SER_RS485_RTS_AFTER_SEND;
+    }
+    if (p->opt.rx_during_tx != FAP_PORT_KEEP) {
+        want.flags &= ~(uint32_t)SER_RS485_RX_DURING_TX;
+        if (p->opt.rx_during_tx)
+            want.flags |= SER_RS485_RX_DURING_TX;
+    }
+    if (p->opt.delay_before_send_us != FAP_PORT_KEEP_DELAY)
+        want.delay_rts_before_send = us_to_ms_up(p->opt.delay_before_send_us);
+    if (p->opt.delay_after_send_us != FAP_PORT_KEEP_DELAY)
+        want.delay_rts_after_send = us_to_ms_up(p->opt.delay_after_send_us);
+    c->rts_active_high = rs485_active_high(&want);
+    /* The open asserted RTS, and a driver switching RS-485 on leaves the pin
+     * as it is until its first transmission: put it at the receive level
+     * while RTS writes still count (best effort: the driver owns it next). */
+    if (!(saved.flags & SER_RS485_ENABLED))
+        (void)lf_port_rts(p, fd, c, 0);
+    err = kernel_rs485_set(p, fd, c, &saved, &want);
+    if (err == 0) {
+        c->rts_active_high = rs485_active_high(&want);
+        c->delay_before_us = want.delay_rts_before_send * 1000u;
+        c->delay_after_us = want.delay_rts_after_send * 1000u;
+    }
+    return err;
+}
+
+/* Soft RTS. A driver in RS-485 mode ignores RTS writes and drives the pin
+ * itself, so kernel RS-485 goes off while we own the port (restored at
+ * close). Polarity and delays not given come from the device's config
+ * (it describes the transceiver); a device without one: high, 0, 0. */
+static int soft_rts_enable(const fap_port *p, int fd, lf_port_conn *c)
+{
+    struct serial_rs485 cur;
+    int err = kernel_rs485_get(p, fd, &cur);
+    if (err && lf_port_errno_vanished(-err))
+        return err;
+    int have = err == 0;
+    if (have && (cur.flags & SER_RS485_ENABLED)) {
+        struct serial_rs485 off = cur;
+        off.flags &= ~(uint32_t)SER_RS485_ENABLED;
+        err = kernel_rs485_set(p, fd, c, &cur, &off);
+        if (err)
+            return err;
+    }
+    c->rts_active_high = p->opt.rts_active_high != FAP_PORT_KEEP ? p->opt.rts_active_high
+                         : have ? rs485_active_high(&cur) : 1;
+    c->delay_before_us = p->opt.delay_before_send_us != FAP_PORT_KEEP_DELAY
+                             ? p->opt.delay_before_send_us
+                         : have ? cur.delay_rts_before_send * 1000u : 0;
+    c->delay_after_us = p->opt.delay_after_send_us != FAP_PORT_KEEP_DELAY
+                            ? p->opt.delay_after_send_us
+                        : have ? cur.delay_rts_after_send * 1000u : 0;
+    /* Receive level now: the open itself asserted RTS. This also proves
+     * the device has an RTS line. */
+    return lf_port_rts(p, fd, c, 0);
+}
+
+int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending)
 {
     int bits = TIOCM_RTS;
-    /* "on" means the sending level; an active-low transceiver inverts it. */
-    int set = p->opt.rts_active_high ? on : !on;
-    if (p->be->ioctl(p->ctx, fd, set ? TIOCMBIS : TIOCMBIC, &bits) < 0)
+    /* The pin level: high while sending for an active-high transceiver.
+     * The modem-control RTS bit is the complement of the pin on a UART
+     * (PL011, 16550: RTS asserted = nRTS pin low), so a high pin is
+     * TIOCMBIC. */
+    int pin_high = sending ? c->rts_active_high : !c->rts_active_high;
+    if (p->be->ioctl(p->ctx, fd, pin_high ? TIOCMBIC : TIOCMBIS, &bits) < 0)
         return -errno;
     return 0;
 }
@@ -123,8 +203,7 @@ static int setup_direction(const fap_port *p, int fd, lf_port_conn *c)
             c->mode = FAP_RS485_KERNEL;
         return err;
     case FAP_RS485_SOFT_RTS:
-        /* Start in receive; this also proves the device has an RTS line. */
-        err = lf_port_rts(p, fd, 0);
+        err = soft_rts_enable(p, fd, c);
         if (err == 0)
             c->mode = FAP_RS485_SOFT_RTS;
         return err;
@@ -166,6 +245,11 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
         }
         c->excl_set = 1;
     }
+    /* Direction first: the open asserted RTS, which on an active-low
+     * transceiver is the transmit level. */
+    err = setup_direction(p, fd, c);
+    if (err)
+        goto fail;
     err = configure_termios(p, fd);
     if (err)
         goto fail;
@@ -174,9 +258,6 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
         err = -errno;
         goto fail;
     }
-    err = setup_direction(p, fd, c);
-    if (err)
-        goto fail;
     return 0;
 fail:
     lf_port_conn_close(p, c);

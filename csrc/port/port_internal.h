@@ -20,7 +20,10 @@ typedef struct lf_port_conn {
     int excl_set;                 /* TIOCEXCL applied: clear it on close */
     int rs485_restore;            /* we changed the RS-485 config */
     struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
-    struct serial_rs485 rs485_active;  /* what TIOCSRS485 handed back */
+    struct serial_rs485 rs485_active;  /* TIOCGRS485 after our TIOCSRS485 */
+    /* Resolved line settings (options, else the device's config). */
+    int rts_active_high;          /* pin high while sending */
+    unsigned delay_before_us, delay_after_us;
     int auto_errno;               /* AUTO fell back to NONE: the ioctl errno */
 } lf_port_conn;
 
@@ -64,8 +67,8 @@ unsigned lf_port_speed_to_baud(speed_t speed);   /* 0 if not in the table */
 int lf_port_conn_open(const fap_port *p, lf_port_conn *c);
 /* Undo lf_port_conn_open (restore RS-485, clear TIOCEXCL, close). */
 void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
-/* Soft RTS: drive RTS to the sending (on=1) or idle (on=0) level. */
-int lf_port_rts(const fap_port *p, int fd, int on);
+/* Soft RTS: drive the RTS pin to c's sending (1) or receive (0) level. */
+int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending);
 
 /* port.c: I/O calls borrow the fd; a vanished device is closed by the
  * last borrower, so an fd number is never reused under a running call. */

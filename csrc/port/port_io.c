@@ -274,18 +274,18 @@ ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
             goto out;
     }
     if (mode == FAP_RS485_SOFT_RTS) {
-        err = lf_port_rts(p, fd, 1);
+        err = lf_port_rts(p, fd, &p->conn, 1);   /* conn is stable under tx_mu */
         if (err)
             goto out;   /* nothing sent */
-        delay_us(p, p->opt.delay_before_send_us);
+        delay_us(p, p->conn.delay_before_us);
     }
     err = write_all(p, fd, buf, n, &written, echo ? &es : NULL);
     if (!err)
         err = drain(p, fd);   /* the last stop bit has left the UART */
     if (mode == FAP_RS485_SOFT_RTS) {
         if (!err)
-            delay_us(p, p->opt.delay_after_send_us);
-        int rerr = lf_port_rts(p, fd, 0);   /* release even after an error */
+            delay_us(p, p->conn.delay_after_us);
+        int rerr = lf_port_rts(p, fd, &p->conn, 0);   /* release even after an error */
         if (!err)
             err = rerr;
     }

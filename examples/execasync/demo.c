@@ -41,11 +41,13 @@ int main(void)
     execSlaveOptions so;
     execSlaveOptionsInit(&so);
     so.node = 7;
-    execSlave *s;
-    execMaster *m;
+    execSlave *s = NULL;
+    execMaster *m = NULL;
     if (execSlaveOpen(&s, fap_vbus_port_path(bus, 1), &po, &so, echo_upper, NULL) ||
         execMasterOpen(&m, fap_vbus_port_path(bus, 0), &po, NULL)) {
         fprintf(stderr, "cannot open the ports\n");
+        execSlaveClose(s);        /* close what was opened, on every path */
+        fap_vbus_close(bus);
         return 1;
     }
     pthread_t t;

@@ -12,6 +12,7 @@
 #include <string.h>
 #include <unistd.h>
 #include <fap.h>
+#include <fapx.h>   /* fapClassicClose: libfap's addition, the vendor API has no close */
 
 #define REPLY_WAIT_MS  20000
 
@@ -25,7 +26,8 @@ int main (int argc, char **argv)
     int    replies = 0 ;
     int    i, waited ;
 
-    /* Configure the RS-485 Port */
+    /* Configure the RS-485 Port (closed at every return below: the port
+       gets its original RS-485 configuration back) */
     status = fapInit (devName, 115200) ;
     if (status != GOOD)
     {
@@ -40,6 +42,7 @@ int main (int argc, char **argv)
     if (status != GOOD)
     {
        printf ("ERROR: fapConfig() Failed with Status %d !!!\n", status) ;
+       fapClassicClose () ;
        return BAD ;
     }
 
@@ -47,6 +50,7 @@ int main (int argc, char **argv)
     if (status != GOOD)
     {
        printf ("ERROR: fapAddSlave(%u) Failed with Status %d !!!\n", slaveId, status) ;
+       fapClassicClose () ;
        return BAD ;
     }
 
@@ -61,6 +65,7 @@ int main (int argc, char **argv)
        if (status != GOOD)
        {
           printf ("ERROR: fapTx() Failed with Status %d !!!\n", status) ;
+          fapClassicClose () ;
           return BAD ;
        }
 
@@ -84,5 +89,6 @@ int main (int argc, char **argv)
     }
 
     printf ("master: %d of %d replies\n", replies, count) ;
+    fapClassicClose () ;
     return replies == count ? GOOD : BAD ;
 }

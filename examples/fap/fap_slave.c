@@ -12,6 +12,7 @@
 #include <string.h>
 #include <unistd.h>
 #include <fap.h>
+#include <fapx.h>   /* fapClassicClose: libfap's addition, the vendor API has no close */
 
 int main (int argc, char **argv)
 {
@@ -36,6 +37,7 @@ int main (int argc, char **argv)
     if (status != GOOD)
     {
        printf ("ERROR: fapConfig() Failed with Status %d !!!\n", status) ;
+       fapClassicClose () ;
        return BAD ;
     }
     printf ("slave %u ready\n", myId) ;
@@ -56,6 +58,7 @@ int main (int argc, char **argv)
        if (status != GOOD)
        {
           printf ("ERROR: fapRx() Failed with Status %d !!!\n", status) ;
+          fapClassicClose () ;
           return BAD ;
        }
        rxData[rxSize] = 0 ;
@@ -70,6 +73,7 @@ int main (int argc, char **argv)
        if (status != GOOD)
        {
           printf ("ERROR: fapTx() Failed with Status %d !!!\n", status) ;
+          fapClassicClose () ;
           return BAD ;
        }
        handled++ ;
@@ -77,5 +81,6 @@ int main (int argc, char **argv)
 
     /* let the last reply go out at our next SEND_DATA before exiting */
     sleep (1) ;
+    fapClassicClose () ;
     return GOOD ;
 }

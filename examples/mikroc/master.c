@@ -43,6 +43,7 @@ int main(int argc, char **argv)
     RS485Master_Send(dat, 1, (char)160);
     if (mikrocRS485_LastSendError(1) < 0) {
         fprintf(stderr, "send: %s\n", mikrocRS485_strerror(mikrocRS485_LastSendError(1)));
+        mikrocRS485_Close();      /* close what we opened, on every path */
         return 1;
     }
 

@@ -211,7 +211,7 @@ static void test_kernel_active_low(void)
     fake_uart(&f);
     fap_port_options o = opts_mode(FAP_RS485_KERNEL);
     o.rts_active_high = 0;
-    o.delay_before_send_us = 4294967295u;   /* rounds up without wrapping */
+    o.delay_before_send_us = 4294967294u;   /* rounds up without wrapping */
     o.delay_after_send_us = 100000;         /* 100 ms */
     fap_port *p = NULL;
     MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
@@ -226,6 +226,12 @@ static void test_kernel_active_low(void)
     CHECK_EQ(before_ms, 100);
     CHECK_EQ(after_ms, 100);
     CHECK_EQ(fap_port_kernel_rs485(p, NULL, NULL, NULL), 0);
+    int hi = -5;
+    unsigned b_us = 0, a_us = 0;
+    CHECK_EQ(fap_port_rts_settings(p, &hi, &b_us, &a_us), 0);
+    CHECK_EQ(hi, 0);
+    CHECK_EQ(b_us, 100000);
+    CHECK_EQ(a_us, 100000);
     fap_port_close(p);
     CHECK_EQ(f.nsets, 2);
     CHECK_EQ(f.rs485.delay_rts_before_send, 7);
@@ -242,10 +248,52 @@ static void test_auto_gets_kernel(void)
     MUST(lf_port_open_with_backend(&p, t.name, NULL, &fake_backend, &f) == 0);
     CHECK_EQ(fap_port_mode(p), FAP_RS485_KERNEL);
     CHECK_EQ(fap_port_auto_errno(p), 0);
+    /* Nothing given: the board's active-low 7/9 ms stays, only ENABLED added. */
     MUST(f.nsets == 1);
-    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND);
+    CHECK_EQ(f.sets[0].delay_rts_before_send, 7);
+    CHECK_EQ(f.sets[0].delay_rts_after_send, 9);
+    int hi = -5;
+    CHECK_EQ(fap_port_rts_settings(p, &hi, NULL, NULL), 0);
+    CHECK_EQ(hi, 0);
     fap_port_close(p);
     CHECK_EQ(f.nsets, 2);
+    tp_close(&t);
+}
+
+/* Given values win one by one; the rest stays as the board has it; what
+ * the port reports is the driver's read-back (the fake clamps to 100 ms). */
+static void test_kernel_keeps_what_is_not_given(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.rs485.flags |= SER_RS485_ENABLED | SER_RS485_TERMINATE_BUS | SER_RS485_RX_DURING_TX;
+    fap_port_options o = opts_mode(FAP_RS485_KERNEL);
+    o.delay_after_send_us = 250000;   /* given: 250 ms, the driver makes it 100 */
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    MUST(f.nsets == 1);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_ENABLED | SER_RS485_RTS_AFTER_SEND |
+                              SER_RS485_TERMINATE_BUS | SER_RS485_RX_DURING_TX);
+    CHECK_EQ(f.sets[0].delay_rts_before_send, 7);
+    CHECK_EQ(f.sets[0].delay_rts_after_send, 250);
+    uint32_t fl = 0, b = 0, a = 0;
+    CHECK_EQ(fap_port_kernel_rs485(p, &fl, &b, &a), 0);
+    CHECK_EQ(b, 7);
+    CHECK_EQ(a, 100);
+    fap_port_close(p);
+    fap_port_options_init(&o);
+    o.rs485_mode = FAP_RS485_KERNEL;
+    o.rts_active_high = 1;
+    o.rx_during_tx = 0;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    MUST(f.nsets == 3);
+    CHECK_EQ(f.sets[2].flags, SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND | SER_RS485_TERMINATE_BUS);
+    CHECK_EQ(f.sets[2].delay_rts_before_send, 7);
+    CHECK_EQ(f.sets[2].delay_rts_after_send, 9);
+    fap_port_close(p);
     tp_close(&t);
 }
 
@@ -310,11 +358,14 @@ static void check_soft_rts_order(int active_high)
     fap_port *p = NULL;
     MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
     CHECK_EQ(fap_port_mode(p), FAP_RS485_SOFT_RTS);
-    enum ev_kind on = active_high ? EV_RTS_SET : EV_RTS_CLEAR;
-    enum ev_kind off = active_high ? EV_RTS_CLEAR : EV_RTS_SET;
-    MUST(f.nev == 1);   /* open: RTS to the receive level */
-    CHECK_EQ(f.ev[0].kind, off);
-    CHECK_EQ(f.ev[0].value, TIOCM_RTS);
+    /* The pin level: RTS asserted (TIOCMBIS) drives a UART's nRTS pin low. */
+    enum ev_kind on = active_high ? EV_RTS_CLEAR : EV_RTS_SET;
+    enum ev_kind off = active_high ? EV_RTS_SET : EV_RTS_CLEAR;
+    MUST(f.nev == 2);   /* open: is kernel RS-485 on? then RTS to the receive level */
+    CHECK_EQ(f.ev[0].kind, EV_GRS485);
+    CHECK_EQ(f.ev[1].kind, off);
+    CHECK_EQ(f.ev[1].value, TIOCM_RTS);
+    CHECK_EQ(f.nsets, 0);   /* no kernel RS-485 here: nothing to switch off */
 
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "frame", 5), 5);
@@ -353,6 +404,72 @@ static void check_soft_rts_order(int active_high)
 static void test_soft_rts_active_high(void) { check_soft_rts_order(1); }
 static void test_soft_rts_active_low(void) { check_soft_rts_order(0); }
 
+/* A UART whose kernel RS-485 is on (device tree, an earlier program): the
+ * driver would ignore our RTS writes, so soft mode switches it off while
+ * open and gives it back at close; polarity and delays not given come
+ * from that config (active low, 7/9 ms). */
+static void test_soft_rts_turns_kernel_rs485_off(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.rs485.flags |= SER_RS485_ENABLED;
+    struct serial_rs485 before = f.rs485;
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_SOFT_RTS);
+    MUST(f.nsets == 1);
+    CHECK_EQ(f.sets[0].flags, SER_RS485_RTS_AFTER_SEND);   /* ENABLED cleared, rest kept */
+    CHECK_EQ(f.rs485.flags & SER_RS485_ENABLED, 0);
+    /* the off switch comes before the first RTS write */
+    int i_set = -1, i_rts = -1;
+    for (int i = 0; i < f.nev; i++) {
+        if (f.ev[i].kind == EV_SRS485 && i_set < 0)
+            i_set = i;
+        if ((f.ev[i].kind == EV_RTS_SET || f.ev[i].kind == EV_RTS_CLEAR) && i_rts < 0)
+            i_rts = i;
+    }
+    CHECK(i_set >= 0 && i_rts > i_set);
+    CHECK_EQ(f.ev[i_rts].kind, EV_RTS_CLEAR);   /* active low: receive = pin high */
+    int hi = -5;
+    unsigned b_us = 0, a_us = 0;
+    CHECK_EQ(fap_port_rts_settings(p, &hi, &b_us, &a_us), 0);
+    CHECK_EQ(hi, 0);
+    CHECK_EQ(b_us, 7000);
+    CHECK_EQ(a_us, 9000);
+    CHECK_EQ(fap_port_kernel_rs485(p, NULL, NULL, NULL), -ENOTTY);
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "s", 1), 1);
+    MUST(f.nev == 6);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);   /* pin low while sending */
+    CHECK(f.ev[1].value >= f.ev[0].at_ns + 7000000);
+    CHECK(f.ev[4].value >= f.ev[3].at_ns + 9000000);
+    CHECK_EQ(f.ev[5].kind, EV_RTS_CLEAR);
+    char m;
+    CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+    fap_port_close(p);
+    MUST(f.nsets == 2);
+    CHECK_MEM(&f.rs485, &before, sizeof before);   /* given back exactly */
+
+    /* Given values win over the board's. */
+    o.rts_active_high = 1;
+    o.delay_before_send_us = 0;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_rts_settings(p, &hi, &b_us, &a_us), 0);
+    CHECK_EQ(hi, 1);
+    CHECK_EQ(b_us, 0);
+    CHECK_EQ(a_us, 9000);
+    fap_port_close(p);
+    CHECK_MEM(&f.rs485, &before, sizeof before);
+
+    /* A refused off switch fails the open: soft RTS could not work. */
+    f.fail_srs485 = EPERM;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -EPERM);
+    tp_close(&t);
+}
+
 static void test_soft_rts_assert_fails(void)
 {
     test_pty t;
@@ -362,11 +479,11 @@ static void test_soft_rts_assert_fails(void)
     fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
     fap_port *p = NULL;
     MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
-    f.fail_mbis = EPERM;
+    f.fail_mbic = EPERM;   /* active high: sending = pin high = TIOCMBIC */
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "lost", 4), -EPERM);
-    MUST(f.nev == 1);   /* the failed TIOCMBIS, and no write */
-    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    MUST(f.nev == 1);   /* the failed TIOCMBIC, and no write */
+    CHECK_EQ(f.ev[0].kind, EV_RTS_CLEAR);
     char m[4];
     CHECK_EQ(tp_read_exact(t.master, m, 4, 50), 0);
     fap_port_stats st;
@@ -374,7 +491,7 @@ static void test_soft_rts_assert_fails(void)
     CHECK_EQ(st.tx_bytes, 0);
     CHECK_EQ(st.write_errors, 1);
     CHECK(fap_port_fd(p) >= 0);   /* EPERM is not a vanished device */
-    f.fail_mbis = 0;
+    f.fail_mbic = 0;
     CHECK_EQ(fap_port_write(p, "ok", 2), 2);
     fap_port_close(p);
     tp_close(&t);
@@ -386,7 +503,7 @@ static void test_soft_rts_open_refused(void)
     MUST(tp_open(&t) == 0);
     fake f;
     memset(&f, 0, sizeof f);
-    f.fail_mbic = ENOTTY;
+    f.fail_mbis = ENOTTY;   /* the receive level of an active-high pin */
     int fds = tp_count_fds();
     fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
     fap_port *p = NULL;
@@ -412,25 +529,48 @@ static void test_soft_rts_released_after_error(void)
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "d", 1), -EINVAL);
     MUST(f.nev == 4);
-    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_CLEAR);   /* active high: pin high */
     CHECK_EQ(f.ev[1].kind, EV_WRITE);
     CHECK_EQ(f.ev[2].kind, EV_DRAIN);
-    CHECK_EQ(f.ev[3].kind, EV_RTS_CLEAR);   /* no after-delay on error, but released */
+    CHECK_EQ(f.ev[3].kind, EV_RTS_SET);   /* no after-delay on error, but released */
     f.fail_drain = 0;
 
     f.fail_write = ENXIO;   /* USB adapter unplugged mid-frame */
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "w", 1), -ENXIO);
     MUST(f.nev == 3);
-    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    CHECK_EQ(f.ev[0].kind, EV_RTS_CLEAR);
     CHECK_EQ(f.ev[1].kind, EV_WRITE);
-    CHECK_EQ(f.ev[2].kind, EV_RTS_CLEAR);
+    CHECK_EQ(f.ev[2].kind, EV_RTS_SET);
     CHECK_EQ(fap_port_fd(p), -1);   /* vanished: closed */
     CHECK_EQ(fap_port_write(p, "w", 1), -ENXIO);
     f.fail_write = 0;
     CHECK_EQ(fap_port_reopen(p), 0);
     CHECK_EQ(fap_port_write(p, "z", 1), 1);
     fap_port_close(p);
+    tp_close(&t);
+}
+
+/* NONE mode never touches the kernel RS-485 config or the RTS line, even
+ * on a device that has both. */
+static void test_none_touches_nothing(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    fake_uart(&f);
+    f.rs485.flags |= SER_RS485_ENABLED;
+    struct serial_rs485 before = f.rs485;
+    fap_port_options o = opts_mode(FAP_RS485_NONE);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    CHECK_EQ(fap_port_write(p, "n", 1), 1);
+    fap_port_close(p);
+    for (int i = 0; i < f.nev; i++)
+        CHECK(f.ev[i].kind != EV_GRS485 && f.ev[i].kind != EV_SRS485 &&
+              f.ev[i].kind != EV_RTS_SET && f.ev[i].kind != EV_RTS_CLEAR);
+    CHECK_EQ(f.nsets, 0);
+    CHECK_MEM(&f.rs485, &before, sizeof before);
     tp_close(&t);
 }
 
@@ -590,6 +730,8 @@ UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
           UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
           UNIT(test_auto_does_not_hide_a_dying_device),
           UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
+          UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
+          UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
           UNIT(test_soft_rts_released_after_error),
           UNIT(test_eintr_and_partial_writes), UNIT(test_read_error_paths),

@@ -24,14 +24,14 @@ static void test_options_defaults(void)
     fap_port_options_init(&o);
     CHECK_EQ(o.baud, 115200);
     CHECK_EQ(o.rs485_mode, FAP_RS485_AUTO);
-    CHECK_EQ(o.rts_active_high, 1);
+    CHECK_EQ(o.rts_active_high, FAP_PORT_KEEP);   /* not given: the device's */
     CHECK_EQ(o.exclusive, 1);
     CHECK_EQ(o.echo_suppression, 0);
     CHECK_EQ(o.echo_timeout_us, 0);
     CHECK_EQ(o.turnaround_us, 0);
-    CHECK_EQ(o.delay_before_send_us, 0);
-    CHECK_EQ(o.delay_after_send_us, 0);
-    CHECK_EQ(o.rx_during_tx, 0);
+    CHECK_EQ(o.delay_before_send_us, FAP_PORT_KEEP_DELAY);
+    CHECK_EQ(o.delay_after_send_us, FAP_PORT_KEEP_DELAY);
+    CHECK_EQ(o.rx_during_tx, FAP_PORT_KEEP);
     CHECK_EQ(o.write_timeout_us, 0);
 }
 
