@@ -158,6 +158,8 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     if args.port:
         live = LivePort(args.port, baud or 115200)
         baud = live.baud
+        # tells a person (and a test) that bytes from now on are seen
+        print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr, flush=True)
     elif args.raw:
         fh = open(args.raw, "rb")
     elif args.capture:
