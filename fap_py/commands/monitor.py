@@ -155,19 +155,25 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     baud = args.baud or 0
     live: Optional[LivePort] = None
     fh = None
-    if args.port:
-        live = LivePort(args.port, baud or 115200)
-        baud = live.baud
-        # tells a person (and a test) that bytes from now on are seen
-        print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr, flush=True)
-    elif args.raw:
-        fh = open(args.raw, "rb")
-    elif args.capture:
-        cap_baud, cap_chunks = capture_file(args.capture)
-        baud = baud or cap_baud
+    # the pcap first: Wireshark's extcap fifo wants its header at once
+    pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
+    try:
+        if args.port:
+            live = LivePort(args.port, baud or 115200)
+            baud = live.baud
+            # tells a person (and a test) that bytes from now on are seen
+            print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr, flush=True)
+        elif args.raw:
+            fh = open(args.raw, "rb")
+        elif args.capture:
+            cap_baud, cap_chunks = capture_file(args.capture)
+            baud = baud or cap_baud
+    except BaseException:
+        if pcap:
+            pcap._fh.close()
+        raise
     mon = Monitor(args.protocol, baud)
     stats = Stats(baud)
-    pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
     flush = bool(live)
     t0: List[Optional[float]] = [None]
     announced = [mon.locked is not None]

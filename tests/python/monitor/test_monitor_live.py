@@ -1,0 +1,164 @@
+"""``fap monitor --port`` on the virtual bus while nodes talk: every vector
+of every protocol from a node, a real exec async master and slave (reply
+times), the exclusive lock, and the extcap capture into a pcap."""
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+from typing import List
+
+import pytest
+
+from fap_py.execasync import RS485, Master, RS485Mode, Slave
+from fap_py.vbus import VirtualBus
+from monitor_helpers import check_records, fap_cmd, json_records, need_tool, stream
+
+PROTOCOLS = ["fap", "exec", "mikroc", "g485"]
+WAIT_S = 20.0            # deadline for the monitor to start listening or to finish
+IDLE_S = "1.0"           # the monitor stops after this much silence (its own rule)
+LINE = RS485(mode=RS485Mode.NONE)   # ptys have no RS-485 ioctls
+
+
+def start_monitor(args: List[str]) -> subprocess.Popen:
+    """Start ``fap monitor`` and wait until it says it listens (its port is open)."""
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + WAIT_S
+    seen = b""
+    while b"listening on" not in seen:
+        left = deadline - time.monotonic()
+        ready, _, _ = select.select([proc.stderr], [], [], max(0.0, left))
+        if not ready:
+            proc.kill()
+            pytest.fail(f"monitor did not start: {seen!r}")
+        chunk = os.read(proc.stderr.fileno(), 4096)
+        if not chunk:
+            pytest.fail(f"monitor exited: {seen!r} rc={proc.wait()}")
+        seen += chunk
+    return proc
+
+
+def node_write(path: str, data: bytes) -> None:
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+        # close only once the relay took the bytes: wait until the pty drained
+        import termios
+        termios.tcdrain(fd)
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.parametrize("protocol", PROTOCOLS)
+def test_live_port_every_vector(protocol):
+    data = stream(protocol)
+    with VirtualBus(ports=3) as bus:
+        proc = start_monitor(fap_cmd() + ["monitor", "--protocol", protocol, "--port",
+                                          bus.paths[2], "--baud", "115200", "--json",
+                                          "--timeout", IDLE_S])
+        node_write(bus.paths[0], data)
+        out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0, err
+    recs = json_records(out)
+    check_records(protocol, recs, data)
+    assert all(isinstance(r["t"], float) for r in recs)
+
+
+def test_live_exec_master_and_slave_reply_times():
+    with VirtualBus(ports=3) as bus:
+        proc = start_monitor(fap_cmd() + ["monitor", "--protocol", "exec", "--port",
+                                          bus.paths[2], "--baud", "115200", "--timeout", IDLE_S])
+        with Slave(bus.paths[1], node=7, handler=lambda req: req.data[::-1], rs485=LINE) as slave, \
+                Master(bus.paths[0], timeout=2.0, retries=0, rs485=LINE) as master:
+            slave.start()
+            for i in range(5):
+                assert master.transact(7, bytes([i, 0x10, 0x41])) == bytes([0x41, 0x10, i])
+        out, err = proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0, err
+    text = out.decode()
+    frames = [line for line in text.splitlines() if "node   7 seq" in line]
+    assert len(frames) == 10, text
+    assert "node 7: 10 frames, no errors; reply ms p50" in text
+    assert "(5)" in text        # five request/answer pairs timed
+
+
+def test_live_port_lock_is_honoured():
+    from fap_py.monitor.sources import LivePort
+
+    with VirtualBus(ports=2) as bus:
+        with LivePort(bus.paths[1], 9600):
+            res = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "9600",
+                                              "--timeout", "0.1"],
+                                 capture_output=True, timeout=WAIT_S)
+    assert res.returncode == 3
+    assert res.stderr.decode().startswith("fap: error:")
+
+
+def test_live_port_any_termios_rate_and_bad_rate():
+    with VirtualBus(ports=2) as bus:
+        ok = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "1500000",
+                                         "--timeout", "0.1", "--stats"],
+                            capture_output=True, timeout=WAIT_S)
+        assert ok.returncode == 0, ok.stderr
+        bad = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "12345",
+                                          "--timeout", "0.1"], capture_output=True, timeout=WAIT_S)
+    assert bad.returncode == 2, bad.stderr
+
+
+def test_extcap_capture_to_pcap(tmp_path):
+    """Wireshark's call: --capture --fifo; stopped with SIGTERM like Wireshark does."""
+    res = subprocess.run(fap_cmd() + ["monitor", "--extcap-dir", str(tmp_path)],
+                         capture_output=True, timeout=WAIT_S)
+    assert res.returncode == 0
+    launcher = tmp_path / "fap-monitor-extcap"
+    pcap = tmp_path / "live.pcap"
+    data = stream("mikroc")
+    with VirtualBus(ports=2) as bus:
+        proc = start_monitor([str(launcher), "--capture", "--extcap-interface", "fap_monitor",
+                              "--fifo", str(pcap), "--port", bus.paths[1], "--baud", "115200",
+                              "--protocol", "mikroc"])
+        node_write(bus.paths[0], data)
+        # the monitor writes each record as it decodes it: wait for the last one
+        want = data.hex()
+        deadline = time.monotonic() + WAIT_S
+        while time.monotonic() < deadline:
+            raw = pcap.read_bytes()
+            if _pcap_frames_hex(raw).endswith(want[:-len("000155")]):
+                break
+            select.select([], [], [], 0.05)
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0
+    assert _pcap_frames_hex(pcap.read_bytes()) == want
+    tshark = need_tool("tshark")
+    lua_dir = tmp_path / "lua"
+    subprocess.run(fap_cmd() + ["monitor", "--dissectors", str(lua_dir)], check=True,
+                   capture_output=True, timeout=WAIT_S)
+    out = subprocess.run([tshark, "-X", f"lua_script:{lua_dir / 'fap_monitor.lua'}", "-r",
+                          str(pcap), "-Y", "mikroc.address == 160"],
+                         capture_output=True, timeout=120).stdout.decode()
+    assert len(out.splitlines()) == 2
+
+
+def _pcap_frames_hex(raw: bytes) -> str:
+    """The frames of a fap monitor pcap, concatenated (header skipped)."""
+    import struct
+
+    out, pos = [], 24
+    while pos + 16 <= len(raw):
+        _s, _u, incl, _orig = struct.unpack_from("<IIII", raw, pos)
+        pkt = raw[pos + 16:pos + 16 + incl]
+        if len(pkt) < incl:
+            break
+        out.append(pkt[5 + pkt[4]:].hex())
+        pos += 16 + incl
+    return "".join(out)
+
+
+del threading, Path
