@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
             raise
         from fap_py.errors import FapError, InvalidValueError
 
-        if isinstance(exc, InvalidValueError) and "baud" in str(exc).lower():
+        if isinstance(exc, InvalidValueError):      # e.g. a rate the port refuses
             _error(str(exc))
             return EXIT_USAGE
         if isinstance(exc, (OSError, FapError)):
