@@ -111,7 +111,11 @@ def run(args: argparse.Namespace) -> int:
         if args.debug:
             raise
         from fap_py.errors import FapError, InvalidValueError
+        from fap_py.vbus import CaptureFormatError
 
+        if isinstance(exc, CaptureFormatError):     # an unreadable file, not bad arguments
+            _error(str(exc))
+            return EXIT_IO
         if isinstance(exc, InvalidValueError):      # e.g. a rate the port refuses
             _error(str(exc))
             return EXIT_USAGE

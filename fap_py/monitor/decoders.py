@@ -299,8 +299,18 @@ class G485Decoder(Decoder):
         # the G485 simulator's default idle timeout
         self._gap = gap_ns or int(max(0.02, 50.0 / baud if baud else 0.02) * 1e9)
         self._last = 0
+        self._spans = _Spans()
 
-    def _events(self, evs: list, rename_stale: Optional[str] = None) -> List[Event]:
+    def _expire(self, reason: str) -> List[Event]:
+        """The parser drops a stale partial byte by byte; report the partial once, whole."""
+        start, held = self._offset, self._p.buffered
+        events = self._events(self._p.expire())
+        if held:
+            whole = Event("g485", start, self._spans.get(start, start + held), reason)
+            events = [whole] + [e for e in events if not (e.offset == start and e.error == "gap")]
+        return events
+
+    def _events(self, evs: list) -> List[Event]:
         out: List[Event] = []
         for ev in evs:
             off = self._offset
@@ -312,8 +322,6 @@ class G485Decoder(Decoder):
                 self._offset += len(raw)
                 continue
             reason = _G485_REASONS[ev.issue]
-            if rename_stale and reason == "gap":
-                reason = rename_stale
             out.append(Event("g485", off, ev.data, reason))
             # a bad check resynchronises one byte after the candidate's start
             self._offset += 1 if ev.issue is g485.ParseIssue.BAD_CHECK else len(ev.data)
@@ -321,7 +329,10 @@ class G485Decoder(Decoder):
 
     def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         self._last = now_ns
-        return self._events(self._p.feed(data))
+        self._spans.add(data)
+        out = self._events(self._p.feed(data))
+        self._spans.trim(self._offset)
+        return out
 
     def idle_deadline(self) -> Optional[int]:
         return self._last + self._gap if self._p.buffered else None
@@ -329,10 +340,10 @@ class G485Decoder(Decoder):
     def idle(self, now_ns: int) -> List[Event]:
         if not self._p.buffered or now_ns < self._last + self._gap:
             return []
-        return self._events(self._p.expire())
+        return self._expire("gap")
 
     def finish(self) -> List[Event]:
-        return self._events(self._p.expire(), rename_stale="truncated")
+        return self._expire("truncated")
 
 
 def make_decoder(protocol: str, baud: int = 0) -> Decoder:

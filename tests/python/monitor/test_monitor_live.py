@@ -3,20 +3,19 @@ of every protocol from a node, a real exec async master and slave (reply
 times), the exclusive lock, and the extcap capture into a pcap."""
 from __future__ import annotations
 
+import json
 import os
 import select
 import signal
 import subprocess
-import threading
 import time
-from pathlib import Path
 from typing import List
 
 import pytest
 
 from fap_py.execasync import RS485, Master, RS485Mode, Slave
 from fap_py.vbus import VirtualBus
-from monitor_helpers import check_records, fap_cmd, json_records, need_tool, stream
+from monitor_helpers import check_records, fap_cmd, json_records, need_tool, stream, vectors
 
 PROTOCOLS = ["fap", "exec", "mikroc", "g485"]
 WAIT_S = 20.0            # deadline for the monitor to start listening or to finish
@@ -68,6 +67,34 @@ def test_live_port_every_vector(protocol):
     recs = json_records(out)
     check_records(protocol, recs, data)
     assert all(isinstance(r["t"], float) for r in recs)
+
+
+def read_json_line(proc: subprocess.Popen) -> dict:
+    """The monitor's next JSON record (it flushes each one on a live port)."""
+    ready, _, _ = select.select([proc.stdout], [], [], WAIT_S)
+    assert ready, "no record from the monitor"
+    return json.loads(proc.stdout.readline())
+
+
+@pytest.mark.parametrize("protocol", ["fap", "g485"])
+def test_live_inter_byte_gap_abandons_a_partial_frame(protocol):
+    """A frame whose rest never comes is reported ("gap") once the line is quiet,
+    and the next frame decodes: the receivers' gap rule, applied while following."""
+    good = next(v.frame for v in vectors(protocol) if v.ok)
+    with VirtualBus(ports=3) as bus:
+        proc = start_monitor(fap_cmd() + ["monitor", "--protocol", protocol, "--port",
+                                          bus.paths[2], "--baud", "115200", "--json", "--follow"])
+        try:
+            node_write(bus.paths[0], good[:5])
+            first = read_json_line(proc)        # written only after the gap expired
+            node_write(bus.paths[0], good)
+            second = read_json_line(proc)
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            proc.communicate(timeout=WAIT_S)
+    assert proc.returncode == 0
+    assert (first["ok"], first["error"], first["frame"]) == (False, "gap", good[:5].hex())
+    assert (second["ok"], second["frame"]) == (True, good.hex())
 
 
 def test_live_exec_master_and_slave_reply_times():
@@ -160,5 +187,3 @@ def _pcap_frames_hex(raw: bytes) -> str:
         pos += 16 + incl
     return "".join(out)
 
-
-del threading, Path
