@@ -75,6 +75,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write the Wireshark Lua dissector to DIR (and exit if no input given)")
     p.add_argument("--extcap-dir", metavar="DIR",
                    help="write the Wireshark extcap launcher to DIR (and exit if no input given)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no status lines on stderr (listening, auto lock); errors still")
     p.add_argument("--debug", action="store_true", help="traceback on error")
     p.add_argument("-v", "--verbose", action="count", default=0, dest="monitor_verbose",
                    help="log more")
@@ -159,22 +161,27 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     baud = args.baud or 0
     live: Optional[LivePort] = None
     fh = None
-    # the pcap first: Wireshark's extcap fifo wants its header at once
-    pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
+    pcap = None
     try:
         if args.port:
             live = LivePort(args.port, baud or 115200)
             baud = live.baud
             # tells a person (and a test) that bytes from now on are seen
-            print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr, flush=True)
+            if not args.quiet:
+                print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr,
+                      flush=True)
         elif args.raw:
             fh = open(args.raw, "rb")
         elif args.capture:
             cap_baud, cap_chunks = capture_file(args.capture)
             baud = baud or cap_baud
+        # after the input: an extcap fifo's reader sees the header once the port is open
+        pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
     except BaseException:
-        if pcap:
-            pcap._fh.close()
+        if live is not None:
+            live.close()
+        if fh is not None:
+            fh.close()
         raise
     mon = Monitor(args.protocol, baud)
     stats = Stats(baud)
@@ -183,7 +190,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     announced = [mon.locked is not None]
 
     def emit(recs) -> None:
-        if not announced[0] and mon.locked:
+        if not announced[0] and mon.locked and not args.quiet:
             announced[0] = True
             print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
         for rec in recs:
@@ -239,7 +246,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
             pcap.close()
             pcap._fh.close()
     stats.bytes = mon.bytes
-    if not announced[0] and mon.locked:
+    if not announced[0] and mon.locked and not args.quiet:
         print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
     if args.json and args.stats:
         summary = stats.summary()

@@ -130,13 +130,7 @@ class Monitor:
 
     # -- input ---------------------------------------------------------
     def _records(self, events: List[Event]) -> List[Record]:
-        out = []
-        at = self.timeline.at
-        for ev in self.filter.push(events):
-            t, port = at(ev.offset)
-            t_end = at(ev.end - 1)[0] if t is not None else None
-            out.append(Record(ev, t, t_end, port))
-        return out
+        return self._place(self.filter.push(events))
 
     def feed(self, data: bytes, t: Optional[float] = None, char_s: float = 0.0,
              port: Optional[int] = None, now_ns: int = 0) -> List[Record]:
@@ -155,15 +149,19 @@ class Monitor:
         return min(ds) if ds else None
 
     def idle(self, now_ns: int) -> List[Record]:
-        return self._records(self._decode("idle", now_ns))
+        """The line is quiet: apply the receiver's gap, and show a held garbage run now."""
+        recs = self._records(self._decode("idle", now_ns))
+        return recs + self._place(self.filter.finish())
+
+    def _place(self, events: List[Event]) -> List[Record]:
+        at = self.timeline.at
+        out = []
+        for ev in events:
+            t, port = at(ev.offset)
+            out.append(Record(ev, t, at(ev.end - 1)[0] if t is not None else None, port))
+        return out
 
     def finish(self) -> List[Record]:
         """End of input: flush the decoder (truncated frames, trailing garbage)."""
         events = self._decode("finish", force=True)
-        recs = self._records(events)
-        last = self.filter.finish()
-        at = self.timeline.at
-        for ev in last:
-            t, port = at(ev.offset)
-            recs.append(Record(ev, t, at(ev.end - 1)[0] if t is not None else None, port))
-        return recs
+        return self._records(events) + self._place(self.filter.finish())

@@ -179,6 +179,16 @@ class _SpanDecoder(Decoder):
             out.append(Event(self.name, self._cursor, self._spans.get(self._cursor, upto), "garbage"))
         self._cursor = max(self._cursor, upto)
 
+    def _held_from(self) -> int:
+        """Stream offset where the partial frame the codec holds starts (else its position)."""
+        raise NotImplementedError
+
+    def idle(self, now_ns: int) -> List[Event]:
+        """These receivers have no gap rule; a quiet line only shows the garbage so far."""
+        out: List[Event] = []
+        self._garbage_to(out, self._held_from())
+        return out
+
     def _report(self, out: List[Event], start: int, end: int, error: Optional[str],
                 fields: Optional[Dict[str, object]]) -> None:
         self._garbage_to(out, start)
@@ -216,6 +226,10 @@ class ExecDecoder(_SpanDecoder):
                 self._report(out, s.rep_start, s.rep_end, reason, None)
         self._trim()
         return out
+
+    def _held_from(self) -> int:
+        s = self._s
+        return s.start if lib.lf_exec_rx_in_frame(ffi.addressof(s, "st")) else s.pos
 
     def _trim(self) -> None:
         keep = self._cursor
@@ -268,6 +282,10 @@ class MikrocDecoder(_SpanDecoder):
             keep = min(keep, s.start)
         self._spans.trim(keep)
         return out
+
+    def _held_from(self) -> int:
+        s = self._s
+        return s.start if lib.lf_mikroc_scan_in_frame(s) else s.pos
 
     def finish(self) -> List[Event]:
         out: List[Event] = []

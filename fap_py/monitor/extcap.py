@@ -3,8 +3,10 @@
 Wireshark runs this program (through the launcher ``fap monitor
 --extcap-dir DIR`` writes) with ``--extcap-interfaces``, ``--extcap-dlts``,
 ``--extcap-config`` and finally ``--capture --fifo PATH``; the capture runs
-``fap monitor --port ... --follow --pcap FIFO`` until Wireshark stops it
-(SIGTERM). See https://www.wireshark.org/docs/man-pages/extcap.html.
+``fap monitor --port ... --follow --quiet --pcap FIFO`` until Wireshark
+stops it (SIGTERM). Wireshark reports anything on stderr as an error, so the
+capture prints nothing there but real errors; the fifo gets its pcap header
+once the port is open. See https://www.wireshark.org/docs/man-pages/extcap.html.
 """
 from __future__ import annotations
 
@@ -74,7 +76,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         from ..cli import main as fap_main
 
         return fap_main(["monitor", "--port", args.port, "--baud", str(args.baud),
-                         "--protocol", args.protocol, "--follow", "--stats", "--pcap", args.fifo])
+                         "--protocol", args.protocol, "--follow", "--stats", "--quiet", "--pcap", args.fifo])
     print("fap: error: nothing to do (see extcap(4))", file=sys.stderr)
     return 2
 

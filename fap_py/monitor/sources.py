@@ -107,8 +107,9 @@ class LivePort:
                stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
         """Read until ``stop()``, or ``idle_s`` seconds without a byte (None: never).
 
-        ``deadline()`` is the decoder's gap deadline (monotonic ns) or None;
-        reaching it yields None.
+        ``deadline()`` is the decoder's gap deadline (monotonic ns) or None.
+        A read that times out (the gap deadline, or a quiet 200 ms) yields
+        None: the line is idle.
         """
         char_s = char_seconds(self.baud)
         last = lib.fap_port_now_ns()
@@ -125,8 +126,7 @@ class LivePort:
                 raise error_from_code(n, f"read {self.path}", self.path)
             now = lib.fap_port_now_ns()
             if n == 0:
-                if gap is not None and now >= gap:
-                    yield None
+                yield None
                 if idle_s is not None and now >= last + int(idle_s * 1e9):
                     return
                 continue

@@ -139,38 +139,67 @@ def test_live_port_any_termios_rate_and_bad_rate():
 
 
 def test_extcap_capture_to_pcap(tmp_path):
-    """Wireshark's call: --capture --fifo; stopped with SIGTERM like Wireshark does."""
+    """Wireshark's call: --capture --fifo FIFO; stopped with SIGTERM as Wireshark does."""
     res = subprocess.run(fap_cmd() + ["monitor", "--extcap-dir", str(tmp_path)],
                          capture_output=True, timeout=WAIT_S)
     assert res.returncode == 0
     launcher = tmp_path / "fap-monitor-extcap"
-    pcap = tmp_path / "live.pcap"
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
     data = stream("mikroc")
     with VirtualBus(ports=2) as bus:
-        proc = start_monitor([str(launcher), "--capture", "--extcap-interface", "fap_monitor",
-                              "--fifo", str(pcap), "--port", bus.paths[1], "--baud", "115200",
-                              "--protocol", "mikroc"])
-        node_write(bus.paths[0], data)
-        # the monitor writes each record as it decodes it: wait for the last one
-        want = data.hex()
-        deadline = time.monotonic() + WAIT_S
-        while time.monotonic() < deadline:
-            raw = pcap.read_bytes()
-            if _pcap_frames_hex(raw).endswith(want[:-len("000155")]):
-                break
-            select.select([], [], [], 0.05)
-        proc.send_signal(signal.SIGTERM)
-        proc.communicate(timeout=WAIT_S)
+        proc = subprocess.Popen([str(launcher), "--capture", "--extcap-interface", "fap_monitor",
+                                 "--fifo", str(fifo), "--port", bus.paths[1], "--baud", "115200",
+                                 "--protocol", "mikroc"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        rfd = os.open(fifo, os.O_RDONLY | os.O_NONBLOCK)   # the reader end, as Wireshark
+        try:
+            pcap = _read_fifo(rfd, 24)           # the header: written once the port is open
+            node_write(bus.paths[0], data)
+            while _pcap_frames_hex(pcap) != data.hex():      # garbage too, once the line is quiet
+                more = _read_fifo(rfd, 1)
+                assert more, f"capture ended early: {_pcap_frames_hex(pcap)}"
+                pcap += more
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            _out, err = proc.communicate(timeout=WAIT_S)
+            pcap += _read_fifo(rfd, 0)
+            os.close(rfd)
     assert proc.returncode == 0
-    assert _pcap_frames_hex(pcap.read_bytes()) == want
+    assert err == b"", err                       # Wireshark shows any stderr as an error
+    assert _pcap_frames_hex(pcap) == data.hex()
+    out_file = tmp_path / "live.pcap"
+    out_file.write_bytes(pcap)
     tshark = need_tool("tshark")
     lua_dir = tmp_path / "lua"
     subprocess.run(fap_cmd() + ["monitor", "--dissectors", str(lua_dir)], check=True,
                    capture_output=True, timeout=WAIT_S)
     out = subprocess.run([tshark, "-X", f"lua_script:{lua_dir / 'fap_monitor.lua'}", "-r",
-                          str(pcap), "-Y", "mikroc.address == 160"],
+                          str(out_file), "-Y", "mikroc.address == 160"],
                          capture_output=True, timeout=120).stdout.decode()
     assert len(out.splitlines()) == 2
+
+
+def _read_fifo(fd: int, at_least: int) -> bytes:
+    """Read what the fifo holds, waiting (deadline) until at least ``at_least`` bytes came."""
+    out = b""
+    deadline = time.monotonic() + WAIT_S
+    while True:
+        try:
+            chunk = os.read(fd, 65536)
+        except BlockingIOError:
+            chunk = None
+        if chunk:
+            out += chunk
+            if len(out) >= at_least:
+                return out
+            continue
+        if len(out) >= at_least:
+            return out
+        left = deadline - time.monotonic()
+        if left <= 0:
+            return out
+        select.select([fd], [], [], left)
 
 
 def _pcap_frames_hex(raw: bytes) -> str:
