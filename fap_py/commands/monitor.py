@@ -59,13 +59,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     src.add_argument("--raw", metavar="FILE", help="raw bytes as recorded from a port")
     src.add_argument("--capture", metavar="FILE",
                      help="virtual-bus capture (fap bus --capture): senders and times kept")
-    p.add_argument("--baud", type=_positive_int, default=None,
+    p.add_argument("--baud", type=_positive_int, default=None, metavar="N",
                    help="line rate: opens --port at it (default 115200); sets the inter-byte "
                         "gap and bus utilisation for the other inputs")
     p.add_argument("--follow", action="store_true",
                    help="live port: keep reading until interrupted (else stop after --timeout "
                         "seconds of silence)")
-    p.add_argument("--timeout", type=_seconds, default=2.0,
+    p.add_argument("--timeout", type=_seconds, default=2.0, metavar="S",
                    help="live port without --follow: stop after this much silence")
     p.add_argument("--json", action="store_true", help="one JSON object per frame or error")
     p.add_argument("--stats", action="store_true",
@@ -84,7 +84,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
-                       description=__doc__.splitlines()[0], epilog=EXAMPLES,
+                       description="A protocol analyser for FAP, exec async, mikroC and G485: "
+                       "reads a live port (receive-only), a raw byte file, a virtual-bus capture "
+                       "or stdin; prints frames, JSON, statistics, pcap. See docs/monitor.md.",
+                       epilog=EXAMPLES,
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     # RawDescription keeps the epilog; defaults are spelt out in the help texts
     p.formatter_class = _Formatter
