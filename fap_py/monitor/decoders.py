@@ -13,13 +13,10 @@ drops those repeats and merges adjacent garbage runs.
 """
 from __future__ import annotations
 
-import logging
 from typing import Callable, Dict, List, Optional, Tuple
 
 from .._native import ffi, lib
 from ..g485 import codec as g485
-
-log = logging.getLogger(__name__)
 
 PROTOCOLS = ("fap", "exec", "mikroc", "g485")
 

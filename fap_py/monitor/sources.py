@@ -7,16 +7,13 @@ receiver's inter-byte gap can be applied.
 """
 from __future__ import annotations
 
-import logging
 import os
 import time
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
 from .._native import ffi, lib
-from ..errors import PortError, error_from_code
+from ..errors import error_from_code
 from ..vbus import read_capture
-
-log = logging.getLogger(__name__)
 
 READ_SIZE = 65536
 
@@ -135,4 +132,4 @@ class LivePort:
             yield Chunk(bytes(ffi.buffer(self._buf, n)), t - n * char_s, char_s, None, now)
 
 
-__all__ = ["Chunk", "LivePort", "PortError", "capture_file", "char_seconds", "raw_file", "stream"]
+__all__ = ["Chunk", "LivePort", "capture_file", "char_seconds", "raw_file", "stream"]
