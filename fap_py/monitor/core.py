@@ -76,7 +76,7 @@ class Timeline:
             del self._segs[:2048]
 
     def at(self, offset: int) -> tuple:
-        """(time of the byte at offset or None, sender port or None)."""
+        """(wire start of the byte at offset or None, sender port or None)."""
         i = bisect.bisect_right(self._offsets, offset) - 1
         if i < 0:
             return None, None
@@ -84,6 +84,14 @@ class Timeline:
         if t is None:
             return None, port
         return t + (offset - self._offsets[i]) * char_s, port
+
+    def end(self, offset: int) -> Optional[float]:
+        """Wire end of the byte at offset (its start plus one character time), or None."""
+        i = bisect.bisect_right(self._offsets, offset) - 1
+        if i < 0:
+            return None
+        t, char_s, _port = self._segs[i]
+        return None if t is None else t + (offset - self._offsets[i] + 1) * char_s
 
 
 class Monitor:
@@ -154,11 +162,11 @@ class Monitor:
         return recs + self._place(self.filter.finish())
 
     def _place(self, events: List[Event]) -> List[Record]:
-        at = self.timeline.at
+        tl = self.timeline
         out = []
         for ev in events:
-            t, port = at(ev.offset)
-            out.append(Record(ev, t, at(ev.end - 1)[0] if t is not None else None, port))
+            t, port = tl.at(ev.offset)
+            out.append(Record(ev, t, tl.end(ev.end - 1) if t is not None else None, port))
         return out
 
     def finish(self) -> List[Record]:
