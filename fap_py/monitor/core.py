@@ -98,6 +98,10 @@ class Monitor:
     """Decode one stream with one protocol, or ``auto``: try all four."""
 
     def __init__(self, protocol: str = "auto", baud: int = 0) -> None:
+        """``protocol``: one of PROTOCOLS or "auto"; ``baud``: the line rate (0 unknown).
+
+        Raises InvalidValueError for an unknown protocol.
+        """
         self.protocol = protocol
         self.baud = baud
         self.timeline = Timeline()

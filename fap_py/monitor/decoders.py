@@ -16,6 +16,7 @@ from __future__ import annotations
 from typing import Callable, Dict, List, Optional, Tuple
 
 from .._native import ffi, lib
+from ..errors import InvalidValueError
 from ..g485 import codec as g485
 
 PROTOCOLS = ("fap", "exec", "mikroc", "g485")
@@ -369,6 +370,8 @@ def make_decoder(protocol: str, baud: int = 0) -> Decoder:
         "mikroc": MikrocDecoder,
         "g485": lambda: G485Decoder(baud),
     }
+    if protocol not in factories:
+        raise InvalidValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
     return factories[protocol]()
 
 

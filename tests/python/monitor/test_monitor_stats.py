@@ -51,3 +51,13 @@ def test_reply_times_utilisation_and_errors_per_node(tmp_path):
     text = human.stdout.decode()
     assert text.startswith("-- 8 frames, errors: crc 1;")
     assert "node 3: 6 frames, no errors; reply ms p50 1.5 p99 2.5 max 2.5 (3)" in text
+
+
+def test_unknown_protocol_is_a_fap_error():
+    import pytest
+
+    from fap_py.errors import InvalidValueError
+    from fap_py.monitor import Monitor
+
+    with pytest.raises(InvalidValueError):
+        Monitor("modbus")
