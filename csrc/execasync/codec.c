@@ -3,6 +3,7 @@
 #include "exec_async.h"
 
 #include <stdint.h>
+#include <string.h>
 
 #include "common/crc16.h"
 #include "execasync/codec_internal.h"
@@ -212,4 +213,40 @@ void lf_exec_tap_abandon(lf_exec_tap *t, lf_trace *tr, int64_t now)
         lf_trace_emit(tr, FAP_TRACE_RX, FAP_TRACE_TRUNCATED, now, t->raw, t->n);
     t->n = 0;
     t->reported = t->restart = 0;
+}
+
+void lf_exec_scan_init(lf_exec_scan *s)
+{
+    memset(s, 0, sizeof *s);
+}
+
+size_t lf_exec_scan_feed(lf_exec_scan *s, const byte *p, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        uint64_t at = s->pos++;
+        if (!execAsyncByteIn(p[i], &s->st, s->buf)) {
+            if (s->st.Phase == PH_NODE)         /* this byte was the STX of DLE STX */
+                s->start = at - 1;
+            continue;
+        }
+        s->rep_start = s->start;
+        if (s->st.Status == EXEC_ASYNC_FRAMING && s->st.Phase == PH_NODE) {
+            s->rep_end = at - 1;                /* cut by the DLE STX at at-1 */
+            s->start = at - 1;
+        } else {
+            s->rep_end = at + 1;
+        }
+        return i + 1;
+    }
+    return n;
+}
+
+const char *lf_exec_status_reason(int status)
+{
+    switch (status) {
+    case EXEC_ASYNC_BAD_CRC:  return "crc";
+    case EXEC_ASYNC_OVERFLOW: return "length";
+    case EXEC_ASYNC_FRAMING:  return "framing";
+    default:                  return NULL;
+    }
 }

@@ -26,4 +26,23 @@ boolean lf_exec_byte_in_traced(byte v, struct execAsyncStateDef *s, byte *buf,
 /* Report a partial frame that is being thrown away (TRUNCATED). */
 void lf_exec_tap_abandon(lf_exec_tap *tap, lf_trace *tr, int64_t now);
 
+/* A monitor's view of the decoder: execAsyncByteIn over a byte run, with
+ * the stream offsets of each reported frame (good or bad), so the raw
+ * bytes as sent can be shown. Sans-I/O. */
+typedef struct lf_exec_scan {
+    struct execAsyncStateDef st;     /* the receiver's own state */
+    byte buf[EXEC_ASYNC_MAX_DATA];   /* its Buffer (unstuffed data) */
+    uint64_t pos;                    /* stream offset of the next byte */
+    uint64_t start;                  /* offset of the DLE of the current DLE STX */
+    uint64_t rep_start, rep_end;     /* span [start, end) of the last report */
+} lf_exec_scan;
+
+void lf_exec_scan_init(lf_exec_scan *s);
+/* Feed bytes until execAsyncByteIn reports (st.Status != NONE, span in
+ * rep_start/rep_end) or p runs out; returns the bytes consumed. A FRAMING
+ * report made at a DLE STX ends before that DLE STX (it starts the next). */
+size_t lf_exec_scan_feed(lf_exec_scan *s, const byte *p, size_t n);
+/* Short reason of a Status ("crc", "length", "framing"; NULL for GOOD). */
+const char *lf_exec_status_reason(int status);
+
 #endif

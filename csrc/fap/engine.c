@@ -172,10 +172,20 @@ static lf_ns us_ns(uint64_t us)
                                                                  : (lf_ns)us * LF_NS_PER_US;
 }
 
-static void on_bad_frame(void *ctx, const uint8_t *raw, size_t len, int why, lf_ns now)
+/* The decoder's rejects, as the trace hook sees them: a candidate frame
+ * that failed (bytes skipped while hunting for a marker are noise, not
+ * frames, and are not reported). */
+static void on_reject(void *ctx, int reason, const uint8_t *raw, size_t len,
+                      uint64_t offset, lf_ns now)
 {
     fapx *h = ctx;
-    lf_trace_emit(&h->trace, FAP_TRACE_RX, (fap_trace_status)why, now, raw, len);
+    (void)offset;
+    if (reason == LF_FAP_REJ_GARBAGE)
+        return;
+    fap_trace_status why = reason == LF_FAP_REJ_CRC ? FAP_TRACE_BAD_CRC
+                         : reason == LF_FAP_REJ_GAP ? FAP_TRACE_TRUNCATED
+                                                    : FAP_TRACE_BAD_FRAME;
+    lf_trace_emit(&h->trace, FAP_TRACE_RX, why, now, raw, len);
 }
 
 /* ---- port ---- */
@@ -315,7 +325,7 @@ void *lf_fapx_engine_main(void *arg)
     lf_ns gap = h->o.gap_us ? us_ns(h->o.gap_us)
                             : lf_fap_default_gap(fap_port_baud(h->port));
     lf_fap_decoder_init(&h->dec, gap);
-    lf_fap_decoder_set_bad(&h->dec, on_bad_frame, h);
+    lf_fap_decoder_on_reject(&h->dec, on_reject, h);
     if (h->mode == FAPX_MASTER)
         lf_fap_master_init(&h->m, &t, &io, now);
     else

@@ -47,39 +47,57 @@ void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap)
     d->gap = gap > 0 ? gap : lf_fap_default_gap(0);
 }
 
-void lf_fap_decoder_set_bad(lf_fap_decoder *d, lf_fap_bad_cb cb, void *ctx)
-{
-    d->bad = cb;
-    d->bad_ctx = ctx;
-}
-
 void lf_fap_decoder_reset(lf_fap_decoder *d)
 {
+    d->pos += d->n;
     d->n = 0;
 }
 
-/* Tell the trace hook about a rejected candidate: its first len bytes. */
-static void report_bad(const lf_fap_decoder *d, size_t len, int why, lf_ns now)
+void lf_fap_decoder_on_reject(lf_fap_decoder *d, lf_fap_reject_cb cb, void *ctx)
 {
-    if (d->bad)
-        d->bad(d->bad_ctx, d->buf, len < d->n ? len : d->n, why, now);
+    d->reject = cb;
+    d->reject_ctx = ctx;
+}
+
+const char *lf_fap_reject_name(int reason)
+{
+    switch (reason) {
+    case LF_FAP_REJ_GARBAGE:  return "garbage";
+    case LF_FAP_REJ_SIZE:     return "size";
+    case LF_FAP_REJ_MSG:      return "msg";
+    case LF_FAP_REJ_MSG_SIZE: return "msg/size";
+    case LF_FAP_REJ_CRC:      return "crc";
+    case LF_FAP_REJ_GAP:      return "gap";
+    default:                  return "?";
+    }
+}
+
+/* Tell the reject callback about the first n held bytes. */
+static void tell(lf_fap_decoder *d, int reason, size_t n, lf_ns now)
+{
+    if (d->reject && n)
+        d->reject(d->reject_ctx, reason, d->buf, n, d->pos, now);
 }
 
 /* Drop k bytes from the front of the buffer. */
 static void drop(lf_fap_decoder *d, size_t k)
 {
     if (k >= d->n) {
+        d->pos += d->n;
         d->n = 0;
         return;
     }
+    d->pos += k;
     memmove(d->buf, d->buf + k, d->n - k);
     d->n -= k;
 }
 
-/* Reject the candidate at buf[0]: resume the search one byte later. */
-static void reject(lf_fap_decoder *d, uint64_t *counter)
+/* Reject the candidate at buf[0] (its first n bytes were examined):
+ * resume the search one byte later. */
+static void reject(lf_fap_decoder *d, uint64_t *counter, int reason, size_t n, lf_ns now)
 {
     (*counter)++;
+    tell(d, reason, n, now);
     drop(d, 1);
 }
 
@@ -106,27 +124,27 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             uint8_t *c = memchr(d->buf, 'c', d->n);
             size_t skip = c ? (size_t)(c - d->buf) : d->n;
             d->c.garbage_bytes += skip;
+            tell(d, LF_FAP_REJ_GARBAGE, skip, now);
             drop(d, skip);
             continue;
         }
         if (!marker_prefix_ok(d->buf, d->n)) {
-            reject(d, &d->c.garbage_bytes);
+            reject(d, &d->c.garbage_bytes, LF_FAP_REJ_GARBAGE, 1, now);
             continue;
         }
         if (d->n < 10)
             return;
         unsigned size = (unsigned)d->buf[8] | ((unsigned)d->buf[9] << 8);
         if (size < LF_FAP_HDR_LEN || size > LF_FAP_HDR_LEN + LF_FAP_MAX_DATA) {
-            report_bad(d, 10, FAP_TRACE_BAD_FRAME, now);
-            reject(d, &d->c.framing_errors);
+            reject(d, &d->c.framing_errors, LF_FAP_REJ_SIZE, 10, now);
             continue;
         }
         if (d->n < 11)
             return;
         unsigned msg = d->buf[10];
         if (msg > LF_FAP_ID || (msg == LF_FAP_DATA) != (size > LF_FAP_HDR_LEN)) {
-            report_bad(d, 11, FAP_TRACE_BAD_FRAME, now);
-            reject(d, &d->c.framing_errors);
+            reject(d, &d->c.framing_errors,
+                   msg > LF_FAP_ID ? LF_FAP_REJ_MSG : LF_FAP_REJ_MSG_SIZE, 11, now);
             continue;
         }
         size_t total = size + LF_FAP_CRC_LEN;
@@ -134,14 +152,13 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             return;
         uint16_t want = (uint16_t)(d->buf[size] | (d->buf[size + 1] << 8));
         if (lf_crc16_ccitt(d->buf + LF_FAP_MARKER_LEN, size - LF_FAP_MARKER_LEN) != want) {
-            report_bad(d, total, FAP_TRACE_BAD_CRC, now);
-            reject(d, &d->c.crc_errors);
+            reject(d, &d->c.crc_errors, LF_FAP_REJ_CRC, total, now);
             continue;
         }
         lf_fap_frame f = {
             .msg = (uint8_t)msg, .dst = d->buf[11], .src = d->buf[12],
             .len = (uint16_t)(size - LF_FAP_HDR_LEN), .data = d->buf + LF_FAP_HDR_LEN,
-            .raw = d->buf, .raw_len = total,
+            .raw = d->buf, .raw_len = total, .offset = d->pos,
         };
         d->c.frames++;
         if (cb)
@@ -160,7 +177,7 @@ void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void 
     if (d->n == 0 || now < d->last_byte + d->gap)
         return;
     d->c.gap_timeouts++;
-    report_bad(d, d->n, FAP_TRACE_TRUNCATED, now);
+    tell(d, LF_FAP_REJ_GAP, d->n, now);
     /* Everything held is equally stale: keep rejecting first bytes until
      * the rescan either empties the buffer or reports what it finds. */
     while (d->n > 0) {

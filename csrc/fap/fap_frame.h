@@ -33,8 +33,9 @@ typedef struct lf_fap_frame {
     uint8_t  msg, dst, src;
     uint16_t len;                        /* data length */
     const uint8_t *data;                 /* points into the decoder's buffer */
-    const uint8_t *raw;                  /* the whole frame as received (trace) */
+    const uint8_t *raw;                  /* the whole frame as received (marker..CRC) */
     size_t raw_len;
+    uint64_t offset;                     /* stream offset of raw[0] (bytes fed before it) */
 } lf_fap_frame;
 
 /* Encode one frame into out (cap >= 15 + len). Returns the frame length,
@@ -54,10 +55,24 @@ typedef struct lf_fap_rx_counts {
 } lf_fap_rx_counts;
 
 typedef void (*lf_fap_frame_cb)(void *ctx, const lf_fap_frame *f, lf_ns now);
-/* A rejected candidate frame (for trace hooks): its bytes and why
- * (a fap_trace_status: BAD_CRC, BAD_FRAME, TRUNCATED). Bytes skipped while
- * looking for a marker are noise, not frames, and are not reported. */
-typedef void (*lf_fap_bad_cb)(void *ctx, const uint8_t *raw, size_t len, int why, lf_ns now);
+
+/* Why the decoder dropped bytes (reported to an optional reject callback,
+ * for a monitor; the counters above count the same events). */
+enum lf_fap_reject {
+    LF_FAP_REJ_GARBAGE = 1,  /* bytes skipped while searching for a marker */
+    LF_FAP_REJ_SIZE,         /* size field outside 13..1037 */
+    LF_FAP_REJ_MSG,          /* msg above ID (4) */
+    LF_FAP_REJ_MSG_SIZE,     /* DATA without data, or another msg with data */
+    LF_FAP_REJ_CRC,          /* complete frame, CRC mismatch */
+    LF_FAP_REJ_GAP           /* partial frame abandoned after the inter-byte gap */
+};
+/* raw/n: the rejected bytes (a candidate frame from its marker: the header
+ * up to the bad field, the whole frame for CRC, the held partial for GAP;
+ * the skipped run for GARBAGE); offset: stream offset of raw[0]. A
+ * rejected candidate loses only its first byte, so its later bytes are
+ * scanned again and may be reported again (as GARBAGE or inside a frame). */
+typedef void (*lf_fap_reject_cb)(void *ctx, int reason, const uint8_t *raw, size_t n,
+                                 uint64_t offset, lf_ns now);
 
 typedef struct lf_fap_decoder {
     uint8_t buf[LF_FAP_MAX_FRAME];
@@ -65,16 +80,15 @@ typedef struct lf_fap_decoder {
     lf_ns   last_byte;       /* arrival time of the newest held byte */
     lf_ns   gap;             /* inter-byte gap that abandons a partial frame */
     lf_fap_rx_counts c;
-    lf_fap_bad_cb bad;       /* optional, see lf_fap_decoder_set_bad */
-    void *bad_ctx;
+    uint64_t pos;            /* stream offset of buf[0] */
+    lf_fap_reject_cb reject; /* optional, NULL after init */
+    void   *reject_ctx;
 } lf_fap_decoder;
 
 /* Inter-byte gap default: the longer of 4 character times and 10 ms. */
 lf_ns lf_fap_default_gap(unsigned baud);
 
 void lf_fap_decoder_init(lf_fap_decoder *d, lf_ns gap);
-/* Report rejected candidates to cb (NULL = not at all). */
-void lf_fap_decoder_set_bad(lf_fap_decoder *d, lf_fap_bad_cb cb, void *ctx);
 /* Feed n bytes that arrived at `now`; every valid frame completed by them
  * is reported through cb (frame data is valid during the call only).
  * Feeding never applies the inter-byte gap: a driver that was itself
@@ -91,4 +105,8 @@ lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d);
 void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx);
 /* Drop everything held (after a port reopen). */
 void lf_fap_decoder_reset(lf_fap_decoder *d);
+/* Report every rejection through cb (NULL: stop reporting). */
+void lf_fap_decoder_on_reject(lf_fap_decoder *d, lf_fap_reject_cb cb, void *ctx);
+/* Short name of an lf_fap_reject reason ("crc", "size", ...; "?" if unknown). */
+const char *lf_fap_reject_name(int reason);
 #endif

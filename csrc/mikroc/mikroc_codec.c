@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "mikroc_rs485.h"
+#include "mikroc/mikroc_scan.h"
 
 #define START MIKROC_RS485_START_BYTE
 #define STOP MIKROC_RS485_STOP_BYTE
@@ -161,4 +162,55 @@ int mikrocRS485_DecoderFeed(mikrocRS485_decoder *d, uint8_t byte, mikrocRS485_fr
             return fail(d, out, MIKROC_RS485_EFORMAT);
     }
     return MIKROC_RS485_MORE;
+}
+
+void lf_mikroc_scan_init(lf_mikroc_scan *s)
+{
+    memset(s, 0, sizeof *s);
+    mikrocRS485_DecoderInit(&s->d);
+}
+
+/* The short reason of an error code; which field broke an EFORMAT is
+ * told by the byte's place in the frame (DATALEN is checked on arrival,
+ * the escape flags at the stop byte). */
+static const char *scan_reason(int code, uint64_t index)
+{
+    switch (code) {
+    case MIKROC_RS485_ECRC:    return "crc";
+    case MIKROC_RS485_EFORMAT: return index == 2 ? "datalen" : "escape";
+    case MIKROC_RS485_ESHORT:  return "short";
+    case MIKROC_RS485_ELONG:   return "long";
+    case MIKROC_RS485_EABORT:  return "abort";
+    default:                   return NULL;
+    }
+}
+
+size_t lf_mikroc_scan_feed(lf_mikroc_scan *s, const uint8_t *p, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        uint64_t at = s->pos++;
+        int r = mikrocRS485_DecoderFeed(&s->d, p[i], &s->f);
+        if (p[i] == START) {
+            uint64_t prev = s->start;
+            s->start = at;
+            if (r == MIKROC_RS485_MORE)
+                continue;
+            s->rep_start = prev;
+            s->rep_end = at;
+        } else {
+            if (r == MIKROC_RS485_MORE)
+                continue;
+            s->rep_start = s->start;
+            s->rep_end = at + 1;
+        }
+        s->code = r;
+        s->reason = scan_reason(r, at - s->rep_start);
+        return i + 1;
+    }
+    return n;
+}
+
+int lf_mikroc_scan_in_frame(const lf_mikroc_scan *s)
+{
+    return s->d.in_frame != 0;
 }

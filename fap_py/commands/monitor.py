@@ -1,0 +1,270 @@
+"""``fap monitor``: a protocol analyser for FAP, exec async, mikroC and G485.
+
+    fap monitor --protocol fap --raw bytes.bin
+    fap monitor --protocol auto --capture bus.cap --stats
+    fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --follow --json
+    some-reader | fap monitor --protocol g485 --pcap out.pcap
+    fap monitor --dissectors ~/.local/lib/wireshark/plugins
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+from typing import List, Optional
+
+log = logging.getLogger(__name__)
+
+EXAMPLES = """examples:
+  fap monitor --protocol fap --raw bytes.bin
+  fap monitor --protocol auto --capture bus.cap --stats
+  fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --follow --json
+  cat bytes.bin | fap monitor --protocol g485 --pcap out.pcap
+  fap monitor --dissectors ~/.local/lib/wireshark/plugins
+exit: 0 input read to its end (bad frames are reported, not failures),
+      2 usage error, 3 file or port error, 130 interrupted"""
+
+EXIT_USAGE, EXIT_IO, EXIT_INTERRUPTED = 2, 3, 130
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
+    return value
+
+
+def _seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
+    return value
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    from fap_py.monitor.decoders import PROTOCOLS
+
+    p.add_argument("--protocol", choices=list(PROTOCOLS) + ["auto"], default="auto",
+                   help="decoder; auto tries all four and reports which one locks on")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--port", metavar="PATH", help="live serial port, opened receive-only")
+    src.add_argument("--raw", metavar="FILE", help="raw bytes as recorded from a port")
+    src.add_argument("--capture", metavar="FILE",
+                     help="virtual-bus capture (fap bus --capture): senders and times kept")
+    p.add_argument("--baud", type=_positive_int, default=None, metavar="N",
+                   help="line rate: opens --port at it (default 115200); sets the inter-byte "
+                        "gap and bus utilisation for the other inputs")
+    p.add_argument("--follow", action="store_true",
+                   help="live port: keep reading until interrupted (else stop after --timeout "
+                        "seconds of silence)")
+    p.add_argument("--timeout", type=_seconds, default=2.0, metavar="S",
+                   help="live port without --follow: stop after this much silence")
+    p.add_argument("--json", action="store_true", help="one JSON object per frame or error")
+    p.add_argument("--stats", action="store_true",
+                   help="print only the statistics (frames, errors per node, reply times)")
+    p.add_argument("--pcap", metavar="FILE", help="also write every frame to this pcap file")
+    p.add_argument("--dissectors", metavar="DIR",
+                   help="write the Wireshark Lua dissector to DIR (and exit if no input given)")
+    p.add_argument("--extcap-dir", metavar="DIR",
+                   help="write the Wireshark extcap launcher to DIR (and exit if no input given)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no status lines on stderr (listening, auto lock); errors still")
+    p.add_argument("--debug", action="store_true", help="traceback on error")
+    p.add_argument("-v", "--verbose", action="count", default=0, dest="monitor_verbose",
+                   help="log more")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
+                       description="A protocol analyser for FAP, exec async, mikroC and G485: "
+                       "reads a live port (receive-only), a raw byte file, a virtual-bus capture "
+                       "or stdin; prints frames, JSON, statistics, pcap. See docs/monitor.md.",
+                       epilog=EXAMPLES,
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    # RawDescription keeps the epilog; defaults are spelt out in the help texts
+    p.formatter_class = _Formatter
+    add_arguments(p)
+    p.set_defaults(func=run)
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    pass
+
+
+def _error(msg: str) -> None:
+    print(f"fap: error: {msg}", file=sys.stderr)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.monitor_verbose:
+        logging.getLogger().setLevel(logging.INFO if args.monitor_verbose == 1 else logging.DEBUG)
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # noqa: BLE001 - one line, as every fap subcommand
+        if args.debug:
+            raise
+        from fap_py.errors import FapError, InvalidValueError
+        from fap_py.vbus import CaptureFormatError
+
+        if isinstance(exc, CaptureFormatError):     # an unreadable file, not bad arguments
+            _error(str(exc))
+            return EXIT_IO
+        if isinstance(exc, InvalidValueError):      # e.g. a rate the port refuses
+            _error(str(exc))
+            return EXIT_USAGE
+        if isinstance(exc, (OSError, FapError)):
+            _error(str(exc))
+            return EXIT_IO
+        raise
+
+
+def _run(args: argparse.Namespace) -> int:
+    from fap_py.monitor import install
+
+    wrote = False
+    if args.dissectors:
+        for path in install.write_dissectors(args.dissectors):
+            print(f"wrote {path}", file=sys.stderr)
+        wrote = True
+    if args.extcap_dir:
+        print(f"wrote {install.write_extcap(args.extcap_dir)}", file=sys.stderr)
+        wrote = True
+    if wrote and not (args.port or args.raw or args.capture):
+        return 0
+    if args.follow and not args.port:
+        _error("--follow needs --port")
+        return EXIT_USAGE
+    if not (args.port or args.raw or args.capture) and sys.stdin.isatty():
+        _error("no input: give --port, --raw or --capture, or pipe bytes to stdin")
+        return EXIT_USAGE
+    return monitor(args)
+
+
+def monitor(args: argparse.Namespace, out=None) -> int:
+    """Run the monitor over the input named in ``args``; the records go to ``out``."""
+    from fap_py.monitor.core import Monitor
+    from fap_py.monitor.output import human_line, json_line
+    from fap_py.monitor.pcap import PcapWriter
+    from fap_py.monitor.sources import LivePort, capture_file, raw_file, stream
+    from fap_py.monitor.stats import Stats
+
+    out = out or sys.stdout
+    baud = args.baud or 0
+    live: Optional[LivePort] = None
+    fh = None
+    pcap = None
+    try:
+        if args.port:
+            live = LivePort(args.port, baud or 115200)
+            baud = live.baud
+            # tells a person (and a test) that bytes from now on are seen
+            if not args.quiet:
+                print(f"fap monitor: listening on {args.port} at {baud} baud", file=sys.stderr,
+                      flush=True)
+        elif args.raw:
+            fh = open(args.raw, "rb")
+        elif args.capture:
+            cap_baud, cap_chunks = capture_file(args.capture)
+            baud = baud or cap_baud
+        # after the input: an extcap fifo's reader sees the header once the port is open
+        pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
+    except BaseException:
+        if live is not None:
+            live.close()
+        if fh is not None:
+            fh.close()
+        raise
+    mon = Monitor(args.protocol, baud)
+    stats = Stats(baud)
+    flush = bool(live)
+    t0: List[Optional[float]] = [None]
+    announced = [mon.locked is not None]
+
+    def emit(recs) -> None:
+        if not announced[0] and mon.locked and not args.quiet:
+            announced[0] = True
+            print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+        for rec in recs:
+            stats.add(rec)
+            if pcap:
+                pcap.write(rec, flush)
+            if args.stats:
+                continue
+            if args.json:
+                out.write(json_line(rec) + "\n")
+            else:
+                if t0[0] is None and rec.t is not None and live is not None:
+                    t0[0] = rec.t
+                out.write(human_line(rec, t0[0]) + "\n")
+            if flush:
+                out.flush()
+
+    stopping = [False]
+
+    def on_term(signum, frame) -> None:  # SIGTERM (extcap's stop): end cleanly
+        stopping[0] = True
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    interrupted = False
+    try:
+        if live is not None:
+            with live:
+                try:
+                    for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.timeout,
+                                             lambda: stopping[0]):
+                        if chunk is None:
+                            emit(mon.idle(live_now()))
+                        else:
+                            emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port,
+                                          chunk.now_ns))
+                except KeyboardInterrupt:
+                    interrupted = True
+        else:
+            if fh is not None:
+                chunks = raw_file(fh)
+            elif args.capture:
+                chunks = cap_chunks
+            else:
+                chunks = stream(sys.stdin.fileno(), baud)
+            for chunk in chunks:
+                emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port, chunk.now_ns))
+        emit(mon.finish())
+    finally:
+        signal.signal(signal.SIGTERM, old)
+        if fh is not None:
+            fh.close()
+        if pcap:
+            pcap.close()
+            pcap._fh.close()
+    stats.bytes = mon.bytes
+    if not announced[0] and mon.locked and not args.quiet:
+        print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+    if args.json and args.stats:
+        summary = stats.summary()
+        summary["protocol"] = mon.locked
+        out.write(json.dumps({"stats": summary}) + "\n")
+    elif not args.json:
+        out.write(stats.footer() + "\n")
+    out.flush()
+    return EXIT_INTERRUPTED if interrupted else 0
+
+
+def live_now() -> int:
+    from fap_py._native import lib
+
+    return lib.fap_port_now_ns()
+
+
+__all__ = ["add_arguments", "monitor", "register", "run"]

@@ -1,0 +1,179 @@
+"""The monitor pipeline: chunks of bytes in, timed records out.
+
+A source hands :class:`Monitor` chunks (bytes, when the first one was on
+the wire, how long a byte takes, which port sent them). The monitor feeds
+one decoder (or, for ``auto``, all four until one locks on), filters the
+events and stamps each with the time and sender of its first byte.
+"""
+from __future__ import annotations
+
+import bisect
+import logging
+from typing import Dict, List, Optional
+
+from .decoders import PROTOCOLS, Decoder, Event, EventFilter, make_decoder
+
+log = logging.getLogger(__name__)
+
+#: good frames one decoder needs, more than any other, for ``auto`` to lock on
+AUTO_LOCK_FRAMES = 2
+#: bytes after which ``auto`` picks the best decoder even without a clear lead
+AUTO_GIVE_UP_BYTES = 4096
+
+
+class Record:
+    """A decoder event placed on the timeline."""
+
+    __slots__ = ("event", "t", "t_end", "port")
+
+    def __init__(self, event: Event, t: Optional[float], t_end: Optional[float],
+                 port: Optional[int]) -> None:
+        self.event = event
+        self.t = t
+        self.t_end = t_end
+        self.port = port
+
+    @property
+    def protocol(self) -> str:
+        return self.event.protocol
+
+    @property
+    def ok(self) -> bool:
+        return self.event.error is None
+
+    @property
+    def error(self) -> Optional[str]:
+        return self.event.error
+
+    @property
+    def raw(self) -> bytes:
+        return self.event.raw
+
+    @property
+    def fields(self) -> Optional[Dict[str, object]]:
+        return self.event.fields
+
+
+class Timeline:
+    """Time and sender of every stream offset: one segment per chunk."""
+
+    __slots__ = ("_offsets", "_segs", "_pos")
+
+    def __init__(self) -> None:
+        self._offsets: List[int] = []
+        self._segs: List[tuple] = []
+        self._pos = 0
+
+    def add(self, n: int, t: Optional[float], char_s: float, port: Optional[int]) -> None:
+        if t is None and port is None:
+            self._pos += n
+            return
+        self._offsets.append(self._pos)
+        self._segs.append((t, char_s, port))
+        self._pos += n
+        if len(self._offsets) > 4096:            # events are never that far behind
+            del self._offsets[:2048]
+            del self._segs[:2048]
+
+    def at(self, offset: int) -> tuple:
+        """(wire start of the byte at offset or None, sender port or None)."""
+        i = bisect.bisect_right(self._offsets, offset) - 1
+        if i < 0:
+            return None, None
+        t, char_s, port = self._segs[i]
+        if t is None:
+            return None, port
+        return t + (offset - self._offsets[i]) * char_s, port
+
+    def end(self, offset: int) -> Optional[float]:
+        """Wire end of the byte at offset (its start plus one character time), or None."""
+        i = bisect.bisect_right(self._offsets, offset) - 1
+        if i < 0:
+            return None
+        t, char_s, _port = self._segs[i]
+        return None if t is None else t + (offset - self._offsets[i] + 1) * char_s
+
+
+class Monitor:
+    """Decode one stream with one protocol, or ``auto``: try all four."""
+
+    def __init__(self, protocol: str = "auto", baud: int = 0) -> None:
+        """``protocol``: one of PROTOCOLS or "auto"; ``baud``: the line rate (0 unknown).
+
+        Raises InvalidValueError for an unknown protocol.
+        """
+        self.protocol = protocol
+        self.baud = baud
+        self.timeline = Timeline()
+        self.filter = EventFilter()
+        self.bytes = 0
+        self.locked: Optional[str] = None if protocol == "auto" else protocol
+        self.decoder: Optional[Decoder] = make_decoder(protocol, baud) if self.locked else None
+        self._trials: Dict[str, Decoder] = {}
+        self._trial_events: Dict[str, List[Event]] = {}
+        if not self.locked:
+            self._trials = {p: make_decoder(p, baud) for p in PROTOCOLS}
+            self._trial_events = {p: [] for p in PROTOCOLS}
+
+    # -- auto ----------------------------------------------------------
+    def _score(self, p: str) -> int:
+        return sum(1 for e in self._trial_events[p] if e.error is None)
+
+    def _try_lock(self, force: bool) -> List[Event]:
+        scores = {p: self._score(p) for p in PROTOCOLS}
+        best = max(PROTOCOLS, key=lambda p: scores[p])
+        others = max(scores[p] for p in PROTOCOLS if p != best)
+        if not force and not (scores[best] >= AUTO_LOCK_FRAMES and scores[best] > others):
+            return []
+        self.locked = best
+        self.decoder = self._trials[best]
+        log.info("auto: locked on %s (%d good frames; others at most %d)",
+                 best, scores[best], others)
+        events = self._trial_events[best]
+        self._trials, self._trial_events = {}, {}
+        return events
+
+    def _decode(self, fn: str, *args: object, force: bool = False) -> List[Event]:
+        if self.decoder is not None:
+            return getattr(self.decoder, fn)(*args)
+        for p, d in self._trials.items():
+            self._trial_events[p].extend(getattr(d, fn)(*args))
+        return self._try_lock(force or self.bytes >= AUTO_GIVE_UP_BYTES)
+
+    # -- input ---------------------------------------------------------
+    def _records(self, events: List[Event]) -> List[Record]:
+        return self._place(self.filter.push(events))
+
+    def feed(self, data: bytes, t: Optional[float] = None, char_s: float = 0.0,
+             port: Optional[int] = None, now_ns: int = 0) -> List[Record]:
+        """Bytes whose first one was on the wire at ``t`` (seconds), ``char_s`` apart."""
+        if not data:
+            return []
+        self.timeline.add(len(data), t, char_s, port)
+        self.bytes += len(data)
+        return self._records(self._decode("feed", data, now_ns))
+
+    def idle_deadline(self) -> Optional[int]:
+        if self.decoder is not None:
+            return self.decoder.idle_deadline()
+        ds = [d.idle_deadline() for d in self._trials.values()]
+        ds = [d for d in ds if d is not None]
+        return min(ds) if ds else None
+
+    def idle(self, now_ns: int) -> List[Record]:
+        """The line is quiet: apply the receiver's gap, and show a held garbage run now."""
+        recs = self._records(self._decode("idle", now_ns))
+        return recs + self._place(self.filter.finish())
+
+    def _place(self, events: List[Event]) -> List[Record]:
+        tl = self.timeline
+        out = []
+        for ev in events:
+            t, port = tl.at(ev.offset)
+            out.append(Record(ev, t, tl.end(ev.end - 1) if t is not None else None, port))
+        return out
+
+    def finish(self) -> List[Record]:
+        """End of input: flush the decoder (truncated frames, trailing garbage)."""
+        events = self._decode("finish", force=True)
+        return self._records(events) + self._place(self.filter.finish())

@@ -1,0 +1,85 @@
+"""Wireshark extcap entry point: live capture from a serial port into Wireshark.
+
+Wireshark runs this program (through the launcher ``fap monitor
+--extcap-dir DIR`` writes) with ``--extcap-interfaces``, ``--extcap-dlts``,
+``--extcap-config`` and finally ``--capture --fifo PATH``; the capture runs
+``fap monitor --port ... --follow --quiet --pcap FIFO`` until Wireshark
+stops it (SIGTERM). Wireshark reports anything on stderr as an error, so the
+capture prints nothing there but real errors; the fifo gets its pcap header
+once the port is open. See https://www.wireshark.org/docs/man-pages/extcap.html.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import List, Optional
+
+from .decoders import PROTOCOLS
+from .pcap import LINKTYPE
+
+INTERFACE = "fap_monitor"
+VERSION = "1.0"
+
+
+def interfaces() -> str:
+    return (f"extcap {{version={VERSION}}}{{help=https://github.com/libfap/fap_py/blob/main/docs/monitor.md}}\n"
+            f"interface {{value={INTERFACE}}}{{display=fap monitor: FAP, exec async, mikroC, "
+            f"G485 on a serial port}}\n")
+
+
+def dlts() -> str:
+    return f"dlt {{number={LINKTYPE}}}{{name=USER0}}{{display=fap monitor record}}\n"
+
+
+def config() -> str:
+    lines = [
+        "arg {number=0}{call=--port}{display=Serial port}{type=string}"
+        "{tooltip=Device path, e.g. /dev/ttyUSB0}{required=true}",
+        "arg {number=1}{call=--baud}{display=Baud rate}{type=integer}{default=115200}",
+        "arg {number=2}{call=--protocol}{display=Protocol}{type=selector}",
+    ]
+    for p in ("auto",) + PROTOCOLS:
+        default = "{default=true}" if p == "auto" else ""
+        lines.append(f"value {{arg=2}}{{value={p}}}{{display={p}}}{default}")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(prog="fap-monitor-extcap")
+    ap.add_argument("--extcap-interfaces", action="store_true")
+    ap.add_argument("--extcap-interface")
+    ap.add_argument("--extcap-dlts", action="store_true")
+    ap.add_argument("--extcap-config", action="store_true")
+    ap.add_argument("--extcap-version")
+    ap.add_argument("--capture", action="store_true")
+    ap.add_argument("--fifo")
+    ap.add_argument("--port")
+    ap.add_argument("--baud", type=int, default=115200)
+    ap.add_argument("--protocol", choices=("auto",) + PROTOCOLS, default="auto")
+    args, _unknown = ap.parse_known_args(argv)
+    if args.extcap_interfaces:
+        sys.stdout.write(interfaces())
+        return 0
+    if args.extcap_interface and args.extcap_interface != INTERFACE:
+        print(f"fap: error: unknown interface {args.extcap_interface}", file=sys.stderr)
+        return 2
+    if args.extcap_dlts:
+        sys.stdout.write(dlts())
+        return 0
+    if args.extcap_config:
+        sys.stdout.write(config())
+        return 0
+    if args.capture:
+        if not args.fifo or not args.port:
+            print("fap: error: --capture needs --fifo and --port", file=sys.stderr)
+            return 2
+        from ..cli import main as fap_main
+
+        return fap_main(["monitor", "--port", args.port, "--baud", str(args.baud),
+                         "--protocol", args.protocol, "--follow", "--stats", "--quiet", "--pcap", args.fifo])
+    print("fap: error: nothing to do (see extcap(4))", file=sys.stderr)
+    return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

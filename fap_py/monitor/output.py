@@ -1,0 +1,63 @@
+"""How records are shown: one JSON object per line, or one human line."""
+from __future__ import annotations
+
+import json
+from typing import Dict, Optional
+
+from .core import Record
+from .decoders import FIELDS
+
+
+def to_json(rec: Record) -> Dict[str, object]:
+    """The documented JSON object of a record (docs/monitor.md).
+
+    Common keys: protocol, t, port, ok, error, frame; then the protocol's
+    fields (null for a bad frame or garbage). Bytes are lower-case hex.
+    """
+    ev = rec.event
+    out: Dict[str, object] = {
+        "protocol": ev.protocol,
+        "t": None if rec.t is None else round(rec.t, 6),
+        "port": rec.port,
+        "ok": ev.error is None,
+        "error": ev.error,
+        "frame": ev.raw.hex(),
+    }
+    fields = ev.fields
+    for name in FIELDS[ev.protocol]:
+        value = fields.get(name) if fields else None
+        out[name] = value.hex() if isinstance(value, (bytes, bytearray)) else value
+    return out
+
+
+def json_line(rec: Record) -> str:
+    return json.dumps(to_json(rec), separators=(",", ":"))
+
+
+def printable(data: bytes) -> str:
+    return "".join(chr(b) if 32 <= b < 127 else "." for b in data)
+
+
+def _who(rec: Record) -> str:
+    f = rec.fields or {}
+    p = rec.protocol
+    if p == "fap":
+        return f"{f['msg_name']:<9} {f['src']:>2} -> {f['dst']:<2}"
+    if p == "exec":
+        return f"node {f['node']:>3} seq {f['seq']:>3}"
+    if p == "mikroc":
+        return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
+    rw = "R" if f["rw"] else "W"
+    return f"{f['packet']} addr {f['address']} {rw} pid 0x{f['pid']:02x}"
+
+
+def human_line(rec: Record, t0: Optional[float] = None) -> str:
+    """timestamp, sender port, protocol, addresses and message, payload hex |printable|."""
+    t = "         -" if rec.t is None else f"{rec.t - (t0 or 0.0):10.6f}"
+    port = "  " if rec.port is None else f"p{rec.port}"
+    if rec.ok:
+        data = (rec.fields or {}).get("data") or b""
+        body = f"{_who(rec)}  [{len(data)}] {data.hex(' ')}  |{printable(data)}|" if data \
+            else f"{_who(rec)}  [0]"
+        return f"{t} {port} {rec.protocol:<6} {body}"
+    return f"{t} {port} {rec.protocol:<6} !! {rec.error:<9} [{len(rec.raw)}] {rec.raw.hex(' ')}"

@@ -1,0 +1,78 @@
+"""pcap output: one record per frame, good or bad (docs/monitor.md).
+
+Link type LINKTYPE_USER0 (147). Each packet is a small header, then the
+frame's bytes exactly as they were on the wire:
+
+    offset  size  field
+    0       1     version (1)
+    1       1     protocol: 1 fap, 2 exec async, 3 mikroC, 4 G485
+    2       1     flags: bit 0 frame ok, bit 1 port known, bit 2 time known
+    3       1     sender port (0xff when unknown)
+    4       1     L, length of the text
+    5       L     text, ASCII: a bad frame's error reason ("crc", "garbage",
+                  ...); a good frame's message type name as the monitor
+                  decoded it (FAP msg_name, G485 packet), else empty
+    5+L     ...   the frame
+
+Records without a time get the time of the previous one (0 at first).
+"""
+from __future__ import annotations
+
+import struct
+from typing import BinaryIO, Optional
+
+from .core import Record
+
+LINKTYPE = 147           # LINKTYPE_USER0 / DLT_USER0
+HEADER_VERSION = 1
+PROTOCOL_IDS = {"fap": 1, "exec": 2, "mikroc": 3, "g485": 4}
+FLAG_OK, FLAG_PORT, FLAG_TIME = 1, 2, 4
+SNAPLEN = 65535
+_GLOBAL = struct.Struct("<IHHiIII")
+_RECORD = struct.Struct("<IIII")
+
+
+def header(rec: Record) -> bytes:
+    """The per-packet header described above."""
+    flags = (FLAG_OK if rec.ok else 0) | (FLAG_PORT if rec.port is not None else 0) \
+        | (FLAG_TIME if rec.t is not None else 0)
+    text = rec.error
+    if text is None and rec.fields:
+        text = rec.fields.get("msg_name") or rec.fields.get("packet")
+    reason = (text or "").encode("ascii")[:255]
+    port = 0xFF if rec.port is None else rec.port & 0xFF
+    return bytes((HEADER_VERSION, PROTOCOL_IDS[rec.protocol], flags, port, len(reason))) + reason
+
+
+class PcapWriter:
+    """Writes records to a pcap file (a context manager)."""
+
+    def __init__(self, fh: BinaryIO, epoch: Optional[float] = None) -> None:
+        self._fh = fh
+        self._last = 0.0 if epoch is None else epoch
+        fh.write(_GLOBAL.pack(0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE))
+        fh.flush()
+
+    def write(self, rec: Record, flush: bool = False) -> None:
+        if rec.t is not None:
+            self._last = rec.t
+        t = self._last
+        sec = int(t)
+        usec = int(round((t - sec) * 1e6))
+        if usec >= 1_000_000:
+            sec, usec = sec + 1, usec - 1_000_000
+        payload = header(rec) + rec.raw
+        n = min(len(payload), SNAPLEN)
+        self._fh.write(_RECORD.pack(sec, usec, n, len(payload)) + payload[:n])
+        if flush:
+            self._fh.flush()
+
+    def close(self) -> None:
+        self._fh.flush()
+
+    def __enter__(self) -> "PcapWriter":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+

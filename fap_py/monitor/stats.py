@@ -1,0 +1,131 @@
+"""Bus statistics: frames and errors by kind per node, bytes, utilisation,
+reply times (end of a request to the start of its answer) per node."""
+from __future__ import annotations
+
+from collections import defaultdict
+from typing import Dict, List, Optional
+
+from .core import Record
+
+#: G485 packet types that answer a request
+_G485_REPLIES = frozenset({"User-Register-Read-Response", "Handshake-Response",
+                           "Get-Error-Word-Response"})
+#: FAP's master id (requests come from it) and exec async's broadcast node
+_FAP_MASTER = 0
+_EXEC_BROADCAST = 255
+
+
+def _percentile(sorted_values: List[float], q: float) -> float:
+    """Nearest-rank percentile of an ascending list."""
+    k = max(0, min(len(sorted_values) - 1, int(round(q / 100.0 * len(sorted_values) + 0.5)) - 1))
+    return sorted_values[k]
+
+
+class NodeStats:
+    __slots__ = ("frames", "errors", "replies")
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.errors: Dict[str, int] = defaultdict(int)
+        self.replies: List[float] = []
+
+
+class Stats:
+    """Accumulates records; :meth:`summary` gives the footer's numbers."""
+
+    def __init__(self, baud: int = 0) -> None:
+        self.baud = baud
+        self.nodes: Dict[str, NodeStats] = defaultdict(NodeStats)
+        self.frames = 0
+        self.errors: Dict[str, int] = defaultdict(int)
+        self.frame_bytes = 0
+        self.bytes = 0
+        self.t_first: Optional[float] = None
+        self.t_last: Optional[float] = None
+        self._pending: Optional[tuple] = None     # (node, key, t_end) of the last request
+
+    def _node_and_role(self, rec: Record) -> tuple:
+        """(node, 'req' | 'ans' | None, pairing key) of a good frame."""
+        f = rec.fields or {}
+        p = rec.protocol
+        if p == "fap":
+            if f["src"] == _FAP_MASTER:
+                return f["dst"], "req", f["dst"]
+            return f["src"], "ans", f["src"]
+        if p == "exec":
+            if f["node"] == _EXEC_BROADCAST:
+                return f["node"], None, None
+            pend = self._pending
+            if pend and pend[1] == (f["node"], f["seq"]):
+                return f["node"], "ans", (f["node"], f["seq"])
+            return f["node"], "req", (f["node"], f["seq"])
+        if p == "mikroc":
+            return f["address"], "req" if f["from_master"] else "ans", f["address"]
+        if f["packet"] in _G485_REPLIES:
+            pend = self._pending
+            return (pend[0] if pend else f["address"]), "ans", None
+        return f["address"], ("req" if f["address"] else None), None
+
+    def add(self, rec: Record) -> None:
+        if rec.t is not None:
+            if self.t_first is None:
+                self.t_first = rec.t
+            self.t_last = rec.t_end if rec.t_end is not None else rec.t
+        if not rec.ok:
+            self.errors[rec.error] += 1
+            self.nodes["?"].errors[rec.error] += 1
+            return
+        self.frames += 1
+        self.frame_bytes += len(rec.raw)
+        node, role, key = self._node_and_role(rec)
+        ns = self.nodes[str(node)]
+        ns.frames += 1
+        if role == "req":
+            self._pending = (node, key, rec.t_end)
+        elif role == "ans":
+            pend = self._pending
+            if pend and (key is None or pend[1] == key) and pend[2] is not None \
+                    and rec.t is not None:
+                ns.replies.append(max(0.0, rec.t - pend[2]))
+            self._pending = None
+
+    def utilisation(self) -> Optional[float]:
+        """Share of the time the wire carried bytes (10 bits each), or None if unknown."""
+        if not self.baud or self.t_first is None or self.t_last is None:
+            return None
+        span = self.t_last - self.t_first
+        if span <= 0:
+            return None
+        return min(1.0, self.bytes * 10.0 / self.baud / span)
+
+    def summary(self) -> Dict[str, object]:
+        nodes = {}
+        for name in sorted(self.nodes, key=lambda k: (k == "?", int(k) if k.isdigit() else 0)):
+            ns = self.nodes[name]
+            r = sorted(ns.replies)
+            nodes[name] = {
+                "frames": ns.frames, "errors": dict(ns.errors),
+                "replies": len(r),
+                "reply_p50_ms": round(_percentile(r, 50) * 1e3, 3) if r else None,
+                "reply_p99_ms": round(_percentile(r, 99) * 1e3, 3) if r else None,
+                "reply_max_ms": round(r[-1] * 1e3, 3) if r else None,
+            }
+        util = self.utilisation()
+        return {"frames": self.frames, "errors": dict(self.errors), "bytes": self.bytes,
+                "frame_bytes": self.frame_bytes,
+                "utilisation": None if util is None else round(util, 4), "nodes": nodes}
+
+    def footer(self) -> str:
+        s = self.summary()
+        errs = ", ".join(f"{k} {v}" for k, v in sorted(s["errors"].items())) or "none"
+        util = "unknown" if s["utilisation"] is None else f"{s['utilisation'] * 100:.1f} %"
+        lines = [f"-- {s['frames']} frames, errors: {errs}; {s['bytes']} bytes; "
+                 f"bus utilisation {util}"]
+        for name, n in s["nodes"].items():
+            e = ", ".join(f"{k} {v}" for k, v in sorted(n["errors"].items())) or "no errors"
+            reply = "" if not n["replies"] else (
+                f"; reply ms p50 {n['reply_p50_ms']} p99 {n['reply_p99_ms']} "
+                f"max {n['reply_max_ms']} ({n['replies']})")
+            label = "unattributed" if name == "?" else f"node {name}"
+            lines.append(f"   {label}: {n['frames']} frames, {e}{reply}")
+        return "\n".join(lines)
