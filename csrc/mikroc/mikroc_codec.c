@@ -4,6 +4,7 @@
 #include <string.h>
 
 #include "mikroc_rs485.h"
+#include "mikroc/mikroc_internal.h"
 
 #define START MIKROC_RS485_START_BYTE
 #define STOP MIKROC_RS485_STOP_BYTE
@@ -161,4 +162,13 @@ int mikrocRS485_DecoderFeed(mikrocRS485_decoder *d, uint8_t byte, mikrocRS485_fr
             return fail(d, out, MIKROC_RS485_EFORMAT);
     }
     return MIKROC_RS485_MORE;
+}
+
+size_t lf_mikroc_missing(const mikrocRS485_decoder *d)
+{
+    /* after START: address, DATALEN, data (DATALEN's count), CRC, STOP */
+    if (!d->in_frame)
+        return 5;
+    unsigned count = d->n >= 2 ? (d->raw[1] & MIKROC_RS485_DL_COUNT) : 0;
+    return count + 4u > d->n ? count + 4u - d->n : 1;
 }

@@ -2,10 +2,17 @@
  * vendor-style global routines. */
 #ifndef LF_MIKROC_INTERNAL_H
 #define LF_MIKROC_INTERNAL_H
+#include <stddef.h>
+
 #include "fap_port.h"
+#include "mikroc_rs485.h"
 
 /* Open path with opts (NULL = port defaults) and baud (0 = keep opts').
  * 0 and *out set, or a negative error. */
 int lf_mikroc_port_open(fap_port **out, const char *path, unsigned baud,
                         const fap_port_options *opts);
+/* The fewest bytes still needed to end a frame from the decoder's state
+ * (the whole minimal frame when none has started). refill() sleeps their
+ * wire time instead of waking per byte (port/rx_pacing.h). */
+size_t lf_mikroc_missing(const mikrocRS485_decoder *d);
 #endif
