@@ -10,8 +10,9 @@ libraries), so each side's CPU is its own and the bus relay's is nobody's.
 Measured (medians of ``--rounds`` runs, with min and max):
 
 * paced efficiency at 9600, 115200 and 1,000,000 baud: exchanges/s as a
-  share of the framing limit (10 bits per byte, request + reply bytes, and
-  Modbus's 3.5-character silences), for every protocol and peer and the
+  share of the framing limit (10 bits per byte, request + reply bytes; a
+  Modbus 3.5-character silence is not counted: the peers do not keep it on
+  a pty), for every protocol and peer and the
   bare C and Python write/read floors, all on the same kind of bus;
 * turnaround p50/p99/max from the bus capture (end of a request to the
   start of its answer, i.e. the responder's reaction time);
@@ -58,14 +59,14 @@ C_KINDS = {
     "fap-data": ("FAP DATA round trip", 38, 38, 0, "bare"),
     "exec": ("exec async", 16, 16, 0, "bare"),
     "mikroc": ("mikroC RS-485", 8, 8, 0, "bare"),
-    "modbus": ("libmodbus RTU (10 regs)", 8, 25, 7, "bare"),
+    "modbus": ("libmodbus RTU (10 regs)", 8, 25, 0, "bare"),
 }
 # bench_g485 runs: kind -> (label, req, rep, silence, floor, server argv tail, client factory name)
 PY_KINDS = {
     "py-bare": ("bare Python write/read (floor)", 7, 16, 0, None, ["--serve", "canned"], "bare"),
     "g485": ("G485 (fap_py, check=none)", 7, 16, 0, "py-bare", None, "g485"),
-    "minimalmodbus": ("minimalmodbus RTU", 8, 25, 7, "py-bare", ["--serve", "modbus"], "minimalmodbus"),
-    "pymodbus": ("pymodbus sync RTU", 8, 25, 7, "py-bare", ["--serve", "modbus"], "pymodbus"),
+    "minimalmodbus": ("minimalmodbus RTU", 8, 25, 0, "py-bare", ["--serve", "modbus"], "minimalmodbus"),
+    "pymodbus": ("pymodbus sync RTU", 8, 25, 0, "py-bare", ["--serve", "modbus"], "pymodbus"),
     "dynamixel": ("Dynamixel SDK 1.0", 8, 16, 0, "py-bare", ["--serve", "dxl"], "dynamixel"),
 }
 PEER_HELP = {
@@ -96,6 +97,19 @@ def spec(kind: str) -> Tuple[Any, ...]:
     k = kind[len(BASE):] if base else kind
     t = C_KINDS.get(k) or PY_KINDS[k]
     return (t[0] + " [baseline build]",) + tuple(t[1:]) if base else t
+
+
+def proc_wakeups(pid: int) -> int:
+    """Voluntary context switches of a process's live threads so far."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            for line in (task / "status").read_text().splitlines():
+                if line.startswith("voluntary_ctxt_switches:"):
+                    total += int(line.split()[1])
+        except (OSError, ValueError):
+            pass
+    return total
 
 
 def limit(kind: str, baud: int) -> float:
@@ -183,9 +197,9 @@ class Runner:
                 assert cli.stdout is not None
                 if cli.stdout.readline().strip() != "measuring":
                     raise RuntimeError(f"bench_wire client {kind} failed")
-                s0 = proc_cpu(srv.pid)
+                s0, w0 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
                 res = json.loads(cli.stdout.readline())
-                s1 = proc_cpu(srv.pid)
+                s1, w1 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
                 cli.wait(10)
             finally:
                 srv.terminate()
@@ -196,7 +210,8 @@ class Runner:
         n = max(1, res["exchanges"])
         out = {"rate": res["exchanges"] / res["seconds"], "client_us": res["cpu_s"] / n * 1e6,
                "server_us": (s1 - s0) / n * 1e6, "client_load": res["cpu_s"] / res["seconds"],
-               "failed": res["failed"], "rss_kib_per_handle": res["rss_kib_per_handle"]}
+               "failed": res["failed"], "rss_kib_per_handle": res["rss_kib_per_handle"],
+               "client_wakeups": res["wakeups"] / n, "server_wakeups": (w1 - w0) / n}
         if cap:
             out["turnaround_us"] = turnarounds(cap, baud)
             cap.unlink(missing_ok=True)
@@ -276,7 +291,8 @@ def measure_series(runner: Runner, kind: str, baud: int, rounds: int, seconds: f
     if not runs:
         return {"error": "all runs failed"}
     out: Dict[str, Any] = {k: summary([r[k] for r in runs])
-                           for k in ("rate", "client_us", "server_us", "client_load")}
+                           for k in ("rate", "client_us", "server_us", "client_load",
+                                     "client_wakeups", "server_wakeups") if k in runs[0]}
     out["failed"] = sum(r["failed"] for r in runs)
     if baud:
         out["limit"] = limit(kind, baud)
@@ -347,9 +363,11 @@ def markdown(res: Dict[str, Any]) -> str:
          f"{res['loadavg_after']}; rounds {res['rounds']}, {res['seconds']} s each; "
          "median (min–max).", "",
          "Efficiency: exchanges/s as a share of the framing limit (10 bits per byte, request + "
-         "reply, Modbus's 3.5-character silences). vs floor: exchanges/s against what the bare "
+         "reply bytes; Modbus's 3.5-character silence not counted, the peers do not keep it on a pty). vs floor: exchanges/s against what the bare "
          "write/read floor (C for the C engines, Python for the Python libraries) reaches with the "
          "same frame sizes (their wire time plus the floor's measured per-exchange overhead). "
+         "Wake-ups/x: voluntary context switches per exchange (C sides only; does not "
+         "depend on the machine's load as CPU time does). "
          "Turnaround: end of a request to the start of its answer, from the bus capture.", ""]
     if res["missing"]:
         L += ["Missing peers (skipped): " + "; ".join(f"{k}: {v}" for k, v in res["missing"].items()), ""]
@@ -357,19 +375,21 @@ def markdown(res: Dict[str, Any]) -> str:
         rows = res["paced"][str(baud)]
         L += [f"## Paced at {baud} baud", "",
               "| protocol / peer | exchanges/s | framing limit/s | efficiency | vs floor | "
-              "client µs/x | server µs/x | turnaround p50 / p99 / max µs |",
-              "|---|---|---|---|---|---|---|---|"]
+              "client µs/x | server µs/x | wake-ups/x client, server | turnaround p50 / p99 / max µs |",
+              "|---|---|---|---|---|---|---|---|---|"]
         for kind, r in rows.items():
             if "error" in r:
-                L.append(f"| {label(kind)} | failed | | | | | | |")
+                L.append(f"| {label(kind)} | failed | | | | | | | |")
                 continue
             fr = floor_rate(kind, baud, rows)
             vs = f"{100 * r['rate']['median'] / fr:.1f} %" if fr else ""
             ta = r.get("turnaround_us")
             tas = f"{ta['p50']:.0f} / {ta['p99']:.0f} / {ta['max']:.0f}" if ta else ""
+            wk = (f"{r['client_wakeups']['median']:.1f}, {r['server_wakeups']['median']:.1f}"
+                  if "client_wakeups" in r else "")
             L.append(f"| {label(kind)} | {fmt(r['rate'])} | {r['limit']:.0f} | "
                      f"{fmt({k: 100 * v for k, v in r['efficiency'].items()}, '{:.1f}')} % | {vs} | "
-                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {tas} |")
+                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {tas} |")
         L.append("")
     L += ["## Unpaced (as fast as the ptys go)", "",
           "| protocol / peer | exchanges/s | client µs/x | server µs/x |", "|---|---|---|---|"]

@@ -54,6 +54,15 @@ static double cpu_s(void)
     return ru.ru_utime.tv_sec + ru.ru_stime.tv_sec + (ru.ru_utime.tv_usec + ru.ru_stime.tv_usec) / 1e6;
 }
 
+/* Voluntary context switches of every thread: how often this process
+ * went to sleep and was woken (load-independent, unlike CPU time). */
+static long wakeups(void)
+{
+    struct rusage ru;
+    getrusage(RUSAGE_SELF, &ru);
+    return ru.ru_nvcsw;
+}
+
 static long rss_kib(void)
 {
     FILE *f = fopen("/proc/self/status", "r");
@@ -422,6 +431,7 @@ static int run_client(const char *kind)
     fflush(stdout);
     long n = 0, bad = 0;
     uint64_t p0 = c.n ? fap_polls(&c) : 0;
+    long w0 = wakeups();
     double c0 = cpu_s(), t0 = now_s(), t;
     while ((t = now_s()) - t0 < seconds) {
         if (exchange(&c) < 0)
@@ -429,13 +439,14 @@ static int run_client(const char *kind)
         n++;
     }
     double cpu = cpu_s() - c0;
+    long wk = wakeups() - w0;
     if (strcmp(kind, "fap-poll") == 0) {
         n = (long)(fap_polls(&c) - p0);
         bad = 0;
     }
     printf("{\"kind\":\"%s\",\"exchanges\":%ld,\"failed\":%ld,\"seconds\":%.6f,\"cpu_s\":%.6f,"
-           "\"handles\":%d,\"slaves\":%d,\"rss_kib_per_handle\":%.1f,\"req_bytes\":%d,\"rep_bytes\":%d}\n",
-           kind, n - bad, bad, t - t0, cpu, handles, nslaves,
+           "\"wakeups\":%ld,\"handles\":%d,\"slaves\":%d,\"rss_kib_per_handle\":%.1f,\"req_bytes\":%d,\"rep_bytes\":%d}\n",
+           kind, n - bad, bad, t - t0, cpu, wk, handles, nslaves,
            (double)(rss1 - rss0) / handles, c.req, c.rep);
     fflush(stdout);
     _exit(0);

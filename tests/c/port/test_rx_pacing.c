@@ -150,10 +150,14 @@ static void close_fake(wire *w, fap_port *p)
 
 static void test_hold_ns(void)
 {
+    lf_ns ct = lf_char_time_ns(115200);             /* 86.8 us: margin 150 us */
     CHECK_EQ(lf_rx_hold_ns(115200, 0), 0);
     CHECK_EQ(lf_rx_hold_ns(115200, 1), 0);          /* the last byte: wait on the fd */
-    CHECK_EQ(lf_rx_hold_ns(115200, 2), lf_char_time_ns(115200));
-    CHECK_EQ(lf_rx_hold_ns(115200, 15), 14 * lf_char_time_ns(115200));
+    CHECK_EQ(lf_rx_hold_ns(115200, 3), 0);          /* 174 - 150 us: not worth a timer */
+    CHECK_EQ(lf_rx_hold_ns(115200, 15), 14 * ct - 150000);
+    CHECK_EQ(lf_rx_hold_ns(9600, 15), 13 * lf_char_time_ns(9600));  /* margin: 1 char */
+    CHECK_EQ(lf_rx_hold_ns(1000000, 15), 0);        /* a short frame at 1 Mbaud */
+    CHECK_EQ(lf_rx_hold_ns(1000000, 1039), 1038 * lf_char_time_ns(1000000) - 150000);
     CHECK_EQ(lf_rx_hold_ns(0, 15), 0);              /* baud unknown: never sleep */
 }
 
@@ -172,9 +176,9 @@ static void test_all_there_read_at_once(void)
     close_fake(&w, p);
 }
 
-/* A paced wire: wait for the first byte, sleep 13 character times (all but
- * the last missing byte), read 13 at once, leave the last to the caller's
- * wait: 2 reads instead of 15 wake-ups. */
+/* A paced wire: wait for the first byte, sleep 12 character times (all but
+ * the last missing byte, less one character of margin), read 12 at once,
+ * leave the last two to the caller's wait: 2 reads instead of 13 wake-ups. */
 static void test_paced_frame_one_sleep(void)
 {
     wire w;
@@ -183,12 +187,13 @@ static void test_paced_frame_one_sleep(void)
     script(&w, 15, 0);
     uint8_t buf[64];
     int64_t far = lf_now_ns() + 100 * CT;
-    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, far), 14);
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, far), 13);
     CHECK_EQ(w.sleeps, 1);
-    CHECK(w.slept[0] > 13 * CT - CT / 4 && w.slept[0] <= 13 * CT);
+    CHECK(w.slept[0] > 12 * CT - CT / 4 && w.slept[0] <= 12 * CT);
     CHECK_EQ(w.polls, 1);                            /* only for the first byte */
     CHECK(w.reads <= 3);
-    /* the last byte: the caller asks for 1, which is a plain wait */
+    /* the last two: too short a hold, a plain wait per byte */
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 2, far), 1);
     CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 1, far), 1);
     CHECK_EQ(w.sleeps, 1);
     close_fake(&w, p);
