@@ -343,6 +343,38 @@ def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
     return out
 
 
+def codec_throughput(runner: Runner) -> Dict[str, Any]:
+    """Payload MB/s through the encoders and decoders, C (bench_wire codec)
+    and Python (fap_py: exec async and mikroC through cffi, G485 pure)."""
+    out: Dict[str, Any] = {"c": json.loads(subprocess.run(
+        [str(runner.exe), "codec"], capture_output=True, text=True, check=True).stdout)}
+    from fap_py import execasync, mikroc
+    from fap_py.g485 import codec as g
+
+    def timed(fn: Any, payload: int) -> float:
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < 0.3:
+            for _ in range(20):
+                fn()
+            n += 20
+        return n * payload / (time.perf_counter() - t0) / 1e6
+
+    data = bytes(range(255))
+    ef = execasync.encode(1, data)
+    mf = mikroc.encode(1, b"abc")
+    gdata = bytes(range(32))
+    gf = g.encode_write(1, 1, gdata)
+    out["python"] = {
+        "exec_encode": timed(lambda: execasync.encode(1, data), 255),
+        "exec_decode": timed(lambda: execasync.Decoder().feed(ef), 255),
+        "mikroc_encode": timed(lambda: mikroc.encode(1, b"abc"), 3),
+        "mikroc_decode": timed(lambda: mikroc.Decoder().feed(mf), 3),
+        "g485_encode": timed(lambda: g.encode_write(1, 1, gdata), len(gdata)),
+        "g485_decode": timed(lambda: g.Parser().feed(gf), len(gdata)),
+    }
+    return out
+
+
 # -- output ------------------------------------------------------------------------
 
 def label(kind: str) -> str:
@@ -417,6 +449,17 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
                      f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
         L.append("")
+    if res.get("codec"):
+        c, p = res["codec"]["c"], res["codec"]["python"]
+        L += ["## Codec throughput (payload MB/s, no I/O)", "",
+              "| codec | C encode | C decode | Python encode | Python decode |", "|---|---|---|---|---|"]
+        for name, cname in (("FAP (1024-byte DATA)", "fap"), ("exec async (255 bytes)", "exec"),
+                            ("mikroC (3 bytes)", "mikroc"), ("G485 (32-byte write)", "g485")):
+            def g(d: Dict[str, float], k: str) -> str:
+                return f"{d[k]:.2f}" if k in d else "—"
+            L.append(f"| {name} | {g(c, cname + '_encode')} | {g(c, cname + '_decode')} | "
+                     f"{g(p, cname + '_encode')} | {g(p, cname + '_decode')} |")
+        L += ["", "FAP has no Python codec (fap_py drives the C engine); G485 is pure Python.", ""]
     return "\n".join(L)
 
 
@@ -580,6 +623,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         res["python"] = python_overhead(args, quick)
     except Exception as e:
         log.warning("python overhead: %s", e)
+    try:
+        res["codec"] = codec_throughput(runner)
+    except Exception as e:
+        log.warning("codec throughput: %s", e)
     res["loadavg_after"] = loadavg()
     res["wall_s"] = time.monotonic() - t_start
     out.mkdir(parents=True, exist_ok=True)

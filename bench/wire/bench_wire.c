@@ -18,6 +18,7 @@
  * bytes echoed), mikroc (mikroC RS-485, 3 bytes echoed), modbus (libmodbus
  * RTU read of 10 holding registers; only when built with libmodbus). */
 #include "exec_async_engine.h"
+#include "fap/fap_frame.h"
 #include "fap_port.h"
 #include "fapx.h"
 #include "mikroc_rs485.h"
@@ -452,8 +453,53 @@ static int run_client(const char *kind)
     _exit(0);
 }
 
+/* ---- codec throughput (no I/O): payload MB/s ---- */
+static volatile size_t sink;
+static void count_frame(void *ctx, const lf_fap_frame *f, lf_ns now)
+{
+    (void)now;
+    *(size_t *)ctx += f->len;
+}
+
+#define TIMED(label, body) do { \
+        double t0_ = now_s(), el_; size_t bytes_ = 0; long it_ = 0; \
+        do { for (int k_ = 0; k_ < 64; k_++) { body; } it_ += 64; } while ((el_ = now_s() - t0_) < 0.3); \
+        printf("%s\"%s\":%.2f", first++ ? "," : "", label, bytes_ / el_ / 1e6); \
+        (void)it_; } while (0)
+
+static int run_codec(void)
+{
+    static uint8_t data[1024], frame[2048];
+    for (unsigned i = 0; i < sizeof data; i++)
+        data[i] = (uint8_t)(i * 7);
+    int first = 0;
+    printf("{");
+    size_t flen = lf_fap_encode(frame, sizeof frame, LF_FAP_DATA, 1, 0, data, 1024);
+    TIMED("fap_encode", { sink += lf_fap_encode(frame, sizeof frame, LF_FAP_DATA, 1, 0, data, 1024); bytes_ += 1024; });
+    static lf_fap_decoder d;
+    lf_fap_decoder_init(&d, 0);
+    TIMED("fap_decode", { size_t got = 0; lf_fap_decoder_feed(&d, frame, flen, 0, count_frame, &got); bytes_ += got; });
+    byte eframe[EXEC_ASYNC_MAX_FRAME], ebuf[EXEC_ASYNC_MAX_DATA];
+    word elen = execAsyncBufferOut(1, data, eframe, 255, 0);
+    TIMED("exec_encode", { sink += execAsyncBufferOut(1, data, eframe, 255, 0); bytes_ += 255; });
+    struct execAsyncStateDef st;
+    memset(&st, 0, sizeof st);
+    TIMED("exec_decode", { for (word i = 0; i < elen; i++) if (execAsyncByteIn(eframe[i], &st, ebuf)) bytes_ += st.Length; });
+    uint8_t mframe[16];
+    int mlen = mikrocRS485_Encode(mframe, data, 3, 1, 1);
+    TIMED("mikroc_encode", { sink += (size_t)mikrocRS485_Encode(mframe, data, 3, 1, 1); bytes_ += 3; });
+    mikrocRS485_decoder md;
+    mikrocRS485_DecoderInit(&md);
+    mikrocRS485_frame mf;
+    TIMED("mikroc_decode", { for (int i = 0; i < mlen; i++) if (mikrocRS485_DecoderFeed(&md, mframe[i], &mf) == MIKROC_RS485_FRAME) bytes_ += mf.count; });
+    printf("}\n");
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
+    if (argc == 2 && strcmp(argv[1], "codec") == 0)
+        return run_codec();
     if (argc < 4) {
         fprintf(stderr, "usage: bench_wire serve|client KIND PATH[,PATH...] [--baud B] "
                         "[--seconds S] [--slaves N] [--same-id]\n");
