@@ -250,3 +250,15 @@ const char *lf_exec_status_reason(int status)
     default:                  return NULL;
     }
 }
+
+size_t lf_exec_rx_missing(const struct execAsyncStateDef *s)
+{
+    /* the fewest bytes that can end a frame from each phase:
+     * DLE STX node seq [data] DLE ETX crc crc */
+    static const unsigned char left[] = {
+        [PH_HUNT] = 8, [PH_HUNT_DLE] = 7, [PH_NODE] = 6, [PH_SEQ] = 5,
+        [PH_DATA] = 4, [PH_DATA_DLE] = 3, [PH_CRC_HI] = 2, [PH_CRC_LO] = 1,
+        [PH_SKIP] = 4, [PH_SKIP_DLE] = 3, [PH_SKIP_CRC_HI] = 2, [PH_SKIP_CRC_LO] = 1,
+    };
+    return s->Phase < sizeof left ? left[s->Phase] : 1;
+}

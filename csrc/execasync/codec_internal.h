@@ -45,4 +45,9 @@ size_t lf_exec_scan_feed(lf_exec_scan *s, const byte *p, size_t n);
 /* Short reason of a Status ("crc", "length", "framing"; NULL for GOOD). */
 const char *lf_exec_status_reason(int status);
 
+/* The fewest bytes still needed to end a frame from the decoder's state
+ * (a lower bound: the data length is not sent). The engines sleep their
+ * wire time instead of waking per byte (port/rx_pacing.h). */
+size_t lf_exec_rx_missing(const struct execAsyncStateDef *s);
+
 #endif

@@ -12,6 +12,7 @@
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "execasync/stats_atomic.h"
+#include "port/rx_pacing.h"
 
 #define DEFAULT_REPLY_TIMEOUT_US 100000u
 #define DEFAULT_RETRIES          3u
@@ -105,7 +106,9 @@ static int run_transaction(execMaster *m, lf_exec_mtx *t, word n)
             act = LF_EXEC_M_WAIT;
         }
         byte chunk[128];
-        ssize_t r = fap_port_read(m->port, chunk, sizeof chunk, t->deadline);
+        /* one wake-up per reply, not per byte (port/rx_pacing.h) */
+        ssize_t r = lf_port_read_paced(m->port, chunk, sizeof chunk,
+                                       lf_exec_rx_missing(&m->rx), t->deadline);
         if (r < 0)
             return (int)r;
         /* Decode the whole chunk: a good reply may follow a bad frame. */

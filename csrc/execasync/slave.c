@@ -25,6 +25,7 @@
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "execasync/stats_atomic.h"
+#include "port/rx_pacing.h"
 
 #define PENDING_SIZE 1024
 
@@ -231,7 +232,13 @@ static int wait_input(execSlave *s, lf_ns deadline)
         if (pf[1].revents)
             return -ECANCELED;
         if (pf[0].revents) {
-            ssize_t r = fap_port_read(s->port, s->pending, PENDING_SIZE, 0);
+            /* the rest of the frame: one wake-up per wire time, not per
+             * byte (port/rx_pacing.h); a stop waits at most that long */
+            size_t want = lf_exec_rx_missing(&s->rx);
+            unsigned baud = fap_port_baud(s->port);
+            lf_ns until = lf_now_ns() + (lf_ns)want * lf_char_time_ns(baud);
+            ssize_t r = lf_port_read_paced(s->port, s->pending, PENDING_SIZE, want,
+                                           until < deadline ? until : deadline);
             if (r < 0)
                 return (int)r;
             if (r > 0) {

@@ -3,9 +3,12 @@
  * the nearest CLOCK_MONOTONIC deadline (state machine timer, decoder
  * inter-byte gap, port reopen). It feeds received bytes to the decoder and
  * frames to the state machine, and transmits the state machine's outbox
- * through the port layer. No signals: nothing the host application sees. */
+ * through the port layer. While a frame is arriving it sleeps on the timer
+ * for the frame's wire time instead of waking per byte (rx_pacing.h).
+ * No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
 #include "common/mono_timerfd.h"
+#include "port/rx_pacing.h"
 #include <errno.h>
 #include <sys/epoll.h>
 #include <string.h>
@@ -339,6 +342,9 @@ void *lf_fapx_engine_main(void *arg)
     int ep = h->epoll_fd;             /* wake and timer fds registered at create */
     struct epoll_event ee;
     int reg_port = -1;                /* port fd currently registered */
+    uint32_t reg_events = 0;          /* its epoll events (0 while holding) */
+    lf_ns hold_until = 0;             /* a frame is arriving: read it then */
+    unsigned baud = fap_port_baud(h->port);
 
     for (;;) {
         now = lf_now_ns();
@@ -369,6 +375,8 @@ void *lf_fapx_engine_main(void *arg)
         lf_ns deadline = min_ns(sm_dl, lf_fap_decoder_deadline(&h->dec));
         if (h->port_down)
             deadline = min_ns(deadline, h->reopen_at);
+        if (hold_until)
+            deadline = min_ns(deadline, hold_until);
         arm_timer(h, deadline);
 
         if (want_port != reg_port) {
@@ -380,6 +388,16 @@ void *lf_fapx_engine_main(void *arg)
                 errno != EEXIST)
                 want_port = -1;       /* try again next round */
             reg_port = want_port;
+            reg_events = EPOLLIN;
+        }
+        /* Holding: the rest of the frame cannot be in before hold_until, so
+         * the port must not wake us for each piece of it. */
+        uint32_t want_events = hold_until ? 0 : EPOLLIN;
+        if (reg_port >= 0 && want_events != reg_events) {
+            ee.events = want_events;
+            ee.data.u32 = LF_FAPX_TAG_PORT;
+            if (epoll_ctl(ep, EPOLL_CTL_MOD, reg_port, &ee) == 0)
+                reg_events = want_events;
         }
 
         struct epoll_event evs[3];
@@ -394,27 +412,48 @@ void *lf_fapx_engine_main(void *arg)
         now = lf_now_ns();
         uint64_t cnt;
         uint32_t port_ev = 0;
+        int timer_ev = 0;
         for (int i = 0; i < ne; i++) {
             if (evs[i].data.u32 == LF_FAPX_TAG_WAKE) {
                 if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
             } else if (evs[i].data.u32 == LF_FAPX_TAG_TIMER) {
                 if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
                 h->armed = -1;        /* expired: arm again next time */
+                timer_ev = 1;
             } else {
                 port_ev = evs[i].events;
             }
         }
+        /* A hold ends at its time, or at any timer (state machine, gap):
+         * what has arrived is fed before a timeout is judged. */
+        int forced = hold_until && (timer_ev || now >= hold_until);
+        if (forced) {
+            hold_until = 0;
+            port_ev |= EPOLLIN;
+        }
+        size_t fed = 0;
         if (port_ev && !h->port_down) {
             for (int rounds = 0; rounds < 4; rounds++) {
                 ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
-                if (n > 0)
+                if (n > 0) {
                     lf_fap_decoder_feed(&h->dec, rbuf, (size_t)n, now, on_frame, h);
+                    fed += (size_t)n;
+                }
                 /* fap_port_read reports "no data" as 0, never -EAGAIN or -EINTR */
                 if (n < 0 || (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
                     port_lost(h, now);    /* hung up: a 0-byte read would spin */
                 if (n < (ssize_t)sizeof rbuf)
                     break;
             }
+        }
+        /* Bytes came and the frame is not complete: sleep until all but its
+         * last byte can be in (never past the gap deadline). A hold that
+         * brought nothing means the wire stalled: watch the port again. */
+        if (fed && !h->port_down) {
+            lf_ns hold = lf_rx_hold_ns(baud, lf_fap_decoder_missing(&h->dec));
+            hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
+        } else if (h->port_down) {
+            hold_until = 0;
         }
         if (h->port_down && reg_port >= 0) {
             /* the fd is closed or dead: unregister it now, so a reopened

@@ -172,6 +172,17 @@ lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d)
     return d->n ? d->last_byte + d->gap : LF_NEVER;
 }
 
+size_t lf_fap_decoder_missing(const lf_fap_decoder *d)
+{
+    if (d->n == 0)
+        return 0;
+    if (d->n < 10)                    /* size not in yet: a frame without data */
+        return LF_FAP_OVERHEAD - d->n;
+    /* parse() keeps only a valid prefix: the size field is in range */
+    size_t total = ((size_t)d->buf[8] | ((size_t)d->buf[9] << 8)) + LF_FAP_CRC_LEN;
+    return total > d->n ? total - d->n : 0;
+}
+
 void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
 {
     if (d->n == 0 || now < d->last_byte + d->gap)

@@ -103,6 +103,10 @@ lf_ns lf_fap_decoder_deadline(const lf_fap_decoder *d);
 /* Apply the inter-byte gap at `now`: abandon a stale partial frame and
  * rescan what followed its first byte (which may hold a complete frame). */
 void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx);
+/* How many more bytes the held candidate frame needs at least: exact once
+ * its size field is in, the minimal frame before that; 0 when nothing is
+ * held. The engine sleeps their wire time instead of waking per byte. */
+size_t lf_fap_decoder_missing(const lf_fap_decoder *d);
 /* Drop everything held (after a port reopen). */
 void lf_fap_decoder_reset(lf_fap_decoder *d);
 /* Report every rejection through cb (NULL: stop reporting). */

@@ -5,6 +5,7 @@
 
 #include "mikroc_rs485.h"
 #include "mikroc/mikroc_scan.h"
+#include "mikroc/mikroc_internal.h"
 
 #define START MIKROC_RS485_START_BYTE
 #define STOP MIKROC_RS485_STOP_BYTE
@@ -213,4 +214,13 @@ size_t lf_mikroc_scan_feed(lf_mikroc_scan *s, const uint8_t *p, size_t n)
 int lf_mikroc_scan_in_frame(const lf_mikroc_scan *s)
 {
     return s->d.in_frame != 0;
+}
+
+size_t lf_mikroc_missing(const mikrocRS485_decoder *d)
+{
+    /* after START: address, DATALEN, data (DATALEN's count), CRC, STOP */
+    if (!d->in_frame)
+        return 5;
+    unsigned count = d->n >= 2 ? (d->raw[1] & MIKROC_RS485_DL_COUNT) : 0;
+    return count + 4u > d->n ? count + 4u - d->n : 1;
 }

@@ -6,6 +6,7 @@
 #include <stdint.h>
 #include "fap_port.h"
 #include "fap_trace.h"
+#include "mikroc_rs485.h"
 
 /* Open path with opts (NULL = port defaults) and baud (0 = keep opts').
  * 0 and *out set, or a negative error. */
@@ -16,4 +17,9 @@ int lf_mikroc_port_open(fap_port **out, const char *path, unsigned baud,
 struct mikrocRS485_ctx;
 void lf_mikroc_trace(struct mikrocRS485_ctx *c, fap_trace_dir dir, fap_trace_status status,
                      const uint8_t *data, size_t len);
+
+/* The fewest bytes still needed to end a frame from the decoder's state
+ * (the whole minimal frame when none has started). refill() sleeps their
+ * wire time instead of waking per byte (port/rx_pacing.h). */
+size_t lf_mikroc_missing(const mikrocRS485_decoder *d);
 #endif

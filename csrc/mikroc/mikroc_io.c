@@ -5,6 +5,7 @@
 
 #include "mikroc_rs485.h"
 #include "mikroc/mikroc_internal.h"
+#include "port/rx_pacing.h"
 
 int mikrocRS485_CtxBind(mikrocRS485_ctx *c, fap_port *port)
 {
@@ -72,9 +73,11 @@ int mikrocRS485_CtxResetRx(mikrocRS485_ctx *c)
 
 /* Refill the read-ahead buffer with up to max bytes: >0 bytes, 0 nothing by
  * the deadline, <0 error. */
-static int refill(mikrocRS485_ctx *c, size_t max, int64_t deadline_ns)
+static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_ns)
 {
-    ssize_t n = fap_port_read(c->port, c->rx, max, deadline_ns);
+    /* want > 1: the frame's wire time in one sleep, not a wake-up per byte */
+    ssize_t n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
+                         : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;
         return (int)n;
@@ -96,7 +99,7 @@ void mikrocRS485_CtxReceive(mikrocRS485_ctx *c, char *data_buffer)
     /* One byte per call, like the UART data register: a byte still in the
      * kernel keeps the fd readable, so poll() on fap_port_fd() says when to
      * call again. */
-    if (c->rx_pos == c->rx_len && refill(c, 1, 0) <= 0)
+    if (c->rx_pos == c->rx_len && refill(c, 1, 1, 0) <= 0)
         return;                      /* no byte in the "UART register" */
     feed_one(c, data_buffer);
 }
@@ -137,7 +140,7 @@ int mikrocRS485_CtxPoll(mikrocRS485_ctx *c, char *data_buffer, int timeout_ms)
         /* a bus that never goes quiet must not hold us past the deadline */
         if (deadline != 0 && deadline != INT64_MAX && fap_port_now_ns() >= deadline)
             return 0;
-        int n = refill(c, sizeof c->rx, deadline);
+        int n = refill(c, sizeof c->rx, lf_mikroc_missing(&c->dec), deadline);
         if (n <= 0)
             return n;                /* 0: deadline passed */
     }

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# CI: `python -m bench --quick` as a smoke test. It asserts that every
+# benchmark runs and produces its JSON, table and plots - never a speed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+export DEBIAN_FRONTEND=noninteractive
+start=$(date +%s)
+
+# The C peer (libmodbus) and the Python peers are part of what it runs.
+if ! pkg-config --exists libmodbus; then
+  apt-get update -q && apt-get install -y -q -o DPkg::Lock::Timeout=600 libmodbus-dev
+fi
+[ -d .venv ] || python3 -m venv .venv
+. .venv/bin/activate
+python -c 'import matplotlib, pymodbus, minimalmodbus, dynamixel_sdk' 2>/dev/null || pip install -q '.[test,bench]'
+python -c 'import fap_py._native' 2>/dev/null || pip install -q .
+meson setup build --reconfigure >/dev/null
+meson compile -C build bench/wire/bench_wire bench/fap_py/bench_fapx_c >/dev/null
+
+out=build/bench-smoke
+rm -rf "$out"
+python -m bench --quick --out "$out"
+python - "$out" <<'PY'
+import json, sys
+from pathlib import Path
+out = Path(sys.argv[1])
+res = json.loads((out / "results.json").read_text())
+for f in ("table.md", "efficiency.png", "turnaround.png", "cpu.png", "scaling.png"):
+    assert (out / f).stat().st_size > 0, f"{f} missing"
+assert not res["missing"], f"peers missing in CI: {res['missing']}"
+cells = [(b, k, r) for b, rows in res["paced"].items() for k, r in rows.items()]
+cells += [("unpaced", k, r) for k, r in res["unpaced"].items()]
+bad = [f"{k} at {b}" for b, k, r in cells if "error" in r or r["rate"]["median"] <= 0]
+assert not bad, f"benchmarks that did not run: {bad}"
+assert res["scale"] and res.get("python"), "scale or Python overhead missing"
+print(f"bench smoke: {len(cells)} cells, all ran")
+PY
+echo "bench.sh: OK: python -m bench --quick ran every benchmark in $(( $(date +%s) - start )) s"

@@ -1,0 +1,643 @@
+"""``python -m bench``: every benchmark of the project in one run, with plots.
+
+Run from the repository root after ``meson setup build && meson compile -C
+build`` and ``pip install '.[bench]'`` (fap_py and matplotlib). Every
+exchange runs on a virtual bus (``fap_py.vbus``) opened here; the two sides
+of an exchange are separate processes (``build/bench/wire/bench_wire`` for
+the C engines and libmodbus, ``bench/g485/bench_g485.py`` for the Python
+libraries), so each side's CPU is its own and the bus relay's is nobody's.
+
+Measured (medians of ``--rounds`` runs, with min and max):
+
+* paced efficiency at 9600, 115200 and 1,000,000 baud: exchanges/s as a
+  share of the framing limit (10 bits per byte, request + reply bytes; a
+  Modbus 3.5-character silence is not counted: the peers do not keep it on
+  a pty), for every protocol and peer and the
+  bare C and Python write/read floors, all on the same kind of bus;
+* turnaround p50/p99/max from the bus capture (end of a request to the
+  start of its answer, i.e. the responder's reaction time);
+* unpaced exchanges/s and CPU µs per exchange, client and server;
+* scale: 1/4/16 buses in one process and 1..31 slaves on one bus: CPU per
+  poll cycle, idle CPU of the master, RSS per handle;
+* Python overhead: fap_py against the C API (bench/fap_py).
+
+Peers that are missing are named with how to get them, and skipped.
+Results go to bench/results/<date>-<host>/ (results.json, table.md, *.png).
+
+    python -m bench            # full run, under 10 minutes
+    python -m bench --quick    # smoke test, under a minute (CI)
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import importlib.util
+import json
+import logging
+import os
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+log = logging.getLogger("bench")
+ROOT = Path(__file__).resolve().parent.parent
+# The source tree's fap_py/ has no compiled _native: use the installed
+# fap_py, never the checkout (also in the children: they run in a temp dir).
+sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT]
+sys.path.insert(0, str(ROOT / "bench" / "g485"))
+sys.path.insert(0, str(ROOT / "bench" / "fap_py"))
+
+
+# kind -> (label, request bytes, reply bytes, silence chars per exchange, floor kind)
+C_KINDS = {
+    "bare": ("bare C write/read (floor)", 15, 15, 0, None),
+    "fap-poll": ("FAP poll cycle", 15, 15, 0, "bare"),
+    "fap-data": ("FAP DATA round trip", 38, 38, 0, "bare"),
+    "exec": ("exec async", 16, 16, 0, "bare"),
+    "mikroc": ("mikroC RS-485", 8, 8, 0, "bare"),
+    "modbus": ("libmodbus RTU (10 regs)", 8, 25, 0, "bare"),
+}
+# bench_g485 runs: kind -> (label, req, rep, silence, floor, server argv tail, client factory name)
+PY_KINDS = {
+    "py-bare": ("bare Python write/read (floor)", 7, 16, 0, None, ["--serve", "canned"], "bare"),
+    "g485": ("G485 (fap_py, check=none)", 7, 16, 0, "py-bare", None, "g485"),
+    "minimalmodbus": ("minimalmodbus RTU", 8, 25, 0, "py-bare", ["--serve", "modbus"], "minimalmodbus"),
+    "pymodbus": ("pymodbus sync RTU", 8, 25, 0, "py-bare", ["--serve", "modbus"], "pymodbus"),
+    "dynamixel": ("Dynamixel SDK 1.0", 8, 16, 0, "py-bare", ["--serve", "dxl"], "dynamixel"),
+}
+PEER_HELP = {
+    "modbus": "libmodbus: apt-get install libmodbus-dev, then meson setup --reconfigure build",
+    "minimalmodbus": "pip install minimalmodbus",
+    "pymodbus": "pip install pymodbus",
+    "dynamixel": "pip install dynamixel-sdk",
+}
+
+
+def proc_cpu(pid: int) -> float:
+    """CPU seconds of a process's live threads so far, in ns resolution
+    (/proc/PID/task/*/schedstat; /proc/PID/stat counts 10 ms ticks)."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            total += int((task / "schedstat").read_text().split()[0])
+        except (OSError, ValueError, IndexError):
+            pass                    # a thread that just ended
+    return total / 1e9
+
+
+BASE = "base:"   # a C kind run with the --baseline build's bench_wire
+
+
+def spec(kind: str) -> Tuple[Any, ...]:
+    base = kind.startswith(BASE)
+    k = kind[len(BASE):] if base else kind
+    t = C_KINDS.get(k) or PY_KINDS[k]
+    return (t[0] + " [baseline build]",) + tuple(t[1:]) if base else t
+
+
+def proc_wakeups(pid: int) -> int:
+    """Voluntary context switches of a process's live threads so far."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            for line in (task / "status").read_text().splitlines():
+                if line.startswith("voluntary_ctxt_switches:"):
+                    total += int(line.split()[1])
+        except (OSError, ValueError):
+            pass
+    return total
+
+
+def limit(kind: str, baud: int) -> float:
+    spec_ = spec(kind)
+    return baud / (10.0 * (spec_[1] + spec_[2] + spec_[3]))
+
+
+def floor_rate(kind: str, baud: int, rows: Dict[str, Any]) -> Optional[float]:
+    """Exchanges/s the bare floor would reach with this kind's frame sizes:
+    the wire time of its bytes plus the floor's own measured per-exchange
+    overhead (its exchange time minus its wire time)."""
+    fl = floor_of(kind)
+    if not fl or fl not in rows or "rate" not in rows[fl]:
+        return None
+    overhead = 1.0 / rows[fl]["rate"]["median"] - 1.0 / limit(fl, baud)
+    return 1.0 / (1.0 / limit(kind, baud) + max(0.0, overhead))
+
+
+def summary(values: List[float]) -> Dict[str, float]:
+    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
+
+
+# -- turnaround from the bus capture ---------------------------------------------
+
+def turnarounds(capture: Path, baud: int) -> List[float]:
+    """µs from the end of each client transmission (port 0) to the start of
+    the next transmission from a responder (any other port)."""
+    from fap_py.vbus import read_capture
+
+    ct = 10e6 / baud
+    tx: List[Tuple[float, float, int]] = []      # (start, end, port), merged bursts
+    for r in sorted(read_capture(str(capture)).records, key=lambda r: r.t_us):
+        end = r.t_us + len(r.data) * ct
+        if tx and tx[-1][2] == r.port and r.t_us - tx[-1][1] < ct / 2:
+            tx[-1] = (tx[-1][0], end, r.port)
+        else:
+            tx.append((r.t_us, end, r.port))
+    out = []
+    for a, b in zip(tx, tx[1:]):
+        if a[2] == 0 and b[2] != 0:
+            out.append(b[0] - a[1])
+    return out
+
+
+def pct(values: List[float], q: float) -> float:
+    s = sorted(values)
+    return s[min(len(s) - 1, int(q * len(s)))]
+
+
+# -- one exchange benchmark ------------------------------------------------------
+
+class Runner:
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.exe = args.build_dir / "bench" / "wire" / "bench_wire"
+        self.tmp = Path(os.environ.get("TMPDIR", "/tmp")) / f"bench-{os.getpid()}"
+        self.tmp.mkdir(parents=True, exist_ok=True)
+
+    def c_run(self, kind: str, baud: int, seconds: float, ports: int = 2, buses: int = 1,
+              slaves: int = 1, capture: bool = False) -> Dict[str, Any]:
+        """One C client/server run; returns rates, CPU and (paced) turnarounds."""
+        from fap_py.vbus import VirtualBus
+
+        exe = self.exe
+        if kind.startswith(BASE):
+            exe, kind = self.args.baseline / "bench" / "wire" / "bench_wire", kind[len(BASE):]
+        cap = self.tmp / f"{kind}-{baud}.cap" if capture and baud else None
+        pace = ["--baud", str(baud or 115200)] + ([] if baud else ["--unpaced"])
+        with_buses = []
+        try:
+            for b in range(buses):
+                with_buses.append(VirtualBus(ports=ports, baud=baud or None, seed=1,
+                                             capture=str(cap) if cap and b == 0 else None))
+            client_paths = ",".join(bus.paths[0] for bus in with_buses)
+            server_paths = ",".join(p for bus in with_buses for p in bus.paths[1:])
+            srv = subprocess.Popen([str(exe), "serve", kind, server_paths] + pace
+                                   + (["--same-id"] if buses > 1 else []),
+                                   stdout=subprocess.PIPE, text=True)
+            try:
+                if srv.stdout is None or srv.stdout.readline().strip() != "ready":
+                    raise RuntimeError(f"bench_wire serve {kind} did not start")
+                cli = subprocess.Popen([str(exe), "client", kind, client_paths, "--seconds",
+                                        str(seconds), "--slaves", str(slaves)] + pace,
+                                       stdout=subprocess.PIPE, text=True)
+                assert cli.stdout is not None
+                if cli.stdout.readline().strip() != "measuring":
+                    raise RuntimeError(f"bench_wire client {kind} failed")
+                s0, w0 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
+                res = json.loads(cli.stdout.readline())
+                s1, w1 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
+                cli.wait(10)
+            finally:
+                srv.terminate()
+                srv.wait(10)
+        finally:
+            for bus in with_buses:
+                bus.close()
+        n = max(1, res["exchanges"])
+        out = {"rate": res["exchanges"] / res["seconds"], "client_us": res["cpu_s"] / n * 1e6,
+               "server_us": (s1 - s0) / n * 1e6, "client_load": res["cpu_s"] / res["seconds"],
+               "failed": res["failed"], "rss_kib_per_handle": res["rss_kib_per_handle"],
+               "client_wakeups": res["wakeups"] / n, "server_wakeups": (w1 - w0) / n}
+        if cap:
+            out["turnaround_us"] = turnarounds(cap, baud)
+            cap.unlink(missing_ok=True)
+        return out
+
+    def py_run(self, kind: str, baud: int, seconds: float, capture: bool = False) -> Dict[str, Any]:
+        """One bench_g485 client (this process) / server (child) run."""
+        import bench_g485 as g
+        from fap_py.vbus import VirtualBus
+
+        label, _, _, _, _, serve_tail, client = PY_KINDS[kind]
+        b = baud or 115200
+        if serve_tail is None:
+            server_argv = [sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1",
+                           "--baud", str(b), "--port"]
+        else:
+            server_argv = [sys.executable, str(ROOT / "bench" / "g485" / "bench_g485.py"),
+                           "--baud", str(b)] + serve_tail
+        factory = {
+            "bare": lambda p: g.bare_client(p, spin=False),
+            "g485": lambda p: g.g485_client(p, b, "none"),
+            "minimalmodbus": lambda p: g.minimalmodbus_client(p, b),
+            "pymodbus": lambda p: g.pymodbus_sync_client(p, b),
+            "dynamixel": lambda p: g.dynamixel_client(p, b),
+        }[client]
+        cap = self.tmp / f"{kind}-{baud}.cap" if capture and baud else None
+        with VirtualBus(ports=2, baud=baud or None, seed=1, capture=str(cap) if cap else None) as bus:
+            srv = g.start_server(server_argv + [bus.paths[1]])
+            try:
+                read, close, _ = factory(bus.paths[0])
+                try:
+                    g.warm_up(read)
+                    res = g.measure(read, seconds, srv.pid)
+                finally:
+                    close()
+            finally:
+                srv.terminate()
+                srv.wait(10)
+                if srv.stdout:
+                    srv.stdout.close()
+        out = {"rate": res["rate"], "client_us": res["client_us"], "server_us": res["server_us"],
+               "client_load": res["client_load"], "failed": res["errors"]}
+        if cap:
+            out["turnaround_us"] = turnarounds(cap, baud)
+            cap.unlink(missing_ok=True)
+        return out
+
+
+# -- the plan ----------------------------------------------------------------------
+
+def available(args: argparse.Namespace, runner: Runner) -> Tuple[List[str], Dict[str, str]]:
+    """Kinds that can run here, and the missing ones with how to get them."""
+    kinds = list(C_KINDS) + list(PY_KINDS)
+    missing: Dict[str, str] = {}
+    probe = subprocess.run([str(runner.exe), "serve", "modbus", "/nonexistent"],
+                           capture_output=True, text=True)
+    if probe.returncode == 2:
+        missing["modbus"] = PEER_HELP["modbus"]
+    for kind, mod in (("minimalmodbus", "minimalmodbus"), ("pymodbus", "pymodbus"),
+                      ("dynamixel", "dynamixel_sdk")):
+        if importlib.util.find_spec(mod) is None:
+            missing[kind] = PEER_HELP[kind]
+    return [k for k in kinds if k not in missing], missing
+
+
+def measure_series(runner: Runner, kind: str, baud: int, rounds: int, seconds: float) -> Dict[str, Any]:
+    runs = []
+    for r in range(rounds):
+        cap = r == 0 and baud != 0
+        try:
+            if kind in C_KINDS or kind.startswith(BASE):
+                runs.append(runner.c_run(kind, baud, seconds, capture=cap))
+            else:
+                runs.append(runner.py_run(kind, baud, seconds, capture=cap))
+        except Exception as e:       # one failed run is reported, the rest goes on
+            log.warning("%s at %s baud: run failed: %s", kind, baud or "unpaced", e)
+    if not runs:
+        return {"error": "all runs failed"}
+    out: Dict[str, Any] = {k: summary([r[k] for r in runs])
+                           for k in ("rate", "client_us", "server_us", "client_load",
+                                     "client_wakeups", "server_wakeups") if k in runs[0]}
+    out["failed"] = sum(r["failed"] for r in runs)
+    if baud:
+        out["limit"] = limit(kind, baud)
+        out["efficiency"] = summary([r["rate"] / out["limit"] for r in runs])
+    ta = [t for r in runs for t in r.get("turnaround_us", [])]
+    if ta:
+        out["turnaround_us"] = {"p50": pct(ta, .5), "p99": pct(ta, .99), "max": max(ta), "n": len(ta)}
+        out["turnaround_sample"] = ta[:2000]
+    return out
+
+
+def scale_series(runner: Runner, baud: int, rounds: int, seconds: float, quick: bool) -> Dict[str, Any]:
+    res: Dict[str, Any] = {"buses": {}, "slaves": {}}
+    for buses in ([1, 4] if quick else [1, 4, 16]):
+        runs = [runner.c_run("fap-poll", baud, seconds, buses=buses) for _ in range(rounds)]
+        res["buses"][buses] = {"cpu_us_per_cycle": summary([r["client_us"] for r in runs]),
+                               "cycles_per_s": summary([r["rate"] for r in runs]),
+                               "master_load": summary([r["client_load"] for r in runs]),
+                               "rss_kib_per_handle": summary([r["rss_kib_per_handle"] for r in runs])}
+    for slaves in ([1, 4] if quick else [1, 4, 16, 31]):
+        runs = [runner.c_run("fap-poll", baud, seconds, ports=slaves + 1, slaves=slaves)
+                for _ in range(rounds)]
+        res["slaves"][slaves] = {"cpu_us_per_cycle": summary([r["client_us"] for r in runs]),
+                                 "cycles_per_s": summary([r["rate"] for r in runs]),
+                                 "master_load": summary([r["client_load"] for r in runs])}
+    return res
+
+
+def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
+    """fap_py against the C API on one unpaced bus (bench/fap_py)."""
+    import bench_fap_py as fp
+
+    exe = args.build_dir / "bench" / "fap_py" / "bench_fapx_c"
+    bus = fp.BusProcess(2, 0)
+    out: Dict[str, Any] = {}
+    try:
+        n = 200 if quick else 1000
+        for mode in ("round-trip", "calls"):
+            cnt = n if mode != "calls" else n * 10
+            c = fp.run_c(exe, bus.paths, mode, cnt, 16)
+            p = fp.run_py(bus.paths, mode, cnt, 16)
+            out[mode] = {"c_rate": c.rate, "py_rate": p.rate,
+                         "c_cpu_us": c.cpu_s / c.count * 1e6, "py_cpu_us": p.cpu_s / p.count * 1e6}
+        a = fp.run_py(bus.paths, "round-trip asyncio", n, 16)
+        out["round-trip asyncio"] = {"py_rate": a.rate, "py_cpu_us": a.cpu_s / a.count * 1e6}
+    finally:
+        bus.close()
+    return out
+
+
+def codec_throughput(runner: Runner) -> Dict[str, Any]:
+    """Payload MB/s through the encoders and decoders, C (bench_wire codec)
+    and Python (fap_py: exec async and mikroC through cffi, G485 pure)."""
+    out: Dict[str, Any] = {"c": json.loads(subprocess.run(
+        [str(runner.exe), "codec"], capture_output=True, text=True, check=True).stdout)}
+    from fap_py import execasync, mikroc
+    from fap_py.g485 import codec as g
+
+    def timed(fn: Any, payload: int) -> float:
+        n, t0 = 0, time.perf_counter()
+        while time.perf_counter() - t0 < 0.3:
+            for _ in range(20):
+                fn()
+            n += 20
+        return n * payload / (time.perf_counter() - t0) / 1e6
+
+    data = bytes(range(255))
+    ef = execasync.encode(1, data)
+    mf = mikroc.encode(1, b"abc")
+    gdata = bytes(range(32))
+    gf = g.encode_write(1, 1, gdata)
+    out["python"] = {
+        "exec_encode": timed(lambda: execasync.encode(1, data), 255),
+        "exec_decode": timed(lambda: execasync.Decoder().feed(ef), 255),
+        "mikroc_encode": timed(lambda: mikroc.encode(1, b"abc"), 3),
+        "mikroc_decode": timed(lambda: mikroc.Decoder().feed(mf), 3),
+        "g485_encode": timed(lambda: g.encode_write(1, 1, gdata), len(gdata)),
+        "g485_decode": timed(lambda: g.Parser().feed(gf), len(gdata)),
+    }
+    return out
+
+
+# -- output ------------------------------------------------------------------------
+
+def label(kind: str) -> str:
+    return spec(kind)[0]
+
+
+def floor_of(kind: str) -> Optional[str]:
+    return spec(kind)[4]
+
+
+def fmt(s: Dict[str, float], f: str = "{:.0f}") -> str:
+    return f"{f.format(s['median'])} ({f.format(s['min'])}–{f.format(s['max'])})"
+
+
+def markdown(res: Dict[str, Any]) -> str:
+    L = [f"# Benchmark {res['date']} on {res['host']}", "",
+         f"{res['machine']}; load average before/after: {res['loadavg_before']} / "
+         f"{res['loadavg_after']}; rounds {res['rounds']}, {res['seconds']} s each; "
+         "median (min–max).", "",
+         "Efficiency: exchanges/s as a share of the framing limit (10 bits per byte, request + "
+         "reply bytes; Modbus's 3.5-character silence not counted, the peers do not keep it on a pty). vs floor: exchanges/s against what the bare "
+         "write/read floor (C for the C engines, Python for the Python libraries) reaches with the "
+         "same frame sizes (their wire time plus the floor's measured per-exchange overhead). "
+         "Wake-ups/x: voluntary context switches per exchange (C sides only; does not "
+         "depend on the machine's load as CPU time does). "
+         "Turnaround: end of a request to the start of its answer, from the bus capture.", ""]
+    if res["missing"]:
+        L += ["Missing peers (skipped): " + "; ".join(f"{k}: {v}" for k, v in res["missing"].items()), ""]
+    for baud in res["bauds"]:
+        rows = res["paced"][str(baud)]
+        L += [f"## Paced at {baud} baud", "",
+              "| protocol / peer | exchanges/s | framing limit/s | efficiency | vs floor | "
+              "client µs/x | server µs/x | wake-ups/x client, server | turnaround p50 / p99 / max µs |",
+              "|---|---|---|---|---|---|---|---|---|"]
+        for kind, r in rows.items():
+            if "error" in r:
+                L.append(f"| {label(kind)} | failed | | | | | | | |")
+                continue
+            fr = floor_rate(kind, baud, rows)
+            vs = f"{100 * r['rate']['median'] / fr:.1f} %" if fr else ""
+            ta = r.get("turnaround_us")
+            tas = f"{ta['p50']:.0f} / {ta['p99']:.0f} / {ta['max']:.0f}" if ta else ""
+            wk = (f"{r['client_wakeups']['median']:.1f}, {r['server_wakeups']['median']:.1f}"
+                  if "client_wakeups" in r else "")
+            L.append(f"| {label(kind)} | {fmt(r['rate'])} | {r['limit']:.0f} | "
+                     f"{fmt({k: 100 * v for k, v in r['efficiency'].items()}, '{:.1f}')} % | {vs} | "
+                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {tas} |")
+        L.append("")
+    L += ["## Unpaced (as fast as the ptys go)", "",
+          "| protocol / peer | exchanges/s | client µs/x | server µs/x |", "|---|---|---|---|"]
+    for kind, r in res["unpaced"].items():
+        if "error" not in r:
+            L.append(f"| {label(kind)} | {fmt(r['rate'])} | {fmt(r['client_us'])} | {fmt(r['server_us'])} |")
+    L.append("")
+    for baud, sc in res["scale"].items():
+        L += [f"## Scale: FAP master, paced at {baud} baud (slaves with nothing to send)", "",
+              "| buses in one process | poll cycles/s | master CPU µs/cycle | master load | RSS KiB/handle |",
+              "|---|---|---|---|---|"]
+        for n, r in sc["buses"].items():
+            L.append(f"| {n} | {fmt(r['cycles_per_s'])} | {fmt(r['cpu_us_per_cycle'], '{:.1f}')} | "
+                     f"{fmt({k: 100 * v for k, v in r['master_load'].items()}, '{:.2f}')} % | "
+                     f"{fmt(r['rss_kib_per_handle'])} |")
+        L += ["", "| slaves on one bus | poll cycles/s | master CPU µs/cycle | master load |", "|---|---|---|---|"]
+        for n, r in sc["slaves"].items():
+            L.append(f"| {n} | {fmt(r['cycles_per_s'])} | {fmt(r['cpu_us_per_cycle'], '{:.1f}')} | "
+                     f"{fmt({k: 100 * v for k, v in r['master_load'].items()}, '{:.2f}')} % |")
+        L.append("")
+    if res.get("python"):
+        L += ["## Python overhead (fap_py vs C API, unpaced, 16-byte messages)", "",
+              "| mode | C msgs/s | Python msgs/s | C CPU µs/msg | Python CPU µs/msg |", "|---|---|---|---|---|"]
+        for mode, r in res["python"].items():
+            L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
+                     f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
+        L.append("")
+    if res.get("codec"):
+        c, p = res["codec"]["c"], res["codec"]["python"]
+        L += ["## Codec throughput (payload MB/s, no I/O)", "",
+              "| codec | C encode | C decode | Python encode | Python decode |", "|---|---|---|---|---|"]
+        for name, cname in (("FAP (1024-byte DATA)", "fap"), ("exec async (255 bytes)", "exec"),
+                            ("mikroC (3 bytes)", "mikroc"), ("G485 (32-byte write)", "g485")):
+            def g(d: Dict[str, float], k: str) -> str:
+                return f"{d[k]:.2f}" if k in d else "—"
+            L.append(f"| {name} | {g(c, cname + '_encode')} | {g(c, cname + '_decode')} | "
+                     f"{g(p, cname + '_encode')} | {g(p, cname + '_decode')} |")
+        L += ["", "FAP has no Python codec (fap_py drives the C engine); G485 is pure Python.", ""]
+    return "\n".join(L)
+
+
+def plots(res: Dict[str, Any], out: Path) -> List[str]:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    made = []
+    bauds = res["bauds"]
+    kinds = list(res["paced"][str(bauds[0])])
+    # 1. efficiency vs baud
+    fig, ax = plt.subplots(figsize=(9, 5.5))
+    for kind in kinds:
+        ys = [100 * res["paced"][str(b)][kind]["efficiency"]["median"]
+              if "efficiency" in res["paced"][str(b)].get(kind, {}) else None for b in bauds]
+        style = "--" if floor_of(kind) is None else "-"
+        ax.plot([b for b, y in zip(bauds, ys) if y is not None], [y for y in ys if y is not None],
+                style, marker="o", label=label(kind))
+    ax.set_xscale("log")
+    ax.set_xlabel("baud (paced virtual bus)")
+    ax.set_ylabel("exchanges/s as % of the framing limit")
+    ax.set_title(f"Efficiency vs baud rate ({res['host']}, {res['date']})")
+    ax.grid(True, which="both", alpha=.3)
+    ax.legend(fontsize=8, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(out / "efficiency.png", dpi=90)
+    plt.close(fig)
+    made.append("efficiency.png")
+    # 2. turnaround distributions at 115200 (or the middle baud)
+    b = str(115200 if 115200 in bauds else bauds[0])
+    data = [(label(k), res["paced"][b][k]["turnaround_sample"]) for k in kinds
+            if res["paced"][b].get(k, {}).get("turnaround_sample")]
+    if data:
+        fig, ax = plt.subplots(figsize=(9, 5.5))
+        ax.boxplot([d for _, d in data], orientation="horizontal", whis=(1, 99), showfliers=False)
+        ax.set_yticks(range(1, len(data) + 1), [n for n, _ in data], fontsize=8)
+        ax.set_xscale("log")
+        ax.set_xlabel("responder turnaround µs (end of request to start of answer; whiskers p1–p99)")
+        ax.set_title(f"Turnaround from the bus capture, paced at {b} baud")
+        ax.grid(True, axis="x", which="both", alpha=.3)
+        fig.tight_layout()
+        fig.savefig(out / "turnaround.png", dpi=90)
+        plt.close(fig)
+        made.append("turnaround.png")
+    # 3. CPU per exchange (client and server) at each baud and unpaced
+    cols = [str(x) for x in bauds] + ["unpaced"]
+    fig, axes = plt.subplots(1, len(cols), figsize=(4 * len(cols), 5.5), sharey=True)
+    for ax, col in zip(axes, cols):
+        rows = res["unpaced"] if col == "unpaced" else res["paced"][col]
+        ks = [k for k in kinds if k in rows and "client_us" in rows[k]]
+        y = range(len(ks))
+        ax.barh([i - .2 for i in y], [rows[k]["client_us"]["median"] for k in ks], .4, label="client")
+        ax.barh([i + .2 for i in y], [rows[k]["server_us"]["median"] for k in ks], .4, label="server")
+        ax.set_yticks(list(y), [label(k) for k in ks], fontsize=8)
+        ax.set_title(f"{col}{' baud' if col != 'unpaced' else ''}")
+        ax.set_xlabel("CPU µs per exchange")
+        ax.grid(True, axis="x", alpha=.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle("CPU per exchange (lower is better)")
+    fig.tight_layout()
+    fig.savefig(out / "cpu.png", dpi=90)
+    plt.close(fig)
+    made.append("cpu.png")
+    # 4. scaling
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.5))
+    for baud, sc in res["scale"].items():
+        xs = sorted(int(n) for n in sc["buses"])
+        a1.plot(xs, [sc["buses"][n]["cpu_us_per_cycle"]["median"] for n in sc["buses"]], marker="o",
+                label=f"{baud} baud")
+        xs2 = [int(n) for n in sc["slaves"]]
+        a2.plot(xs2, [100 * sc["slaves"][n]["master_load"]["median"] for n in sc["slaves"]], marker="o",
+                label=f"{baud} baud")
+    a1.set_xscale("log", base=2)
+    a1.set_xlabel("buses (one FAP master each) in one process")
+    a1.set_ylabel("master CPU µs per poll cycle")
+    a1.set_ylim(bottom=0)
+    a2.set_xlabel("slaves on one bus (nothing to send)")
+    a2.set_ylabel("idle master CPU, % of a core")
+    a2.set_ylim(bottom=0)
+    for a in (a1, a2):
+        a.grid(True, alpha=.3)
+        a.legend(fontsize=8)
+    fig.suptitle("FAP master scaling on a paced bus")
+    fig.tight_layout()
+    fig.savefig(out / "scaling.png", dpi=90)
+    plt.close(fig)
+    made.append("scaling.png")
+    return made
+
+
+def loadavg() -> str:
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def main(argv: Optional[List[str]] = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m bench",
+        description="Run every benchmark on the virtual bus; write JSON, a Markdown table and PNG plots.",
+        epilog="example: python -m bench --quick --out /tmp/bench-smoke",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="smoke test: 115200 only, short runs (< 1 min)")
+    ap.add_argument("--build-dir", type=Path, default=ROOT / "build", help="meson build directory")
+    ap.add_argument("--rounds", type=int, help="runs per cell (default 3, quick 1)")
+    ap.add_argument("--seconds", type=float, help="measuring time per run (default 1.5, quick 0.3)")
+    ap.add_argument("--out", type=Path, help="result directory (default bench/results/<date>-<host>)")
+    ap.add_argument("--only", help="comma list of kinds to run (default: all available)")
+    ap.add_argument("--baseline", type=Path, metavar="BUILD_DIR",
+                    help="also run the FAP, exec async and mikroC kinds with the bench_wire of "
+                         "another build (e.g. of the previous commit), same bus, same run")
+    ap.add_argument("-v", "--verbose", action="count", default=0)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
+                        format="bench: %(message)s")
+    quick = args.quick
+    rounds = args.rounds or (1 if quick else 3)
+    seconds = args.seconds or (0.3 if quick else 1.5)
+    host = socket.gethostname()
+    date = datetime.date.today().isoformat()
+    out = args.out or ROOT / "bench" / "results" / f"{date}-{host}"
+    args.build_dir = args.build_dir.resolve()
+    out = out.resolve()
+    runner = Runner(args)
+    os.chdir(runner.tmp)
+    if not runner.exe.exists():
+        print(f"bench: error: {runner.exe} missing: run meson setup build && meson compile -C build",
+              file=sys.stderr)
+        return 3
+    kinds, missing = available(args, runner)
+    if args.only:
+        kinds = [k for k in kinds if k in args.only.split(",")]
+    for k, how in missing.items():
+        print(f"bench: peer {k} missing, skipped ({how})", file=sys.stderr)
+    if quick:
+        kinds = [k for k in kinds if k in ("bare", "fap-poll", "fap-data", "exec", "mikroc", "modbus",
+                                           "py-bare", "g485")]
+    if args.baseline:
+        args.baseline = args.baseline.resolve()
+        at = kinds.index("mikroc") + 1 if "mikroc" in kinds else len(kinds)
+        kinds[at:at] = [BASE + k for k in ("fap-poll", "fap-data", "exec", "mikroc") if k in kinds]
+    bauds = [115200] if quick else [9600, 115200, 1000000]
+    t_start = time.monotonic()
+    res: Dict[str, Any] = {
+        "date": date, "host": host, "loadavg_before": loadavg(), "rounds": rounds, "seconds": seconds,
+        "machine": f"{os.cpu_count()} CPUs, {os.uname().sysname} {os.uname().release} {os.uname().machine}",
+        "bauds": bauds, "missing": missing, "paced": {}, "unpaced": {}, "scale": {}}
+    for baud in bauds:
+        res["paced"][str(baud)] = {}
+        for kind in kinds:
+            log.info("paced %d: %s", baud, kind)
+            res["paced"][str(baud)][kind] = measure_series(runner, kind, baud, rounds,
+                                                           seconds if baud > 9600 else seconds * 2)
+    for kind in kinds:
+        log.info("unpaced: %s", kind)
+        res["unpaced"][kind] = measure_series(runner, kind, 0, rounds, seconds)
+    for baud in ([115200] if quick else [115200, 1000000]):
+        log.info("scale at %d", baud)
+        res["scale"][str(baud)] = scale_series(runner, baud, 1 if quick else 2, seconds, quick)
+    try:
+        res["python"] = python_overhead(args, quick)
+    except Exception as e:
+        log.warning("python overhead: %s", e)
+    try:
+        res["codec"] = codec_throughput(runner)
+    except Exception as e:
+        log.warning("codec throughput: %s", e)
+    res["loadavg_after"] = loadavg()
+    res["wall_s"] = time.monotonic() - t_start
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "results.json").write_text(json.dumps(res, indent=1))
+    table = markdown(res)
+    (out / "table.md").write_text(table + "\n")
+    made = plots(res, out)
+    print(table)
+    print(f"\nbench: wrote {out}/results.json, table.md, {', '.join(made)} in {res['wall_s']:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,47 @@
+/* rx_pacing.h - receive a frame without waking for every byte.
+ *
+ * A UART FIFO, a USB adapter or the paced virtual bus hand a frame over in
+ * small pieces at wire speed; an engine that wakes for each piece spends
+ * most of its CPU on wake-ups. Once the first bytes of a frame are in and
+ * the decoder can say how many more the frame needs at least (from its
+ * header, or a lower bound from the framing), those bytes cannot arrive
+ * sooner than their wire time (10 bits per byte at the port's baud), so
+ * the engine may sleep that long and read them together.
+ *
+ * The sleep covers all but the LAST missing byte, less a margin for the
+ * engine's wake-up latency: the engine then waits for the rest on the fd
+ * as usual, so the answer is not later than with per-byte wake-ups (a
+ * sleep that ended after the last byte would delay it). Bytes already queued (an
+ * unpaced pty, a late reader) are read at once, without sleeping.
+ * A baud of 0 (unknown) never sleeps. */
+#ifndef LF_RX_PACING_H
+#define LF_RX_PACING_H
+
+#include <stddef.h>
+#include <sys/types.h>
+
+#include "common/mono_clock.h"
+#include "fap_port.h"
+
+/* How long to sleep before reading when `missing` more bytes are due:
+ * their wire time but the last byte's, less a margin for the engine's own
+ * wake-up latency (the larger of a character time and 150 us); 0 when that
+ * is under 100 us (not worth a timer: short frames at 1 Mbaud) or the
+ * baud is 0. */
+lf_ns lf_rx_hold_ns(unsigned baud, size_t missing);
+
+/* Read into buf (capacity n) until `want` bytes are in, sleeping the wire
+ * time of the missing bytes instead of waking per byte:
+ *  1. nothing queued: wait for the first bytes until deadline_ns (as
+ *     fap_port_read; 0 = do not wait);
+ *  2. while fewer than want and lf_rx_hold_ns() of the missing bytes is
+ *     not 0: sleep that long (never past deadline_ns), read what is queued;
+ *  3. return once want is reached, the hold is 0 (the caller waits for the
+ *     last bytes on the fd), or a sleep brought nothing (the wire stalled).
+ * Returns the bytes read (0: deadline passed with nothing), or a negative
+ * error as fap_port_read when nothing was read (with bytes in hand the
+ * error is left for the next call). */
+ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns);
+
+#endif

@@ -1,0 +1,305 @@
+/* rx pacing (port/rx_pacing.h) through a fake backend with its own wire:
+ * byte k of the script arrives at k character times (mid-character, so
+ * microseconds of real scheduling never move a byte across a boundary),
+ * on a clock that only the fake's poll and sleep_until advance. So every
+ * test is deterministic: how many reads (wake-ups) and sleeps a read of a
+ * frame costs, how long it sleeps, and that it never sleeps past the
+ * deadline or when the bytes are already there. Also the decoders' "bytes
+ * still missing" answers the engines feed it (FAP, exec async, mikroC). */
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <sys/ioctl.h>
+#include <unistd.h>
+
+#include "common/mono_clock.h"
+#include "execasync/codec_internal.h"
+#include "fap/fap_frame.h"
+#include "fap_port.h"
+#include "mikroc/mikroc_internal.h"
+#include "port/port_backend.h"
+#include "port/rx_pacing.h"
+#include "unit.h"
+
+#define BAUD 300                      /* 33.3 ms per character: wide margins */
+#define CT ((int64_t)10 * 1000000000 / BAUD)
+
+typedef struct wire {
+    int pipefd[2];                    /* a real fd for the port's epoll set */
+    int64_t skipped;                  /* virtual time added by poll/sleep */
+    int64_t t0;                       /* virtual time of the script's start */
+    size_t n;                         /* script length */
+    int64_t at[64];                   /* virtual arrival time of each byte */
+    size_t consumed;
+    int reads, polls, sleeps;
+    int64_t slept[8];                 /* durations asked of sleep_until */
+} wire;
+
+static int64_t vnow(wire *w) { return lf_now_ns() + w->skipped; }
+
+static size_t arrived(wire *w)
+{
+    size_t k = 0;
+    while (k < w->n && w->at[k] <= vnow(w))
+        k++;
+    return k;
+}
+
+/* n bytes; all == 1: all there at once (an unpaced pty), else one per
+ * character time from now. */
+static void script(wire *w, size_t n, int all)
+{
+    w->n = n;
+    w->consumed = 0;
+    w->t0 = vnow(w);
+    for (size_t k = 0; k < n; k++)
+        w->at[k] = all ? w->t0 : w->t0 + (int64_t)k * CT + CT / 2;
+    w->reads = w->polls = w->sleeps = 0;
+}
+
+static int f_open(void *c, const char *p, int fl) { (void)p; (void)fl; return ((wire *)c)->pipefd[0]; }
+static int f_close(void *c, int fd) { (void)c; (void)fd; return 0; }
+static int f_ioctl(void *c, int fd, unsigned long r, void *a) { (void)c; (void)fd; (void)a; if (r == TIOCEXCL || r == TIOCNXCL) return 0; errno = ENOTTY; return -1; }
+static int f_tcget(void *c, int fd, struct termios *t) { (void)c; (void)fd; memset(t, 0, sizeof *t); return 0; }
+static int f_tcset(void *c, int fd, int a, const struct termios *t) { (void)c; (void)fd; (void)a; (void)t; return 0; }
+static int f_tcflush(void *c, int fd, int q) { (void)c; (void)fd; (void)q; return 0; }
+static int f_tcdrain(void *c, int fd) { (void)c; (void)fd; return 0; }
+static int f_flock(void *c, int fd, int op) { (void)c; (void)fd; (void)op; return 0; }
+static ssize_t f_write(void *c, int fd, const void *b, size_t n) { (void)c; (void)fd; (void)b; return (ssize_t)n; }
+
+static ssize_t f_read(void *c, int fd, void *buf, size_t n)
+{
+    (void)fd;
+    wire *w = c;
+    w->reads++;
+    size_t k = arrived(w) - w->consumed;
+    if (k == 0) {
+        errno = EAGAIN;
+        return -1;
+    }
+    if (k > n)
+        k = n;
+    memset(buf, 0xA5, k);
+    w->consumed += k;
+    return (ssize_t)k;
+}
+
+/* Readable now, or jump the virtual clock to the next arrival if it comes
+ * within the timeout (or to the timeout). */
+static int f_poll(void *c, struct pollfd *p, nfds_t n, int ms)
+{
+    (void)n;
+    wire *w = c;
+    w->polls++;
+    p->revents = 0;
+    if (arrived(w) > w->consumed) {
+        p->revents = POLLIN;
+        return 1;
+    }
+    int64_t wait = ms < 0 ? INT64_MAX : (int64_t)ms * 1000000;
+    if (w->consumed < w->n && w->at[w->consumed] - vnow(w) <= wait) {
+        w->skipped += w->at[w->consumed] - vnow(w);
+        p->revents = POLLIN;
+        return 1;
+    }
+    if (ms > 0)
+        w->skipped += wait;
+    return 0;
+}
+
+/* The port computes deadlines on the real clock: the gap to it is what
+ * the engine would have slept. */
+static void f_sleep(void *c, int64_t deadline)
+{
+    wire *w = c;
+    int64_t d = deadline - lf_now_ns();
+    if (w->sleeps < 8)
+        w->slept[w->sleeps] = d;
+    w->sleeps++;
+    if (d > 0)
+        w->skipped += d;
+}
+
+static const lf_port_backend fake_be = {
+    .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcget,
+    .tcsetattr = f_tcset, .tcflush = f_tcflush, .tcdrain = f_tcdrain, .flock = f_flock,
+    .read = f_read, .write = f_write, .poll = f_poll, .sleep_until = f_sleep,
+};
+
+static fap_port *open_fake(wire *w, unsigned baud)
+{
+    memset(w, 0, sizeof *w);
+    if (pipe(w->pipefd) < 0)
+        return NULL;
+    fap_port_options o;
+    fap_port_options_init(&o);
+    o.baud = baud;
+    o.rs485_mode = FAP_RS485_NONE;
+    fap_port *p = NULL;
+    if (lf_port_open_with_backend(&p, "/fake/tty", &o, &fake_be, w) < 0)
+        return NULL;
+    return p;
+}
+
+static void close_fake(wire *w, fap_port *p)
+{
+    fap_port_close(p);
+    close(w->pipefd[0]);
+    close(w->pipefd[1]);
+}
+
+static void test_hold_ns(void)
+{
+    lf_ns ct = lf_char_time_ns(115200);             /* 86.8 us: margin 150 us */
+    CHECK_EQ(lf_rx_hold_ns(115200, 0), 0);
+    CHECK_EQ(lf_rx_hold_ns(115200, 1), 0);          /* the last byte: wait on the fd */
+    CHECK_EQ(lf_rx_hold_ns(115200, 3), 0);          /* 174 - 150 us: not worth a timer */
+    CHECK_EQ(lf_rx_hold_ns(115200, 15), 14 * ct - 150000);
+    CHECK_EQ(lf_rx_hold_ns(9600, 15), 13 * lf_char_time_ns(9600));  /* margin: 1 char */
+    CHECK_EQ(lf_rx_hold_ns(1000000, 15), 0);        /* a short frame at 1 Mbaud */
+    CHECK_EQ(lf_rx_hold_ns(1000000, 1039), 1038 * lf_char_time_ns(1000000) - 150000);
+    CHECK_EQ(lf_rx_hold_ns(0, 15), 0);              /* baud unknown: never sleep */
+}
+
+/* An unpaced pty: the whole frame is queued: one read, no sleep. */
+static void test_all_there_read_at_once(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    script(&w, 15, 1);
+    uint8_t buf[64];
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, lf_now_ns() + 10 * CT), 15);
+    CHECK_EQ(w.sleeps, 0);
+    CHECK_EQ(w.reads, 1);
+    CHECK_EQ(w.polls, 0);
+    close_fake(&w, p);
+}
+
+/* A paced wire: wait for the first byte, sleep 12 character times (all but
+ * the last missing byte, less one character of margin), read 12 at once,
+ * leave the last two to the caller's wait: 2 reads instead of 13 wake-ups. */
+static void test_paced_frame_one_sleep(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    script(&w, 15, 0);
+    uint8_t buf[64];
+    int64_t far = lf_now_ns() + 100 * CT;
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, far), 13);
+    CHECK_EQ(w.sleeps, 1);
+    CHECK(w.slept[0] > 12 * CT - CT / 4 && w.slept[0] <= 12 * CT);
+    CHECK_EQ(w.polls, 1);                            /* only for the first byte */
+    CHECK(w.reads <= 3);
+    /* the last two: too short a hold, a plain wait per byte */
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 2, far), 1);
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 1, far), 1);
+    CHECK_EQ(w.sleeps, 1);
+    close_fake(&w, p);
+}
+
+/* Never sleeps past the deadline, and returns what came by then. */
+static void test_deadline_caps_sleep(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    script(&w, 15, 0);
+    uint8_t buf[64];
+    int64_t start = lf_now_ns();
+    int64_t deadline = start + 5 * CT;               /* real clock: the port's */
+    ssize_t r = lf_port_read_paced(p, buf, sizeof buf, 15, deadline);
+    CHECK(r >= 1 && r <= 6);
+    CHECK_EQ(w.sleeps, 1);
+    CHECK(w.slept[0] <= 5 * CT);
+    close_fake(&w, p);
+}
+
+/* The sender stopped after 3 bytes: one sleep that brings nothing, then
+ * back to the caller (no second sleep, no busy loop). */
+static void test_stalled_wire_returns(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    script(&w, 3, 1);
+    uint8_t buf[64];
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT), 3);
+    CHECK_EQ(w.sleeps, 1);
+    CHECK_EQ(w.reads, 2);
+    close_fake(&w, p);
+}
+
+/* A full buffer, or a deadline of 0: no sleep at all. */
+static void test_no_sleep_cases(void)
+{
+    wire w;
+    uint8_t buf[64];
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    script(&w, 15, 1);
+    CHECK_EQ(lf_port_read_paced(p, buf, 4, 15, lf_now_ns() + 100 * CT), 4);  /* buffer full */
+    CHECK_EQ(w.sleeps, 0);
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, 0), 11);            /* no waiting */
+    CHECK_EQ(lf_port_read_paced(p, buf, sizeof buf, 15, 0), 0);             /* nothing left */
+    CHECK_EQ(lf_port_read_paced(NULL, buf, sizeof buf, 1, 0), -EINVAL);
+    close_fake(&w, p);
+}
+
+static void test_fap_missing(void)
+{
+    lf_fap_decoder d;
+    lf_fap_decoder_init(&d, 0);
+    CHECK_EQ(lf_fap_decoder_missing(&d), 0);
+    uint8_t f[64];
+    size_t n = lf_fap_encode(f, sizeof f, LF_FAP_DATA, 1, 0, (const uint8_t *)"pingpong", 8);
+    REQUIRE(n == 23);
+    lf_fap_decoder_feed(&d, f, 5, 0, NULL, NULL);
+    CHECK_EQ(lf_fap_decoder_missing(&d), 10);        /* size not in: a data-less frame */
+    lf_fap_decoder_feed(&d, f + 5, 6, 0, NULL, NULL);
+    CHECK_EQ(lf_fap_decoder_missing(&d), 12);        /* 23 - 11 */
+    lf_fap_decoder_feed(&d, f + 11, 12, 0, NULL, NULL);
+    CHECK_EQ(lf_fap_decoder_missing(&d), 0);         /* complete: reported, dropped */
+    lf_fap_decoder_feed(&d, (const uint8_t *)"xyz", 3, 0, NULL, NULL);
+    CHECK_EQ(lf_fap_decoder_missing(&d), 0);         /* garbage is not a frame */
+}
+
+static void test_exec_missing(void)
+{
+    struct execAsyncStateDef s;
+    byte buf[EXEC_ASYNC_MAX_DATA];
+    memset(&s, 0, sizeof s);
+    CHECK_EQ(lf_exec_rx_missing(&s), 8);             /* DLE STX node seq DLE ETX crc crc */
+    byte fr[64], data[2] = {1, 2};
+    word n = execAsyncBufferOut(3, data, fr, 2, 0);
+    REQUIRE(n == 10);
+    size_t expect[] = {7, 6, 5, 4, 4, 4, 3, 2, 1};   /* after each byte but the last */
+    for (word i = 0; i + 1 < n; i++) {
+        CHECK(!execAsyncByteIn(fr[i], &s, buf));
+        CHECK_EQ(lf_exec_rx_missing(&s), expect[i]);
+    }
+    CHECK(execAsyncByteIn(fr[n - 1], &s, buf));
+}
+
+static void test_mikroc_missing(void)
+{
+    mikrocRS485_decoder d;
+    mikrocRS485_DecoderInit(&d);
+    mikrocRS485_frame f;
+    CHECK_EQ(lf_mikroc_missing(&d), 5);              /* START addr DL CRC STOP */
+    uint8_t fr[16];
+    int n = mikrocRS485_Encode(fr, (const uint8_t *)"abc", 3, 7, 1);
+    REQUIRE(n == 8);
+    size_t expect[] = {4, 3, 5, 4, 3, 2, 1};         /* DL says 3 data bytes */
+    for (int i = 0; i + 1 < n; i++) {
+        CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[i], &f), MIKROC_RS485_MORE);
+        CHECK_EQ(lf_mikroc_missing(&d), expect[i]);
+    }
+    CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[n - 1], &f), MIKROC_RS485_FRAME);
+}
+
+UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_all_there_read_at_once),
+          UNIT(test_paced_frame_one_sleep), UNIT(test_deadline_caps_sleep),
+          UNIT(test_stalled_wire_returns), UNIT(test_no_sleep_cases),
+          UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing))
