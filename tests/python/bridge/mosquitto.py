@@ -38,6 +38,8 @@ class Mosquitto:
                  "persistence true", f"persistence_location {workdir}/db/",
                  "log_dest stderr", "log_type error", "log_type warning", "log_type notice",
                  "log_type information", "max_queued_messages 0", "max_inflight_messages 0"]
+        if os.geteuid() == 0:   # as root mosquitto would switch to user "mosquitto": no access here
+            lines.append("user root")
         if users:
             pw = os.path.join(workdir, "passwd")
             open(pw, "w").close()
