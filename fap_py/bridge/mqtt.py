@@ -85,8 +85,10 @@ class MqttLink:
         self.client.on_disconnect = self._on_disconnect
         self.client.on_publish = self._on_publish
         self.client.on_message = self._on_message
+        self.client.on_subscribe = self._on_subscribe
         self._cond = threading.Condition()
         self._connected = False
+        self._subscribed = False    # the broker confirmed the tx subscription
         self._stopping = False
         self.refused: Optional[str] = None
         self.connects = 0
@@ -108,12 +110,13 @@ class MqttLink:
         self._pump_thread.start()
 
     def wait_connected(self, timeout: Optional[float]) -> bool:
-        """True once connected; raises BrokerRefusedError if the broker said no."""
+        """True once connected and subscribed to the tx topics; raises
+        BrokerRefusedError if the broker said no."""
         with self._cond:
-            self._cond.wait_for(lambda: self._connected or self.refused is not None, timeout)
+            self._cond.wait_for(lambda: self._subscribed or self.refused is not None, timeout)
             if self.refused is not None:
                 raise BrokerRefusedError(self.refused)
-            return self._connected
+            return self._subscribed
 
     @property
     def connected(self) -> bool:
@@ -166,12 +169,21 @@ class MqttLink:
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         with self._cond:
             was = self._connected
-            self._connected = False
+            self._connected = self._subscribed = False
             if was:
                 self.disconnects += 1
             self._cond.notify_all()
         if was and not self._stopping:
             log.warning("lost the broker (%s); reconnecting with backoff", reason)
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any) -> None:
+        failed = [r for r in reasons if r.is_failure]
+        if failed:
+            log.error("broker refused the subscription to %s: %s", self.tx_filter, failed[0])
+            return
+        with self._cond:
+            self._subscribed = True
+            self._cond.notify_all()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         with self._cond:
