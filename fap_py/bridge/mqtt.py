@@ -142,20 +142,23 @@ class MqttLink:
                 info.wait_for_publish(timeout)
             except (RuntimeError, ValueError):   # lost the connection meanwhile
                 pass
-        self.client.disconnect()
+        if self._connected:
+            self.client.disconnect()
         self.client.loop_stop()
 
     # -- paho callbacks (network thread) ------------------------------------------
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
-            value = getattr(reason, "value", None)
-            log.error("broker %s:%d refused the connection: %s", self.config.broker.host,
-                      self.config.broker.port, reason)
-            if value in _FATAL_CONNACK:
+            b = self.config.broker
+            if getattr(reason, "value", None) in _FATAL_CONNACK:
+                # no retry can fix it: stop paho's loop; whoever waits gets BrokerRefusedError
+                log.info("broker %s:%d refused the connection: %s", b.host, b.port, reason)
+                client.loop_stop()
                 with self._cond:
                     self.refused = f"broker refused the connection: {reason}"
                     self._cond.notify_all()
-                client.disconnect()
+            else:
+                log.error("broker %s:%d refused the connection: %s (retrying)", b.host, b.port, reason)
             return
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
