@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", required=True, metavar="PATH", help="the bridge.toml")
     p.add_argument("--check", action="store_true", help="check the configuration and exit")
     p.add_argument("--connect-timeout", type=float, default=None, metavar="S",
-                   help="fail if the broker is not reached within S seconds (default: retry forever)")
+                   help="fail if the broker is not reached within S seconds (None: retry forever)")
     p.add_argument("--drain", type=float, default=5.0, metavar="S",
                    help="at exit, wait up to S seconds for queued publications to reach the broker")
     p.add_argument("--debug", action="store_true", help="traceback on error")
