@@ -188,17 +188,22 @@ class FapAdapter(BusAdapter):
         else:
             self.engine = Slave(c.port, c.baud, id=c.id, rs485=c.rs485)
 
+    _wake: Optional[tuple] = None   # a pipe that wakes the reader at stop
+
     def start(self) -> None:
-        self._wake_r, self._wake_w = os.pipe()
+        self._wake = os.pipe()
         super().start()
         self._spawn(self._reader, "reader")
 
     def stop(self) -> None:
         self._stop.set()
-        os.write(self._wake_w, b"x")
+        if self._wake is not None:
+            os.write(self._wake[1], b"x")
         super().stop()
-        os.close(self._wake_r)
-        os.close(self._wake_w)
+        if self._wake is not None:
+            for fd in self._wake:
+                os.close(fd)
+            self._wake = None
 
     def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         op = req.get("op", "send")
@@ -213,7 +218,7 @@ class FapAdapter(BusAdapter):
         eng, name = self.engine, self.cfg.name
         poller = select.poll()
         poller.register(eng.fileno(), select.POLLIN)
-        poller.register(self._wake_r, select.POLLIN)
+        poller.register(self._wake[0], select.POLLIN)
         active = {EventKind.SLAVE_ACTIVE: True, EventKind.SLAVE_INACTIVE: False,
                   EventKind.ID_TIMEOUT: False}
         while not self._stop.is_set():

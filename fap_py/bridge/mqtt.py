@@ -68,7 +68,7 @@ class MqttLink:
         self._on_tx = on_tx
         b = config.broker
         self.status_topic = f"{config.prefix}/bridge/{config.host}/status"
-        self.tx_filter = f"{config.prefix}/+/+/tx"
+        self.tx_filters = [f"{config.prefix}/{bus.name}/+/tx" for bus in config.buses]
         client_id = b.client_id or f"fap-bridge-{config.host}"
         # A persistent session: tx published while the bridge is away wait at the broker.
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
@@ -163,7 +163,7 @@ class MqttLink:
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
         client.publish(self.status_topic, b"online", qos=1, retain=True)
-        client.subscribe(self.tx_filter, qos=self.config.qos)
+        client.subscribe([(f, self.config.qos) for f in self.tx_filters])
         with self._cond:
             self._connected = True
             self.connects += 1
@@ -182,7 +182,7 @@ class MqttLink:
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any) -> None:
         failed = [r for r in reasons if r.is_failure]
         if failed:
-            log.error("broker refused the subscription to %s: %s", self.tx_filter, failed[0])
+            log.error("broker refused the subscription to %s: %s", self.tx_filters, failed[0])
             return
         with self._cond:
             self._subscribed = True

@@ -60,6 +60,7 @@ class Store:
         except (OSError, sqlite3.Error) as exc:
             raise PortError(getattr(exc, "errno", None) or 5, f"bridge state {path}: {exc}", path) from exc
         self._rows = self._count()
+        self._seen_rows = int(self._db.execute("SELECT COUNT(*) FROM seen").fetchone()[0])
         self.dropped = self._counter("dropped")
         if self._rows:
             log.info("outbox %s: %d publications left from before", path, self._rows)
@@ -137,10 +138,11 @@ class Store:
                 self._db.execute("INSERT INTO seen(id) VALUES (?)", (tx_id,))
             except sqlite3.IntegrityError:
                 return False
-            n = self._db.execute("SELECT COUNT(*) FROM seen").fetchone()[0]
-            if n > self.seen_max + self.seen_max // 10:   # trim in batches, not per insert
+            self._seen_rows += 1
+            if self._seen_rows > self.seen_max + self.seen_max // 10:   # trim in batches, not per insert
                 self._db.execute("DELETE FROM seen WHERE n IN (SELECT n FROM seen ORDER BY n LIMIT ?)",
-                                 (n - self.seen_max,))
+                                 (self._seen_rows - self.seen_max,))
+                self._seen_rows = self.seen_max
             return True
 
     def close(self) -> None:
