@@ -86,3 +86,33 @@ def test_broker_restart_loses_and_duplicates_nothing(broker, observer_factory, t
     assert list(first) == sorted(first)
     for m, doc in again:       # only MQTT redeliveries of an earlier publication
         assert m.dup and doc == first[doc["seq"]]
+
+
+def test_bridge_restart_publishes_what_it_left(broker, observer_factory, tmp_path):
+    """Stopped while the broker is away, the bridge keeps the outbox; the next run sends it."""
+    from fap_py.bridge import Bridge
+    from fap_py.fap import Slave
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(2) as bus, Slave(bus.paths[1], id=1) as s1:
+        obs = observer_factory(broker.port, "fap/line1/1/rx", client_id="consumer", clean=False)
+        buses = [{"name": "line1", "port": bus.paths[0], "protocol": "fap", "slaves": [1], "id_cycle": 0.1}]
+        cfg = bridge_config(broker.port, str(tmp_path / "state"), buses)
+        bridge = Bridge(cfg).start()
+        try:
+            assert bridge.wait_connected(WAIT)
+            broker.stop()
+            with bridge.link._cond:
+                assert bridge.link._cond.wait_for(lambda: not bridge.link.connected, WAIT)
+            for i in range(10):
+                s1.send(bytes([i]), timeout=WAIT)
+            with bridge.link._cond:
+                assert bridge.link._cond.wait_for(lambda: bridge.store.pending >= 10, WAIT)
+        finally:
+            bridge.stop(drain=0)
+        broker.start()
+        with Bridge(cfg) as again:
+            assert again.wait_connected(WAIT)
+            got = obs.wait_for("fap/line1/1/rx", lambda d: True, count=10)
+            assert [d["data"] for d in got] == [f"{i:02x}" for i in range(10)]
+            assert again.link.drain(WAIT)
