@@ -29,6 +29,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drain", type=float, default=5.0, metavar="S",
                    help="at exit, wait up to S seconds for queued publications to reach the broker")
     p.add_argument("--debug", action="store_true", help="traceback on error")
+    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                   help="log more (-v info, -vv debug), as before the subcommand")
     p.set_defaults(func=run)
 
 
