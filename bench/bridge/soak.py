@@ -74,6 +74,7 @@ class Consumer:
         self.dup_flag = 0                    # ... of which the broker marked DUP
         self.latency_ms: List[float] = []
         self.record_latency = True
+        self.t_first = self.t_last = 0.0     # arrival times of the first and last new message
         self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id="soak-consumer", clean_session=False)
         self.c.reconnect_delay_set(0.1, 1)
         self.c.on_connect = lambda c, u, f, rc, p: c.subscribe(f"{prefix}/+/+/rx", 1)
@@ -93,6 +94,8 @@ class Consumer:
                 self.dup_flag += bool(m.dup)
                 return
             self.seqs.add(doc["seq"])
+            self.t_last = time.monotonic()
+            self.t_first = self.t_first or self.t_last
             self.seen.setdefault(key, set()).add(doc["seq"])
             if self.record_latency:
                 self.latency_ms.append((now - t) / 1e6)
@@ -147,6 +150,8 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=50, help="messages/s per slave (bus -> broker)")
     ap.add_argument("--tx-rate", type=float, default=20, help="tx/s (broker -> bus)")
     ap.add_argument("--slaves", type=int, default=3)
+    ap.add_argument("--bus-baud", type=int, default=0,
+                    help="pace the virtual bus at this baud rate (0: as fast as the ptys go)")
     ap.add_argument("--restart-every", type=float, default=60, help="seconds between broker restarts")
     ap.add_argument("--down", type=float, default=5, help="seconds the broker stays down")
     ap.add_argument("--settle", type=float, default=120, help="longest wait for stragglers at the end")
@@ -159,7 +164,7 @@ def main() -> int:
     prefix, busname = "soak", "line1"
     slave_ids = list(range(1, args.slaves + 1))
     broker = Mosquitto(os.path.join(work, "broker")).start()
-    vbus = VirtualBus(args.slaves + 1)
+    vbus = VirtualBus(args.slaves + 1, baud=args.bus_baud or None)
     conf = os.path.join(work, "bridge.toml")
     with open(conf, "w") as f:
         f.write(f"""[bridge]
@@ -233,7 +238,6 @@ id_cycle = 0.2
         # flood: every slave sends as fast as its queue allows
         consumer.record_latency = False
         until = time.monotonic() + args.duration
-        start = time.monotonic()
         ths = [threading.Thread(target=slave_tx, args=(i, s, 0, until)) for i, s in enumerate(slaves)]
         for t in ths:
             t.start()
@@ -243,10 +247,12 @@ id_cycle = 0.2
         deadline = time.monotonic() + args.settle
         while consumer.unique() < total and time.monotonic() < deadline:
             time.sleep(0.05)
-        elapsed = time.monotonic() - start
+        with consumer.lock:
+            got, active = len(consumer.seen), consumer.t_last - consumer.t_first
         result["flood_sent"] = total
-        result["flood_received"] = consumer.unique()
-        result["flood_msgs_per_s"] = round(consumer.unique() / elapsed, 1)
+        result["flood_received"] = got
+        result["flood_dropped_by_engine_rx_queue"] = total - got
+        result["flood_msgs_per_s"] = round(got / active, 1) if active > 0 else 0.0
         # paced: latency at a rate the bridge keeps up with
         consumer.record_latency = True
         base = sum(sent)
@@ -330,7 +336,9 @@ id_cycle = 0.2
     print(f"bridge exit code {bridge.returncode}; work dir {work}")
     if args.json:
         print(json.dumps(result))
-    bad = result["rx_lost"] or result["rx_duplicated"] or result["tx_lost"] or result["tx_duplicated"]
+    bad = result["rx_duplicated"] or result["tx_lost"] or result["tx_duplicated"]
+    if not args.bench:     # a flood may overrun the engine's receive queue on purpose
+        bad = bad or result["rx_lost"]
     return 1 if bad else 0
 
 

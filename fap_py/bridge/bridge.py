@@ -109,18 +109,33 @@ class Bridge:
         return f"{self.config.prefix}/{middle}/{leaf}"
 
     def _publish(self, topic: str, fields: Dict[str, Any], retain: bool = False) -> None:
+        self._publish_many([(topic, fields, retain)])
+
+    def _publish_many(self, items: List[Tuple[str, Dict[str, Any], bool]]) -> None:
+        """Number the publications and append them to the outbox in one transaction."""
         with self._lock:   # seq == outbox row: one order for both
-            fields["seq"] = self._seq
-            fields["host"] = self.config.host
-            fields.setdefault("ts", now_iso())
-            self._seq = self.store.put(topic, json.dumps(fields, separators=(",", ":")).encode(), retain) + 1
+            rows = []
+            for topic, fields, retain in items:
+                fields["seq"] = self._seq
+                fields["host"] = self.config.host
+                fields.setdefault("ts", now_iso())
+                rows.append((topic, json.dumps(fields, separators=(",", ":")).encode(), retain))
+                self._seq += 1
+            self.store.put_many(rows)
         self.link.notify()
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""
+        self.rx_many(bus, [(node, fields)])
+
+    def rx_many(self, bus: str, items: List[Tuple[int, Dict[str, Any]]]) -> None:
+        """Several received messages, in bus order (one disk transaction)."""
         t = time.time()
-        self._seen(bus, node, t)
-        self._publish(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=now_iso(t)))
+        ts = now_iso(t)
+        for node in {node for node, _ in items}:
+            self._seen(bus, node, t)
+        self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
+                            for node, fields in items])
 
     def _seen(self, bus: str, node: int, t: float) -> None:
         with self._lock:

@@ -34,6 +34,7 @@ class Sink(Protocol):
     """What an adapter reports to (the bridge)."""
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None: ...
+    def rx_many(self, bus: str, items: list) -> None: ...
     def state(self, bus: str, node: int, active: bool) -> None: ...
     def error(self, bus: str, node: int, tx_id: Optional[str], message: str) -> None: ...
 
@@ -75,7 +76,7 @@ class BusAdapter:
         self.jobs: "queue.Queue[Optional[tuple]]" = queue.Queue(_JOBS_MAX)
         self._stop = threading.Event()
         self._threads: list = []
-        self.counters = {"rx": 0, "tx": 0, "tx_errors": 0, "poll_errors": 0}
+        self.counters = {"rx": 0, "tx": 0, "tx_errors": 0, "poll_errors": 0, "rx_overflow": 0}
 
     # -- lifetime ------------------------------------------------------------
     def open(self) -> None:
@@ -226,18 +227,26 @@ class FapAdapter(BusAdapter):
             if self._stop.is_set():
                 return
             try:
-                while True:
+                batch = []
+                while len(batch) < 500:     # what is queued now: one disk transaction
                     msg = eng.recv_nowait()
                     if msg is None:
                         break
-                    self.counters["rx"] += 1
-                    self.sink.rx(name, msg.source, {"data": msg.data.hex()})
+                    batch.append((msg.source, {"data": msg.data.hex()}))
+                if batch:
+                    self.counters["rx"] += len(batch)
+                    self.sink.rx_many(name, batch)
                 for ev in eng.events(0):
                     if ev.kind in active:
                         self.sink.state(name, ev.id, active[ev.kind])
                     elif ev.kind == EventKind.QUERIED:
                         self.sink.state(name, 0, True)
-                    elif ev.kind in (EventKind.PORT_LOST, EventKind.PORT_REOPENED, EventKind.RX_OVERFLOW):
+                    elif ev.kind == EventKind.RX_OVERFLOW:   # counted in engine.rx_dropped
+                        self.counters["rx_overflow"] += 1
+                        if self.counters["rx_overflow"] == 1:
+                            log.warning("bus %s: receive queue full, messages dropped (the bridge is "
+                                        "slower than the bus); see stats engine.rx_dropped", name)
+                    elif ev.kind in (EventKind.PORT_LOST, EventKind.PORT_REOPENED):
                         log.warning("bus %s: %s", name, ev)
             except FapError as exc:   # closed under us at stop
                 if not self._stop.is_set():

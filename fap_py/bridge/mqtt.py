@@ -73,7 +73,9 @@ class MqttLink:
         # A persistent session: tx published while the bridge is away wait at the broker.
         self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
                                   clean_session=False)
-        self.client.enable_logger(logging.getLogger(__name__ + ".paho"))
+        # paho's own messages at debug: it logs every failed reconnect attempt as an error,
+        # and the outage is already reported once by _on_disconnect
+        self.client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
         if b.username is not None:
             self.client.username_pw_set(b.username, b.password)
         if b.tls:
