@@ -251,7 +251,7 @@ id_cycle = 0.2
             got, active = len(consumer.seen), consumer.t_last - consumer.t_first
         result["flood_sent"] = total
         result["flood_received"] = got
-        result["flood_dropped_by_engine_rx_queue"] = total - got
+        result["flood_not_received"] = total - got
         result["flood_msgs_per_s"] = round(got / active, 1) if active > 0 else 0.0
         # paced: latency at a rate the bridge keeps up with
         consumer.record_latency = True
