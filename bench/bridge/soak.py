@@ -157,6 +157,8 @@ def main() -> int:
     ap.add_argument("--settle", type=float, default=120, help="longest wait for stragglers at the end")
     ap.add_argument("--bench", action="store_true",
                     help="no restarts: a flood phase (messages/s) then a paced phase (latency)")
+    ap.add_argument("--flood-seconds", type=float, default=None,
+                    help="--bench: length of the flood phase (default --duration; 0 skips it)")
     ap.add_argument("--json", action="store_true", help="also print the result as one JSON line")
     args = ap.parse_args()
 
@@ -237,7 +239,8 @@ id_cycle = 0.2
     if args.bench:
         # flood: every slave sends as fast as its queue allows
         consumer.record_latency = False
-        until = time.monotonic() + args.duration
+        flood = args.duration if args.flood_seconds is None else args.flood_seconds
+        until = time.monotonic() + flood
         ths = [threading.Thread(target=slave_tx, args=(i, s, 0, until)) for i, s in enumerate(slaves)]
         for t in ths:
             t.start()

@@ -75,7 +75,8 @@ class MqttLink:
                                   clean_session=False)
         # paho's own messages at debug: it logs every failed reconnect attempt as an error,
         # and the outage is already reported once by _on_disconnect
-        self.client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
+        if log.isEnabledFor(logging.DEBUG):   # paho formats a line per packet for on_log
+            self.client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
         if b.username is not None:
             self.client.username_pw_set(b.username, b.password)
         if b.tls:
