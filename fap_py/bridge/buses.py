@@ -1,0 +1,387 @@
+"""One adapter per bus: it opens fap_py's own engine for the bus's protocol
+and role, and turns what the engine does into bridge events. No protocol
+logic lives here: framing, polling, retries and checks are the engines'.
+
+Each adapter has one worker thread that owns the engine's request side:
+tx jobs run in arrival order, and for the request/response protocols
+(exec async, G485, mikroC) the periodic polls run between them. A FAP node
+also has a reader thread that waits on the engine's notification fd.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import queue
+import select
+import threading
+import time
+from typing import Any, Dict, Optional, Protocol
+
+from ..errors import FapError, InvalidValueError
+from .config import BusConfig
+
+log = logging.getLogger(__name__)
+
+_JOBS_MAX = 1000    # tx jobs waiting per bus; past that a tx is refused (error topic)
+
+
+class TxError(InvalidValueError):
+    """A tx request is malformed or cannot apply to this bus (published on the error topic)."""
+
+
+class Sink(Protocol):
+    """What an adapter reports to (the bridge)."""
+
+    def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None: ...
+    def rx_many(self, bus: str, items: list) -> None: ...
+    def state(self, bus: str, node: int, active: bool) -> None: ...
+    def error(self, bus: str, node: int, tx_id: Optional[str], message: str) -> None: ...
+
+
+def _hex(req: Dict[str, Any], key: str = "data") -> bytes:
+    value = req.get(key, "")
+    if not isinstance(value, str):
+        raise TxError(f"{key} must be a hex string")
+    try:
+        return bytes.fromhex(value)
+    except ValueError:
+        raise TxError(f"{key} is not hex: {value!r}") from None
+
+
+def _int(req: Dict[str, Any], key: str, default: Any = ...) -> int:
+    value = req.get(key, default)
+    if value is ...:
+        raise TxError(f"missing {key!r}")
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TxError(f"{key} must be an integer")
+    return value
+
+
+def _stats(obj: Any) -> Dict[str, Any]:
+    if dataclasses.is_dataclass(obj):
+        return dataclasses.asdict(obj)
+    return dict(obj.as_dict()) if hasattr(obj, "as_dict") else {}
+
+
+class BusAdapter:
+    """The shared part: the job queue, the worker, counters, stop."""
+
+    nodes_lo, nodes_hi = 0, 255
+
+    def __init__(self, cfg: BusConfig, sink: Sink) -> None:
+        self.cfg = cfg
+        self.sink = sink
+        self.engine: Any = None
+        self.jobs: "queue.Queue[Optional[tuple]]" = queue.Queue(_JOBS_MAX)
+        self._stop = threading.Event()
+        self._threads: list = []
+        self.counters = {"rx": 0, "tx": 0, "tx_errors": 0, "poll_errors": 0, "rx_overflow": 0}
+
+    # -- lifetime ------------------------------------------------------------
+    def open(self) -> None:
+        """Open the engine (raises PortError and friends)."""
+        raise NotImplementedError
+
+    def start(self) -> None:
+        self._spawn(self._worker, "worker")
+
+    def _spawn(self, target: Any, what: str) -> None:
+        t = threading.Thread(target=target, name=f"fap-bridge-{self.cfg.name}-{what}", daemon=True)
+        t.start()
+        self._threads.append(t)
+
+    def stop(self) -> None:
+        self._stop.set()
+        try:
+            self.jobs.put_nowait(None)
+        except queue.Full:
+            pass
+        for t in self._threads:
+            t.join(5.0)
+        if self.engine is not None:
+            self.engine.close()
+
+    def engine_stats(self) -> Dict[str, Any]:
+        try:
+            return _stats(self.engine.stats() if callable(self.engine.stats) else self.engine.stats)
+        except FapError:
+            return {}
+
+    # -- tx ------------------------------------------------------------------------
+    def submit(self, node: int, tx_id: str, req: Dict[str, Any]) -> None:
+        """Queue a tx for the worker (TxError if the node is out of range or the queue is full)."""
+        if not self.nodes_lo <= node <= self.nodes_hi:
+            raise TxError(f"node {node} outside {self.nodes_lo}..{self.nodes_hi} for {self.cfg.protocol}")
+        try:
+            self.jobs.put_nowait((node, tx_id, req))
+        except queue.Full:
+            raise TxError(f"bus {self.cfg.name}: {_JOBS_MAX} tx already waiting") from None
+
+    def _run_tx(self, node: int, tx_id: str, req: Dict[str, Any]) -> None:
+        try:
+            reply = self.execute(node, req)
+        except FapError as exc:
+            self.counters["tx_errors"] += 1
+            self.sink.error(self.cfg.name, node, tx_id, f"{type(exc).__name__}: {exc}")
+            return
+        self.counters["tx"] += 1
+        if reply is not None:
+            self.counters["rx"] += 1
+            self.sink.rx(self.cfg.name, node, dict(reply, reply_to=tx_id))
+
+    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        """Carry out one tx; the fields of the reply to publish on rx, or None."""
+        raise NotImplementedError
+
+    def poll(self) -> None:
+        """One round of periodic polls (request/response protocols)."""
+
+    def _polls(self) -> bool:
+        return False
+
+    def _worker(self) -> None:
+        interval = self.cfg.poll_interval
+        next_poll = time.monotonic()
+        while not self._stop.is_set():
+            wait = max(0.0, next_poll - time.monotonic()) if self._polls() else None
+            try:
+                job = self.jobs.get(timeout=wait)
+            except queue.Empty:
+                job = ()
+            if job is None or self._stop.is_set():
+                return
+            if job:
+                self._run_tx(*job)
+            if self._polls() and time.monotonic() >= next_poll:
+                try:
+                    self.poll()
+                except Exception:   # a poll bug must not stop the tx worker
+                    log.exception("bus %s: poll failed", self.cfg.name)
+                next_poll = max(next_poll + interval, time.monotonic())
+
+    def _polled(self, node: int, fields: Optional[Dict[str, Any]], exc: Optional[Exception]) -> None:
+        if exc is None:
+            self.counters["rx"] += 1
+            self.sink.state(self.cfg.name, node, True)
+            if fields is not None:
+                self.sink.rx(self.cfg.name, node, fields)
+        else:
+            self.counters["poll_errors"] += 1
+            log.debug("bus %s: poll of node %d failed: %s", self.cfg.name, node, exc)
+            self.sink.state(self.cfg.name, node, False)
+
+
+class FapAdapter(BusAdapter):
+    """FAP master (polls its slaves) or slave (answers the master): fap_py.Master / fap_py.Slave."""
+
+    nodes_lo, nodes_hi = 0, 31
+
+    def open(self) -> None:
+        from ..fap import Master, Slave
+
+        c = self.cfg
+        if c.role == "master":
+            self.engine = Master(c.port, c.baud, slaves=c.slaves, rs485=c.rs485,
+                                 id_cycle=c.id_cycle, data_done_timeout=c.data_done_timeout)
+            for sid in c.slaves:
+                self.sink.state(c.name, sid, False)
+        else:
+            self.engine = Slave(c.port, c.baud, id=c.id, rs485=c.rs485)
+
+    _wake: Optional[tuple] = None   # a pipe that wakes the reader at stop
+
+    def start(self) -> None:
+        self._wake = os.pipe()
+        super().start()
+        self._spawn(self._reader, "reader")
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._wake is not None:
+            os.write(self._wake[1], b"x")
+        super().stop()
+        if self._wake is not None:
+            for fd in self._wake:
+                os.close(fd)
+            self._wake = None
+
+    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        op = req.get("op", "send")
+        if op != "send":
+            raise TxError(f"op {op!r}: a fap bus only sends")
+        self.engine.send(_hex(req), to=node, timeout=self.cfg.timeout)
+        return None
+
+    def _reader(self) -> None:
+        from ..fap import EventKind
+
+        eng, name = self.engine, self.cfg.name
+        poller = select.poll()
+        poller.register(eng.fileno(), select.POLLIN)
+        poller.register(self._wake[0], select.POLLIN)
+        active = {EventKind.SLAVE_ACTIVE: True, EventKind.SLAVE_INACTIVE: False,
+                  EventKind.ID_TIMEOUT: False}
+        while not self._stop.is_set():
+            poller.poll(1000)
+            if self._stop.is_set():
+                return
+            try:
+                batch = []
+                while len(batch) < 500:     # what is queued now: one disk transaction
+                    msg = eng.recv_nowait()
+                    if msg is None:
+                        break
+                    batch.append((msg.source, {"data": msg.data.hex()}))
+                if batch:
+                    self.counters["rx"] += len(batch)
+                    self.sink.rx_many(name, batch)
+                for ev in eng.events(0):
+                    if ev.kind in active:
+                        self.sink.state(name, ev.id, active[ev.kind])
+                    elif ev.kind == EventKind.QUERIED:
+                        self.sink.state(name, 0, True)
+                    elif ev.kind == EventKind.RX_OVERFLOW:   # counted in engine.rx_dropped
+                        self.counters["rx_overflow"] += 1
+                        if self.counters["rx_overflow"] == 1:
+                            log.warning("bus %s: receive queue full, messages dropped (the bridge is "
+                                        "slower than the bus); see stats engine.rx_dropped", name)
+                    elif ev.kind in (EventKind.PORT_LOST, EventKind.PORT_REOPENED):
+                        log.warning("bus %s: %s", name, ev)
+            except FapError as exc:   # closed under us at stop
+                if not self._stop.is_set():
+                    log.error("bus %s: reader stopped: %s", name, exc)
+                return
+
+
+class ExecAsyncAdapter(BusAdapter):
+    """Exec async master: fap_py.execasync.Master; polls ``nodes`` with ``poll_data``."""
+
+    nodes_lo, nodes_hi = 1, 255   # 255 = broadcast
+
+    def open(self) -> None:
+        from ..execasync import Master
+
+        c = self.cfg
+        self.engine = Master(c.port, c.baud, timeout=c.timeout, retries=c.retries, rs485=c.rs485)
+
+    def _polls(self) -> bool:
+        return self.cfg.poll_data is not None and bool(self.cfg.nodes)
+
+    def poll(self) -> None:
+        for node in self.cfg.nodes:
+            try:
+                reply = self.engine.transact(node, self.cfg.poll_data)
+            except FapError as exc:
+                self._polled(node, None, exc)
+            else:
+                self._polled(node, {"data": reply.hex()}, None)
+
+    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        op = req.get("op", "send")
+        if op != "send":
+            raise TxError(f"op {op!r}: an execasync bus only sends")
+        data = _hex(req)
+        if node == 255:
+            self.engine.broadcast(data)
+            return {"data": ""}
+        reply = self.engine.transact(node, data)
+        self.sink.state(self.cfg.name, node, True)
+        return {"data": reply.hex()}
+
+
+class MikrocAdapter(BusAdapter):
+    """mikroC RS-485 master: fap_py.mikroc.Master; request/reply, polls ``nodes``."""
+
+    def open(self) -> None:
+        from ..mikroc import Master
+
+        c = self.cfg
+        self.engine = Master(c.port, c.baud, rs485=c.rs485)
+
+    def _polls(self) -> bool:
+        return self.cfg.poll_data is not None and bool(self.cfg.nodes)
+
+    def poll(self) -> None:
+        for node in self.cfg.nodes:
+            try:
+                reply = self.engine.request(node, self.cfg.poll_data, timeout=self.cfg.timeout)
+            except FapError as exc:
+                self._polled(node, None, exc)
+            else:
+                self._polled(node, {"data": reply.data.hex()}, None)
+
+    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        from ..mikroc import BROADCAST
+
+        op = req.get("op", "send")
+        if op != "send":
+            raise TxError(f"op {op!r}: a mikroc bus only sends")
+        data = _hex(req)
+        if node == BROADCAST:
+            self.engine.send(node, data)
+            return {"data": ""}
+        reply = self.engine.request(node, data, timeout=self.cfg.timeout)
+        return {"data": reply.data.hex()}
+
+
+class G485Adapter(BusAdapter):
+    """G485 master: fap_py.g485.G485Master; polls the configured register runs."""
+
+    nodes_lo, nodes_hi = 0, 126   # 0 = broadcast (write and set only)
+
+    def open(self) -> None:
+        from ..g485 import G485Master
+
+        c = self.cfg
+        self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries)
+
+    def engine_stats(self) -> Dict[str, Any]:
+        return _stats(self.engine.stats)
+
+    def _polls(self) -> bool:
+        return any(d.registers for d in self.cfg.devices)
+
+    def poll(self) -> None:
+        for dev in self.cfg.devices:
+            for first, count in dev.registers:
+                try:
+                    data = self.engine.read(dev.address, first, count)
+                except FapError as exc:
+                    self._polled(dev.address, None, exc)
+                    break          # the device is not answering: skip its other runs this round
+                self._polled(dev.address, {"op": "read", "register": first, "data": data.hex()}, None)
+
+    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        m = self.engine
+        op = req.get("op")
+        if op == "read":
+            register, count = _int(req, "register"), _int(req, "count", 1)
+            return {"op": op, "register": register, "data": m.read(node, register, count).hex()}
+        if op == "write":
+            register, data = _int(req, "register"), _hex(req)
+            if node == 0:
+                m.broadcast_write(register, data)
+            else:
+                m.write(node, register, data)
+            return {"op": op, "register": register, "data": data.hex()}
+        if op == "set":
+            command = req.get("command")
+            if not isinstance(command, (str, int)) or isinstance(command, bool):
+                raise TxError("set needs a command (a SetCommand name or value)")
+            if node == 0:
+                m.broadcast_set(command)
+            else:
+                m.set(node, command)
+            return {"op": op, "command": command, "data": ""}
+        if op == "error_word":
+            return {"op": op, "value": m.error_word(node), "data": ""}
+        raise TxError(f"op {op!r}: a g485 bus takes read, write, set or error_word")
+
+
+ADAPTERS = {"fap": FapAdapter, "execasync": ExecAsyncAdapter, "g485": G485Adapter, "mikroc": MikrocAdapter}
+
+
+def make_adapter(cfg: BusConfig, sink: Sink) -> BusAdapter:
+    """The adapter for ``cfg.protocol``."""
+    return ADAPTERS[cfg.protocol](cfg, sink)

@@ -1,0 +1,317 @@
+"""The bridge's configuration: a TOML file read into checked dataclasses.
+
+docs/bridge.md has the reference; every key is checked here, so that a
+typo stops the bridge at start-up with the key's name instead of failing
+later on the bus.
+"""
+from __future__ import annotations
+
+import os
+import socket
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Dict, Mapping, Optional, Tuple
+from urllib.parse import unquote, urlsplit
+
+from ..errors import InvalidValueError
+from ..fap import RS485, RS485Mode
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python < 3.11 only
+    import tomli as tomllib
+
+PROTOCOLS = ("fap", "execasync", "g485", "mikroc")
+_RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
+                "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE}
+
+
+class BridgeConfigError(InvalidValueError):
+    """The bridge configuration is missing a key, has an unknown one, or a bad value."""
+
+
+@dataclass(frozen=True)
+class G485Device:
+    """A G485 device and the register runs polled on it: ``[(first, count), ...]``."""
+
+    address: int
+    registers: Tuple[Tuple[int, int], ...]
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """One bus: a port, a protocol, a role and the nodes the bridge talks to."""
+
+    name: str
+    port: str
+    protocol: str
+    role: str = "master"
+    baud: int = 115200
+    rs485: RS485 = field(default_factory=RS485)
+    timeout: float = 0.1           #: per transaction attempt (execasync, g485, mikroc)
+    retries: int = 2
+    id: int = 0                    #: fap slave: this bridge's slave ID
+    slaves: Tuple[int, ...] = ()   #: fap master: slaves to list
+    nodes: Tuple[int, ...] = ()    #: execasync/mikroc: nodes polled with poll_data
+    poll_data: Optional[bytes] = None
+    poll_interval: float = 1.0
+    devices: Tuple[G485Device, ...] = ()
+    id_cycle: Optional[float] = None
+    data_done_timeout: Optional[float] = None
+
+
+@dataclass(frozen=True)
+class BrokerConfig:
+    """Where the broker is and how to log in."""
+
+    host: str
+    port: int
+    tls: bool
+    username: Optional[str] = None
+    password: Optional[str] = None
+    ca: Optional[str] = None
+    cert: Optional[str] = None
+    key: Optional[str] = None
+    client_id: Optional[str] = None
+    keepalive: int = 30
+    reconnect_min: float = 0.5
+    reconnect_max: float = 30.0
+    connect_timeout: float = 10.0
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    """The whole file."""
+
+    broker: BrokerConfig
+    buses: Tuple[BusConfig, ...]
+    host: str
+    prefix: str = "fap"
+    qos: int = 1
+    state_dir: str = "."
+    queue_max: int = 100_000
+    seen_max: int = 10_000
+    stats_interval: float = 10.0
+    inflight: int = 100
+
+
+# -- checking helpers -----------------------------------------------------------
+
+def _pop(table: Dict[str, Any], key: str, kind: Any, where: str, default: Any = ...) -> Any:
+    if key not in table:
+        if default is ...:
+            raise BridgeConfigError(f"{where}: missing key {key!r}")
+        return default
+    value = table.pop(key)
+    ok = isinstance(value, kind) and not (isinstance(value, bool) and kind in (int, float, (int, float)))
+    if not ok:
+        name = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
+        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {value!r}")
+    return value
+
+
+def _range(value: Any, lo: float, hi: float, what: str) -> Any:
+    if not lo <= value <= hi:
+        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {value}")
+    return value
+
+
+def _done(table: Dict[str, Any], where: str) -> None:
+    if table:
+        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))}")
+
+
+def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
+    if not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool)
+                                               for v in values):
+        raise BridgeConfigError(f"{what} must be a list of integers")
+    for v in values:
+        _range(v, lo, hi, what)
+    if len(set(values)) != len(values):
+        raise BridgeConfigError(f"{what} lists an ID twice: {values}")
+    return tuple(values)
+
+
+def _rs485(t: Dict[str, Any], where: str) -> RS485:
+    mode = _pop(t, "rs485", str, where, "auto")
+    if mode not in _RS485_MODES:
+        raise BridgeConfigError(f"{where}.rs485 must be one of {', '.join(_RS485_MODES)}, not {mode!r}")
+    before = _range(_pop(t, "rts_before", (int, float), where, 0), 0, 1000, f"{where}.rts_before")
+    after = _range(_pop(t, "rts_after", (int, float), where, 0), 0, 1000, f"{where}.rts_after")
+    polarity = _pop(t, "rts_polarity", str, where, "high")
+    if polarity not in ("high", "low"):
+        raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {polarity!r}")
+    echo = _pop(t, "echo_suppression", bool, where, False)
+    return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
+                 delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
+                 echo_suppression=echo)
+
+
+def _bus(t: Dict[str, Any], index: int) -> BusConfig:
+    where = f"bus[{index}]"
+    name = _pop(t, "name", str, where)
+    if not name or any(c in name for c in "/+#"):
+        raise BridgeConfigError(f"{where}.name {name!r}: empty or holds an MQTT wildcard or /")
+    where = f"bus {name!r}"
+    port = _pop(t, "port", str, where)
+    protocol = _pop(t, "protocol", str, where)
+    if protocol not in PROTOCOLS:
+        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+    role = _pop(t, "role", str, where, "master")
+    if role not in ("master", "slave") or (role == "slave" and protocol != "fap"):
+        raise BridgeConfigError(f"{where}.role {role!r}: only fap buses may be a slave")
+    kw: Dict[str, Any] = dict(name=name, port=port, protocol=protocol, role=role)
+    kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
+                        50, 10_000_000, f"{where}.baud")
+    kw["rs485"] = _rs485(t, where)
+    if protocol == "g485" and kw["rs485"] != RS485():
+        raise BridgeConfigError(f"{where}: a g485 bus runs on pyserial; the rs485/rts keys do not apply")
+    # fap: how long a tx waits for room in the engine's queue; others: per attempt
+    default_timeout = 1.0 if protocol == "fap" else 0.1
+    kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, default_timeout)),
+                           0.001, 3600, f"{where}.timeout")
+    kw["retries"] = _range(_pop(t, "retries", int, where, 2), 0, 1000, f"{where}.retries")
+    kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
+                                 0.001, 86400, f"{where}.poll_interval")
+    if protocol == "fap" and role == "master":
+        kw["slaves"] = _ids(_pop(t, "slaves", list, where), 1, 31, f"{where}.slaves")
+        for key in ("id_cycle", "data_done_timeout"):
+            if key in t:
+                kw[key] = _range(float(_pop(t, key, (int, float), where)), 0.001, 3600, f"{where}.{key}")
+    elif protocol == "fap":
+        kw["id"] = _range(_pop(t, "id", int, where), 1, 31, f"{where}.id")
+    elif protocol in ("execasync", "mikroc"):
+        lo, hi = (1, 254) if protocol == "execasync" else (0, 255)
+        kw["nodes"] = _ids(_pop(t, "nodes", list, where, []), lo, hi, f"{where}.nodes")
+        data = _pop(t, "poll_data", str, where, None)
+        if data is not None:
+            try:
+                kw["poll_data"] = bytes.fromhex(data)
+            except ValueError:
+                raise BridgeConfigError(f"{where}.poll_data is not hex: {data!r}") from None
+    else:
+        devices = []
+        for j, d in enumerate(_pop(t, "device", list, where)):
+            dw = f"{where}.device[{j}]"
+            if not isinstance(d, dict):
+                raise BridgeConfigError(f"{dw} must be a table")
+            d = dict(d)
+            address = _range(_pop(d, "address", int, dw), 1, 126, f"{dw}.address")
+            runs = []
+            for run in _pop(d, "registers", list, dw, []):
+                if (not isinstance(run, list) or len(run) != 2
+                        or not all(isinstance(v, int) and not isinstance(v, bool) for v in run)):
+                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {run!r}")
+                _range(run[0], 1, 100, f"{dw}.registers first")
+                _range(run[1], 1, 101 - run[0], f"{dw}.registers count")
+                runs.append((run[0], run[1]))
+            _done(d, dw)
+            devices.append(G485Device(address, tuple(runs)))
+        if len({d.address for d in devices}) != len(devices):
+            raise BridgeConfigError(f"{where}: a device address is listed twice")
+        kw["devices"] = tuple(devices)
+    _done(t, where)
+    return BusConfig(**kw)
+
+
+def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
+    """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
+    parts = urlsplit(url)
+    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
+        raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {url!r}")
+    tls = parts.scheme == "mqtts"
+    try:
+        port = parts.port or (8883 if tls else 1883)
+    except ValueError:
+        raise BridgeConfigError(f"broker.url has a bad port: {url!r}") from None
+    user = unquote(parts.username) if parts.username else None
+    password = unquote(parts.password) if parts.password else None
+    return parts.hostname, port, tls, user, password
+
+
+def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
+    where = "broker"
+    host, port, tls, user, password = parse_url(_pop(t, "url", str, where))
+    kw: Dict[str, Any] = dict(host=host, port=port, tls=tls)
+    kw["username"] = _pop(t, "username", str, where, user)
+    kw["password"] = _pop(t, "password", str, where, password)
+    pw_file = _pop(t, "password_file", str, where, None)
+    if pw_file is not None:
+        try:
+            with open(os.path.join(base, pw_file)) as f:
+                kw["password"] = f.read().strip()
+        except OSError as exc:
+            raise BridgeConfigError(f"broker.password_file: {exc}") from None
+    for key in ("ca", "cert", "key"):
+        value = _pop(t, key, str, where, None)
+        if value is not None:
+            if not tls:
+                raise BridgeConfigError(f"broker.{key} needs an mqtts:// url")
+            kw[key] = os.path.join(base, value)
+    if (kw.get("cert") is None) != (kw.get("key") is None):
+        raise BridgeConfigError("broker.cert and broker.key go together")
+    kw["client_id"] = _pop(t, "client_id", str, where, None)
+    kw["keepalive"] = _range(_pop(t, "keepalive", int, where, 30), 5, 3600, "broker.keepalive")
+    kw["reconnect_min"] = _range(float(_pop(t, "reconnect_min", (int, float), where, 0.5)), 0.01, 3600,
+                                 "broker.reconnect_min")
+    kw["reconnect_max"] = _range(float(_pop(t, "reconnect_max", (int, float), where, 30.0)),
+                                 kw["reconnect_min"], 3600, "broker.reconnect_max")
+    _done(t, where)
+    return BrokerConfig(**kw)
+
+
+def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
+    """A checked :class:`BridgeConfig` from parsed TOML; relative paths are relative to ``base``."""
+    top = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
+    if not isinstance(top.get("broker"), dict):
+        raise BridgeConfigError("missing [broker] table")
+    broker = _broker(top.pop("broker"), base)
+    bridge = top.pop("bridge", {})
+    if not isinstance(bridge, dict):
+        raise BridgeConfigError("[bridge] must be a table")
+    bus_tables = top.pop("bus", None)
+    if not isinstance(bus_tables, list) or not bus_tables:
+        raise BridgeConfigError("at least one [[bus]] table is needed")
+    _done(top, "top level")
+    buses = tuple(_bus(dict(b), i) for i, b in enumerate(bus_tables))
+    names = [b.name for b in buses]
+    if len(set(names)) != len(names):
+        raise BridgeConfigError(f"bus names must differ: {names}")
+    if "bridge" in names:
+        raise BridgeConfigError("a bus may not be called 'bridge' (that topic holds the bridge status)")
+    where = "bridge"
+    host = _pop(bridge, "host", str, where, socket.gethostname())
+    prefix = _pop(bridge, "topic_prefix", str, where, "fap").strip("/")
+    if not prefix or any(c in prefix for c in "+#"):
+        raise BridgeConfigError(f"bridge.topic_prefix {prefix!r}: empty or holds a wildcard")
+    if not host or any(c in host for c in "/+#"):
+        raise BridgeConfigError(f"bridge.host {host!r}: empty or holds / or a wildcard")
+    kw: Dict[str, Any] = dict(broker=broker, buses=buses, host=host, prefix=prefix)
+    kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
+    kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, "."))
+    kw["queue_max"] = _range(_pop(bridge, "queue_max", int, where, 100_000), 10, 100_000_000, "bridge.queue_max")
+    kw["seen_max"] = _range(_pop(bridge, "seen_max", int, where, 10_000), 10, 10_000_000, "bridge.seen_max")
+    kw["stats_interval"] = _range(float(_pop(bridge, "stats_interval", (int, float), where, 10.0)),
+                                  0.05, 86400, "bridge.stats_interval")
+    kw["inflight"] = _range(_pop(bridge, "inflight", int, where, 100), 1, 65535, "bridge.inflight")
+    _done(bridge, where)
+    return BridgeConfig(**kw)
+
+
+def load(path: str) -> BridgeConfig:
+    """Read and check a bridge.toml.
+
+    Raises:
+        OSError: the file cannot be read.
+        BridgeConfigError: bad TOML or a bad value.
+    """
+    with open(path, "rb") as f:
+        try:
+            data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as exc:
+            raise BridgeConfigError(f"{path}: {exc}") from None
+    return from_dict(data, os.path.dirname(os.path.abspath(path)))
+
+
+__all__ = ["BridgeConfig", "BridgeConfigError", "BrokerConfig", "BusConfig", "G485Device",
+           "PROTOCOLS", "from_dict", "load", "parse_url"]

@@ -1,0 +1,249 @@
+"""The broker side of the bridge: one paho-mqtt client and the outbox pump.
+
+paho-mqtt is imported here only, and lazily (:func:`paho`), so ``fap
+--help`` and everything else in fap_py works without the ``bridge`` extra.
+
+Delivery bus -> broker: every publication is first a row of the on-disk
+outbox (:class:`~fap_py.bridge.store.Store`); the pump hands rows to paho in
+sequence order, at most ``inflight`` unacknowledged at a time, only while
+connected, and deletes a row when its PUBACK arrives. Rows paho had sent
+when the connection dropped are re-sent by paho itself after the reconnect
+(with the DUP flag), before any newer row: order holds across outages.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any, Callable, Dict, List, Optional
+
+from ..errors import FapError
+from .config import BridgeConfig
+from .store import Store
+
+log = logging.getLogger(__name__)
+
+INSTALL_HINT = "fap bridge needs paho-mqtt 2.x: pip install 'fap_py[bridge]'"
+
+
+class MissingDependencyError(FapError):
+    """paho-mqtt (the ``bridge`` extra) is not installed."""
+
+
+class BrokerRefusedError(FapError):
+    """The broker refused the bridge's credentials; retrying cannot help."""
+
+
+def paho() -> Any:
+    """The ``paho.mqtt.client`` module, or :class:`MissingDependencyError`."""
+    try:
+        import paho.mqtt.client as mqtt
+    except ImportError:
+        raise MissingDependencyError(INSTALL_HINT) from None
+    if not hasattr(mqtt, "CallbackAPIVersion"):
+        raise MissingDependencyError(INSTALL_HINT + " (found paho-mqtt 1.x)")
+    return mqtt
+
+
+# CONNACK codes that no retry can fix: bad credentials, not authorised, banned.
+_FATAL_CONNACK = {4, 5, 134, 135, 138, 140}
+
+
+class MqttLink:
+    """The broker connection: connect with backoff, the status topic, the
+    tx subscription and the outbox pump.
+
+    Args:
+        config: the bridge configuration.
+        store: the outbox.
+        on_tx: called as ``on_tx(topic, payload)`` for every message on a
+            tx topic (in paho's network thread: must not block).
+    """
+
+    def __init__(self, config: BridgeConfig, store: Store,
+                 on_tx: Callable[[str, bytes], None]) -> None:
+        mqtt = paho()
+        self._mqtt = mqtt
+        self.config = config
+        self.store = store
+        self._on_tx = on_tx
+        b = config.broker
+        self.status_topic = f"{config.prefix}/bridge/{config.host}/status"
+        self.tx_filters = [f"{config.prefix}/{bus.name}/+/tx" for bus in config.buses]
+        client_id = b.client_id or f"fap-bridge-{config.host}"
+        # A persistent session: tx published while the bridge is away wait at the broker.
+        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                  clean_session=False)
+        # paho's own messages at debug: it logs every failed reconnect attempt as an error,
+        # and the outage is already reported once by _on_disconnect
+        if log.isEnabledFor(logging.DEBUG):   # paho formats a line per packet for on_log
+            self.client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
+        if b.username is not None:
+            self.client.username_pw_set(b.username, b.password)
+        if b.tls:
+            self.client.tls_set(ca_certs=b.ca, certfile=b.cert, keyfile=b.key)
+        self.client.will_set(self.status_topic, b"offline", qos=1, retain=True)
+        self.client.reconnect_delay_set(b.reconnect_min, b.reconnect_max)
+        self.client.max_inflight_messages_set(config.inflight)
+        self.client.on_connect = self._on_connect
+        self.client.on_disconnect = self._on_disconnect
+        self.client.on_publish = self._on_publish
+        self.client.on_message = self._on_message
+        self.client.on_subscribe = self._on_subscribe
+        self._cond = threading.Condition()
+        self._connected = False
+        self._subscribed = False    # the broker confirmed the tx subscription
+        self._stopping = False
+        self.refused: Optional[str] = None
+        self.connects = 0
+        self.disconnects = 0
+        self.published = 0
+        self._inflight: Dict[int, int] = {}   # paho mid -> outbox seq
+        self._early: set = set()              # mids acknowledged before publish() returned
+        self._acked: List[int] = []           # seqs to delete
+        self._last_handed = 0                 # highest seq handed to paho
+        self._pump_thread: Optional[threading.Thread] = None
+
+    # -- lifetime ---------------------------------------------------------------
+    def start(self) -> None:
+        """Connect in the background (paho retries with backoff) and start the pump."""
+        b = self.config.broker
+        self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
+        self.client.loop_start()
+        self._pump_thread = threading.Thread(target=self._pump, name="fap-bridge-pump", daemon=True)
+        self._pump_thread.start()
+
+    def wait_connected(self, timeout: Optional[float]) -> bool:
+        """True once connected and subscribed to the tx topics; raises
+        BrokerRefusedError if the broker said no."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._subscribed or self.refused is not None, timeout)
+            if self.refused is not None:
+                raise BrokerRefusedError(self.refused)
+            return self._subscribed
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    def drain(self, timeout: float) -> bool:
+        """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self.store.pending == 0 and not self._acked and not self._inflight, timeout)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Publish ``online`` -> ``offline`` cleanly, disconnect and stop the threads."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        if self._pump_thread is not None:
+            self._pump_thread.join(timeout)
+        self._flush_acked()
+        if self._connected:
+            info = self.client.publish(self.status_topic, b"offline", qos=1, retain=True)
+            try:
+                info.wait_for_publish(timeout)
+            except (RuntimeError, ValueError):   # lost the connection meanwhile
+                pass
+        if self._connected:
+            self.client.disconnect()
+        self.client.loop_stop()
+
+    # -- paho callbacks (network thread) ------------------------------------------
+    def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if reason.is_failure:
+            b = self.config.broker
+            if getattr(reason, "value", None) in _FATAL_CONNACK:
+                # no retry can fix it: stop paho's loop; whoever waits gets BrokerRefusedError
+                log.info("broker %s:%d refused the connection: %s", b.host, b.port, reason)
+                client.loop_stop()
+                with self._cond:
+                    self.refused = f"broker refused the connection: {reason}"
+                    self._cond.notify_all()
+            else:
+                log.error("broker %s:%d refused the connection: %s (retrying)", b.host, b.port, reason)
+            return
+        log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
+                 self.config.broker.port, flags.session_present)
+        client.publish(self.status_topic, b"online", qos=1, retain=True)
+        client.subscribe([(f, self.config.qos) for f in self.tx_filters])
+        with self._cond:
+            self._connected = True
+            self.connects += 1
+            self._cond.notify_all()
+
+    def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        with self._cond:
+            was = self._connected
+            self._connected = self._subscribed = False
+            if was:
+                self.disconnects += 1
+            self._cond.notify_all()
+        if was and not self._stopping:
+            log.warning("lost the broker (%s); reconnecting with backoff", reason)
+
+    def _on_subscribe(self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any) -> None:
+        failed = [r for r in reasons if r.is_failure]
+        if failed:
+            log.error("broker refused the subscription to %s: %s", self.tx_filters, failed[0])
+            return
+        with self._cond:
+            self._subscribed = True
+            self._cond.notify_all()
+
+    def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        with self._cond:
+            seq = self._inflight.pop(mid, None)
+            if seq is None:
+                self._early.add(mid)
+            else:
+                self._acked.append(seq)
+            self._cond.notify_all()
+
+    def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        try:
+            self._on_tx(msg.topic, msg.payload)
+        except Exception:   # one bad message must not kill paho's thread
+            log.exception("tx on %s failed", msg.topic)
+
+    # -- outbox pump -------------------------------------------------------------
+    def _flush_acked(self) -> None:
+        with self._cond:
+            acked, self._acked = self._acked, []
+        if acked:
+            self.store.delete(acked)
+            self.published += len(acked)
+            with self._cond:
+                self._cond.notify_all()
+
+    def notify(self) -> None:
+        """New rows are in the outbox."""
+        with self._cond:
+            self._cond.notify_all()
+
+    def _ready(self) -> bool:
+        return self._stopping or bool(self._acked) or (
+            self._connected and len(self._inflight) < self.config.inflight
+            and self.store.pending > len(self._inflight))
+
+    def _pump(self) -> None:
+        qos = self.config.qos
+        while True:
+            with self._cond:
+                self._cond.wait_for(self._ready, 1.0)
+                if self._stopping:
+                    return
+                room = self.config.inflight - len(self._inflight) if self._connected else 0
+            self._flush_acked()
+            if room <= 0:
+                continue
+            for seq, topic, payload, retain in self.store.after(self._last_handed, room):
+                # paho keeps what it could not send (even QoS 0) and sends it on reconnect
+                info = self.client.publish(topic, payload, qos=qos, retain=retain)
+                self._last_handed = seq
+                with self._cond:
+                    if info.mid in self._early:
+                        self._early.discard(info.mid)
+                        self._acked.append(seq)
+                    else:
+                        self._inflight[info.mid] = seq

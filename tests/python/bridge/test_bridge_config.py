@@ -1,0 +1,155 @@
+"""bridge.toml checking and the command's exit codes (no broker needed)."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from fap_py.bridge.config import BridgeConfigError, from_dict, load, parse_url
+from fap_py.errors import InvalidValueError
+from fap_py.fap import RS485Mode
+
+BROKER = {"url": "mqtt://127.0.0.1"}
+
+
+def _bus(**kw):
+    return dict({"name": "line1", "port": "/dev/ttyUSB0", "protocol": "fap", "slaves": [1, 2]}, **kw)
+
+
+def test_full_example_parses(tmp_path):
+    conf = tmp_path / "bridge.toml"
+    conf.write_text("""
+[bridge]
+host = "plc-01"
+topic_prefix = "site/a"
+qos = 1
+state_dir = "state"
+queue_max = 5000
+
+[broker]
+url = "mqtts://user:p%40ss@broker.example:8884"
+ca = "ca.crt"
+cert = "client.crt"
+key = "client.key"
+
+[[bus]]
+name = "line1"
+port = "/dev/ttyUSB0"
+protocol = "fap"
+slaves = [1, 2, 3]
+rs485 = "kernel"
+rts_before = 0.5
+rts_polarity = "low"
+
+[[bus]]
+name = "cell"
+port = "/dev/ttyUSB1"
+protocol = "fap"
+role = "slave"
+id = 4
+
+[[bus]]
+name = "valves"
+port = "/dev/ttyUSB2"
+protocol = "g485"
+poll_interval = 0.5
+device = [{address = 1, registers = [[1, 7], [8, 4]]}, {address = 2}]
+
+[[bus]]
+name = "ex"
+port = "/dev/ttyUSB3"
+protocol = "execasync"
+nodes = [5, 6]
+poll_data = "0102"
+
+[[bus]]
+name = "mk"
+port = "/dev/ttyUSB4"
+protocol = "mikroc"
+""")
+    cfg = load(str(conf))
+    assert (cfg.host, cfg.prefix, cfg.qos, cfg.queue_max) == ("plc-01", "site/a", 1, 5000)
+    b = cfg.broker
+    assert (b.host, b.port, b.tls, b.username, b.password) == ("broker.example", 8884, True, "user", "p@ss")
+    assert b.ca == str(tmp_path / "ca.crt") and cfg.state_dir == str(tmp_path / "state")
+    line1, cell, valves, ex, mk = cfg.buses
+    assert line1.slaves == (1, 2, 3) and line1.rs485.mode == RS485Mode.KERNEL
+    assert line1.rs485.delay_before_send_us == 500 and not line1.rs485.rts_active_high
+    assert line1.timeout == 1.0 and ex.timeout == 0.1
+    assert (cell.role, cell.id) == ("slave", 4)
+    assert valves.devices[0].registers == ((1, 7), (8, 4)) and valves.devices[1].registers == ()
+    assert ex.nodes == (5, 6) and ex.poll_data == b"\x01\x02"
+    assert mk.baud == 19200
+
+
+@pytest.mark.parametrize("data, words", [
+    ({"bus": [_bus()]}, "[broker]"),
+    ({"broker": BROKER}, "[[bus]]"),
+    ({"broker": {"url": "http://x"}, "bus": [_bus()]}, "mqtt://"),
+    ({"broker": {"url": "mqtt://x", "ca": "c"}, "bus": [_bus()]}, "mqtts"),
+    ({"broker": {"url": "mqtts://x", "cert": "c"}, "bus": [_bus()]}, "go together"),
+    ({"broker": BROKER, "bus": [_bus(colour="red")]}, "colour"),
+    ({"broker": BROKER, "bus": [_bus(protocol="modbus")]}, "protocol"),
+    ({"broker": BROKER, "bus": [_bus(slaves=[0])]}, "slaves"),
+    ({"broker": BROKER, "bus": [_bus(slaves=[1, 1])]}, "twice"),
+    ({"broker": BROKER, "bus": [_bus(baud="fast")]}, "baud"),
+    ({"broker": BROKER, "bus": [_bus(rs485="maybe")]}, "rs485"),
+    ({"broker": BROKER, "bus": [_bus(name="a/b")]}, "name"),
+    ({"broker": BROKER, "bus": [_bus(), _bus()]}, "differ"),
+    ({"broker": BROKER, "bus": [_bus(name="bridge")]}, "bridge"),
+    ({"broker": BROKER, "bus": [_bus(protocol="execasync", role="slave")]}, "slave"),
+    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[{"address": 1, "registers": [[99, 5]]}])]},
+     "count"),
+    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[], rs485="kernel")]}, "pyserial"),
+    ({"broker": BROKER, "bridge": {"qos": 3}, "bus": [_bus()]}, "qos"),
+    ({"broker": BROKER, "bridge": {"topic_prefix": "a/#"}, "bus": [_bus()]}, "wildcard"),
+    ({"broker": BROKER, "bus": [_bus()], "extra": 1}, "extra"),
+])
+def test_bad_configs_name_the_key(data, words):
+    with pytest.raises(BridgeConfigError, match=words.replace("[", r"\[").replace("]", r"\]")) as info:
+        from_dict(data)
+    assert isinstance(info.value, InvalidValueError)
+
+
+def test_url_defaults():
+    assert parse_url("mqtt://h") == ("h", 1883, False, None, None)
+    assert parse_url("mqtts://h") == ("h", 8883, True, None, None)
+
+
+def _fap(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "fap_py", *args], capture_output=True, text=True,
+                          timeout=60, cwd=cwd)
+
+
+def test_cli_exit_codes(tmp_path):
+    res = _fap("bridge", "--config", str(tmp_path / "missing.toml"), cwd=tmp_path)
+    assert res.returncode == 3 and res.stderr.startswith("fap: error: ") and len(res.stderr.splitlines()) == 1
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = 'p'\nprotocol = 'nope'\n")
+    res = _fap("bridge", "--config", str(bad), cwd=tmp_path)
+    assert res.returncode == 2 and "protocol" in res.stderr and len(res.stderr.splitlines()) == 1
+    good = tmp_path / "good.toml"
+    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = 'p'\nprotocol = 'fap'\nslaves = [1]\n")
+    res = _fap("bridge", "--config", str(good), "--check", cwd=tmp_path)
+    assert res.returncode == 0 and "ok: 1 bus" in res.stdout
+    res = _fap("bridge", "--config", str(good), cwd=tmp_path)     # port p does not exist
+    assert res.returncode == 3 and len(res.stderr.splitlines()) == 1, res.stderr
+    res = _fap("bridge", "--help", cwd=tmp_path)
+    assert res.returncode == 0 and "example:" in res.stdout
+
+
+BLOCK_PAHO = "import sys; sys.modules['paho'] = None; sys.modules['paho.mqtt'] = None; " \
+             "sys.modules['paho.mqtt.client'] = None; from fap_py.cli import main; sys.exit(main(sys.argv[1:]))"
+
+
+def test_without_paho(tmp_path):
+    res = subprocess.run([sys.executable, "-c", BLOCK_PAHO, "--help"], capture_output=True, text=True,
+                         timeout=60, cwd=tmp_path)
+    assert res.returncode == 0 and "bridge" in res.stdout
+    good = tmp_path / "good.toml"
+    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = 'p'\nprotocol = 'fap'\nslaves = [1]\n")
+    res = subprocess.run([sys.executable, "-c", BLOCK_PAHO, "bridge", "--config", str(good)],
+                         capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert res.returncode == 2
+    assert res.stderr.strip() == "fap: error: fap bridge needs paho-mqtt 2.x: pip install 'fap_py[bridge]'"
