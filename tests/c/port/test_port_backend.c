@@ -698,11 +698,12 @@ static void test_g485_transaction_soft_rts(void)
     f.nev = 0;
     g485_exchange(p, &t);
     MUST(f.nev == 4);
-    CHECK_EQ(f.ev[0].kind, EV_RTS_SET);
+    /* default polarity: pin high while sending, i.e. the modem RTS bit cleared */
+    CHECK_EQ(f.ev[0].kind, EV_RTS_CLEAR);
     CHECK_EQ(f.ev[1].kind, EV_WRITE);
     CHECK_EQ(f.ev[1].value, (int64_t)sizeof g485_request);
     CHECK_EQ(f.ev[2].kind, EV_DRAIN);
-    CHECK_EQ(f.ev[3].kind, EV_RTS_CLEAR);   /* released before the reply comes */
+    CHECK_EQ(f.ev[3].kind, EV_RTS_SET);   /* released before the reply comes */
     fap_port_close(p);
     tp_close(&t);
 }
