@@ -44,7 +44,13 @@ _LAZY = {
 }
 
 
+_SUBMODULES = ("fap", "fap_types", "fap_aio", "fap_classic", "rs485", "execasync", "mikroc",
+               "vbus", "g485")
+
+
 def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:     # ``import fap_py; fap_py.fap.Node`` as before
+        return importlib.import_module(f".{name}", __name__)
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -54,7 +60,7 @@ def __getattr__(name: str) -> Any:
 
 
 def __dir__() -> List[str]:
-    return sorted(set(globals()) | set(_LAZY))
+    return sorted(set(globals()) | set(_LAZY) | set(_SUBMODULES))
 
 
 def native_version() -> str:

@@ -160,3 +160,20 @@ def test_no_import_cycles_between_fap_py_modules() -> None:
 
     cycles = [m for m in graph if m in reach(m, set())]
     assert not cycles, cycles
+
+
+def test_public_import_paths_still_work() -> None:
+    import importlib
+    import subprocess
+
+    code = ("import fap_py\n"
+            "assert fap_py.fap.Node and fap_py.fap.RS485 and fap_py.fap.InvalidTypeError\n"
+            "assert fap_py.fap.MAX_ID == 31 and fap_py.fap.classic_check and fap_py.fap.port_options\n"
+            "assert fap_py.Master is fap_py.fap.Master and fap_py.RS485 is fap_py.rs485.RS485\n"
+            "assert fap_py.execasync.RS485 is fap_py.RS485 and fap_py.vbus.VirtualBus\n"
+            "assert fap_py.mikroc.Master and fap_py.errors.InvalidTypeError is fap_py.InvalidTypeError\n")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd="/")
+    for name in ("Master", "Slave", "RS485", "RS485Mode", "EventKind", "Message", "SlaveEvent",
+                 "Stats", "InvalidTypeError", "NotMasterError", "SlaveExistsError",
+                 "UnknownSlaveError", "FapError", "ClosedError"):
+        assert getattr(importlib.import_module("fap_py"), name)
