@@ -644,19 +644,34 @@ def run(a: argparse.Namespace) -> int:
         return 2
     protos = ["fap", "exec", "mikroc", "g485"] if a.protocol == "all" else [a.protocol]
     failed = False
-    for proto in protos:
-        if proto == "fap":
-            res = soak_fap(a)
-        elif proto == "exec":
-            res = soak_exec(a)
-        else:
-            res = soak_check8(a, proto)
-        _print(res, a.json)
-        failed |= not res.get("ok", True)
+    try:
+        for proto in protos:
+            if proto == "fap":
+                res = soak_fap(a)
+            elif proto == "exec":
+                res = soak_exec(a)
+            else:
+                res = soak_check8(a, proto)
+            _print(res, a.json)
+            failed |= not res.get("ok", True)
+    except KeyboardInterrupt:
+        print("fap: error: interrupted", file=sys.stderr)
+        return 130
     return 1 if failed else 0
 
 
+def _die_with_parent() -> None:
+    """A slave process must not outlive an interrupted soak (Linux prctl)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))   # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
 if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
+    _die_with_parent()
     _kind, _path, _node, _baud, _seed, _rate, _until = sys.argv[2:9]
     fn = _fap_slave_child if _kind == "fap" else _exec_slave_child
     try:

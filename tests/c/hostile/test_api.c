@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include "exec_async.h"
+#include "fap/fapx_internal.h"
 #include "exec_async_engine.h"
 #include "fap.h"
 #include "fapx.h"
@@ -165,7 +166,7 @@ static void *rx_forever(void *arg)
 {
     waiter *w = arg;
     char buf[8];
-    w->rc = fapx_rx_wait(w->h, buf, sizeof buf, NULL, INT_MAX);
+    __atomic_store_n(&w->rc, fapx_rx_wait(w->h, buf, sizeof buf, NULL, INT_MAX), __ATOMIC_RELEASE);
     return NULL;
 }
 
@@ -284,13 +285,19 @@ static void test_fapx(void)
     waiter w = {.h = h, .rc = 1};
     pthread_t t;
     pthread_create(&t, NULL, rx_forever, &w);
-    /* wait until it is inside the wait: the handle's waiters are not
-     * visible, so give it the time a thread start takes, bounded */
-    for (int i = 0; i < 200 && __atomic_load_n(&w.rc, __ATOMIC_ACQUIRE) == 1; i++)
+    /* close only once it is inside the wait (the handle's waiter count,
+     * internal): a call that starts after close would use a freed handle */
+    for (int i = 0; i < 10000; i++) {
+        pthread_mutex_lock(&h->lock);
+        unsigned in_wait = h->waiters;
+        pthread_mutex_unlock(&h->lock);
+        if (in_wait)
+            break;
         usleep(1000);
+    }
     fapx_close(h);
     pthread_join(t, NULL);
-    CHECK(w.rc == -ESHUTDOWN || w.rc == -EINVAL);
+    CHECK_EQ(w.rc, -ESHUTDOWN);
     fap_vbus_close(b);
 }
 
