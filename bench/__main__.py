@@ -473,16 +473,26 @@ def plots(res: Dict[str, Any], out: Path) -> List[str]:
     kinds = list(res["paced"][str(bauds[0])])
     # 1. efficiency vs baud
     fig, ax = plt.subplots(figsize=(9, 5.5))
+    colors = iter(plt.get_cmap("tab20").colors[::2] + plt.get_cmap("tab20").colors[1::2])
     for kind in kinds:
-        ys = [100 * res["paced"][str(b)][kind]["efficiency"]["median"]
-              if "efficiency" in res["paced"][str(b)].get(kind, {}) else None for b in bauds]
-        style = "--" if floor_of(kind) is None else "-"
-        ax.plot([b for b, y in zip(bauds, ys) if y is not None], [y for y in ys if y is not None],
-                style, marker="o", label=label(kind))
+        pts = [(b, res["paced"][str(b)][kind]["efficiency"]) for b in bauds
+               if "efficiency" in res["paced"][str(b)].get(kind, {})]
+        if not pts:
+            continue
+        floor = floor_of(kind) is None
+        python = kind in PY_KINDS
+        xs = [b * (1.03 if python else 1) for b, _ in pts]   # side by side, not on top
+        ys = [100 * e["median"] for _, e in pts]
+        err = [[100 * (e["median"] - e["min"]) for _, e in pts], [100 * (e["max"] - e["median"]) for _, e in pts]]
+        ax.errorbar(xs, ys, yerr=err, fmt="--" if floor else "-", marker="s" if python else "o",
+                    color="black" if floor and not python else "grey" if floor else next(colors),
+                    capsize=3, label=label(kind) + (" (Python)" if python and not floor else ""))
     ax.set_xscale("log")
+    ax.set_xticks(bauds, [f"{b:,}" for b in bauds])
+    ax.set_ylim(0, 105)
     ax.set_xlabel("baud (paced virtual bus)")
     ax.set_ylabel("exchanges/s as % of the framing limit")
-    ax.set_title(f"Efficiency vs baud rate ({res['host']}, {res['date']})")
+    ax.set_title(f"Efficiency vs baud rate ({res['host']}, {res['date']}; median, bars min–max)")
     ax.grid(True, which="both", alpha=.3)
     ax.legend(fontsize=8, loc="lower left")
     fig.tight_layout()
@@ -514,10 +524,15 @@ def plots(res: Dict[str, Any], out: Path) -> List[str]:
         y = range(len(ks))
         ax.barh([i - .2 for i in y], [rows[k]["client_us"]["median"] for k in ks], .4, label="client")
         ax.barh([i + .2 for i in y], [rows[k]["server_us"]["median"] for k in ks], .4, label="server")
+        for i, k in zip(y, ks):           # the numbers: busy-waiting peers span 3 decades
+            ax.text(rows[k]["client_us"]["median"] * 1.1, i - .2, f"{rows[k]['client_us']['median']:.0f}",
+                    va="center", fontsize=7)
         ax.set_yticks(list(y), [label(k) for k in ks], fontsize=8)
+        ax.set_xscale("log")
+        ax.set_xlim(1, 30000)                 # every bar starts at 1 µs: lengths compare
         ax.set_title(f"{col}{' baud' if col != 'unpaced' else ''}")
-        ax.set_xlabel("CPU µs per exchange")
-        ax.grid(True, axis="x", alpha=.3)
+        ax.set_xlabel("CPU µs per exchange (log)")
+        ax.grid(True, axis="x", which="both", alpha=.3)
     axes[0].legend(fontsize=8)
     fig.suptitle("CPU per exchange (lower is better)")
     fig.tight_layout()
@@ -534,6 +549,8 @@ def plots(res: Dict[str, Any], out: Path) -> List[str]:
         a2.plot(xs2, [100 * sc["slaves"][n]["master_load"]["median"] for n in sc["slaves"]], marker="o",
                 label=f"{baud} baud")
     a1.set_xscale("log", base=2)
+    xs_all = sorted({int(n) for sc in res["scale"].values() for n in sc["buses"]})
+    a1.set_xticks(xs_all, [str(x) for x in xs_all])
     a1.set_xlabel("buses (one FAP master each) in one process")
     a1.set_ylabel("master CPU µs per poll cycle")
     a1.set_ylim(bottom=0)
