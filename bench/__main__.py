@@ -579,17 +579,18 @@ def main(argv: Optional[List[str]] = None) -> int:
         prog="python -m bench",
         description="Run every benchmark on the virtual bus; write JSON, a Markdown table and PNG plots.",
         epilog="example: python -m bench --quick --out /tmp/bench-smoke",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="smoke test: 115200 only, short runs (< 1 min)")
-    ap.add_argument("--build-dir", type=Path, default=ROOT / "build", help="meson build directory")
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="smoke test: 115200 only, short runs, no Python peers (< 1 min)")
+    ap.add_argument("--build-dir", type=Path, default=ROOT / "build", help="meson build directory (default: build/ in the repository)")
     ap.add_argument("--rounds", type=int, help="runs per cell (default 3, quick 1)")
     ap.add_argument("--seconds", type=float, help="measuring time per run (default 1.5, quick 0.3)")
     ap.add_argument("--out", type=Path, help="result directory (default bench/results/<date>-<host>)")
-    ap.add_argument("--only", help="comma list of kinds to run (default: all available)")
+    ap.add_argument("--only", help="comma list of kinds to run (default: all available): "
+                    + ",".join(list(C_KINDS) + list(PY_KINDS)))
     ap.add_argument("--baseline", type=Path, metavar="BUILD_DIR",
                     help="also run the FAP, exec async and mikroC kinds with the bench_wire of "
                          "another build (e.g. of the previous commit), same bus, same run")
-    ap.add_argument("-v", "--verbose", action="count", default=0)
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="progress on stderr")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="bench: %(message)s")
@@ -609,6 +610,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 3
     kinds, missing = available(args, runner)
     if args.only:
+        unknown = set(args.only.split(",")) - set(C_KINDS) - set(PY_KINDS)
+        if unknown:
+            ap.error(f"unknown kind(s) in --only: {', '.join(sorted(unknown))}")
         kinds = [k for k in kinds if k in args.only.split(",")]
     for k, how in missing.items():
         print(f"bench: peer {k} missing, skipped ({how})", file=sys.stderr)
