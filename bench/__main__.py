@@ -390,6 +390,49 @@ def fmt(s: Dict[str, float], f: str = "{:.0f}") -> str:
     return f"{f.format(s['median'])} ({f.format(s['min'])}–{f.format(s['max'])})"
 
 
+def targets(res: Dict[str, Any]) -> List[str]:
+    """The issue's targets, each checked against this run (a report, not an assertion)."""
+    L = ["## Targets (issue 16) in this run", ""]
+
+    def line(ok: Optional[bool], text: str) -> None:
+        L.append(f"- {'met' if ok else 'MISSED' if ok is not None else 'n/a'}: {text}")
+
+    for baud in ("115200", "1000000"):
+        rows = res["paced"].get(baud, {})
+        for kind in ("fap-poll", "exec", "mikroc", "g485"):
+            r = rows.get(kind)
+            fr = floor_rate(kind, int(baud), rows) if r and "rate" in r else None
+            if fr:
+                share = 100 * r["rate"]["median"] / fr
+                need = 95 if kind == "g485" else 97
+                line(share >= need, f"{label(kind)} at {baud}: {share:.1f} % of the floor's efficiency (target {need} %)")
+        mb = rows.get("modbus")
+        for kind in ("fap-poll", "exec", "mikroc"):
+            r = rows.get(kind)
+            if r and mb and "client_us" in r and "client_us" in mb:
+                c, m = r["client_us"]["median"], mb["client_us"]["median"]
+                line(c <= m / 2, f"{label(kind)} at {baud}: client CPU {c:.0f} µs/exchange vs libmodbus {m:.0f} (target ≤ half)")
+            b = rows.get(BASE + kind)
+            if r and b and r.get("turnaround_us") and b.get("turnaround_us"):
+                n, o = r["turnaround_us"]["p50"], b["turnaround_us"]["p50"]
+                line(n <= o * 1.1, f"{label(kind)} at {baud}: turnaround p50 {n:.0f} µs vs {o:.0f} µs before (target no worse)")
+    sc = res["scale"].get("115200")
+    if sc:
+        one = {str(k): v for k, v in sc["buses"].items()}["1"]
+        load = 100 * one["master_load"]["median"]
+        line(load < 2, f"idle FAP master at 115200: {load:.2f} % of a core (target < 2 %)")
+    for baud, sc in res["scale"].items():
+        b = {str(k): v for k, v in sc["buses"].items()}
+        if "1" in b and "16" in b:
+            a, z = b["1"]["cpu_us_per_cycle"]["median"], b["16"]["cpu_us_per_cycle"]["median"]
+            line(z <= 1.2 * a, f"CPU per poll cycle at {baud}, 1 → 16 buses: {a:.1f} → {z:.1f} µs "
+                               "(target flat: at most 20 % above 1 bus)")
+        rss = max(v["rss_kib_per_handle"]["median"] for v in b.values())
+        line(rss < 256, f"RSS per FAP handle at {baud}: at most {rss:.0f} KiB (target < 256 KiB)")
+    L.append("")
+    return L
+
+
 def markdown(res: Dict[str, Any]) -> str:
     L = [f"# Benchmark {res['date']} on {res['host']}", "",
          f"{res['machine']}; load average before/after: {res['loadavg_before']} / "
@@ -450,6 +493,7 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
                      f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
         L.append("")
+    L += targets(res)
     if res.get("codec"):
         c, p = res["codec"]["c"], res["codec"]["python"]
         L += ["## Codec throughput (payload MB/s, no I/O)", "",
