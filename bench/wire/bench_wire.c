@@ -8,8 +8,12 @@
  *       (--same-id: every PATH is its own bus, id 1 on each).
  *   bench_wire client KIND PATH[,PATH...] [--baud B] [--seconds S] [--slaves N]
  *       warms up, prints "measuring", measures S seconds, then prints one
- *       JSON object: exchanges, seconds, cpu_s (this process), rss_kib
- *       growth per handle, request/reply bytes per exchange.
+ *       JSON object: exchanges, seconds, cpu_s (this process), wakeups
+ *       (voluntary context switches), rss_kib growth per handle,
+ *       request/reply bytes per exchange.
+ *   bench_wire codec
+ *       payload MB/s of the FAP, exec async and mikroC encoders/decoders
+ *       (no I/O), one JSON object.
  *
  * KIND: bare (write 15 bytes, read 15: no protocol, the floor of the bus),
  * fap-poll (FAP poll cycles SEND_DATA -> DATA_DONE, slaves with nothing to
