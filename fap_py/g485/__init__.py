@@ -27,7 +27,8 @@ __all__ = [
     "encode_read_request", "encode_read_response", "encode_set", "encode_write",
     "RegisterSpec", "SimDevice",
     "BroadcastReadError", "CheckByteError", "CheckMismatchError", "DeviceErrorWordError", "G485Error",
-    "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError", "RereadMismatchError",
+    "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError",
+    "RereadMismatchError",
     "UnexpectedReplyError", "WriteRefusedError",
     "Check", "G485Master", "MasterStats", "Simulator",
 ]

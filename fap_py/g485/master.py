@@ -16,11 +16,11 @@ drives the same flows from an asyncio event loop without a thread.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
+from types import GeneratorType
 from typing import Any, Callable, Dict, Generator, Iterable, List, Optional, Tuple, Union
 
 from . import codec
@@ -49,7 +49,6 @@ _ReadPlan = Tuple[bytes, bytes, int, int, int]
 #: one exchange a flow asks for: frame to send, reply prefix awaited (None: no reply), timeout
 Step = Tuple[bytes, Optional[bytes], Optional[float]]
 Flow = Generator[Step, Optional[bytes], Any]
-_GENERATOR = type((lambda: (yield))())
 
 
 class Check(Enum):
@@ -384,7 +383,7 @@ class G485Master:
 
     def _drive(self, flow: Any) -> Any:
         """Run one attempt of a transaction: every exchange its flow asks for."""
-        if type(flow) is not _GENERATOR:
+        if type(flow) is not GeneratorType:
             return flow  # an attempt that did its own exchange (the hot path)
         exchange = self._exchange_raw
         try:
@@ -394,7 +393,7 @@ class G485Master:
         except StopIteration as done:
             return done.value
 
-    def _run(self, make_flow: Callable[..., Flow], retries: Optional[int], *args: Any) -> Any:
+    def _run(self, make_flow: Callable[..., Any], retries: Optional[int], *args: Any) -> Any:
         """Run ``make_flow(*args)`` until it succeeds or the retries are used up."""
         lock = self._lock
         lock.acquire()  # explicit acquire/release: cheaper than ``with`` on the hot path
