@@ -53,6 +53,11 @@ class PortIO:
         self.baudrate = p.baudrate
         self._read = p.read_until
         self._write = p.write
+        # waiting for a reply: poll here, then one read in C (the C read would first try a
+        # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
+        self._poller: Optional[select.poll] = None
+        self._polled_fd = -1
+        self._use_poll = not p.rs485.echo_suppression
 
     @property
     def fd(self) -> Optional[int]:
@@ -68,7 +73,19 @@ class PortIO:
         return self._read(n, max(1, math.ceil(deadline * 1e9)))
 
     def read_within(self, n: int, timeout: float) -> bytes:
-        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
+        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first (b"" if
+        nothing came; the caller goes on with :meth:`read_some` if the chunk is short)."""
+        if self._use_poll:
+            fd = self.port.fd
+            if fd != self._polled_fd:  # first call, or the port was reopened
+                self._poller = select.poll()
+                if fd >= 0:
+                    self._poller.register(fd, select.POLLIN)
+                self._polled_fd = fd
+            if fd >= 0:
+                if not self._poller.poll(math.ceil(timeout * 1000.0)):  # type: ignore[union-attr]
+                    return b""
+                return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
     def read_nowait(self, n: int) -> bytes:
