@@ -170,9 +170,13 @@ class Port(Closing):
         Raises :class:`~fap_py.errors.BusCollisionError` when echo suppression
         reads back something else, :class:`PortGoneError` when the device vanished.
         """
-        if not isinstance(data, (bytes, bytearray, memoryview)):
+        if type(data) is bytes:  # cffi passes bytes to a const void * as they are
+            buf: Any = data
+        elif isinstance(data, (bytearray, memoryview)):
+            buf = self._ffi.from_buffer(data)
+        else:
             raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-        rc = self._lib.fap_port_write(self._handle(), self._ffi.from_buffer(data), len(data))
+        rc = self._lib.fap_port_write(self._handle(), buf, len(data))
         if rc < 0:
             raise port_error(rc, "write", self.path)
         return int(rc)

@@ -358,10 +358,13 @@ class G485Master:
         io.write(self._wire(frame))  # type: ignore[union-attr]
         if prefix is None:
             return None
-        waiter = ReplyWaiter(self, prefix)
-        wait = self._reply_wait(prefix, timeout)
+        size = HEADER_SIZE + prefix[3]
+        wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time  # see _reply_wait
         deadline = time.monotonic() + wait
-        chunk = io.read_within(waiter.size, wait)  # type: ignore[union-attr]
+        chunk = io.read_within(size, wait)  # type: ignore[union-attr]
+        if is_exact_reply(chunk, prefix) and not _debug():
+            return chunk  # the common case, decided before any waiter object exists
+        waiter = ReplyWaiter(self, prefix)
         while True:
             if not chunk:
                 raise waiter.expired(timeout)

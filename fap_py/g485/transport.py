@@ -56,8 +56,8 @@ class PortIO:
         # waiting for a reply: poll here, then one read in C (the C read would first try a
         # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
         self._poller: Optional[select.poll] = None
-        self._polled_fd = -1
         self._use_poll = not p.rs485.echo_suppression
+        self._watch()
 
     @property
     def fd(self) -> Optional[int]:
@@ -75,18 +75,21 @@ class PortIO:
     def read_within(self, n: int, timeout: float) -> bytes:
         """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first (b"" if
         nothing came; the caller goes on with :meth:`read_some` if the chunk is short)."""
-        if self._use_poll:
-            fd = self.port.fd
-            if fd != self._polled_fd:  # first call, or the port was reopened
-                self._poller = select.poll()
-                if fd >= 0:
-                    self._poller.register(fd, select.POLLIN)
-                self._polled_fd = fd
-            if fd >= 0:
-                if not self._poller.poll(math.ceil(timeout * 1000.0)):  # type: ignore[union-attr]
-                    return b""
-                return self._read(n, 0)
+        poller = self._poller
+        if poller is not None:
+            if not poller.poll(math.ceil(timeout * 1000.0)):
+                return b""
+            return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+
+    def _watch(self) -> None:
+        """(Re)build the poller on the port's current fd (after open and after a reopen)."""
+        fd = self.port.fd if self._use_poll and not self.port.closed else -1
+        if fd >= 0:
+            self._poller = select.poll()
+            self._poller.register(fd, select.POLLIN)
+        else:
+            self._poller = None
 
     def read_nowait(self, n: int) -> bytes:
         """What is there now, up to ``n`` bytes (b"" if nothing)."""
@@ -106,16 +109,20 @@ class PortIO:
         drops output, and on a pty (a virtual bus) a request written but not
         yet taken by the far end would be lost with it.
         """
+        poller = self._poller
+        if poller is not None and not poller.poll(0):
+            return  # nothing waiting (the common case): one poll, no call into C
         read = self._read
         try:
             while read(4096, 0):
                 pass
         except (PortError, ClosedError):
-            pass  # a vanished port: the next read or write reports it
+            self._poller = None  # a vanished port: the next read or write reports it
 
     def reopen(self) -> None:
         """Open the same path again (raises PortError while it is not back)."""
         self.port.reopen()
+        self._watch()
 
     def close(self) -> None:
         self.port.close()
