@@ -6,7 +6,9 @@ and adds pure-Python modules (G485) beside it.
 """
 from __future__ import annotations
 
+import importlib
 import logging
+from typing import TYPE_CHECKING, Any, List
 
 from .errors import (
     BusCollisionError,
@@ -14,28 +16,51 @@ from .errors import (
     FapError,
     FapTimeoutError,
     FrameError,
+    InvalidTypeError,
     InvalidValueError,
     NotInitialisedError,
+    NotMasterError,
     PortError,
     QueueFullError,
-)
-
-from .fap import (
-    RS485,
-    EventKind,
-    InvalidTypeError,
-    Master,
-    Message,
-    NotMasterError,
-    RS485Mode,
-    Slave,
-    SlaveEvent,
     SlaveExistsError,
-    Stats,
     UnknownSlaveError,
 )
 
+if TYPE_CHECKING:  # pragma: no cover
+    from .fap import Master, Slave
+    from .fap_types import EventKind, Message, SlaveEvent, Stats
+    from .rs485 import RS485, RS485Mode
+
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# The classes over the C core are imported on first use (PEP 562), so that
+# ``import fap_py`` and its pure-Python parts work before the extension is
+# built (a source checkout) and stay cheap for the CLI.
+_LAZY = {
+    "Master": ".fap", "Slave": ".fap",
+    "EventKind": ".fap_types", "Message": ".fap_types", "SlaveEvent": ".fap_types",
+    "Stats": ".fap_types",
+    "RS485": ".rs485", "RS485Mode": ".rs485",
+}
+
+
+_SUBMODULES = ("fap", "fap_types", "fap_aio", "fap_classic", "rs485", "execasync", "mikroc",
+               "vbus", "g485")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:     # ``import fap_py; fap_py.fap.Node`` as before
+        return importlib.import_module(f".{name}", __name__)
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> List[str]:
+    return sorted(set(globals()) | set(_LAZY) | set(_SUBMODULES))
 
 
 def native_version() -> str:

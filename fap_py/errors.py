@@ -11,7 +11,9 @@ parallel hierarchies.
 from __future__ import annotations
 
 import errno as _errno
+import functools
 import os
+from typing import Dict
 
 
 class FapError(Exception):
@@ -20,6 +22,22 @@ class FapError(Exception):
 
 class InvalidValueError(FapError, ValueError):
     """An argument is out of range or of the wrong kind (C: E_VALUE/E_PARAM)."""
+
+
+class InvalidTypeError(InvalidValueError, TypeError):
+    """An argument has the wrong type (also a ``TypeError``)."""
+
+
+class NotMasterError(InvalidValueError):
+    """A slave-list operation was asked of a slave node (C: -EPERM)."""
+
+
+class SlaveExistsError(InvalidValueError):
+    """add_slave: the slave is already listed (C: -EEXIST)."""
+
+
+class UnknownSlaveError(InvalidValueError):
+    """The slave is not listed on this master (C: -ENOENT)."""
 
 
 class NotInitialisedError(FapError):
@@ -57,17 +75,31 @@ class PortError(FapError, OSError):
         self.path = path
 
 
-# libfap's own negative codes (include/fap_port.h)
-FAP_PORT_ECOLLISION = -10001
-FAP_PORT_ECLOSED = -10002
+@functools.lru_cache(maxsize=None)
+def _port_codes() -> Dict[str, int]:
+    """libfap's own negative codes (include/fap_port.h), from the compiled core.
+
+    Looked up on first use, so that importing this module (and the pure-Python
+    parts of fap_py) does not need the extension."""
+    from ._native import lib
+
+    return {"FAP_PORT_ECOLLISION": int(lib.FAP_PORT_ECOLLISION),
+            "FAP_PORT_ECLOSED": int(lib.FAP_PORT_ECLOSED)}
+
+
+def __getattr__(name: str) -> int:
+    if name in ("FAP_PORT_ECOLLISION", "FAP_PORT_ECLOSED"):
+        return _port_codes()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
     """Map a negative libfap port-layer return code to an exception instance."""
     prefix = f"{what}: " if what else ""
-    if code == FAP_PORT_ECOLLISION:
+    codes = _port_codes()
+    if code == codes["FAP_PORT_ECOLLISION"]:
         return BusCollisionError(f"{prefix}bus collision (echo differs from what was sent)")
-    if code == FAP_PORT_ECLOSED:
+    if code == codes["FAP_PORT_ECLOSED"]:
         return ClosedError(f"{prefix}port closed")
     err = -code
     if err == _errno.ETIMEDOUT:

@@ -28,23 +28,35 @@ import errno
 import logging
 import os
 import threading
+import time
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
+from ._handle import NativeHandle, deadline_of
 from ._native import ffi, lib
-from ._util import Closing, check_int, from_cdata
-from .errors import ClosedError, FapError, FapTimeoutError, FrameError, InvalidValueError, error_from_code
-from .fap import RS485, RS485Mode, port_options   # the line options every fap_py node takes
+from ._stats import stats_from_c
+from ._validate import check_bytes, check_int, check_path, check_seconds, timeout_ms
+from .errors import (
+    ClosedError,
+    FapError,
+    FapTimeoutError,
+    FrameError,
+    InvalidTypeError,
+    InvalidValueError,
+    error_from_code,
+)
+from .rs485 import RS485, RS485Mode, port_options  # the line options every fap_py node takes
 
 log = logging.getLogger("fap_py.execasync")
 
-DLE = 0x10
-STX = 0x02
-ETX = 0x03
-BROADCAST = 255
-MAX_DATA = 255                       # RawSize is a byte
-MAX_FRAME = 2 * MAX_DATA + 8         # every data byte a DLE
+# Every constant is the C core's (include/exec_async.h), through cffi.
+DLE: int = lib.EXEC_ASYNC_DLE
+STX: int = lib.EXEC_ASYNC_STX
+ETX: int = lib.EXEC_ASYNC_ETX
+BROADCAST: int = lib.EXEC_ASYNC_BROADCAST
+MAX_DATA: int = lib.EXEC_ASYNC_MAX_DATA          # RawSize is a byte
+MAX_FRAME: int = lib.EXEC_ASYNC_MAX_FRAME        # every data byte a DLE
 
 BytesLike = Union[bytes, bytearray, memoryview]
 
@@ -57,6 +69,10 @@ class ExecAsyncError(FapError):
 
 class ExecValueError(ExecAsyncError, InvalidValueError):
     """A node number, payload or structure description is out of range."""
+
+
+class ExecTypeError(ExecValueError, InvalidTypeError):
+    """An argument has the wrong type (also an InvalidTypeError / TypeError)."""
 
 
 class NoReplyError(ExecAsyncError, FapTimeoutError):
@@ -81,18 +97,15 @@ def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
     raise error_from_code(code, what, path)
 
 
+_ERR: Dict[str, Any] = {"error": ExecValueError, "type_error": ExecTypeError}
+
+
 def _check_node(node: int, *, allow_broadcast: bool = False) -> int:
-    return check_int(node, "node", 1, BROADCAST if allow_broadcast else BROADCAST - 1,
-                     error=ExecValueError, type_error=ExecValueError)
+    return check_int(node, "node", 1, BROADCAST if allow_broadcast else BROADCAST - 1, **_ERR)
 
 
 def _check_data(data: BytesLike) -> bytes:
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise ExecValueError(f"data must be bytes, not {type(data).__name__}")
-    data = bytes(data)
-    if len(data) > MAX_DATA:
-        raise ExecValueError(f"{len(data)} bytes of data, at most {MAX_DATA}")
-    return data
+    return check_bytes(data, "data", 0, MAX_DATA, **_ERR)
 
 
 # ---- framing ------------------------------------------------------------------
@@ -100,10 +113,10 @@ def _check_data(data: BytesLike) -> bytes:
 class Status(IntEnum):
     """What :meth:`Decoder.feed` found (``execAsyncStateDef.Status``)."""
 
-    GOOD = 1
-    BAD_CRC = 2
-    OVERFLOW = 3
-    FRAMING = 4
+    GOOD = lib.EXEC_ASYNC_GOOD
+    BAD_CRC = lib.EXEC_ASYNC_BAD_CRC
+    OVERFLOW = lib.EXEC_ASYNC_OVERFLOW
+    FRAMING = lib.EXEC_ASYNC_FRAMING
 
 
 @dataclass(frozen=True)
@@ -122,8 +135,8 @@ class Frame:
 
 def encode(node: int, data: BytesLike = b"", seq: int = 0) -> bytes:
     """Format one frame (``execAsyncBufferOut``). node and seq are 0..255."""
-    if not 0 <= node <= 255 or not 0 <= seq <= 255:
-        raise ExecValueError(f"node {node} / seq {seq} must be 0..255")
+    check_int(node, "node", 0, 255, **_ERR)
+    check_int(seq, "seq", 0, 255, **_ERR)
     raw = _check_data(data)
     out = ffi.new("byte[]", MAX_FRAME)
     n = lib.execAsyncBufferOut(node, ffi.from_buffer("byte[]", raw) if raw else ffi.NULL,
@@ -139,8 +152,7 @@ class Decoder:
     """
 
     def __init__(self, buffer_size: int = MAX_DATA) -> None:
-        if not 1 <= buffer_size <= MAX_DATA:
-            raise ExecValueError(f"buffer_size {buffer_size} out of range 1..{MAX_DATA}")
+        check_int(buffer_size, "buffer_size", 1, MAX_DATA, **_ERR)
         self._size = buffer_size
         self._buf = ffi.new("byte[]", buffer_size)
         self.reset()
@@ -153,7 +165,7 @@ class Decoder:
     def feed(self, data: BytesLike) -> List[Frame]:
         frames: List[Frame] = []
         st = self._state
-        for b in bytes(data):
+        for b in check_bytes(data, "data", 0, 1 << 62, **_ERR):
             if lib.execAsyncByteIn(b, st, self._buf):
                 frame = Frame(st.Node, st.SeqNo, bytes(ffi.buffer(self._buf, st.Length)),
                               Status(st.Status))
@@ -192,14 +204,20 @@ class StructLayout:
     """
 
     def __init__(self, fields: Sequence[FieldSpec]) -> None:
+        if isinstance(fields, (str, bytes)) or not isinstance(fields, Sequence):
+            raise ExecTypeError(f"fields must be a sequence of tuples, not {type(fields).__name__}")
         if not fields:
             raise ExecValueError("a structure needs at least one field")
         specs: List[Tuple[str, str, int]] = []
         for f in fields:
-            if len(f) not in (2, 3):
+            if not isinstance(f, tuple) or len(f) not in (2, 3):
                 raise ExecValueError(f"field {f!r}: expected (name, type[, count])")
             name, kind = f[0], f[1]
-            count = int(f[2]) if len(f) == 3 else 1  # type: ignore[misc]
+            if not isinstance(name, str) or not name.isidentifier() or name.startswith("_"):
+                raise ExecValueError(f"field name {name!r} must be an identifier")
+            if not isinstance(kind, str):
+                raise ExecTypeError(f"field {name!r}: type must be a str, not {type(kind).__name__}")
+            count = check_int(f[2], f"field {name!r} count", 1, 0xFFFF, **_ERR) if len(f) == 3 else 1
             if kind not in _CTYPES:
                 raise ExecValueError(f"field {name!r}: unknown type {kind!r} "
                                      f"(one of {' '.join(_CTYPES)})")
@@ -211,7 +229,7 @@ class StructLayout:
             raise ExecValueError("field names must be unique")
         ctype_fields = [(n, _CTYPES[k] * c if (c > 1 or k == "bytes") else _CTYPES[k])
                         for n, k, c in specs]
-        self._struct = type("ExecStruct", (ctypes.Structure,), {"_fields_": ctype_fields})
+        self._struct: Any = type("ExecStruct", (ctypes.Structure,), {"_fields_": ctype_fields})
         self._specs = specs
         self.native_size = ctypes.sizeof(self._struct)
         if self.native_size > 0xFFFF:
@@ -231,7 +249,7 @@ class StructLayout:
 
     def pack_native(self, native: BytesLike) -> bytes:
         """Native-layout bytes (e.g. a cffi/ctypes struct) -> packed big-endian."""
-        native = bytes(native)
+        native = check_bytes(native, "native", 0, 1 << 62, **_ERR)
         if len(native) != self.native_size:
             raise ExecValueError(f"{len(native)} bytes, the native structure has {self.native_size}")
         src = ffi.new("byte[]", native)
@@ -241,7 +259,7 @@ class StructLayout:
 
     def unpack_native(self, packed: BytesLike) -> bytes:
         """Packed big-endian -> native-layout bytes (padding zero)."""
-        packed = bytes(packed)
+        packed = check_bytes(packed, "packed", 0, 1 << 62, **_ERR)
         if len(packed) != self.packed_size:
             raise ExecValueError(f"{len(packed)} bytes, the packed structure has {self.packed_size}")
         src = ffi.new("byte[]", packed)
@@ -251,6 +269,8 @@ class StructLayout:
 
     def pack(self, values: Mapping[str, Any]) -> bytes:
         """Field values (ints, floats, lists for arrays, bytes) -> packed bytes."""
+        if not isinstance(values, Mapping):
+            raise ExecTypeError(f"values must be a mapping, not {type(values).__name__}")
         missing = [n for n in self.names if n not in values]
         extra = [n for n in values if n not in self.names]
         if missing or extra:
@@ -260,12 +280,14 @@ class StructLayout:
             v = values[name]
             try:
                 if kind == "bytes":
-                    v = bytes(v)
+                    v = check_bytes(v, f"field {name!r}", 0, count, **_ERR)
                     if len(v) > count:
                         raise ExecValueError(f"field {name!r}: {len(v)} bytes, room for {count}")
                     ctypes.memmove(ctypes.addressof(inst) + getattr(self._struct, name).offset,
                                    v, len(v))
                 elif count > 1:
+                    if isinstance(v, (str, bytes)) or not isinstance(v, Sequence):
+                        raise ExecTypeError(f"field {name!r}: expected a sequence of {count}")
                     if len(v) != count:
                         raise ExecValueError(f"field {name!r}: {len(v)} items, expected {count}")
                     arr = getattr(inst, name)
@@ -273,7 +295,7 @@ class StructLayout:
                         arr[i] = _checked(name, kind, item)
                 else:
                     setattr(inst, name, _checked(name, kind, v))
-            except TypeError as exc:
+            except (TypeError, OverflowError) as exc:
                 raise ExecValueError(f"field {name!r}: {exc}") from None
         return self.pack_native(bytes(inst))
 
@@ -296,9 +318,14 @@ class StructLayout:
 def _checked(name: str, kind: str, value: Any) -> Any:
     """Range-check an integer (ctypes would silently wrap it)."""
     if kind[0] == "f":
-        return float(value)
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ExecTypeError(f"field {name!r}: {value!r} is not a number")
+        try:
+            return float(value)
+        except OverflowError:
+            raise ExecValueError(f"field {name!r}: {value} does not fit a float") from None
     if not isinstance(value, int) or isinstance(value, bool):
-        raise ExecValueError(f"field {name!r}: {value!r} is not an int")
+        raise ExecTypeError(f"field {name!r}: {value!r} is not an int")
     bits = int(kind[1:])
     lo, hi = (0, (1 << bits) - 1) if kind[0] == "u" else (-(1 << (bits - 1)), (1 << (bits - 1)) - 1)
     if not lo <= value <= hi:
@@ -340,7 +367,7 @@ class SlaveStats:
     rx_frames: int
 
 
-class Master(Closing):
+class Master(NativeHandle):
     """Exec async master on one port.
 
     ``timeout`` is per attempt (end of our frame to end of the reply);
@@ -350,49 +377,61 @@ class Master(Closing):
     Args:
         port: serial device path (or a :class:`~fap_py.vbus.VirtualBus` path).
         baudrate: line speed.
-        timeout: seconds per attempt.
-        retries: extra attempts after the first.
-        rs485: :class:`fap_py.fap.RS485` line options, as for FAP nodes
+        timeout: seconds per attempt; ``None`` = the C engine's default
+            (``execMasterOptionsInit``).
+        retries: extra attempts after the first; ``None`` = the C default.
+        rs485: :class:`fap_py.RS485` line options, as for FAP nodes
             (``echo_suppression=True`` on a bus that echoes our own bytes).
 
     Thread-safe; a context manager.
     """
 
+    _kind = "exec async master"
+
     def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
-                 timeout: float = 0.1, retries: int = 3, rs485: Optional[RS485] = None) -> None:
-        self._m: Any = None
-        self._lock = threading.Lock()
-        self.path = os.fspath(port)
+                 timeout: Optional[float] = None, retries: Optional[int] = None,
+                 rs485: Optional[RS485] = None) -> None:
+        super().__init__()
+        self._lock = threading.Lock()        # one transaction at a time
+        self.path = check_path(port)
         popts = port_options(baudrate, rs485)
         mopts = ffi.new("execMasterOptions *")
-        lib.execMasterOptionsInit(mopts)
-        mopts.reply_timeout_us, mopts.retries = self._timing(timeout, retries)
-        self._retries = retries
+        lib.execMasterOptionsInit(mopts)     # C's defaults are the only defaults
+        if timeout is not None:
+            mopts.reply_timeout_us = self._timeout_us(timeout)
+        if retries is not None:
+            mopts.retries = self._retries_checked(retries)
+        self._retries = int(mopts.retries)
         out = ffi.new("execMaster **")
         _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
-        self._m = out[0]
+        self._adopt(out[0])
         self._reply = ffi.new("byte[]", MAX_DATA)
         self._reply_len = ffi.new("word *")
         log.info("exec async master on %s", self.path)
 
-    @staticmethod
-    def _timing(timeout: float, retries: int) -> Tuple[int, int]:
-        if not 0 < timeout <= 3600:
-            raise ExecValueError(f"timeout {timeout} s out of range (0, 3600]")
-        if not isinstance(retries, int) or not 0 <= retries <= 1000:
-            raise ExecValueError(f"retries {retries!r} out of range 0..1000")
-        return max(1, int(round(timeout * 1e6))), retries
+    def _label(self) -> str:
+        return f"exec async master on {self.path}"
 
-    def _handle(self) -> Any:
-        if self._m is None:
-            raise ClosedError(f"{self.path}: master closed")
-        return self._m
+    def _release(self, h: Any) -> None:
+        lib.execMasterClose(h)
+
+    def _fd(self, h: Any) -> int:
+        return int(lib.fap_port_fd(lib.execMasterPort(h)))
+
+    @staticmethod
+    def _timeout_us(timeout: Any) -> int:
+        t = check_seconds(timeout, "timeout", lo=0.0, lo_open=True, hi=3600.0, **_ERR)
+        return max(1, int(round(t * 1e6)))
+
+    @staticmethod
+    def _retries_checked(retries: Any) -> int:
+        return check_int(retries, "retries", 0, 1000, **_ERR)
 
     def set_timeout(self, timeout: float, retries: Optional[int] = None) -> None:
         """Change the per-attempt timeout (s) and, if given, the retries."""
-        with self._lock:
-            m = self._handle()
-            us, r = self._timing(timeout, self._retries if retries is None else retries)
+        us = self._timeout_us(timeout)
+        r = self._retries if retries is None else self._retries_checked(retries)
+        with self._lock, self._using() as m:
             _raise_for(lib.execMasterSetTimeout(m, us, r), "set_timeout")
             self._retries = r
 
@@ -400,12 +439,11 @@ class Master(Closing):
         """Poll ``node`` (1..254) with ``data``; return its reply.
 
         Raises :class:`NoReplyError` / :class:`CorruptReplyError` when every
-        attempt failed (the sequence number moves on anyway).
+        attempt failed (the next message to that node then carries SeqNo 0).
         """
         _check_node(node)
         payload = _check_data(data)
-        with self._lock:
-            m = self._handle()
+        with self._lock, self._using() as m:
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("-> node %d seq %d %s", node, lib.execMasterNextSeq(m, node), payload.hex())
             rc = lib.execMasterTransact(m, node, payload, len(payload), self._reply, MAX_DATA,
@@ -419,43 +457,36 @@ class Master(Closing):
     def broadcast(self, data: BytesLike = b"") -> None:
         """Send ``data`` to every slave (node 255); nobody answers."""
         payload = _check_data(data)
-        with self._lock:
+        with self._lock, self._using() as m:
             log.debug("-> broadcast %s", payload.hex())
-            _raise_for(lib.execMasterBroadcast(self._handle(), payload, len(payload)),
-                       "broadcast", self.path)
+            _raise_for(lib.execMasterBroadcast(m, payload, len(payload)), "broadcast", self.path)
 
     def next_seq(self, node: int) -> int:
         """The sequence number the next message to ``node`` will carry."""
         _check_node(node, allow_broadcast=True)
         with self._lock:
-            return int(lib.execMasterNextSeq(self._handle(), node))
+            return int(self._call(lib.execMasterNextSeq, node))
 
     def reopen(self) -> None:
         """Open the device again (after it vanished: a USB unplug, say)."""
-        with self._lock:
-            _raise_for(lib.fap_port_reopen(lib.execMasterPort(self._handle())), "reopen", self.path)
+        with self._lock, self._using() as m:
+            _raise_for(lib.fap_port_reopen(lib.execMasterPort(m)), "reopen", self.path)
 
     def reset_sequence(self) -> None:
         """Start again from sequence number 0 for every node (a master restart)."""
         with self._lock:
-            lib.execMasterResetSequence(self._handle())
+            self._call(lib.execMasterResetSequence)
 
     @property
     def stats(self) -> MasterStats:
+        """A snapshot of the counters (``execMasterStats``)."""
         st = ffi.new("execMasterStats *")
-        lib.execMasterGetStats(self._handle(), st)
-        return from_cdata(MasterStats, st)
+        self._call(lib.execMasterGetStats, st)
+        return stats_from_c(MasterStats, st)
 
     def close(self) -> None:
         """Close the port (waits for a transaction in progress). Idempotent."""
-        with self._lock:
-            if self._m is not None:
-                lib.execMasterClose(self._m)
-                self._m = None
-
-    @property
-    def closed(self) -> bool:
-        return self._m is None
+        super().close()
 
 
 @dataclass(frozen=True)
@@ -475,9 +506,9 @@ class ServeResult(IntEnum):
     """What one :meth:`Slave.serve` call did."""
 
     TIMEOUT = 0
-    PROCESSED = 1      # the handler ran and its reply was sent
-    RESENT = 2         # a retry: the last reply was sent again, the handler did not run
-    BROADCAST = 3      # the handler ran, nothing was sent
+    PROCESSED = lib.EXEC_SLAVE_PROCESSED   # the handler ran and its reply was sent
+    RESENT = lib.EXEC_SLAVE_RESENT         # a retry: the last reply was sent again
+    BROADCAST = lib.EXEC_SLAVE_BROADCAST   # the handler ran, nothing was sent
 
 
 Handler = Callable[[Request], Optional[BytesLike]]
@@ -495,15 +526,18 @@ def fap_py_exec_slave_handler(ctx: Any, req: Any, reply: Any, cap: int) -> int:
     return slave._dispatch(req, reply, cap)
 
 
-class Slave(Closing):
+class Slave(NativeHandle):
     """Exec async slave for ``node`` (1..254) on one port.
 
     ``handler(request)`` returns the reply bytes (0..255), or ``None`` for
     no reply; it is not called again for a retried request (the last reply
     is resent) and is called for broadcasts, whose reply is ignored. Call
-    :meth:`serve` from your own thread, or :meth:`start` a background
-    thread. An exception in the handler sends no reply and is re-raised by
-    :meth:`serve` (or kept in :attr:`error` by the background thread).
+    :meth:`serve` from your own thread, :meth:`start` a background thread,
+    or run :meth:`aserve` / :meth:`aserve_forever` in an asyncio loop (the
+    port's fd drives it through ``loop.add_reader``; no thread; the handler
+    then runs in the loop's thread). An exception in the handler sends no
+    reply and is re-raised by :meth:`serve` (or kept in :attr:`error` by the
+    background thread).
 
     Args:
         port, baudrate, rs485: as for :class:`Master`;
@@ -512,17 +546,17 @@ class Slave(Closing):
         handler: ``handler(request) -> bytes | None``.
     """
 
+    _kind = "exec async slave"
+
     def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
                  node: int, handler: Handler, rs485: Optional[RS485] = None) -> None:
-        self._s: Any = None
+        super().__init__()
         self._thread: Optional[threading.Thread] = None
-        self._lock = threading.Lock()
-        self._idle = threading.Condition(self._lock)
-        self._serving = 0        # serve() calls inside C: close() waits for them
+        self._serve_lock = threading.Lock()   # one serve() at a time (C state)
         _check_node(node)
         if not callable(handler):
-            raise ExecValueError("handler must be callable")
-        self.path = os.fspath(port)
+            raise ExecTypeError("handler must be callable")
+        self.path = check_path(port)
         self.node = node
         self._handler = handler
         self._pending_error: Optional[BaseException] = None
@@ -536,13 +570,26 @@ class Slave(Closing):
         _raise_for(lib.execSlaveOpen(out, self.path.encode(), popts, sopts,
                                      lib.fap_py_exec_slave_handler, self._self_handle),
                    "open", self.path)
-        self._s = out[0]
+        self._adopt(out[0])
         log.info("exec async slave %d on %s", node, self.path)
 
-    def _handle(self) -> Any:
-        if self._s is None:
-            raise ClosedError(f"{self.path}: slave closed")
-        return self._s
+    def _label(self) -> str:
+        return f"exec async slave {self.node} on {self.path}"
+
+    def _interrupt(self) -> None:
+        # execSlaveStop is one eventfd write: serve() calls in other threads return at once
+        h = self._h
+        if h is not None:
+            lib.execSlaveStop(h)
+        thread = self._thread
+        if thread is not None and thread is not threading.current_thread():
+            thread.join()
+
+    def _release(self, h: Any) -> None:
+        lib.execSlaveClose(h)
+
+    def _fd(self, h: Any) -> int:
+        return int(lib.fap_port_fd(lib.execSlavePort(h)))
 
     def _dispatch(self, req: Any, reply: Any, cap: int) -> int:
         try:
@@ -552,9 +599,7 @@ class Slave(Closing):
             out = self._handler(request)
             if out is None or request.broadcast:
                 return -1
-            out = bytes(out)
-            if len(out) > cap:
-                raise ExecValueError(f"handler reply of {len(out)} bytes, at most {cap}")
+            out = check_bytes(out, "handler reply", 0, cap, **_ERR)
         except BaseException as exc:  # handed to serve(); C must not unwind through Python
             self._pending_error = exc
             return -1
@@ -563,24 +608,44 @@ class Slave(Closing):
             log.debug("slave %d -> seq %d %s", self.node, request.seq, out.hex())
         return len(out)
 
+    def _serve_c(self, ms: int) -> int:
+        """One execSlaveServe call; the handler's exception re-raised."""
+        with self._serve_lock:
+            rc = int(self._call(lib.execSlaveServe, ms))
+            err, self._pending_error = self._pending_error, None
+        if err is not None:
+            raise err
+        if rc == -errno.ECANCELED:
+            raise self._closed_error()
+        _raise_for(rc, f"slave {self.node}", self.path)
+        return rc
+
     def serve(self, timeout: Optional[float] = None) -> ServeResult:
         """Handle one request for this node (or a broadcast); wait at most
         ``timeout`` seconds (None = until one comes or :meth:`stop`)."""
-        ms = -1 if timeout is None else max(0, int(round(timeout * 1000)))
-        with self._lock:
-            s = self._handle()
-            self._serving += 1
+        return ServeResult(self._serve_c(timeout_ms(timeout, **_ERR)))
+
+    async def aserve(self, timeout: Optional[float] = None) -> ServeResult:
+        """``await``-able :meth:`serve`: waits on the port fd with
+        ``loop.add_reader`` (no thread), handles what arrived without blocking."""
+        t = None if timeout is None else check_seconds(timeout, "timeout", **_ERR)
+        deadline = deadline_of(t)
+        while True:
+            rc = self._serve_c(0)              # bytes already read first, then the fd
+            if rc != 0:
+                return ServeResult(rc)
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return ServeResult.TIMEOUT
+            await self.await_readable(left)
+
+    async def aserve_forever(self) -> None:
+        """Serve requests until the slave is closed (then return)."""
         try:
-            rc = lib.execSlaveServe(s, ms)
-        finally:
-            with self._lock:
-                self._serving -= 1
-                self._idle.notify_all()
-        err, self._pending_error = self._pending_error, None
-        if err is not None:
-            raise err
-        _raise_for(rc, f"slave {self.node}", self.path)
-        return ServeResult(rc)
+            while True:
+                await self.aserve(None)
+        except ClosedError:
+            return
 
     def _run(self) -> None:
         try:
@@ -594,8 +659,9 @@ class Slave(Closing):
 
     def start(self) -> "Slave":
         """Serve in a background (daemon) thread until :meth:`stop` / :meth:`close`."""
-        with self._lock:
-            self._handle()
+        with self._serve_lock:
+            if self.closed:
+                raise self._closed_error()
             if self._thread is None:
                 self._thread = threading.Thread(target=self._run, name=f"exec-slave-{self.node}",
                                                 daemon=True)
@@ -604,41 +670,32 @@ class Slave(Closing):
 
     def stop(self) -> None:
         """Make serve() return (raising ClosedError) now and from then on; join the thread."""
-        with self._lock:
-            if self._s is not None:
-                lib.execSlaveStop(self._s)
-            thread = self._thread
+        h = self._h
+        if h is not None:
+            lib.execSlaveStop(h)
+        thread = self._thread
         if thread is not None and thread is not threading.current_thread():
             thread.join()
 
     def reopen(self) -> None:
         """Open the device again after it vanished (serve() raised PortError)."""
-        with self._lock:
-            _raise_for(lib.fap_port_reopen(lib.execSlavePort(self._handle())), "reopen", self.path)
+        with self._using() as s:
+            _raise_for(lib.fap_port_reopen(lib.execSlavePort(s)), "reopen", self.path)
 
     @property
     def stats(self) -> SlaveStats:
+        """A snapshot of the counters (``execSlaveStats``)."""
         st = ffi.new("execSlaveStats *")
-        lib.execSlaveGetStats(self._handle(), st)
-        return from_cdata(SlaveStats, st)
+        self._call(lib.execSlaveGetStats, st)
+        return stats_from_c(SlaveStats, st)
 
     def close(self) -> None:
         """Stop serving (also serve() calls in other threads) and close the port. Idempotent."""
-        self.stop()
-        with self._lock:
-            while self._serving:
-                self._idle.wait()
-            if self._s is not None:
-                lib.execSlaveClose(self._s)
-                self._s = None
-
-    @property
-    def closed(self) -> bool:
-        return self._s is None
+        super().close()
 
 
 __all__ = [
     "RS485", "RS485Mode", "BROADCAST", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "Decoder", "ExecAsyncError",
-    "ExecValueError", "Frame", "Master", "MasterStats", "NoReplyError", "Request",
+    "ExecTypeError", "ExecValueError", "Frame", "Master", "MasterStats", "NoReplyError", "Request",
     "ServeResult", "Slave", "SlaveStats", "Status", "StructLayout", "encode",
 ]

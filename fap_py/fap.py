@@ -4,7 +4,9 @@ Each :class:`Master` or :class:`Slave` owns one handle of libfap's re-entrant
 API (``include/fapx.h``): a C engine thread that talks to the serial port,
 keeps the protocol's timers and queues the frames and events. Python code
 gets exactly the engine C programs get; this module only converts types,
-checks arguments and turns C error codes into exceptions.
+checks arguments and turns C error codes into exceptions. The value types
+are in :mod:`fap_py.fap_types`, the line options in :mod:`fap_py.rs485`,
+the errors in :mod:`fap_py.errors` (all re-exported here).
 
 Example::
 
@@ -28,23 +30,35 @@ engine's notification fd through ``loop.add_reader`` (see
 """
 from __future__ import annotations
 
-import enum
 import errno as _errno
 import logging
 import math
 import os
 import threading
 import time
-from dataclasses import dataclass, fields
-from typing import (TYPE_CHECKING, Any, AsyncIterator, Callable, Dict, Iterable, Iterator,
-                    List, Optional, Tuple, Union)
+from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
 
-from ._util import Closing, check_int, from_cdata, slice_ms
-from .errors import (ClosedError, FapError, FapTimeoutError, InvalidValueError,
-                     NotInitialisedError, QueueFullError, error_from_code)
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .fap_aio import AsyncPump
+from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
+from ._native import ffi as _ffi
+from ._native import lib as _lib
+from ._stats import stats_from_c
+from ._validate import check_baud, check_bytes, check_int, check_path, check_seconds
+from .errors import (
+    ClosedError,
+    FapError,
+    FapTimeoutError,
+    InvalidTypeError,
+    InvalidValueError,
+    NotMasterError,
+    QueueFullError,
+    SlaveExistsError,
+    UnknownSlaveError,
+    error_from_code,
+)
+from .fap_aio import AsyncPump
+from .fap_classic import classic_check
+from .fap_types import MASTER_ID, MAX_DATA, MAX_ID, EventKind, Message, SlaveEvent, Stats, mask_ids
+from .rs485 import RS485, RS485Mode, line_options, port_options
 
 __all__ = [
     "MASTER_ID",
@@ -65,54 +79,14 @@ __all__ = [
     "SlaveExistsError",
     "Stats",
     "UnknownSlaveError",
+    "port_options",
 ]
 
 log = logging.getLogger(__name__)
 
-MASTER_ID = 0          #: the master's ID (fixed by the protocol)
-MAX_ID = 31            #: slave IDs are 1..MAX_ID (FAPX_MAX_ID)
-MAX_DATA = 1024        #: bytes per DATA frame (FAPX_MAX_DATA)
-#: Longest single wait inside C (seconds): the latency of Ctrl-C and of a
-#: close() from another thread while a blocking call waits.
-WAIT_SLICE = 0.1
-
-_U32 = 0xFFFFFFFF
-_INT_MS_MAX = 0x7FFFFFFF
 PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
-
-_native_mod: Optional[Tuple[Any, Any]] = None
-
-
-def _native() -> Tuple[Any, Any]:
-    """(ffi, lib) of the extension, imported on first use."""
-    global _native_mod
-    if _native_mod is None:
-        from ._native import ffi, lib
-
-        if ((lib.FAPX_MAX_ID, lib.FAPX_MAX_DATA) != (MAX_ID, MAX_DATA) or
-                (lib.GOOD, lib.BAD, lib.E_PARAM, lib.E_VALUE, lib.E_INIT, lib.E_RES)
-                != (0, 1, 2, 3, 4, 5)):  # pragma: no cover
-            raise FapError("fap_py.fap and the compiled libfap disagree on FAP constants")
-        _native_mod = (ffi, lib)
-    return _native_mod
-
-
-# -- errors -----------------------------------------------------------------
-
-class InvalidTypeError(InvalidValueError, TypeError):
-    """An argument has the wrong type (also a ``TypeError``)."""
-
-
-class NotMasterError(InvalidValueError):
-    """A slave-list operation was asked of a slave node (C: -EPERM)."""
-
-
-class SlaveExistsError(InvalidValueError):
-    """add_slave: the slave is already listed (C: -EEXIST)."""
-
-
-class UnknownSlaveError(InvalidValueError):
-    """The slave is not listed on this master (C: -ENOENT)."""
+#: Longest protocol timing fapx_options holds without overflow in the engine (µs).
+_TIMING_US_MAX = 1 << 62
 
 
 def _error(code: int, what: str, path: Optional[str] = None, detail: str = "") -> FapError:
@@ -138,37 +112,10 @@ def _error(code: int, what: str, path: Optional[str] = None, detail: str = "") -
     return error_from_code(code, what, path)
 
 
-_CLASSIC_TEXT = {1: "BAD (port could not be opened, or baud rate not 9600..115200)",
-                 2: "E_PARAM (wrong mode, or a slave-list call on a slave)",
-                 3: "E_VALUE (ID or size out of range, slave listed twice or not listed)",
-                 4: "E_INIT (fapInit/fapConfig not done, or the handle was closed)",
-                 5: "E_RES (queue full or empty)"}
-
-
-def classic_check(code: int, what: str) -> None:
-    """Raise the exception for a vendor-API (``fap.h``) return code; GOOD passes.
-
-    For Python code that calls the classic API through ``fap_py._native``:
-    ``classic_check(lib.fapTx(data, len(data), 3), "fapTx")``. ``E_RES`` is
-    :class:`QueueFullError` (from ``fapTx``; ``fapRx`` returns it for "nothing
-    received", which callers test for before calling this).
-    """
-    if code == 0:
-        return
-    msg = f"{what}: {_CLASSIC_TEXT.get(code, f'unknown code {code}')}"
-    if code in (2, 3):
-        raise InvalidValueError(msg)
-    if code == 4:
-        raise NotInitialisedError(msg)
-    if code == 5:
-        raise QueueFullError(msg)
-    raise FapError(msg)
-
-
 # -- argument checks (before anything reaches C) -----------------------------
 
 def _int(value: Any, what: str, lo: int, hi: int) -> int:
-    return check_int(value, what, lo, hi, error=InvalidValueError, type_error=InvalidTypeError)
+    return check_int(value, what, lo, hi)
 
 
 def _slave_id(value: Any, what: str = "slave id") -> int:
@@ -176,214 +123,33 @@ def _slave_id(value: Any, what: str = "slave id") -> int:
 
 
 def _payload(data: Any) -> bytes:
-    if type(data) is bytes and 1 <= len(data) <= MAX_DATA:   # the common case, fast
-        return data
-    if isinstance(data, str):
-        raise InvalidTypeError("data must be bytes-like, not str (encode it first)")
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-    payload = bytes(data)
-    if not 1 <= len(payload) <= MAX_DATA:
-        raise InvalidValueError(f"data must hold 1..{MAX_DATA} bytes, not {len(payload)}")
-    return payload
+    return check_bytes(data, "data", 1, MAX_DATA)
 
 
 def _seconds(value: Any, what: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidTypeError(f"{what} must be a number of seconds, not {type(value).__name__}")
-    if math.isnan(value) or value < 0:
-        raise InvalidValueError(f"{what} must be >= 0 seconds, not {value}")
-    return float(value)
+    return check_seconds(value, what)
 
 
 def _timing_us(value: Optional[float], what: str) -> int:
     """Protocol timing in seconds -> µs for fapx_options (None -> 0 = C default)."""
     if value is None:
         return 0
-    s = _seconds(value, what)
-    us = math.ceil(s * 1e6)
-    if not 1 <= us <= 1 << 62:
-        raise InvalidValueError(f"{what} must be > 0 and finite, not {value}")
-    return us
+    s = check_seconds(value, what, lo=0.0, lo_open=True, hi=_TIMING_US_MAX / 1e6)
+    return max(1, math.ceil(s * 1e6))
 
 
 def _deadline(timeout: Optional[float]) -> Optional[float]:
-    if timeout is None:
-        return None
-    return time.monotonic() + _seconds(timeout, "timeout")
+    return deadline_of(None if timeout is None else _seconds(timeout, "timeout"))
 
 
 def _slice_ms(deadline: Optional[float]) -> int:
     """Milliseconds for the next wait inside C: at most WAIT_SLICE."""
-    return slice_ms(deadline, int(WAIT_SLICE * 1000))
-
-
-# -- value types -------------------------------------------------------------
-
-class RS485Mode(enum.IntEnum):
-    """How the transmitter is switched (``fap_rs485_mode``)."""
-
-    AUTO = 0      #: kernel RS-485 if the driver has it, else NONE
-    KERNEL = 1    #: TIOCSRS485: the kernel toggles RTS
-    SOFT_RTS = 2  #: assert RTS, write, tcdrain(), release RTS
-    NONE = 3      #: auto-direction transceiver, USB adapter, pty
-
-
-@dataclass(frozen=True)
-class RS485:
-    """RS-485 line options of a node (``fap_port_options``).
-
-    Times are integer microseconds, as the C layer takes them (the kernel
-    rounds its RTS delays up to milliseconds).
-    """
-
-    mode: RS485Mode = RS485Mode.AUTO
-    rts_active_high: bool = True     #: RTS level while sending
-    delay_before_send_us: int = 0    #: RTS asserted -> first bit
-    delay_after_send_us: int = 0     #: last bit -> RTS released
-    rx_during_tx: bool = False       #: kernel mode: keep the receiver on while sending
-    echo_suppression: bool = False   #: read back and drop our own bytes (2-wire adapters)
-    echo_timeout_us: int = 0         #: wait for the echo; 0 = 20 char times + 20 ms
-    turnaround_us: int = 0           #: quiet time after the last received byte before sending
-    exclusive: bool = True           #: TIOCEXCL + flock: refuse a second opener
-    write_timeout_us: int = 0        #: longest write; 0 = twice the wire time + 1 s
-
-    def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "mode", RS485Mode(self.mode))
-        except ValueError as exc:
-            raise InvalidValueError(f"RS485.mode must be an RS485Mode, not {self.mode!r}") from exc
-        for name in ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
-                     "turnaround_us", "write_timeout_us"):
-            _int(getattr(self, name), f"RS485.{name}", 0, _U32)
-        for name in ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive"):
-            if not isinstance(getattr(self, name), bool):
-                raise InvalidTypeError(f"RS485.{name} must be a bool")
-
-    def apply_to(self, po: Any, baudrate: int) -> Any:
-        """Fill a cffi ``fap_port_options *`` with ``baudrate`` and these options.
-
-        The one place that maps Python line options onto the C port layer:
-        every protocol binding (FAP, exec async, mikroC) opens its port
-        through it.
-        """
-        po.baud = baudrate
-        po.rs485_mode = int(self.mode)
-        po.rts_active_high = int(self.rts_active_high)
-        po.delay_before_send_us = self.delay_before_send_us
-        po.delay_after_send_us = self.delay_after_send_us
-        po.rx_during_tx = int(self.rx_during_tx)
-        po.echo_suppression = int(self.echo_suppression)
-        po.echo_timeout_us = self.echo_timeout_us
-        po.turnaround_us = self.turnaround_us
-        po.exclusive = int(self.exclusive)
-        po.write_timeout_us = self.write_timeout_us
-        return po
-
-
-def _line_options(rs485: Optional[RS485]) -> RS485:
-    """``rs485`` checked, ``None`` = the port layer's defaults."""
-    if rs485 is None:
-        return RS485()
-    if not isinstance(rs485, RS485):
-        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
-    return rs485
-
-
-def port_options(baudrate: int, rs485: Optional[RS485] = None) -> Any:
-    """A new cffi ``fap_port_options *`` for ``baudrate`` and ``rs485``
-    (``None`` = the port layer's defaults: direction mode AUTO, no echo
-    suppression, exclusive). Raises before anything reaches C."""
-    baudrate = _int(baudrate, "baudrate", 1, _U32)   # the same check as Node's
-    rs485 = _line_options(rs485)
-    ffi, lib = _native()
-    po = ffi.new("fap_port_options *")
-    lib.fap_port_options_init(po)
-    return rs485.apply_to(po, baudrate)
-
-
-class EventKind(enum.IntEnum):
-    """What a :class:`SlaveEvent` reports (``fapx_event_type``)."""
-
-    SLAVE_ACTIVE = 1    #: master: the slave answered QUERY_ID
-    SLAVE_INACTIVE = 2  #: master: the slave missed DATA_DONE (an ID cycle follows)
-    ID_TIMEOUT = 3      #: master: the slave did not answer QUERY_ID
-    QUERIED = 4         #: slave: the master queried us (we answered)
-    RX = 5              #: (C callback only; never queued)
-    PORT_LOST = 6       #: the port failed; the engine retries to open it
-    PORT_REOPENED = 7   #: the port is back
-    RX_OVERFLOW = 8     #: a DATA frame from ``id`` was dropped: receive queue full
-
-
-@dataclass(frozen=True)
-class Message:
-    """A DATA frame received by this node."""
-
-    source: int   #: sender ID (0 = the master)
-    data: bytes   #: 1..1024 bytes
-
-    def __repr__(self) -> str:
-        shown = self.data if len(self.data) <= 32 else self.data[:32]
-        more = "" if len(self.data) <= 32 else f"...+{len(self.data) - 32}"
-        return f"Message(source={self.source}, data={shown!r}{more})"
-
-
-@dataclass(frozen=True)
-class SlaveEvent:
-    """An event from the engine: slave state changes, port loss and return."""
-
-    kind: EventKind  #: what happened
-    id: int          #: the slave (master events) or this node's ID (port/queried events)
-    time_ns: int     #: CLOCK_MONOTONIC time of the event (``time.monotonic_ns()`` clock)
-
-    @property
-    def name(self) -> str:
-        """The C name of the kind, e.g. ``slave-active``."""
-        return self.kind.name.lower().replace("_", "-")
-
-    def __str__(self) -> str:
-        return f"{self.name} id={self.id}"
-
-
-@dataclass(frozen=True)
-class Stats:
-    """Counters of a node since it opened (``fapx_stats``)."""
-
-    frames_tx: int           #: valid frames sent (all types)
-    frames_rx: int           #: valid frames received (all types, any destination)
-    bytes_tx: int            #: wire bytes sent
-    bytes_rx: int            #: wire bytes received
-    data_tx: int             #: DATA frames sent
-    data_rx: int             #: DATA frames delivered to this node
-    crc_errors: int          #: complete frames with a bad CRC
-    framing_errors: int      #: bad size, msg/size mismatch
-    gap_timeouts: int        #: partial frames abandoned after the inter-byte gap
-    garbage_bytes: int       #: bytes skipped while looking for a marker
-    id_timeouts: int         #: master: QUERY_ID unanswered
-    data_done_timeouts: int  #: master: DATA_DONE missing (slave marked inactive)
-    collisions: int          #: echo mismatches reported by the port layer
-    cycles: int              #: master: complete data cycles
-    id_cycles: int           #: master: complete ID cycles
-    polls: int               #: SEND_DATA -> DATA_DONE turns completed
-    rx_dropped: int          #: DATA lost to a full receive queue
-    tx_dropped: int          #: queued frames discarded
-    write_errors: int        #: failed port writes
-    port_lost: int           #: times the port failed
-    port_reopened: int       #: times it came back
-    unexpected: int          #: valid frames that fit no protocol state
-
-    def as_dict(self) -> Dict[str, int]:
-        """The counters as a plain dict."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
-
-
-def _mask_ids(mask: int) -> List[int]:
-    return [i for i in range(1, MAX_ID + 1) if mask >> i & 1]
+    return slice_ms(deadline)
 
 
 # -- nodes --------------------------------------------------------------------
 
-class Node(Closing):
+class Node(NativeHandle):
     """What masters and slaves share: one C engine on one serial port.
 
     Not instantiated directly: use :class:`Master` or :class:`Slave`. A node
@@ -404,22 +170,16 @@ class Node(Closing):
                  tx_queue: Optional[int] = None,
                  event_queue: Optional[int] = None,
                  rs485: Optional[RS485] = None) -> None:
-        self._h: Any = None          # set last: close() and __del__ check it
-        self._lock = threading.Lock()
-        self._idle = threading.Condition(self._lock)
-        self._users = 0              # threads inside a C call on self._h
-        self._closing = False
-        self._closer: Optional[int] = None   # the thread running close()
-        self._pump: Optional["AsyncPump"] = None
+        super().__init__()
+        self._lock = self._hlock             # one lock: handle users, stash, pump
+        self._pump: Optional[AsyncPump] = None
         self._stash: List[SlaveEvent] = []   # events taken by wait_active, not yet read
         self._tls = threading.local()        # per-thread receive buffers
-        if not isinstance(port, (str, bytes, os.PathLike)):
-            raise InvalidTypeError(f"port must be a path, not {type(port).__name__}")
-        self.path: str = os.fsdecode(port)     #: the serial device
-        self.baudrate: int = _int(baudrate, "baudrate", 1, _U32)
+        self.path: str = check_path(port)      #: the serial device
+        self.baudrate: int = check_baud(baudrate)
         self.id: int = node_id                 #: this node's FAP ID (master 0)
-        self.rs485: RS485 = _line_options(rs485)   #: the RS-485 options asked for
-        ffi, lib = _native()
+        self.rs485: RS485 = line_options(rs485)   #: the RS-485 options asked for
+        ffi, lib = _ffi, _lib
         self._ffi, self._lib = ffi, lib
         opts = ffi.new("fapx_options *")
         lib.fapx_options_init(opts)
@@ -444,47 +204,28 @@ class Node(Closing):
         if code < 0:
             raise _error(code, "open", self.path,
                          ffi.string(lib.fapx_strerror(code)).decode(errors="replace"))
-        self._h = out[0]
+        self._adopt(out[0])
         log.info("%s open on %s at %d baud (RS-485 %s)", self._label(), self.path,
                  self.baudrate, self.rs485_mode.name)
 
-    # -- lifetime -------------------------------------------------------
+    # -- lifetime (NativeHandle) ------------------------------------------
     def _label(self) -> str:
         return "master" if self._mode == 0 else f"slave {self.id}"
 
     def _closed_error(self) -> ClosedError:
         return ClosedError(f"{self._label()} on {self.path} is closed")
 
-    def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """fn(handle, *args) with this thread counted in as a user of the handle.
+    def _interrupt(self) -> None:
+        pump, self._pump = self._pump, None
+        if pump is not None:
+            pump.stop()
 
-        close() frees the handle only when no thread is inside such a call.
-        The bookkeeping is laid out so that an asynchronous exception
-        (KeyboardInterrupt from Ctrl-C) cannot leave the count wrong: Python
-        runs signal handlers only at function entries, backward jumps and
-        after calls, and there is none between ``+= 1`` and ``entered =
-        True``, nor between the ``finally`` and ``-= 1``.
-        """
-        entered = False
-        try:
-            with self._lock:
-                if self._closing:
-                    raise self._closed_error()
-                self._users += 1
-                entered = True
-                h = self._h
-            return fn(h, *args)
-        finally:
-            if entered:
-                with self._lock:
-                    self._users -= 1
-                    if self._closing and not self._users:
-                        self._idle.notify_all()
+    def _release(self, h: Any) -> None:
+        self._lib.fapx_close(h)           # joins the engine thread (GIL released)
+        log.info("%s on %s closed", self._label(), self.path)
 
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` was called."""
-        return self._closing
+    def _fd(self, h: Any) -> int:
+        return int(self._lib.fapx_notify_fd(h))
 
     def close(self) -> None:
         """Stop the engine and close the port. Idempotent.
@@ -493,52 +234,13 @@ class Node(Closing):
         :class:`ClosedError` (within :data:`WAIT_SLICE`); pending asyncio
         waiters get :class:`ClosedError` too.
         """
-        lock = getattr(self, "_lock", None)
-        if lock is None or getattr(self, "_h", None) is None:
-            return
-        me = threading.get_ident()
-        with lock:
-            self._closing = True
-            while self._closer is not None and self._h is not None:
-                self._idle.wait(WAIT_SLICE)   # another thread is closing it
-            if self._h is None:
-                return
-            self._closer = me
-        try:
-            pump, self._pump = self._pump, None
-            if pump is not None:
-                pump.stop()
-            with lock:
-                while self._users:            # they leave within WAIT_SLICE
-                    self._idle.wait(WAIT_SLICE)
-                # Forget the handle first: an interrupt before fapx_close leaks
-                # it, one after cannot free it twice.
-                h, self._h = self._h, None
-            self._lib.fapx_close(h)           # joins the engine thread (GIL released)
-        finally:
-            with lock:
-                self._closer = None
-                self._idle.notify_all()
-        log.info("%s on %s closed", self._label(), self.path)
-
-    async def __aenter__(self) -> "Node":
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.aclose()
+        super().close()
 
     def __repr__(self) -> str:
         state = "closed" if self._closing else "open"
         return f"<{type(self).__name__} id={self.id} {self.path} {self.baudrate} baud {state}>"
 
     # -- information ----------------------------------------------------
-    def fileno(self) -> int:
-        """The engine's notification fd: readable while a message or event is queued.
-
-        For ``select``/``poll``/``selectors``; never read it. Valid until close.
-        """
-        return int(self._call(self._lib.fapx_notify_fd))
-
     @property
     def rs485_mode(self) -> RS485Mode:
         """The RS-485 direction mode actually in force (never AUTO)."""
@@ -549,7 +251,7 @@ class Node(Closing):
         """A snapshot of the engine's counters."""
         st = self._ffi.new("fapx_stats *")
         self._call(self._lib.fapx_get_stats, st)
-        return from_cdata(Stats, st)
+        return stats_from_c(Stats, st)
 
     @property
     def rx_pending(self) -> int:
@@ -752,9 +454,7 @@ class Node(Closing):
             return
 
     # -- asyncio -------------------------------------------------------------
-    def _aio(self) -> "AsyncPump":
-        from .fap_aio import AsyncPump
-
+    def _aio(self) -> AsyncPump:
         with self._lock:
             if self._closing:
                 raise self._closed_error()
@@ -803,12 +503,10 @@ class Node(Closing):
 
     async def aclose(self) -> None:
         """Close from a coroutine: detach from the event loop, then close in a worker thread."""
-        import asyncio
-
         pump = self._pump
         if pump is not None:
             pump.stop()
-        await asyncio.get_running_loop().run_in_executor(None, self.close)
+        await super().aclose()
 
 
 class Master(Node):
@@ -891,12 +589,12 @@ class Master(Node):
     @property
     def slaves(self) -> List[int]:
         """The listed slave IDs, ascending."""
-        return _mask_ids(self._call(self._lib.fapx_listed_mask))
+        return mask_ids(self._call(self._lib.fapx_listed_mask))
 
     @property
     def active_slaves(self) -> List[int]:
         """The listed slaves that answered their last query, ascending."""
-        return _mask_ids(self._call(self._lib.fapx_active_mask))
+        return mask_ids(self._call(self._lib.fapx_active_mask))
 
     def wait_active(self, ids: Optional[Iterable[int]] = None,
                     timeout: Optional[float] = None) -> None:
@@ -908,6 +606,8 @@ class Master(Node):
         Raises:
             FapTimeoutError: not all active within ``timeout`` seconds.
         """
+        if ids is not None and (isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable)):
+            raise InvalidTypeError(f"ids must be an iterable of slave IDs, not {type(ids).__name__}")
         want = None if ids is None else {_slave_id(i) for i in ids}
         deadline = _deadline(timeout)
         while True:

@@ -11,7 +11,7 @@ Back-pressure: the message deque holds at most the node's ``rx_queue``
 depth. When it is full the pump stops reading the fd (frames then wait in,
 and eventually overflow, the C queue exactly as for a C program that does
 not call ``fapx_rx``) and resumes as soon as a message is taken. While it
-is paused, events are still collected every :data:`fap_py.fap.WAIT_SLICE`
+is paused, events are still collected every :data:`fap_py._handle.WAIT_SLICE`
 seconds. Events beyond ``event_queue`` drop the oldest (counted in
 :attr:`AsyncPump.events_dropped`).
 
@@ -24,12 +24,29 @@ import asyncio
 import logging
 import threading
 from collections import deque
-from typing import TYPE_CHECKING, Any, Deque, Optional
+from typing import Any, Deque, Optional
 
+from ._handle import WAIT_SLICE
 from .errors import ClosedError, FapError, FapTimeoutError
+from .fap_types import Message, SlaveEvent
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .fap import Message, Node, SlaveEvent
+try:
+    from typing import Protocol
+except ImportError:  # pragma: no cover - Python 3.7
+    from typing_extensions import Protocol  # type: ignore[assignment]
+
+
+class PumpedNode(Protocol):
+    """What the pump needs of a node (fap.Node): no import of fap.py, no cycle."""
+
+    _rx_depth: int
+    _ev_depth: int
+
+    def fileno(self) -> int: ...
+    def _label(self) -> str: ...
+    def _closed_error(self) -> ClosedError: ...
+    def _rx_c(self, wait_ms: Optional[int]) -> Optional[Message]: ...
+    def _ev_c(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]: ...
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +56,7 @@ __all__ = ["AsyncPump"]
 class AsyncPump:
     """Moves one node's C queues into an asyncio event loop (see the module doc)."""
 
-    def __init__(self, node: "Node", loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, node: "PumpedNode", loop: asyncio.AbstractEventLoop) -> None:
         self.node = node
         self.loop = loop
         self.thread_id = threading.get_ident()    # the loop's thread
@@ -57,7 +74,7 @@ class AsyncPump:
         self._poll: Optional[asyncio.TimerHandle] = None
 
     @classmethod
-    def for_running_loop(cls, node: "Node", current: Optional["AsyncPump"]) -> "AsyncPump":
+    def for_running_loop(cls, node: "PumpedNode", current: Optional["AsyncPump"]) -> "AsyncPump":
         """The node's pump for the running loop: ``current`` or a new one."""
         loop = asyncio.get_running_loop()
         if current is not None and not current.stopped:
@@ -86,8 +103,6 @@ class AsyncPump:
             self.reading = False
         self.paused = True
         if self._poll is None:
-            from .fap import WAIT_SLICE
-
             self._poll = self.loop.call_later(WAIT_SLICE, self._poll_paused)
         log.debug("%s: async receive queue full, paused", self.node._label())
 

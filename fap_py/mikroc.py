@@ -32,23 +32,22 @@ is for this node raises a :class:`MikrocFrameError` subclass from
 from __future__ import annotations
 
 import logging
-import math
 import os
 import threading
 import time
 from dataclasses import dataclass
 from typing import Any, List, Optional, Union
 
+from ._handle import NativeHandle, deadline_of, slice_ms
 from ._native import ffi, lib
-from ._util import Closing, check_int, from_cdata, slice_ms
-from .fap import RS485, InvalidTypeError, port_options   # the line options every fap_py node takes
+from ._stats import stats_from_c
+from ._validate import check_bool, check_bytes, check_int, check_path, check_timeout
 from .errors import (
-    ClosedError,
     FapTimeoutError,
     FrameError,
-    InvalidValueError,
     error_from_code,
 )
+from .rs485 import RS485, port_options  # the line options every fap_py node takes
 
 __all__ = [
     "BROADCAST",
@@ -149,19 +148,13 @@ class Message:
 
 
 def _check_address(address: int) -> int:
-    return check_int(address, "address", 0, 255,
-                     error=InvalidValueError, type_error=InvalidTypeError)
+    return check_int(address, "address", 0, 255)
 
 
 def _check_data(data: bytes) -> bytes:
     # bytes(3) would be three zero bytes and bytes("x") a TypeError: accept
     # only byte buffers, so a wrong argument is a clear fap_py error.
-    if not isinstance(data, (bytes, bytearray, memoryview)):
-        raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
-    data = bytes(data)
-    if len(data) > MAX_DATA:
-        raise InvalidValueError(f"a mikroC frame carries 0..{MAX_DATA} data bytes, not {len(data)}")
-    return data
+    return check_bytes(data, "data (a mikroC frame carries 0..3 bytes)", 0, MAX_DATA)
 
 
 def encode(address: int, data: bytes = b"", *, from_master: bool = True) -> bytes:
@@ -169,6 +162,7 @@ def encode(address: int, data: bytes = b"", *, from_master: bool = True) -> byte
     ``address``, escaped and checksummed by the C codec."""
     _check_address(address)
     data = _check_data(data)
+    check_bool(from_master, "from_master")
     out = ffi.new("uint8_t[]", lib.MIKROC_RS485_FRAME_MAX)
     n = lib.mikrocRS485_Encode(out, data, len(data), address, 1 if from_master else 0)
     if n < 0:
@@ -194,7 +188,7 @@ class Decoder:
         completed, in order (errors are returned, not raised)."""
         events: List[Union[Message, MikrocFrameError]] = []
         f = self._frame
-        for byte in bytes(data):
+        for byte in check_bytes(data, "data", 0, 1 << 62):
             r = lib.mikrocRS485_DecoderFeed(self._dec, byte, f)
             if r == lib.MIKROC_RS485_MORE:
                 continue
@@ -208,6 +202,7 @@ class Decoder:
 
 def decode(frame: bytes) -> Message:
     """Decode exactly one complete frame; raise its error otherwise."""
+    frame = check_bytes(frame, "frame", 0, 1 << 62)
     events = Decoder().feed(frame)
     if len(events) == 1 and isinstance(events[0], Message):
         return events[0]
@@ -230,107 +225,118 @@ class NodeStats:
     damaged: int     #: damaged frames heard, for any address
 
 
-_SLICE_MS = 200   # longest single wait in C, so close() is noticed
-
-
 def _timeout_ms(timeout: Optional[float]) -> int:
-    if timeout is None:
-        return -1
-    try:
-        t = float(timeout)
-    except (TypeError, ValueError) as exc:
-        raise InvalidValueError(f"timeout must be seconds or None, not {timeout!r}") from exc
-    if t < 0 or math.isnan(t):
-        raise InvalidValueError(f"timeout must be >= 0, not {timeout!r}")
-    return min(math.ceil(t * 1000.0), 0x7FFFFFFF)
+    t = check_timeout(timeout)
+    return -1 if t is None else int(t * 1000.0 + 0.999999)
 
 
-class _Node(Closing):
-    _buffer_size = 7
+class _Node(NativeHandle):
+    """A mikroC context bound to a port this object opened (``fap_port_open``):
+    the port's fd lets :meth:`areceive` wait in an asyncio loop."""
+
+    _buffer_size = lib.MIKROC_RS485_MASTER_BUFFER
+    _kind = "mikroC node"
 
     def __init__(self, port_path: PathLike, baudrate: int, rs485: Optional[RS485]) -> None:
-        self.path = os.fspath(port_path)
+        super().__init__()
+        self.path = check_path(port_path)
         self._lock = threading.Lock()      # receive side: one receiver at a time
         self._tx_lock = threading.Lock()   # send side (may run beside a receive)
-        self._closing = False
         self._ctx = ffi.new("mikrocRS485_ctx *")
         self._init_ctx()
         opts = port_options(baudrate, rs485)
-        r = lib.mikrocRS485_CtxOpen(self._ctx, self.path.encode(), baudrate, opts)
+        out = ffi.new("fap_port **")
+        r = lib.fap_port_open(out, self.path.encode(), opts)
         if r < 0:
             raise error_from_code(r, "open", self.path)
-        self._open = True
+        r = lib.mikrocRS485_CtxBind(self._ctx, out[0])
+        if r < 0:  # pragma: no cover - a fresh context always binds
+            lib.fap_port_close(out[0])
+            raise error_from_code(r, "bind", self.path)
+        self._adopt(out[0])
         log.debug("%s opened %s at %d baud", type(self).__name__, self.path, baudrate)
 
     def _init_ctx(self) -> None:
         raise NotImplementedError
 
-    @property
-    def closed(self) -> bool:
-        return not getattr(self, "_open", False)
+    def _label(self) -> str:
+        return f"{type(self).__name__} on {self.path}"
+
+    def _release(self, port: Any) -> None:
+        lib.mikrocRS485_CtxClose(self._ctx)   # unbinds (the port is ours)
+        lib.fap_port_close(port)
+
+    def _fd(self, port: Any) -> int:
+        return int(lib.fap_port_fd(port))
 
     def close(self) -> None:
         """Close the port (idempotent). A receive() running in another
         thread ends with ClosedError within a fraction of a second."""
-        if getattr(self, "_open", False):
-            self._closing = True
-            with self._lock, self._tx_lock:
-                if self._open:
-                    self._open = False
-                    lib.mikrocRS485_CtxClose(self._ctx)
-
-    def _check_open(self) -> None:
-        if not getattr(self, "_open", False):
-            raise ClosedError(f"{type(self).__name__} on {self.path} is closed")
+        super().close()
 
     def _c_stats(self) -> Any:
         st = ffi.new("mikrocRS485_stats *")
-        lib.mikrocRS485_CtxGetStats(self._ctx, st)
+        self._call(lambda _h: lib.mikrocRS485_CtxGetStats(self._ctx, st))
         return st
 
     @property
     def stats(self) -> NodeStats:
-        return from_cdata(NodeStats, self._c_stats())
+        """A snapshot of the counters (``mikrocRS485_stats``)."""
+        return stats_from_c(NodeStats, self._c_stats())
 
     def _send(self, data: bytes, address: int) -> None:
         with self._tx_lock:
-            self._check_open()
-            r = lib.mikrocRS485_CtxSend(self._ctx, data, len(data), address)
+            r = self._call(lambda _h: lib.mikrocRS485_CtxSend(self._ctx, data, len(data), address))
         if r < 0:
             raise error_from_code(r, "send", self.path)
 
-    def _poll(self, buf, ms: int) -> int:
+    def _poll(self, buf: Any, ms: int) -> int:
         """CtxPoll in slices, so that close() from another thread is seen."""
         end = None if ms < 0 else time.monotonic() + ms / 1000.0
         while True:
-            if self._closing:
-                raise ClosedError(f"{type(self).__name__} on {self.path} was closed")
-            r = lib.mikrocRS485_CtxPoll(self._ctx, buf, slice_ms(end, _SLICE_MS))
+            r = self._call(lambda _h: lib.mikrocRS485_CtxPoll(self._ctx, buf, slice_ms(end)))
             if r != 0 or (end is not None and time.monotonic() >= end):
-                return r
+                return int(r)
+
+    def _result(self, r: int, buf: Any, timeout: Optional[float], from_master: bool) -> Message:
+        """The Message (or the exception) for a CtxPoll result."""
+        if r == 0:
+            raise FapTimeoutError(f"{self.path}: no mikroC frame within {timeout} s")
+        if r < 0:
+            raise error_from_code(r, "receive", self.path)
+        if r & lib.MIKROC_RS485_POLL_ERROR:
+            err = _frame_error(self._c_stats().last_rx_error)
+            log.debug("%s: %s", self.path, err)
+            raise err
+        raw = bytes(ffi.buffer(buf, self._buffer_size))
+        msg = Message(self._frame_address(raw), raw[0:raw[lib.MIKROC_RS485_IDX_COUNT]], from_master)
+        log.debug("%s: rx %s", self.path, msg)
+        return msg
 
     def _receive(self, timeout: Optional[float], from_master: bool) -> Message:
         ms = _timeout_ms(timeout)
         with self._lock:
-            self._check_open()
             buf = ffi.new("char[]", self._buffer_size)   # fresh: flags cleared
-            r = self._poll(buf, ms)
-            if r == 0:
-                raise FapTimeoutError(f"{self.path}: no mikroC frame within {timeout} s")
-            if r < 0:
-                raise error_from_code(r, "receive", self.path)
-            if r & lib.MIKROC_RS485_POLL_ERROR:
-                err = _frame_error(self._c_stats().last_rx_error)
-                log.debug("%s: %s", self.path, err)
-                raise err
-            raw = bytes(ffi.buffer(buf, self._buffer_size))
-            msg = Message(self._frame_address(raw), raw[0:raw[3]], from_master)
-        log.debug("%s: rx %s", self.path, msg)
-        return msg
+            return self._result(self._poll(buf, ms), buf, timeout, from_master)
+
+    async def _areceive(self, timeout: Optional[float], from_master: bool) -> Message:
+        t = check_timeout(timeout)
+        deadline = deadline_of(t)
+        buf = ffi.new("char[]", self._buffer_size)
+        while True:
+            # Bytes the context already read are fed first; then the fd.
+            with self._lock:
+                r = int(self._call(lambda _h: lib.mikrocRS485_CtxPoll(self._ctx, buf, 0)))
+            if r != 0:
+                return self._result(r, buf, timeout, from_master)
+            left = None if deadline is None else deadline - time.monotonic()
+            if left is not None and left <= 0:
+                return self._result(0, buf, timeout, from_master)
+            await self.await_readable(left)
 
     def _frame_address(self, raw: bytes) -> int:
-        """The address of the frame just received (the master's buffer holds it in byte 6)."""
-        return raw[6]
+        """The address of the frame just received (the master's buffer holds it)."""
+        return raw[lib.MIKROC_RS485_IDX_ADDRESS]
 
 
 class Master(_Node):
@@ -358,8 +364,7 @@ class Master(_Node):
         # thread owns the receive side, and what it gets is its business.
         if self._lock.acquire(blocking=False):
             try:
-                self._check_open()
-                r = lib.mikrocRS485_CtxResetRx(self._ctx)
+                r = self._call(lambda _h: lib.mikrocRS485_CtxResetRx(self._ctx))
             finally:
                 self._lock.release()
             if r < 0:
@@ -374,6 +379,19 @@ class Master(_Node):
         frame."""
         return self._receive(timeout, from_master=False)
 
+    async def areceive(self, timeout: Optional[float] = 1.0) -> Message:
+        """``await``-able :meth:`receive`: the port fd drives it (``loop.add_reader``, no thread)."""
+        return await self._areceive(timeout, from_master=False)
+
+    async def arequest(self, address: int, data: bytes = b"",
+                       timeout: Optional[float] = 1.0) -> Message:
+        """``await``-able :meth:`request` (the send itself does not wait for the bus)."""
+        self.send(address, data)
+        reply = await self.areceive(timeout)
+        if reply.address != address:
+            raise FrameError(f"reply from slave {reply.address}, expected {address}")
+        return reply
+
     def request(self, address: int, data: bytes = b"", timeout: Optional[float] = 1.0) -> Message:
         """``send`` then ``receive``; the reply must come from ``address``."""
         self.send(address, data)
@@ -387,7 +405,7 @@ class Slave(_Node):
     """A mikroC slave at ``address``: ``receive`` frames for it (and
     broadcasts), ``send`` replies. Runs the C slave."""
 
-    _buffer_size = 6
+    _buffer_size = lib.MIKROC_RS485_SLAVE_BUFFER
 
     def __init__(self, port_path: PathLike, baudrate: int = 19200, address: int = 1, *,
                  rs485: Optional[RS485] = None) -> None:
@@ -413,6 +431,10 @@ class Slave(_Node):
         Raises FapTimeoutError, or a MikrocFrameError subclass for a damaged
         frame addressed to it."""
         return self._receive(timeout, from_master=True)
+
+    async def areceive(self, timeout: Optional[float] = 1.0) -> Message:
+        """``await``-able :meth:`receive`: the port fd drives it (``loop.add_reader``, no thread)."""
+        return await self._areceive(timeout, from_master=True)
 
     def __repr__(self) -> str:
         return f"Slave({self.path!r}, address={self.address})"

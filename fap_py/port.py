@@ -23,9 +23,9 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional, Union
 
-from ._util import Closing, from_cdata
-from .errors import ClosedError, FapError, InvalidValueError, PortError, error_from_code
-from .fap import RS485, InvalidTypeError, RS485Mode, _native, port_options
+from ._stats import stats_from_c
+from .errors import ClosedError, FapError, InvalidTypeError, InvalidValueError, PortError, error_from_code
+from .rs485 import RS485, RS485Mode, port_options
 
 PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
 
@@ -80,7 +80,7 @@ def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) ->
     return value
 
 
-class Port(Closing):
+class Port:
     """One serial device opened through libfap's port layer.
 
     :param path: the device (``/dev/ttyUSB0``, a pty, a virtual-bus port).
@@ -105,7 +105,8 @@ class Port(Closing):
         self.path = os.fsdecode(raw)
         po = port_options(baudrate, rs485)  # validates baud and options before C sees them
         self.rs485: RS485 = rs485 if rs485 is not None else RS485()
-        ffi, lib = _native()
+        from ._native import ffi, lib
+
         self._ffi, self._lib = ffi, lib
         out = ffi.new("fap_port **")
         rc = lib.fap_port_open(out, raw, po)
@@ -128,6 +129,18 @@ class Port(Closing):
         p, self._p = getattr(self, "_p", None), None
         if p is not None:
             self._lib.fap_port_close(p)
+
+    def __enter__(self) -> "Port":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # a forgotten port must not keep the device locked
+        try:
+            self.close()
+        except Exception:  # pragma: no cover - half-built object, interpreter shutdown
+            pass
 
     def _handle(self) -> Any:
         p = self._p
@@ -160,7 +173,7 @@ class Port(Closing):
         """Byte, echo, collision, error and reopen counters."""
         st = self._ffi.new("fap_port_stats *")
         self._lib.fap_port_get_stats(self._handle(), st)
-        return from_cdata(PortStats, st)
+        return stats_from_c(PortStats, st)
 
     # -- I/O ---------------------------------------------------------------------
 

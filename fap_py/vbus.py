@@ -23,9 +23,13 @@ import os
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterable, List, Optional, Union
+from typing import Any, Dict, Iterable, List, Optional, Union
 
-from .errors import ClosedError, InvalidValueError, error_from_code
+from ._handle import NativeHandle
+from ._native import ffi, lib
+from ._stats import stats_from_c
+from ._validate import check_bool, check_int, check_path, check_seconds
+from .errors import InvalidTypeError, InvalidValueError, PortError, error_from_code
 
 __all__ = [
     "MAX_PORTS",
@@ -41,7 +45,7 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-MAX_PORTS = 64                 # FAP_VBUS_MAX_PORTS
+MAX_PORTS: int = lib.FAP_VBUS_MAX_PORTS
 _MAX_MS = 0xFFFFFFFF           # the C API takes unsigned milliseconds
 _MAX_COUNT = 0xFFFFFFFF
 
@@ -76,16 +80,10 @@ def _check(code: int, what: str) -> int:
 
 
 def _to_ms(seconds: float, what: str) -> int:
-    try:
-        ms = round(float(seconds) * 1000.0)
-    except (TypeError, ValueError) as exc:
-        raise InvalidValueError(f"{what}: seconds must be a number, not {seconds!r}") from exc
-    if not 0 <= ms <= _MAX_MS:
-        raise InvalidValueError(f"{what}: seconds out of range: {seconds!r}")
-    return ms
+    return round(check_seconds(seconds, f"{what}: seconds", hi=_MAX_MS / 1000.0) * 1000.0)
 
 
-class VirtualBus:
+class VirtualBus(NativeHandle):
     """A virtual RS-485 bus of ``ports`` pty ports (a context manager).
 
     Args:
@@ -104,21 +102,21 @@ class VirtualBus:
         PortError: the ptys, symlinks or capture file could not be made.
     """
 
+    _kind = "virtual bus"
+
     def __init__(self, ports: int = 3, baud: Optional[int] = None, echo: bool = False,
                  link_dir: Optional[PathLike] = None, capture: Optional[PathLike] = None,
                  seed: int = 0) -> None:
-        from ._native import ffi, lib
-
+        super().__init__()
         self._ffi, self._lib = ffi, lib
         self._lock = threading.Lock()
-        self._bus = ffi.NULL
-        if isinstance(ports, bool) or not isinstance(ports, int) or not 2 <= ports <= MAX_PORTS:
-            raise InvalidValueError(f"ports must be an int in 2..{MAX_PORTS}, not {ports!r}")
-        baud = 0 if baud is None else baud
-        if isinstance(baud, bool) or not isinstance(baud, int) or not 0 <= baud <= 10_000_000:
-            raise InvalidValueError(f"baud must be None or an int in 0..10000000, not {baud!r}")
-        if isinstance(seed, bool) or not isinstance(seed, int):
-            raise InvalidValueError(f"seed must be an int, not {seed!r}")
+        check_int(ports, "ports", 2, MAX_PORTS)
+        baud = 0 if baud is None else check_int(baud, "baud", 0, 10_000_000)
+        check_bool(echo, "echo")
+        check_int(seed, "seed", -(1 << 63), (1 << 64) - 1)
+        for name, value in (("link_dir", link_dir), ("capture", capture)):
+            if value is not None and not isinstance(value, (str, bytes, os.PathLike)):
+                raise InvalidTypeError(f"{name} must be a path, not {type(value).__name__}")
         opts = ffi.new("fap_vbus_options *")
         lib.fap_vbus_options_init(opts)
         opts.n_ports = ports
@@ -138,53 +136,26 @@ class VirtualBus:
             where = ", ".join(f"{k}={os.fsdecode(v)}" for k, v in
                               (("link_dir", link_dir), ("capture", capture)) if v is not None)
             raise error_from_code(code, f"fap_vbus_open({where})")
-        self._bus = out[0]
+        self._adopt(out[0])
         self.baud = baud
         self.echo = bool(echo)
         self.paths: List[str] = [
-            os.fsdecode(ffi.string(lib.fap_vbus_port_path(self._bus, i))) for i in range(ports)
+            os.fsdecode(ffi.string(lib.fap_vbus_port_path(out[0], i))) for i in range(ports)
         ]
         log.info("virtual bus open: %d ports, baud %s, echo %s: %s",
                  ports, baud or "unpaced", self.echo, " ".join(self.paths))
 
-    # -- lifetime ---------------------------------------------------------
-    def __enter__(self) -> "VirtualBus":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    def __del__(self) -> None:  # a forgotten bus must not leave a thread running
-        try:
-            self.close()
-        except Exception:  # pragma: no cover - interpreter shutdown
-            pass
-
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` ran."""
-        return self._bus == self._ffi.NULL
+    # -- lifetime (NativeHandle) -------------------------------------------
+    def _release(self, bus: Any) -> None:
+        lib.fap_vbus_close(bus)
+        log.info("virtual bus closed")
 
     def close(self) -> None:
         """Stop the relay, close the ptys, remove the symlinks. Idempotent."""
-        lock = getattr(self, "_lock", None)
-        if lock is None:
-            return
-        with lock:
-            bus, self._bus = self._bus, self._ffi.NULL
-            if bus != self._ffi.NULL:
-                self._lib.fap_vbus_close(bus)
-                log.info("virtual bus closed")
-
-    def _handle(self) -> object:  # caller holds self._lock
-        if self._bus == self._ffi.NULL:
-            raise ClosedError("virtual bus is closed")
-        return self._bus
+        super().close()
 
     def _port(self, port: int) -> int:
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port < len(self.paths):
-            raise InvalidValueError(f"port must be an int in 0..{len(self.paths) - 1}, not {port!r}")
-        return port
+        return check_int(port, "port", 0, len(self.paths) - 1)
 
     # -- faults -----------------------------------------------------------
     def set_fault(self, port: Optional[int] = None, bit_error_rate: float = 0.0,
@@ -196,35 +167,31 @@ class VirtualBus:
         0 disables.
         """
         p = -1 if port is None else self._port(port)
-        for name, rate in (("bit_error_rate", bit_error_rate), ("drop_rate", drop_rate)):
-            if not isinstance(rate, (int, float)) or not 0.0 <= float(rate) <= 1.0:
-                raise InvalidValueError(f"{name} must be in 0..1, not {rate!r}")
+        ber = check_seconds(bit_error_rate, "bit_error_rate", hi=1.0)   # a finite number in 0..1
+        drop = check_seconds(drop_rate, "drop_rate", hi=1.0)
         with self._lock:
-            _check(self._lib.fap_vbus_set_fault(self._handle(), p, float(bit_error_rate),
-                                                float(drop_rate)), "set_fault")
+            _check(self._call(lib.fap_vbus_set_fault, p, ber, drop), "set_fault")
 
     def _count(self, n: int) -> int:
-        if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= _MAX_COUNT:
-            raise InvalidValueError(f"n must be an int in 0..{_MAX_COUNT}, not {n!r}")
-        return n
+        return check_int(n, "n", 0, _MAX_COUNT)
 
     def drop_next(self, port: int, n: int) -> None:
         """Drop the next ``n`` bytes sent by ``port`` (0 cancels)."""
         p, n = self._port(port), self._count(n)
         with self._lock:
-            _check(self._lib.fap_vbus_drop_next(self._handle(), p, n), "drop_next")
+            _check(self._call(lib.fap_vbus_drop_next, p, n), "drop_next")
 
     def corrupt_next(self, port: int, n: int) -> None:
         """Flip one (seeded random) bit in each of the next ``n`` bytes sent by ``port``."""
         p, n = self._port(port), self._count(n)
         with self._lock:
-            _check(self._lib.fap_vbus_corrupt_next(self._handle(), p, n), "corrupt_next")
+            _check(self._call(lib.fap_vbus_corrupt_next, p, n), "corrupt_next")
 
     def silence(self, port: int, seconds: float) -> None:
         """``port`` goes silent for ``seconds``: its bytes are dropped and it hears nothing."""
         p, ms = self._port(port), _to_ms(seconds, "silence")
         with self._lock:
-            _check(self._lib.fap_vbus_silence(self._handle(), p, ms), "silence")
+            _check(self._call(lib.fap_vbus_silence, p, ms), "silence")
 
     def disconnect(self, port: int, seconds: float) -> None:
         """``port`` disconnects for ``seconds``.
@@ -235,18 +202,13 @@ class VirtualBus:
         """
         p, ms = self._port(port), _to_ms(seconds, "disconnect")
         with self._lock:
-            _check(self._lib.fap_vbus_disconnect(self._handle(), p, ms), "disconnect")
+            _check(self._call(lib.fap_vbus_disconnect, p, ms), "disconnect")
 
     def stats(self) -> VirtualBusStats:
         """A snapshot of the bus counters."""
-        st = self._ffi.new("fap_vbus_stats *")
-        with self._lock:
-            self._lib.fap_vbus_get_stats(self._handle(), st)
-        return VirtualBusStats(
-            bytes_in=st.bytes_in, bytes_out=st.bytes_out, collisions=st.collisions,
-            bit_errors=st.bit_errors, dropped=st.dropped, overflow=st.overflow,
-            disconnects=st.disconnects, paced_bytes=st.paced_bytes,
-            pace_late_sum_ns=st.pace_late_sum_ns, pace_late_max_ns=st.pace_late_max_ns)
+        st = ffi.new("fap_vbus_stats *")
+        self._call(lib.fap_vbus_get_stats, st)
+        return stats_from_c(VirtualBusStats, st)
 
     def __repr__(self) -> str:
         state = "closed" if self.closed else f"{len(self.paths)} ports"
@@ -306,8 +268,12 @@ def _fields(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
 
 def parse_capture(lines: Iterable[str]) -> Capture:
     """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+    if isinstance(lines, (str, bytes)) or not isinstance(lines, Iterable):
+        raise InvalidTypeError(f"lines must be an iterable of str, not {type(lines).__name__}")
     cap = Capture()
     for lineno, raw in enumerate(lines, 1):
+        if not isinstance(raw, str):
+            raise InvalidTypeError(f"line {lineno}: expected str, not {type(raw).__name__}")
         line = raw.strip()
         if not line:
             continue
@@ -342,6 +308,12 @@ def parse_capture(lines: Iterable[str]) -> Capture:
 
 def read_capture(path: PathLike) -> Capture:
     """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``."""
-    with open(Path(path), "r", encoding="ascii") as fh:
-        return parse_capture(fh)
+    p = Path(check_path(path, "path"))
+    try:
+        with open(p, encoding="ascii") as fh:
+            return parse_capture(fh)
+    except OSError as exc:
+        raise PortError(exc.errno or 0, exc.strerror, str(p)) from exc
+    except UnicodeDecodeError as exc:
+        raise CaptureFormatError(f"{p}: not an ASCII capture file ({exc.reason})") from exc
 

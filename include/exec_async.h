@@ -1,7 +1,7 @@
 /* exec_async.h - the vendor's "asynchronous communications protocol
  * functions": DLE framing and big-endian structure packing.
  *
- * Frame (docs/execasync.md, PROTOCOLS.md section 2):
+ * Frame (docs/execasync.md, docs/protocols.md):
  *   DLE STX  Node SeqNo  Data0 .. DataN  DLE ETX  CRC-hi CRC-lo
  * DLE 0x10, STX 0x02, ETX 0x03. A data byte 0x10 is sent twice (0x10 0x10);
  * Node, SeqNo and the CRC bytes are sent raw. The CRC is CRC-16/ARC over the

@@ -1,4 +1,4 @@
-/* FAP master state machine. Rules (PROTOCOLS.md section 1):
+/* FAP master state machine. Rules (docs/protocols.md, FAP):
  * - ID cycle: QUERY_ID to each listed slave that is not active, in ID
  *   order; an ID from that slave within id_answer makes it active.
  * - Data cycle: the master's own queued DATA (within send_budget), then

@@ -1,5 +1,5 @@
 /* mikroC RS-485 frame codec: encoder and byte-wise decoder. Pure functions
- * on bytes, no I/O (PROTOCOLS.md section 3, docs/mikroc.md). */
+ * on bytes, no I/O (docs/protocols.md, docs/mikroc.md). */
 #include <errno.h>
 #include <string.h>
 

@@ -14,6 +14,7 @@ import argparse
 import os
 import signal
 import threading
+from typing import Any
 
 
 def _int(text: str) -> int:
@@ -115,7 +116,7 @@ def _rs485(args: argparse.Namespace):
                  delay_before_send_us=round(args.rts_before * 1000), delay_after_send_us=round(args.rts_after * 1000))
 
 
-def _master(args: argparse.Namespace, **kwargs: object):
+def _master(args: argparse.Namespace, **kwargs: Any):
     from fap_py.g485 import G485Master
 
     kwargs.setdefault("check", getattr(args, "check", "handshake"))

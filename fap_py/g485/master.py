@@ -23,14 +23,35 @@ from enum import Enum
 from types import GeneratorType
 from typing import Any, Callable, Dict, Generator, Iterable, List, Optional, Tuple, Union
 
-from . import codec
-from .codec import (EPID, HEADER_SIZE, HPID, REPLY_KINDS, WAKE_UP_BAUD_THRESHOLD, WAKE_UP_PREAMBLE, Data,
-                    ParseIssue, Parser, SetCommand, is_exact_reply)
-from .errors import (RETRYABLE_ERRORS, CheckByteError, DeviceErrorWordError, G485Error, G485FrameError,
-                     G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
-                     UnexpectedReplyError, WriteRefusedError)
-from ..fap import RS485
 from ..port import PortGoneError
+from ..rs485 import RS485
+from . import codec
+from .codec import (
+    EPID,
+    HEADER_SIZE,
+    HPID,
+    REPLY_KINDS,
+    WAKE_UP_BAUD_THRESHOLD,
+    WAKE_UP_PREAMBLE,
+    Data,
+    ParseIssue,
+    Parser,
+    SetCommand,
+    is_exact_reply,
+)
+from .errors import (
+    RETRYABLE_ERRORS,
+    CheckByteError,
+    DeviceErrorWordError,
+    G485Error,
+    G485FrameError,
+    G485ValueError,
+    HandshakeMismatchError,
+    NoResponseError,
+    RereadMismatchError,
+    UnexpectedReplyError,
+    WriteRefusedError,
+)
 from .transport import IO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")

@@ -27,8 +27,8 @@ from typing import Any, Optional, Union
 import serial
 
 from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
-from ..fap import RS485
 from ..port import Port
+from ..rs485 import RS485
 from .errors import EchoMismatchError, G485ValueError
 
 PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]

@@ -8,8 +8,19 @@ import pytest
 import serial
 
 from fap_py.errors import FapTimeoutError, InvalidValueError
-from fap_py.execasync import (BROADCAST, RS485, Decoder, ExecValueError, Master, NoReplyError,
-                              Request, RS485Mode, ServeResult, Slave, encode)
+from fap_py.execasync import (
+    BROADCAST,
+    RS485,
+    Decoder,
+    ExecValueError,
+    Master,
+    NoReplyError,
+    Request,
+    RS485Mode,
+    ServeResult,
+    Slave,
+    encode,
+)
 from fap_py.vbus import VirtualBus
 
 LINE = RS485(mode=RS485Mode.NONE)   # ptys have no RS-485 ioctls

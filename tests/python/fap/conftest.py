@@ -18,7 +18,7 @@ sys.path.insert(0, str(HERE))     # fap_helpers.py
 #: Protocol timing in milliseconds instead of the vendor's seconds, so "a
 #: slave disappears and returns" runs in well under a second. The answer
 #: window and DATA_DONE limit leave room for a loaded CI machine.
-FAST: Dict[str, float] = dict(id_cycle=0.05, id_answer_timeout=0.05, data_done_timeout=0.5)
+FAST: Dict[str, float] = {"id_cycle": 0.05, "id_answer_timeout": 0.05, "data_done_timeout": 0.5}
 WAIT = 10.0    #: upper bound of every wait in the tests (never a sleep)
 SLAVE_IDS = (3, 7, 31)
 

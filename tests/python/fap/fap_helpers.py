@@ -45,7 +45,7 @@ class SlaveProcess:
                 line = self.lines.get(timeout=timeout)
             except queue.Empty:
                 raise AssertionError(f"slave {self.id}: no {prefix!r} line within {timeout} s; "
-                                     f"seen {self.seen[-5:]}, stderr: {self.stderr_now()}")
+                                     f"seen {self.seen[-5:]}, stderr: {self.stderr_now()}") from None
             if line is None:
                 raise AssertionError(f"slave {self.id} exited ({self.proc.wait()}): "
                                      f"{self.stderr_now()}")

@@ -7,11 +7,10 @@ import time
 from typing import List, Tuple
 
 import pytest
+from conftest import FAST, SLAVE_IDS, WAIT
 
 from fap_py import ClosedError, EventKind, FapTimeoutError, Master, Message, Slave
 from fap_py.vbus import VirtualBus
-
-from conftest import FAST, SLAVE_IDS, WAIT
 
 Net = Tuple[Master, List[Slave]]
 

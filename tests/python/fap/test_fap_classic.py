@@ -10,13 +10,12 @@ import time
 from typing import Iterator
 
 import pytest
+from conftest import WAIT
 
 from fap_py import InvalidValueError, Message, NotInitialisedError, Slave
-from fap_py.fap import classic_check
 from fap_py._native import ffi, lib
+from fap_py.fap import classic_check
 from fap_py.vbus import VirtualBus
-
-from conftest import WAIT
 
 
 @pytest.fixture

@@ -10,14 +10,27 @@ import time
 from typing import List, Tuple
 
 import pytest
+from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
 
 import fap_py
-from fap_py import (ClosedError, EventKind, FapTimeoutError, InvalidTypeError, InvalidValueError,
-                    Master, Message, PortError, QueueFullError, RS485, RS485Mode, Slave,
-                    SlaveExistsError, Stats, UnknownSlaveError)
+from fap_py import (
+    RS485,
+    ClosedError,
+    EventKind,
+    FapTimeoutError,
+    InvalidTypeError,
+    InvalidValueError,
+    Master,
+    Message,
+    PortError,
+    QueueFullError,
+    RS485Mode,
+    Slave,
+    SlaveExistsError,
+    Stats,
+    UnknownSlaveError,
+)
 from fap_py.vbus import VirtualBus
-
-from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
 
 Net = Tuple[Master, List[Slave]]
 
@@ -320,7 +333,7 @@ def test_close_wakes_a_blocked_recv(bus: VirtualBus) -> None:
         started.set()
         try:
             s.recv()                             # no timeout: waits until close
-        except BaseException as exc:  # noqa: BLE001 - recorded for the assert
+        except BaseException as exc:
             result.append(exc)
 
     t = threading.Thread(target=blocked)

@@ -11,11 +11,11 @@ import threading
 import time
 from typing import List
 
-from fap_py import EventKind, Master, Message
-from fap_py.vbus import VirtualBus
-
 from conftest import FAST, SLAVE_IDS, WAIT, wait_for_event
 from fap_helpers import HERE, SlaveProcess
+
+from fap_py import EventKind, Master, Message
+from fap_py.vbus import VirtualBus
 
 
 def _start(bus: VirtualBus) -> List[SlaveProcess]:

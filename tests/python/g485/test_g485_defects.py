@@ -12,8 +12,20 @@ from typing import Iterator
 
 import pytest
 
-from fap_py.g485 import (WAKE_UP_PREAMBLE, Discarded, ErrorBit, G485Master, Packet, PacketKind, Parser, ParseIssue,
-                         SimDevice, Simulator, WriteRefusedError, codec)
+from fap_py.g485 import (
+    WAKE_UP_PREAMBLE,
+    Discarded,
+    ErrorBit,
+    G485Master,
+    Packet,
+    PacketKind,
+    ParseIssue,
+    Parser,
+    SimDevice,
+    Simulator,
+    WriteRefusedError,
+    codec,
+)
 from fap_py.port import Port, PortBusyError
 
 SCAN_TIMEOUT = 0.01  # the issue's 10 ms

@@ -6,6 +6,7 @@ import threading
 
 import pytest
 
+from fap_py import RS485, RS485Mode
 from fap_py.errors import ClosedError, FapTimeoutError, FrameError, InvalidValueError, PortError
 from fap_py.mikroc import (
     BROADCAST,
@@ -15,8 +16,6 @@ from fap_py.mikroc import (
     Slave,
     encode,
 )
-
-from fap_py import RS485, RS485Mode
 from fap_py.vbus import VirtualBus
 
 # the addresses of the slaves of the `net` fixture (conftest.py)

@@ -5,9 +5,9 @@ import os
 from typing import Iterator, List
 
 import pytest
+from vbus_helpers import open_port
 
 from fap_py.vbus import VirtualBus
-from vbus_helpers import open_port
 
 
 @pytest.fixture

@@ -9,11 +9,10 @@ from pathlib import Path
 
 import pytest
 import serial
+from vbus_helpers import WAIT_S, open_port, pending, read_exact, write_all
 
 from fap_py.errors import ClosedError, FapError, InvalidValueError, PortError
-from fap_py.vbus import (CaptureFormatError, VirtualBus, VirtualBusStats, parse_capture,
-                         read_capture)
-from vbus_helpers import WAIT_S, open_port, pending, read_exact, write_all
+from fap_py.vbus import CaptureFormatError, VirtualBus, VirtualBusStats, parse_capture, read_capture
 
 
 def test_bytes_reach_every_other_port_not_the_sender(open_nodes) -> None:

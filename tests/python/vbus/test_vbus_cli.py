@@ -9,8 +9,9 @@ import sys
 import threading
 from pathlib import Path
 
-from fap_py.vbus import read_capture
 from vbus_helpers import WAIT_S, open_port, read_exact, write_all
+
+from fap_py.vbus import read_capture
 
 
 def _start(args: list, cwd: Path) -> tuple:

@@ -1,0 +1,289 @@
+"""One base class for every object that owns a C handle of libfap. Private.
+
+FAP nodes, exec async masters and slaves, mikroC nodes, the virtual bus and
+the Port class all own one C object (a ``fapx *``, ``execMaster *``,
+``fap_port *`` ...) that must be freed exactly once, never while another
+thread is inside a C call on it, and also when the user forgets to close.
+:class:`NativeHandle` is that rule, written once:
+
+* ``_adopt(h)`` once the C open succeeded; ``_release(h)`` (the subclass's
+  C close) runs once, from :meth:`close`, ``with`` exit or ``__del__``;
+* every C call goes through :meth:`_call` (or ``with self._using() as h``),
+  which counts the thread in: :meth:`close` first runs ``_interrupt()``
+  (wake blocked calls: stop a serve loop, detach asyncio readers), then
+  waits until no thread is inside, then frees;
+* calls after close raise :class:`~fap_py.errors.ClosedError`;
+* :meth:`wait_readable` / :meth:`await_readable` wait on the handle's fd
+  (``_fd()``) with ``poll`` or ``loop.add_reader``: the one way fap_py
+  waits on C without a worker thread.
+
+Blocking C calls wait in slices of :data:`WAIT_SLICE` so that Ctrl-C and a
+close() from another thread are noticed within one slice.
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import select
+import threading
+import time
+from contextlib import contextmanager
+from typing import Any, Callable, Iterator, Optional, Set, TypeVar
+
+from .errors import ClosedError
+
+__all__ = ["NativeHandle", "WAIT_SLICE", "slice_ms", "deadline_of"]
+
+log = logging.getLogger(__name__)
+
+#: Longest single wait inside C (seconds): the latency of Ctrl-C and of a
+#: close() from another thread while a blocking call waits.
+WAIT_SLICE = 0.1
+
+H = TypeVar("H", bound="NativeHandle")
+
+
+def deadline_of(timeout: Optional[float]) -> Optional[float]:
+    """``time.monotonic()`` deadline of an already checked timeout (None = none)."""
+    return None if timeout is None else time.monotonic() + timeout
+
+
+def slice_ms(deadline: Optional[float], longest_ms: Optional[int] = None) -> int:
+    """Milliseconds for the next wait inside C: what is left until ``deadline``
+    (``time.monotonic()``; None = no deadline), at most ``longest_ms``
+    (default :data:`WAIT_SLICE`)."""
+    cap = int(WAIT_SLICE * 1000) if longest_ms is None else longest_ms
+    if deadline is None:
+        return cap
+    return max(0, min(cap, math.ceil((deadline - time.monotonic()) * 1000)))
+
+
+class NativeHandle:
+    """Lifetime of one C handle: counted use, idempotent close, context manager.
+
+    Subclasses call ``super().__init__()`` first (before anything can fail,
+    so ``__del__`` of a half-built object is harmless), open the C object,
+    then ``self._adopt(handle)``; they implement :meth:`_release` and, when
+    the handle has a pollable fd, :meth:`_fd`.
+    """
+
+    #: What the object is, for messages ("exec async master", ...).
+    _kind = "handle"
+
+    def __init__(self) -> None:
+        self._h: Any = None
+        self._hlock = threading.Lock()
+        self._idle = threading.Condition(self._hlock)
+        self._users = 0                      # threads inside a C call on _h
+        self._closing = False
+        self._closer: Optional[int] = None   # the thread running close()
+        self._async_waits: Set["asyncio.Future[bool]"] = set()   # await_readable in flight
+
+    # -- to be provided by subclasses ----------------------------------------
+    def _release(self, h: Any) -> None:
+        """Free the C object (called once, with no thread inside a call)."""
+        raise NotImplementedError
+
+    def _interrupt(self) -> None:
+        """Wake threads blocked in C on this handle (default: they leave by
+        themselves within :data:`WAIT_SLICE`). Runs before the wait."""
+
+    def _fd(self, h: Any) -> int:
+        """The fd that turns readable when the handle has input."""
+        raise NotImplementedError(f"{self._kind} has no pollable fd")
+
+    def _label(self) -> str:
+        return self._kind
+
+    # -- lifetime ----------------------------------------------------------------
+    def _adopt(self, h: Any) -> None:
+        """Take ownership of the opened C object."""
+        with self._hlock:
+            self._h = h
+
+    def _closed_error(self) -> ClosedError:
+        return ClosedError(f"{self._label()} is closed")
+
+    def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
+        """``fn(handle, *args)`` with this thread counted in as a user.
+
+        Laid out so that an asynchronous exception (KeyboardInterrupt) cannot
+        leave the count wrong: Python runs signal handlers only at function
+        entries, backward jumps and after calls, and there is none between
+        ``+= 1`` and ``entered = True``, nor between ``finally`` and ``-= 1``.
+        """
+        entered = False
+        try:
+            with self._hlock:
+                if self._closing or self._h is None:
+                    raise self._closed_error()
+                self._users += 1
+                entered = True
+                h = self._h
+            return fn(h, *args)
+        finally:
+            if entered:
+                with self._hlock:
+                    self._users -= 1
+                    if self._closing and not self._users:
+                        self._idle.notify_all()
+
+    @contextmanager
+    def _using(self) -> Iterator[Any]:
+        """``with self._using() as h:`` the handle, counted in like :meth:`_call`."""
+        entered = False
+        try:
+            with self._hlock:
+                if self._closing or self._h is None:
+                    raise self._closed_error()
+                self._users += 1
+                entered = True
+                h = self._h
+            yield h
+        finally:
+            if entered:
+                with self._hlock:
+                    self._users -= 1
+                    if self._closing and not self._users:
+                        self._idle.notify_all()
+
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called (or the open failed)."""
+        return self._closing or self._h is None
+
+    def close(self) -> None:
+        """Free the C object. Idempotent and thread-safe; blocked calls in
+        other threads end with :class:`~fap_py.errors.ClosedError`."""
+        lock = getattr(self, "_hlock", None)
+        if lock is None or getattr(self, "_h", None) is None:
+            return
+        with lock:
+            self._closing = True
+            while self._closer is not None and self._h is not None:
+                self._idle.wait(WAIT_SLICE)   # another thread is closing it
+            if self._h is None:
+                return
+            self._closer = threading.get_ident()
+        try:
+            self._interrupt()
+            self._detach_async_waits()
+            with lock:
+                while self._users:            # they leave within WAIT_SLICE
+                    self._idle.wait(WAIT_SLICE)
+                # Forget the handle first: an interrupt before _release leaks
+                # it, one after cannot free it twice.
+                h, self._h = self._h, None
+            self._release(h)
+        finally:
+            with lock:
+                self._closer = None
+                self._idle.notify_all()
+        log.debug("%s closed", self._label())
+
+    def __enter__(self: H) -> H:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self: H) -> H:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        """Close from a coroutine (the wait for other threads runs in an executor)."""
+        self._interrupt()
+        await asyncio.get_running_loop().run_in_executor(None, self.close)
+
+    def __del__(self) -> None:  # a forgotten object must not keep its port or thread
+        try:
+            self.close()
+        except Exception:  # pragma: no cover - half-built object, interpreter shutdown
+            pass
+
+    # -- waiting on the handle's fd ---------------------------------------------
+    def fileno(self) -> int:
+        """The fd that turns readable when input is waiting (for select/poll;
+        never read it). Valid until close."""
+        return int(self._call(self._fd))
+
+    def wait_readable(self, timeout: Optional[float] = None) -> bool:
+        """Wait (GIL released, in slices) until :meth:`fileno` is readable;
+        False after ``timeout`` seconds (an already checked number or None)."""
+        deadline = deadline_of(timeout)
+        while True:
+            fd = self.fileno()               # raises ClosedError once closed
+            p = select.poll()
+            p.register(fd, select.POLLIN)
+            if p.poll(slice_ms(deadline)):
+                return True
+            if deadline is not None and time.monotonic() >= deadline:
+                return False
+
+    async def await_readable(self, timeout: Optional[float] = None) -> bool:
+        """The asyncio form of :meth:`wait_readable`: ``loop.add_reader`` on
+        the fd, no thread. False after ``timeout`` seconds; ClosedError when
+        the handle is closed meanwhile (from any thread)."""
+        loop = asyncio.get_running_loop()
+        fd = self.fileno()
+        fut: "asyncio.Future[bool]" = loop.create_future()
+
+        def ready() -> None:
+            if not fut.done():
+                fut.set_result(True)
+
+        loop.add_reader(fd, ready)
+        fut.fap_fd = fd  # type: ignore[attr-defined]
+        with self._hlock:
+            self._async_waits.add(fut)
+        timer = None if timeout is None else loop.call_later(timeout, _expire, fut)
+        try:
+            return await fut
+        finally:
+            if timer is not None:
+                timer.cancel()
+            with self._hlock:
+                registered = fut in self._async_waits
+                self._async_waits.discard(fut)
+            if registered and not loop.is_closed():
+                loop.remove_reader(fd)
+
+    def _detach_async_waits(self) -> None:
+        """Before the fd is closed: unregister every await_readable, failing it
+        with ClosedError (in its loop's thread; waits for that, at most 2 s)."""
+        with self._hlock:
+            waits, self._async_waits = self._async_waits, set()
+        for fut in waits:
+            loop = fut.get_loop()
+            done = threading.Event()
+
+            def detach(fut: "asyncio.Future[bool]" = fut, done: threading.Event = done,
+                       loop: asyncio.AbstractEventLoop = loop) -> None:
+                loop.remove_reader(fut.fap_fd)  # type: ignore[attr-defined]
+                if not fut.done():
+                    fut.set_exception(self._closed_error())
+                done.set()
+
+            try:
+                running = asyncio.get_running_loop()
+            except RuntimeError:
+                running = None
+            if running is loop or not loop.is_running():
+                if not loop.is_closed():
+                    detach()
+                continue
+            try:
+                loop.call_soon_threadsafe(detach)
+            except RuntimeError:  # its loop closed meanwhile
+                continue
+            if not done.wait(2.0):  # pragma: no cover - that loop's thread is stuck
+                log.warning("%s: event loop did not detach within 2 s", self._label())
+
+
+def _expire(fut: "asyncio.Future[bool]") -> None:
+    if not fut.done():
+        fut.set_result(False)

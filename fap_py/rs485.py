@@ -1,0 +1,131 @@
+"""RS-485 line options, the same for every protocol (``fap_port_options``).
+
+Every node that opens a port through libfap's C port layer (FAP, exec async,
+mikroC, the G485 Port) takes an :class:`RS485`. Its defaults are the C
+layer's own (``fap_port_options_init``), read from the compiled core when
+the node opens the port: a field left at ``None`` is never written, so
+there is one set of defaults, C's.
+"""
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Any, Dict, Optional
+
+from ._native import ffi, lib
+from ._validate import U32, check_baud, check_int
+from .errors import InvalidTypeError, InvalidValueError
+
+__all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults"]
+
+
+class RS485Mode(enum.IntEnum):
+    """How the transmitter is switched (``fap_rs485_mode``)."""
+
+    AUTO = lib.FAP_RS485_AUTO          #: kernel RS-485 if the driver has it, else NONE
+    KERNEL = lib.FAP_RS485_KERNEL      #: TIOCSRS485: the kernel toggles RTS
+    SOFT_RTS = lib.FAP_RS485_SOFT_RTS  #: assert RTS, write, tcdrain(), release RTS
+    NONE = lib.FAP_RS485_NONE          #: auto-direction transceiver, USB adapter, pty
+
+
+_INT_FIELDS = ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
+               "turnaround_us", "write_timeout_us")
+_BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive")
+
+
+def c_defaults() -> Dict[str, Any]:
+    """The C port layer's defaults (``fap_port_options_init``) by RS485 field
+    name: what a field left at None means."""
+    po = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(po)
+    out: Dict[str, Any] = {"mode": RS485Mode(po.rs485_mode)}
+    out.update({name: int(getattr(po, name)) for name in _INT_FIELDS})
+    out.update({name: int(getattr(po, name)) for name in _BOOL_FIELDS})
+    return out
+
+
+def _c_default_baud() -> int:
+    po = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(po)
+    return int(po.baud)
+
+
+#: The C layer's default baud rate (``fap_port_options_init``).
+DEFAULT_BAUD: int = _c_default_baud()
+_PO_TYPE = ffi.typeof("fap_port_options *")
+
+
+@dataclass(frozen=True)
+class RS485:
+    """RS-485 line options of a node (``fap_port_options``).
+
+    Every field left at ``None`` keeps the C port layer's default (what
+    ``fap_port_options_init`` sets; :func:`c_defaults` lists them): Python
+    has no defaults of its own. Times are integer microseconds, as the C
+    layer takes them (the kernel rounds its RTS delays up to milliseconds).
+    """
+
+    mode: Optional[RS485Mode] = None             #: direction control (C default AUTO)
+    rts_active_high: Optional[bool] = None       #: RTS level while sending
+    delay_before_send_us: Optional[int] = None   #: RTS asserted -> first bit
+    delay_after_send_us: Optional[int] = None    #: last bit -> RTS released
+    rx_during_tx: Optional[bool] = None          #: kernel mode: receiver on while sending
+    echo_suppression: Optional[bool] = None      #: read back and drop our own bytes
+    echo_timeout_us: Optional[int] = None        #: wait for the echo (0 = C's rule)
+    turnaround_us: Optional[int] = None          #: quiet time after the last byte received
+    exclusive: Optional[bool] = None             #: TIOCEXCL + flock: refuse a second opener
+    write_timeout_us: Optional[int] = None       #: longest write (0 = C's rule)
+
+    def __post_init__(self) -> None:
+        if self.mode is not None:
+            if isinstance(self.mode, bool) or not isinstance(self.mode, int):
+                raise InvalidTypeError(f"RS485.mode must be an RS485Mode, not {self.mode!r}")
+            try:
+                object.__setattr__(self, "mode", RS485Mode(self.mode))
+            except ValueError as exc:
+                raise InvalidValueError(f"RS485.mode must be an RS485Mode, not {self.mode!r}") from exc
+        for name in _INT_FIELDS:
+            if getattr(self, name) is not None:
+                check_int(getattr(self, name), f"RS485.{name}", 0, U32)
+        for name in _BOOL_FIELDS:
+            if getattr(self, name) is not None and not isinstance(getattr(self, name), bool):
+                raise InvalidTypeError(f"RS485.{name} must be a bool or None")
+
+    def apply_to(self, po: Any, baudrate: int) -> Any:
+        """Set ``baudrate`` and the fields given (not None) in a cffi
+        ``fap_port_options *`` that ``fap_port_options_init`` (or
+        ``fapx_options_init``) prepared; the others keep C's defaults.
+
+        The one place that maps Python line options onto the C port layer.
+        """
+        if not isinstance(po, ffi.CData) or ffi.typeof(po) is not _PO_TYPE:
+            raise InvalidTypeError(f"po must be a cffi 'fap_port_options *', not {po!r}")
+        po.baud = check_baud(baudrate)
+        if self.mode is not None:
+            po.rs485_mode = int(self.mode)
+        for name in _INT_FIELDS:
+            if getattr(self, name) is not None:
+                setattr(po, name, getattr(self, name))
+        for name in _BOOL_FIELDS:
+            if getattr(self, name) is not None:
+                setattr(po, name, int(getattr(self, name)))
+        return po
+
+
+def line_options(rs485: Optional[RS485]) -> RS485:
+    """``rs485`` checked; ``None`` = the port layer's defaults."""
+    if rs485 is None:
+        return RS485()
+    if not isinstance(rs485, RS485):
+        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    return rs485
+
+
+def port_options(baudrate: int, rs485: Optional[RS485] = None) -> Any:
+    """A new cffi ``fap_port_options *`` for ``baudrate`` and ``rs485``.
+    Raises before anything reaches C."""
+    baudrate = check_baud(baudrate)
+    opts = line_options(rs485)
+    po = ffi.new("fap_port_options *")
+    lib.fap_port_options_init(po)
+    return opts.apply_to(po, baudrate)
