@@ -23,9 +23,10 @@ import time
 from dataclasses import dataclass
 from typing import Any, Optional, Union
 
-from ._util import Closing, from_cdata
-from .errors import ClosedError, FapError, InvalidValueError, PortError, error_from_code
-from .fap import RS485, InvalidTypeError, RS485Mode, _native, port_options
+from ._handle import WAIT_SLICE, NativeHandle
+from ._stats import stats_from_c
+from .errors import FapError, InvalidTypeError, InvalidValueError, PortError, error_from_code
+from .rs485 import RS485, RS485Mode, port_options
 
 PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
 
@@ -33,6 +34,8 @@ PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
 MAX_READ = 4096
 #: fap_port_read's "wait forever"
 _FOREVER_NS = (1 << 63) - 1
+#: longest single wait inside C: a close() from another thread is noticed within it
+_SLICE_NS = int(WAIT_SLICE * 1e9)
 
 
 class PortBusyError(PortError):
@@ -80,7 +83,7 @@ def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) ->
     return value
 
 
-class Port(Closing):
+class Port(NativeHandle):
     """One serial device opened through libfap's port layer.
 
     :param path: the device (``/dev/ttyUSB0``, a pty, a virtual-bus port).
@@ -95,8 +98,10 @@ class Port(Closing):
     may come from another thread (the C layer serialises them).
     """
 
+    _kind = "port"
+
     def __init__(self, path: PathLike, baudrate: int = 115200, rs485: Optional[RS485] = None) -> None:
-        self._p: Any = None
+        super().__init__()
         if not isinstance(path, (str, bytes, os.PathLike)):
             raise InvalidTypeError(f"path must be a str or path, not {type(path).__name__}")
         raw = os.fsencode(path)
@@ -105,38 +110,31 @@ class Port(Closing):
         self.path = os.fsdecode(raw)
         po = port_options(baudrate, rs485)  # validates baud and options before C sees them
         self.rs485: RS485 = rs485 if rs485 is not None else RS485()
-        ffi, lib = _native()
+        from ._native import ffi, lib
+
         self._ffi, self._lib = ffi, lib
         out = ffi.new("fap_port **")
         rc = lib.fap_port_open(out, raw, po)
         if rc:
             raise port_error(rc, "open", self.path)
-        self._p = out[0]
         self._buf = ffi.new("unsigned char[]", MAX_READ)
         self._buffer = ffi.buffer(self._buf)
-        self.baudrate = int(lib.fap_port_baud(self._p))
+        self.baudrate = int(lib.fap_port_baud(out[0]))
+        self._adopt(out[0])
 
-    # -- lifetime ------------------------------------------------------------
+    # -- NativeHandle ----------------------------------------------------------
 
-    @property
-    def closed(self) -> bool:
-        """True once :meth:`close` ran."""
-        return self._p is None
+    def _release(self, h: Any) -> None:
+        self._lib.fap_port_close(h)
 
-    def close(self) -> None:
-        """Close the device (restores its previous RS-485 configuration). Idempotent."""
-        p, self._p = getattr(self, "_p", None), None
-        if p is not None:
-            self._lib.fap_port_close(p)
+    def _fd(self, h: Any) -> int:
+        return int(self._lib.fap_port_fd(h))
 
-    def _handle(self) -> Any:
-        p = self._p
-        if p is None:
-            raise ClosedError(f"{self.path}: port closed")
-        return p
+    def _label(self) -> str:
+        return f"port {getattr(self, 'path', '?')}"
 
     def __repr__(self) -> str:
-        state = "closed" if self._p is None else f"{self.baudrate} baud, {self.mode.name}"
+        state = "closed" if self.closed else f"{self.baudrate} baud, {self.mode.name}"
         return f"<Port {self.path} {state}>"
 
     # -- state -----------------------------------------------------------------
@@ -144,23 +142,19 @@ class Port(Closing):
     @property
     def fd(self) -> int:
         """The file descriptor (for poll / an event loop); -1 while the device is gone."""
-        return int(self._lib.fap_port_fd(self._handle()))
-
-    def fileno(self) -> int:
-        """The file descriptor (see :attr:`fd`)."""
-        return self.fd
+        return int(self._call(self._lib.fap_port_fd))
 
     @property
     def mode(self) -> RS485Mode:
         """The direction mode in force (never AUTO once open)."""
-        return RS485Mode(self._lib.fap_port_mode(self._handle()))
+        return RS485Mode(self._call(self._lib.fap_port_mode))
 
     @property
     def stats(self) -> PortStats:
         """Byte, echo, collision, error and reopen counters."""
         st = self._ffi.new("fap_port_stats *")
-        self._lib.fap_port_get_stats(self._handle(), st)
-        return from_cdata(PortStats, st)
+        self._call(self._lib.fap_port_get_stats, st)
+        return stats_from_c(PortStats, st)
 
     # -- I/O ---------------------------------------------------------------------
 
@@ -170,9 +164,13 @@ class Port(Closing):
         Raises :class:`~fap_py.errors.BusCollisionError` when echo suppression
         reads back something else, :class:`PortGoneError` when the device vanished.
         """
-        if not isinstance(data, (bytes, bytearray, memoryview)):
+        if type(data) is bytes:  # cffi passes bytes to a const void * as they are
+            buf: Any = data
+        elif isinstance(data, (bytearray, memoryview)):
+            buf = self._ffi.from_buffer(data)
+        else:
             raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-        rc = self._lib.fap_port_write(self._handle(), self._ffi.from_buffer(data), len(data))
+        rc = self._call(self._lib.fap_port_write, buf, len(data))
         if rc < 0:
             raise port_error(rc, "write", self.path)
         return int(rc)
@@ -182,44 +180,45 @@ class Port(Closing):
         """Up to ``n`` bytes, waiting for the first until ``timeout`` seconds
         (or the absolute ``deadline_ns`` of ``time.monotonic_ns()``) pass:
         b"" then. Neither given: do not wait."""
-        p = self._handle()
         if deadline_ns is None:
             deadline_ns = 0 if timeout is None else (
                 time.monotonic_ns() + math.ceil(check_timeout(timeout) * 1e9))
+        elif isinstance(deadline_ns, bool) or not isinstance(deadline_ns, int):
+            raise InvalidTypeError(f"deadline_ns must be an int, not {type(deadline_ns).__name__}")
         if type(n) is not int or not 0 < n <= MAX_READ:
             if isinstance(n, bool) or not isinstance(n, int):
                 raise InvalidTypeError(f"n must be an int, not {type(n).__name__}")
             n = max(1, min(n, MAX_READ))
-        got = self._lib.fap_port_read(p, self._buf, n, min(deadline_ns, _FOREVER_NS))
-        if got > 0:
-            return self._buffer[:got]
-        if got == 0:
-            return b""
-        raise port_error(got, "read", self.path)
+        return self.read_until(n, max(0, min(deadline_ns, _FOREVER_NS)))
 
     def read_until(self, n: int, deadline_ns: int) -> bytes:
         """Up to ``n`` bytes (1..MAX_READ), waiting for the first until the absolute
         ``deadline_ns`` (``time.monotonic_ns()``; 0 = do not wait): b"" then.
 
         The lean form of :meth:`read` for protocol loops: ``n`` and
-        ``deadline_ns`` must be ints (a bad one raises InvalidValueError).
+        ``deadline_ns`` must be ints (a bad one raises InvalidValueError). A
+        long wait runs in slices of ``WAIT_SLICE`` inside C, so a close() from
+        another thread ends it.
         """
-        p = self._p
-        if p is None:
-            raise ClosedError(f"{self.path}: port closed")
         if type(n) is not int or type(deadline_ns) is not int or not 0 < n <= MAX_READ \
                 or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"read_until({n}, {deadline_ns}) out of range")
-        got = self._lib.fap_port_read(p, self._buf, n, deadline_ns)
-        if got > 0:
-            return self._buffer[:got]
-        if got == 0:
-            return b""
-        raise port_error(got, "read", self.path)
+        read, buf = self._lib.fap_port_read, self._buf
+        while True:
+            step = deadline_ns
+            if deadline_ns:
+                step = min(deadline_ns, time.monotonic_ns() + _SLICE_NS)
+            got = self._call(read, buf, n, step)
+            if got > 0:
+                return self._buffer[:got]
+            if got < 0:
+                raise port_error(got, "read", self.path)
+            if step >= deadline_ns:
+                return b""
 
     def flush_input(self) -> None:
         """Discard bytes received and not read yet (and unsent output)."""
-        rc = self._lib.fap_port_flush(self._handle())
+        rc = self._call(self._lib.fap_port_flush)
         if rc < 0:
             raise port_error(rc, "flush", self.path)
 
@@ -229,7 +228,7 @@ class Port(Closing):
         Raises the open error if the device is not back yet; the port stays
         usable for further attempts.
         """
-        rc = self._lib.fap_port_reopen(self._handle())
+        rc = self._call(self._lib.fap_port_reopen)
         if rc < 0:
             raise port_error(rc, "reopen", self.path)
 

@@ -8,15 +8,44 @@
 
 See docs/g485.md for every decision the vendor document leaves open.
 """
-from .codec import (BROADCAST, MASTER_ADDRESS, WAKE_UP_PREAMBLE, Discarded, ErrorBit, Packet, PacketKind,
-                    ParseIssue, Parser, SetCommand, decode_frame, describe_error_word, encode_error_word_request,
-                    encode_error_word_response, encode_handshake_request, encode_handshake_response,
-                    encode_read_request, encode_read_response, encode_set, encode_write)
+from .codec import (
+                    BROADCAST,
+                    MASTER_ADDRESS,
+                    WAKE_UP_PREAMBLE,
+                    Discarded,
+                    ErrorBit,
+                    Packet,
+                    PacketKind,
+                    ParseIssue,
+                    Parser,
+                    SetCommand,
+                    decode_frame,
+                    describe_error_word,
+                    encode_error_word_request,
+                    encode_error_word_response,
+                    encode_handshake_request,
+                    encode_handshake_response,
+                    encode_read_request,
+                    encode_read_response,
+                    encode_set,
+                    encode_write,
+)
 from .device import RegisterSpec, SimDevice
-from .errors import (BroadcastReadError, CheckByteError, CheckMismatchError, DeviceErrorWordError, EchoMismatchError,
-                     G485Error,
-                     G485FrameError, G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
-                     UnexpectedReplyError, WriteRefusedError)
+from .errors import (
+                    BroadcastReadError,
+                    CheckByteError,
+                    CheckMismatchError,
+                    DeviceErrorWordError,
+                    EchoMismatchError,
+                    G485Error,
+                    G485FrameError,
+                    G485ValueError,
+                    HandshakeMismatchError,
+                    NoResponseError,
+                    RereadMismatchError,
+                    UnexpectedReplyError,
+                    WriteRefusedError,
+)
 from .master import Check, G485Master, MasterStats
 from .simulator import Simulator
 
@@ -27,7 +56,8 @@ __all__ = [
     "encode_read_request", "encode_read_response", "encode_set", "encode_write",
     "RegisterSpec", "SimDevice",
     "BroadcastReadError", "CheckByteError", "CheckMismatchError", "DeviceErrorWordError", "G485Error",
-    "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError", "RereadMismatchError",
+    "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError",
+    "RereadMismatchError",
     "UnexpectedReplyError", "WriteRefusedError",
     "Check", "G485Master", "MasterStats", "Simulator",
 ]

@@ -102,24 +102,32 @@ class AsyncG485Master:
                 self._arm(deadline)
 
     def _arm(self, deadline: float) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
+        """Wake up at ``deadline`` at the latest. One timer serves many exchanges: it is
+        re-armed only when it would fire too late, and a timer that fires early (the
+        exchange it was set for is over) re-arms itself for the current deadline."""
         self._deadline = deadline
+        timer = self._timer
+        if timer is not None:
+            if timer.when() <= deadline:
+                return
+            timer.cancel()
         self._timer = self._loop.call_at(deadline, self._on_timeout)  # type: ignore[union-attr]
 
     def _on_timeout(self) -> None:
         self._timer = None
-        if self._waiter is not None:
-            self._finish(exc=self._waiter.expired(self._timeout))
+        waiter = self._waiter
+        if waiter is None:
+            return  # armed for an exchange that is over
+        if self._loop.time() < self._deadline:  # type: ignore[union-attr]
+            self._timer = self._loop.call_at(self._deadline, self._on_timeout)  # type: ignore[union-attr]
+            return
+        self._finish(exc=waiter.expired(self._timeout))
 
     def _finish(self, raw: Optional[bytes] = None, exc: Optional[BaseException] = None) -> None:
         fut = self._future
         if fut is None or fut.done():
             return
         self._waiter = None
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer = None
         if exc is not None:
             fut.set_exception(exc)
         else:
@@ -146,9 +154,6 @@ class AsyncG485Master:
         finally:
             self._waiter = None
             self._future = None
-            if self._timer is not None:
-                self._timer.cancel()
-                self._timer = None
 
     async def _drive(self, flow: Flow) -> Any:
         try:
@@ -194,6 +199,7 @@ class AsyncG485Master:
         loop = asyncio.get_running_loop()
         if self._loop is not loop:
             self._unwatch()
+            self._timer = None  # belonged to the old loop
             self._loop = loop
             self._lock = asyncio.Lock()
         return self._lock  # type: ignore[return-value]
@@ -335,6 +341,9 @@ class AsyncG485Master:
             self._executor.shutdown(wait=True)
             return
         self._unwatch()
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
         self.master.close()
 
     async def __aenter__(self) -> "AsyncG485Master":

@@ -63,10 +63,10 @@ class SimDevice:
                  on_apply: Optional[Callable[["SimDevice", int, int], None]] = None) -> None:
         _whole(address, "device address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
         try:
-            identity = tuple(identity)
+            ident = tuple(identity)
         except TypeError:
             raise G485ValueError("identity must be 5 byte values (registers 1..5)") from None
-        if len(identity) != 5 or not all(type(v) is int and 0 <= v <= 255 for v in identity):
+        if len(ident) != 5 or not all(type(v) is int and 0 <= v <= 255 for v in ident):
             raise G485ValueError("identity must be 5 byte values (registers 1..5)")
         if isinstance(bulk_discard_rate, bool) or not isinstance(bulk_discard_rate, (int, float)) \
                 or not 0.0 <= bulk_discard_rate <= 1.0:  # also false for NaN
@@ -81,7 +81,7 @@ class SimDevice:
         if private is not None and not isinstance(private, dict):
             raise G485ValueError(f"private must be a dict of register specs, not {type(private).__name__}")
         self.specs: List[RegisterSpec] = [RegisterSpec("", 0, False)] * 101
-        for reg, value in enumerate(identity, start=1):
+        for reg, value in enumerate(ident, start=1):
             self.specs[reg] = RegisterSpec("R", value, False)
         self.specs[6] = RegisterSpec("W", 0, False)
         self.specs[7] = RegisterSpec("RW", address, True)
@@ -268,7 +268,7 @@ class SimDevice:
         for reg in self._write_only:
             if register <= reg < end:
                 values[reg - register] = 0  # write-only reads as 0
-        reply = codec.frame(codec.SMA_R, register, values)
+        reply = codec.frame(codec.SMA_R, register, bytes(values))
         self.check_byte = reply[-1]  # SDIC
         return reply
 

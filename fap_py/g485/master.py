@@ -16,21 +16,42 @@ drives the same flows from an asyncio event loop without a thread.
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
 from dataclasses import dataclass
 from enum import Enum
+from types import GeneratorType
 from typing import Any, Callable, Dict, Generator, Iterable, List, Optional, Tuple, Union
 
-from . import codec
-from .codec import (EPID, HEADER_SIZE, HPID, REPLY_KINDS, WAKE_UP_BAUD_THRESHOLD, WAKE_UP_PREAMBLE, Data,
-                    ParseIssue, Parser, SetCommand, is_exact_reply)
-from .errors import (RETRYABLE_ERRORS, CheckByteError, DeviceErrorWordError, G485Error, G485FrameError,
-                     G485ValueError, HandshakeMismatchError, NoResponseError, RereadMismatchError,
-                     UnexpectedReplyError, WriteRefusedError)
-from ..fap import RS485
 from ..port import PortGoneError
+from ..rs485 import RS485
+from . import codec
+from .codec import (
+    EPID,
+    HEADER_SIZE,
+    HPID,
+    REPLY_KINDS,
+    WAKE_UP_BAUD_THRESHOLD,
+    WAKE_UP_PREAMBLE,
+    Data,
+    ParseIssue,
+    Parser,
+    SetCommand,
+    is_exact_reply,
+)
+from .errors import (
+    RETRYABLE_ERRORS,
+    CheckByteError,
+    DeviceErrorWordError,
+    G485Error,
+    G485FrameError,
+    G485ValueError,
+    HandshakeMismatchError,
+    NoResponseError,
+    RereadMismatchError,
+    UnexpectedReplyError,
+    WriteRefusedError,
+)
 from .transport import IO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")
@@ -49,7 +70,6 @@ _ReadPlan = Tuple[bytes, bytes, int, int, int]
 #: one exchange a flow asks for: frame to send, reply prefix awaited (None: no reply), timeout
 Step = Tuple[bytes, Optional[bytes], Optional[float]]
 Flow = Generator[Step, Optional[bytes], Any]
-_GENERATOR = type((lambda: (yield))())
 
 
 class Check(Enum):
@@ -359,10 +379,13 @@ class G485Master:
         io.write(self._wire(frame))  # type: ignore[union-attr]
         if prefix is None:
             return None
-        waiter = ReplyWaiter(self, prefix)
-        wait = self._reply_wait(prefix, timeout)
+        size = HEADER_SIZE + prefix[3]
+        wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time  # see _reply_wait
         deadline = time.monotonic() + wait
-        chunk = io.read_within(waiter.size, wait)  # type: ignore[union-attr]
+        chunk = io.read_within(size, wait)  # type: ignore[union-attr]
+        if is_exact_reply(chunk, prefix) and not _debug():
+            return chunk  # the common case, decided before any waiter object exists
+        waiter = ReplyWaiter(self, prefix)
         while True:
             if not chunk:
                 raise waiter.expired(timeout)
@@ -384,7 +407,7 @@ class G485Master:
 
     def _drive(self, flow: Any) -> Any:
         """Run one attempt of a transaction: every exchange its flow asks for."""
-        if type(flow) is not _GENERATOR:
+        if type(flow) is not GeneratorType:
             return flow  # an attempt that did its own exchange (the hot path)
         exchange = self._exchange_raw
         try:
@@ -394,7 +417,7 @@ class G485Master:
         except StopIteration as done:
             return done.value
 
-    def _run(self, make_flow: Callable[..., Flow], retries: Optional[int], *args: Any) -> Any:
+    def _run(self, make_flow: Callable[..., Any], retries: Optional[int], *args: Any) -> Any:
         """Run ``make_flow(*args)`` until it succeeds or the retries are used up."""
         lock = self._lock
         lock.acquire()  # explicit acquire/release: cheaper than ``with`` on the hot path

@@ -21,7 +21,7 @@ import time
 from typing import Any, Iterable, List, Optional, Sequence, Union
 
 from ..errors import PortError
-from ..fap import RS485
+from ..rs485 import RS485
 from .codec import Discarded, Packet, Parser, exact_packet
 from .device import SimDevice
 from .errors import G485ValueError

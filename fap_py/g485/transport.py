@@ -27,8 +27,8 @@ from typing import Any, Optional, Union
 import serial
 
 from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
-from ..fap import RS485
 from ..port import Port
+from ..rs485 import RS485
 from .errors import EchoMismatchError, G485ValueError
 
 PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
@@ -53,6 +53,11 @@ class PortIO:
         self.baudrate = p.baudrate
         self._read = p.read_until
         self._write = p.write
+        # waiting for a reply: poll here, then one read in C (the C read would first try a
+        # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
+        self._poller: Optional[select.poll] = None
+        self._use_poll = not p.rs485.echo_suppression
+        self._watch()
 
     @property
     def fd(self) -> Optional[int]:
@@ -68,8 +73,23 @@ class PortIO:
         return self._read(n, max(1, math.ceil(deadline * 1e9)))
 
     def read_within(self, n: int, timeout: float) -> bytes:
-        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
+        """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first (b"" if
+        nothing came; the caller goes on with :meth:`read_some` if the chunk is short)."""
+        poller = self._poller
+        if poller is not None:
+            if not poller.poll(math.ceil(timeout * 1000.0)):
+                return b""
+            return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+
+    def _watch(self) -> None:
+        """(Re)build the poller on the port's current fd (after open and after a reopen)."""
+        fd = self.port.fd if self._use_poll and not self.port.closed else -1
+        if fd >= 0:
+            self._poller = select.poll()
+            self._poller.register(fd, select.POLLIN)
+        else:
+            self._poller = None
 
     def read_nowait(self, n: int) -> bytes:
         """What is there now, up to ``n`` bytes (b"" if nothing)."""
@@ -89,16 +109,20 @@ class PortIO:
         drops output, and on a pty (a virtual bus) a request written but not
         yet taken by the far end would be lost with it.
         """
+        poller = self._poller
+        if poller is not None and not poller.poll(0):
+            return  # nothing waiting (the common case): one poll, no call into C
         read = self._read
         try:
             while read(4096, 0):
                 pass
         except (PortError, ClosedError):
-            pass  # a vanished port: the next read or write reports it
+            self._poller = None  # a vanished port: the next read or write reports it
 
     def reopen(self) -> None:
         """Open the same path again (raises PortError while it is not back)."""
         self.port.reopen()
+        self._watch()
 
     def close(self) -> None:
         self.port.close()

@@ -8,13 +8,24 @@ import threading
 
 import pytest
 
+from fap_py.errors import FapError
+from fap_py.g485 import (
+    Check,
+    ErrorBit,
+    G485Error,
+    G485Master,
+    HandshakeMismatchError,
+    NoResponseError,
+    SetCommand,
+    SimDevice,
+    Simulator,
+    codec,
+)
+
 # reply timeouts: generous where no timeout is expected (it never fires, so it costs
 # nothing, and a loaded CI machine cannot make it fire), short where one is expected
 FAST = 0.5
 SHORT = 0.05
-from fap_py.errors import FapError
-from fap_py.g485 import (Check, ErrorBit, G485Error, G485Master, HandshakeMismatchError, NoResponseError,
-                         SetCommand, SimDevice, Simulator, codec)
 
 
 @pytest.fixture
@@ -184,7 +195,7 @@ def test_bulk_mode_discards_are_retried(net):
     master.timeout = SHORT
     master.retries = 10
     master.set(1, SetCommand.BULK_MODE)
-    for i in range(30):
+    for _ in range(30):
         assert master.read(1, 7) == b"\x01"
     assert d1.discarded_in_bulk > 0 and master.stats.no_response >= d1.discarded_in_bulk
     master.set(1, SetCommand.CONTROL_MODE)

@@ -7,9 +7,24 @@ import pytest
 
 from fap_py.errors import FrameError, InvalidValueError
 from fap_py.g485 import codec
-from fap_py.g485.codec import (Discarded, ErrorBit, Packet, PacketKind, ParseIssue, Parser, SetCommand,
-                               decode_frame, describe_error_word)
-from fap_py.g485.errors import BroadcastReadError, CheckByteError, G485FrameError, G485ValueError, UnexpectedReplyError
+from fap_py.g485.codec import (
+    Discarded,
+    ErrorBit,
+    Packet,
+    PacketKind,
+    ParseIssue,
+    Parser,
+    SetCommand,
+    decode_frame,
+    describe_error_word,
+)
+from fap_py.g485.errors import (
+    BroadcastReadError,
+    CheckByteError,
+    G485FrameError,
+    G485ValueError,
+    UnexpectedReplyError,
+)
 
 # how each vector is built by the encoders (same order as the file)
 ENCODED = {

@@ -12,8 +12,20 @@ from typing import Iterator
 
 import pytest
 
-from fap_py.g485 import (WAKE_UP_PREAMBLE, Discarded, ErrorBit, ParseIssue, G485Master, Packet, PacketKind, Parser, SimDevice, Simulator,
-                         WriteRefusedError, codec)
+from fap_py.g485 import (
+    WAKE_UP_PREAMBLE,
+    Discarded,
+    ErrorBit,
+    G485Master,
+    Packet,
+    PacketKind,
+    ParseIssue,
+    Parser,
+    SimDevice,
+    Simulator,
+    WriteRefusedError,
+    codec,
+)
 from fap_py.port import Port, PortBusyError
 
 SCAN_TIMEOUT = 0.01  # the issue's 10 ms
@@ -72,10 +84,10 @@ def test_scan_finds_exactly_2_and_9_with_preamble_and_10ms(vbus) -> None:
         for _ in range(5):  # a fresh master each time: the preamble after open
             with G485Master(vbus.paths[0], 115200, timeout=SCAN_TIMEOUT, retries=0) as master:
                 assert master.wake_up and master.wake_after_no_response
-                for _ in range(3):  # and again on the same master: the preamble after each miss
+                for _ in range(2):  # and again on the same master: the preamble after each miss
                     # retries: a reply later than 10 ms on a loaded machine is retried, and a
                     # late reply taken for the next ID is refused by the ID confirmation
-                    assert master.scan(range(1, 13), retries=5) == [2, 9]
+                    assert master.scan(range(1, 11), retries=5) == [2, 9]
         assert sim.error is None
 
 

@@ -165,7 +165,7 @@ def test_parser_same_packets_whole_or_in_chunks(data: bytes, cuts: list) -> None
     chunked = Parser()
     got: list = []
     last = 0
-    for cut in sorted(set(c for c in cuts if c <= len(data))) + [len(data)]:
+    for cut in sorted({c for c in cuts if c <= len(data)}) + [len(data)]:
         got += chunked.feed(data[last:cut])
         last = cut
     got += chunked.expire()

@@ -8,13 +8,25 @@ import threading
 import pytest
 import serial
 
+from fap_py.errors import ClosedError, FapTimeoutError, InvalidValueError
+from fap_py.g485 import (
+    BroadcastReadError,
+    Check,
+    DeviceErrorWordError,
+    ErrorBit,
+    G485Master,
+    G485ValueError,
+    NoResponseError,
+    SetCommand,
+    SimDevice,
+    Simulator,
+    codec,
+)
+
 # reply timeouts: generous where no timeout is expected (it never fires, so it costs
 # nothing, and a loaded CI machine cannot make it fire), short where one is expected
 FAST = 0.5
 SHORT = 0.05
-from fap_py.errors import ClosedError, FapTimeoutError, InvalidValueError
-from fap_py.g485 import (BroadcastReadError, Check, DeviceErrorWordError, ErrorBit, G485Master, G485ValueError,
-                         NoResponseError, SetCommand, SimDevice, Simulator, codec)
 
 
 @pytest.fixture

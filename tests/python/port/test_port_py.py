@@ -188,3 +188,27 @@ def test_turnaround_waits_after_the_last_received_byte(pty: tuple[int, str]) -> 
         t0 = time.monotonic()
         port.write(b"y")
         assert time.monotonic() - t0 >= 0.04
+
+
+def test_close_from_another_thread_ends_a_blocking_read(pty: tuple[int, str]) -> None:
+    """Port is a NativeHandle: close() waits for the reader to leave C, never frees under it."""
+    _, name = pty
+    port = Port(name)
+    result: list = []
+
+    def reader() -> None:
+        try:
+            result.append(port.read(1, timeout=30.0))
+        except ClosedError as exc:
+            result.append(exc)
+
+    t = threading.Thread(target=reader)
+    t.start()
+    deadline = time.monotonic() + 5
+    while not port._users and time.monotonic() < deadline:  # until the reader is inside C
+        time.sleep(0.001)
+    t0 = time.monotonic()
+    port.close()
+    t.join(5)
+    assert not t.is_alive() and time.monotonic() - t0 < 2.0
+    assert len(result) == 1 and isinstance(result[0], ClosedError)
