@@ -26,7 +26,12 @@ from typing import Any, Optional, Union
 from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
-    FapError, InvalidTypeError, InvalidValueError, PortBusyError, PortError, PortGoneError,
+    FapError,
+    InvalidTypeError,
+    InvalidValueError,
+    PortBusyError,
+    PortError,
+    PortGoneError,
     error_from_code,
 )
 from .rs485 import RS485, RS485Mode, port_options

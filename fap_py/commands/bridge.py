@@ -14,7 +14,13 @@ import signal
 import threading
 
 from ._options import (
-    EXIT_INTERRUPTED, BusError, UsageError, add_command, add_output_options, emit, seconds,
+    EXIT_INTERRUPTED,
+    BusError,
+    UsageError,
+    add_command,
+    add_output_options,
+    emit,
+    seconds,
 )
 
 log = logging.getLogger(__name__)
@@ -46,8 +52,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """The command; errors reach :func:`run_command` (one line, exit code by kind)."""
-    from fap_py.bridge import (Bridge, BridgeConfigError, BrokerRefusedError, MissingDependencyError,
-                               load_config)
+    from fap_py.bridge import (
+        Bridge,
+        BridgeConfigError,
+        BrokerRefusedError,
+        MissingDependencyError,
+        load_config,
+    )
 
     try:
         config = load_config(args.config)

@@ -17,8 +17,13 @@ import sys
 from typing import List, Optional
 
 from ._options import (
-    EXIT_INTERRUPTED, UsageError, add_command, add_output_options, add_port_options,
-    rs485_from_args, seconds,
+    EXIT_INTERRUPTED,
+    UsageError,
+    add_command,
+    add_output_options,
+    add_port_options,
+    rs485_from_args,
+    seconds,
 )
 
 log = logging.getLogger(__name__)
