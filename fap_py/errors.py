@@ -75,6 +75,18 @@ class PortError(FapError, OSError):
         self.path = path
 
 
+class PortBusyError(PortError):
+    """Another process (or another Port) holds the device: the exclusive lock (EBUSY)."""
+
+
+class PortGoneError(PortError):
+    """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
+
+
+#: errno values that mean the device is no longer there
+_GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
+
+
 @functools.lru_cache(maxsize=None)
 def _port_codes() -> Dict[str, int]:
     """libfap's own negative codes (include/fap_port.h), from the compiled core.
@@ -106,4 +118,8 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
         return FapTimeoutError(f"{prefix}{os.strerror(err)}")
     if err in (_errno.EINVAL, _errno.ERANGE):
         return InvalidValueError(f"{prefix}{os.strerror(err)}")
+    if err == _errno.EBUSY:
+        return PortBusyError(err, f"{prefix}port busy (held by another process or port)", path)
+    if err in _GONE:
+        return PortGoneError(err, f"{prefix}{os.strerror(err)} (device gone)", path)
     return PortError(err, f"{prefix}{os.strerror(err)}", path)

@@ -25,7 +25,15 @@ from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
-from .errors import FapError, InvalidTypeError, InvalidValueError, PortError, error_from_code
+from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
+    FapError,
+    InvalidTypeError,
+    InvalidValueError,
+    PortBusyError,
+    PortError,
+    PortGoneError,
+    error_from_code,
+)
 from .rs485 import RS485, RS485Mode, port_options
 
 PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
@@ -38,24 +46,21 @@ _FOREVER_NS = (1 << 63) - 1
 _SLICE_NS = int(WAIT_SLICE * 1e9)
 
 
-class PortBusyError(PortError):
-    """Another process (or another Port) holds the device: the exclusive lock (EBUSY)."""
-
-
-class PortGoneError(PortError):
-    """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
-
-
-_GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
+def _is_tty(path: bytes) -> bool:
+    """Whether ``path`` is a terminal (only asked on an open that failed)."""
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        return os.isatty(fd)
+    finally:
+        os.close(fd)
 
 
 def port_error(code: int, what: str, path: Optional[str]) -> FapError:
-    """The exception for a negative ``fap_port_*`` return code."""
-    err = -code
-    if err == _errno.EBUSY:
-        return PortBusyError(err, f"{what}: port busy (held by another process or port)", path)
-    if err in _GONE:
-        return PortGoneError(err, f"{what}: {os.strerror(err)} (device gone)", path)
+    """The exception for a negative ``fap_port_*`` return code (busy and gone
+    included: :func:`fap_py.errors.error_from_code`)."""
     return error_from_code(code, what, path)
 
 
@@ -116,6 +121,11 @@ class Port(NativeHandle):
         out = ffi.new("fap_port **")
         rc = lib.fap_port_open(out, raw, po)
         if rc:
+            if rc == -_errno.ENOTTY and self.rs485.mode == RS485Mode.KERNEL and _is_tty(raw):
+                # a terminal that refuses TIOCSRS485: say so, not "Inappropriate ioctl"
+                raise PortError(_errno.ENOTTY, "open: the device has no kernel RS-485 "
+                                "(TIOCSRS485: ENOTTY); use soft RTS or none (--rs485 soft|none)",
+                                self.path)
             raise port_error(rc, "open", self.path)
         self._buf = ffi.new("unsigned char[]", MAX_READ)
         self._buffer = ffi.buffer(self._buf)

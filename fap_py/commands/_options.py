@@ -193,16 +193,17 @@ seconds = _nonneg_float
 count = _nonneg_int
 
 
-def add_port_options(parser: argparse.ArgumentParser, *, baud_default: int = 115200,
-                     port_required: bool = True) -> argparse._ArgumentGroup:
+def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[int] = 115200,
+                     port_required: bool = True, rs485_default: str = "auto",
+                     port_help: str = "serial device (e.g. /dev/ttyUSB0, or a `fap bus` port)",
+                     baud_help: str = "line speed, bit/s") -> argparse._ArgumentGroup:
     """``--port PATH --baud N --rs485 MODE --rts-before MS --rts-after MS
-    --rts-polarity {high,low}``."""
+    --rts-polarity {high,low}``; a command whose --baud has no fixed default
+    (``baud_default=None``) says in ``baud_help`` what it falls back to."""
     g = parser.add_argument_group("serial port")
-    g.add_argument("--port", metavar="PATH", required=port_required,
-                   help="serial device (e.g. /dev/ttyUSB0, or a `fap bus` port)")
-    g.add_argument("--baud", metavar="N", type=baud, default=baud_default,
-                   help="line speed, bit/s")
-    g.add_argument("--rs485", choices=RS485_CHOICES, default="auto",
+    g.add_argument("--port", metavar="PATH", required=port_required, help=port_help)
+    g.add_argument("--baud", metavar="N", type=baud, default=baud_default, help=baud_help)
+    g.add_argument("--rs485", choices=RS485_CHOICES, default=rs485_default,
                    help="transmitter switching: kernel RS-485 ioctl (auto falls back to none "
                    "where the driver has none), soft = RTS toggled by the library, "
                    "none = auto-direction transceiver")

@@ -2,75 +2,79 @@
 
     fap bridge --config bridge.toml
     fap bridge --config bridge.toml --check      # validate the file and exit
+
+The ports are named in the file (each bus its own line options), so the
+command takes no --port; errors and exit codes are those of every command.
 """
 from __future__ import annotations
 
 import argparse
 import logging
 import signal
-import sys
 import threading
+
+from ._options import (
+    EXIT_INTERRUPTED,
+    BusError,
+    UsageError,
+    add_command,
+    add_output_options,
+    emit,
+    seconds,
+)
 
 log = logging.getLogger(__name__)
 
 
+EXAMPLE = """\
+fap bridge --config /etc/fap/bridge.toml --check
+fap bridge --config /etc/fap/bridge.toml -v"""
+
+
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "bridge", help="connect buses to an MQTT broker (needs the 'bridge' extra)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        description="Run the buses of a bridge.toml and publish them to an MQTT broker: "
-        "<prefix>/<bus>/<node>/rx, .../tx (subscribed), .../state (retained), .../error, "
-        "<prefix>/<bus>/stats, <prefix>/bridge/<host>/status. See docs/bridge.md.",
-        epilog="example: fap bridge --config /etc/fap/bridge.toml -v")
+    p = add_command(
+        sub, "bridge", help="connect buses to an MQTT broker (needs the 'bridge' extra)",
+        description="Run the buses of a bridge.toml and publish them to an MQTT broker:\n"
+        "  <prefix>/<bus>/<node>/rx, .../tx (subscribed), .../state (retained), .../error,\n"
+        "  <prefix>/<bus>/stats, <prefix>/bridge/<host>/status.\n"
+        "The ports and their line options are in the file. See docs/bridge.md.",
+        example=EXAMPLE)
     p.add_argument("--config", required=True, metavar="PATH", help="the bridge.toml")
     p.add_argument("--check", action="store_true", help="check the configuration and exit")
-    p.add_argument("--connect-timeout", type=float, default=None, metavar="S",
-                   help="fail if the broker is not reached within S seconds (None: retry forever)")
-    p.add_argument("--drain", type=float, default=5.0, metavar="S",
+    p.add_argument("--connect-timeout", type=seconds, default=None, metavar="S",
+                   help="fail if the broker is not reached within S seconds (not given: retry "
+                   "forever)")
+    p.add_argument("--drain", type=seconds, default=5.0, metavar="S",
                    help="at exit, wait up to S seconds for queued publications to reach the broker")
-    p.add_argument("--debug", action="store_true", help="traceback on error")
-    p.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
-                   help="log more (-v info, -vv debug), as before the subcommand")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
-def _fail(code: int, message: str) -> int:
-    print(f"fap: error: {message}", file=sys.stderr)
-    return code
-
-
 def run(args: argparse.Namespace) -> int:
-    try:
-        return _run(args)
-    except Exception:
-        if args.debug:
-            raise
-        exc = sys.exc_info()[1]
-        return _fail(1, f"{type(exc).__name__}: {exc}")
-
-
-def _run(args: argparse.Namespace) -> int:
-    from fap_py.bridge import (Bridge, BridgeConfigError, BrokerRefusedError, MissingDependencyError,
-                               load_config)
-    from fap_py.errors import PortError
+    """The command; errors reach :func:`run_command` (one line, exit code by kind)."""
+    from fap_py.bridge import (
+        Bridge,
+        BridgeConfigError,
+        BrokerRefusedError,
+        MissingDependencyError,
+        load_config,
+    )
 
     try:
         config = load_config(args.config)
-    except OSError as exc:
-        return _fail(3, f"{args.config}: {exc.strerror or exc}")
-    except BridgeConfigError as exc:
-        return _fail(2, f"{args.config}: {exc}")
+    except BridgeConfigError as exc:            # a bad file is a usage error (exit 2)
+        raise UsageError(f"{args.config}: {exc}") from exc
+    broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
     if args.check:
-        print(f"{args.config}: ok: {len(config.buses)} bus(es), broker "
-              f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}, "
-              f"prefix {config.prefix}, host {config.host}")
+        emit(args, {"config": args.config, "ok": True, "buses": [b.name for b in config.buses],
+                    "broker": broker, "prefix": config.prefix, "host": config.host},
+             f"{args.config}: ok: {len(config.buses)} bus(es), broker {broker}, "
+             f"prefix {config.prefix}, host {config.host}")
         return 0
     try:
         bridge = Bridge(config)
-    except MissingDependencyError as exc:
-        return _fail(2, str(exc))
-    except PortError as exc:
-        return _fail(3, str(exc))
+    except MissingDependencyError as exc:       # the extra is not installed (exit 2)
+        raise UsageError(str(exc)) from exc
     stop = threading.Event()
     interrupted = []
 
@@ -80,22 +84,20 @@ def _run(args: argparse.Namespace) -> int:
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        try:
-            bridge.start()
-        except PortError as exc:
-            return _fail(3, str(exc))
+        bridge.start()
         try:
             if args.connect_timeout is not None and not bridge.wait_connected(args.connect_timeout):
-                return _fail(1, f"broker {config.broker.host}:{config.broker.port} not reached "
-                             f"within {args.connect_timeout} s")
+                raise BusError(f"broker {config.broker.host}:{config.broker.port} not reached "
+                               f"within {args.connect_timeout} s")
             while not stop.wait(0.5):
                 if bridge.link.refused:
                     raise BrokerRefusedError(bridge.link.refused)
-        except BrokerRefusedError as exc:
-            return _fail(1, str(exc))
         finally:
             bridge.stop(drain=args.drain)
     finally:
         for s, h in old.items():
             signal.signal(s, h)
-    return 130 if signal.SIGINT in interrupted else 0
+    code = EXIT_INTERRUPTED if signal.SIGINT in interrupted else 0
+    emit(args, {"event": "stopped", "signal": interrupted[0] if interrupted else None,
+                "exit": code}, None)
+    return code

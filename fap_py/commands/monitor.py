@@ -2,72 +2,70 @@
 
     fap monitor --protocol fap --raw bytes.bin
     fap monitor --protocol auto --capture bus.cap --stats
-    fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --follow --json
+    fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --idle 5 --json
     some-reader | fap monitor --protocol g485 --pcap out.pcap
     fap monitor --dissectors ~/.local/lib/wireshark/plugins
 """
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
 import signal
 import sys
 from typing import List, Optional
 
+from ._options import (
+    EXIT_INTERRUPTED,
+    UsageError,
+    add_command,
+    add_output_options,
+    add_port_options,
+    rs485_from_args,
+    seconds,
+)
+
 log = logging.getLogger(__name__)
 
-EXAMPLES = """examples:
-  fap monitor --protocol fap --raw bytes.bin
-  fap monitor --protocol auto --capture bus.cap --stats
-  fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --follow --json
-  cat bytes.bin | fap monitor --protocol g485 --pcap out.pcap
-  fap monitor --dissectors ~/.local/lib/wireshark/plugins
+EXAMPLE = """\
+fap monitor --protocol fap --raw bytes.bin
+fap monitor --protocol auto --capture bus.cap --stats
+fap monitor --protocol exec --port /dev/ttyUSB0 --baud 115200 --follow --json
+cat bytes.bin | fap monitor --protocol g485 --pcap out.pcap
+fap monitor --dissectors ~/.local/lib/wireshark/plugins"""
+
+DESCRIPTION = """\
+A protocol analyser for FAP, exec async, mikroC and G485: reads a live port
+(receive-only), a raw byte file, a virtual-bus capture or stdin; prints
+frames, JSON, statistics, pcap. See docs/monitor.md.
+
 exit: 0 input read to its end (bad frames are reported, not failures),
       2 usage error, 3 file or port error, 130 interrupted"""
 
-EXIT_USAGE, EXIT_IO, EXIT_INTERRUPTED = 2, 3, 130
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
-    return value
-
-
-def _seconds(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number of seconds: {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
-    return value
-
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The monitor's options: input, decoder, outputs (the shared groups included)."""
     from fap_py.monitor.decoders import PROTOCOLS
 
     p.add_argument("--protocol", choices=list(PROTOCOLS) + ["auto"], default="auto",
                    help="decoder; auto tries all four and reports which one locks on")
-    src = p.add_mutually_exclusive_group()
-    src.add_argument("--port", metavar="PATH", help="live serial port, opened receive-only")
+    add_port_options(p, baud_default=None, port_required=False, rs485_default="none",
+                     port_help="live serial port, opened receive-only (or give --raw, --capture, "
+                     "or bytes on stdin)",
+                     baud_help="line rate: opens --port at it (115200 if not given); sets the "
+                     "inter-byte gap and bus utilisation for the other inputs (a capture's own "
+                     "rate if not given)")
+    src = p.add_argument_group("other inputs (instead of --port)")
     src.add_argument("--raw", metavar="FILE", help="raw bytes as recorded from a port")
     src.add_argument("--capture", metavar="FILE",
                      help="virtual-bus capture (fap bus --capture): senders and times kept")
-    p.add_argument("--baud", type=_positive_int, default=None, metavar="N",
-                   help="line rate: opens --port at it (default 115200); sets the inter-byte "
-                        "gap and bus utilisation for the other inputs")
     p.add_argument("--follow", action="store_true",
-                   help="live port: keep reading until interrupted (else stop after --timeout "
+                   help="live port: keep reading until interrupted (else stop after --idle "
                         "seconds of silence)")
-    p.add_argument("--timeout", type=_seconds, default=2.0, metavar="S",
-                   help="live port without --follow: stop after this much silence")
-    p.add_argument("--json", action="store_true", help="one JSON object per frame or error")
+    p.add_argument("--idle", type=seconds, default=2.0, metavar="S",
+                   help="live port without --follow: stop after this much silence, seconds")
+    add_output_options(p)
     p.add_argument("--stats", action="store_true",
                    help="print only the statistics (frames, errors per node, reply times)")
     p.add_argument("--pcap", metavar="FILE", help="also write every frame to this pcap file")
@@ -77,57 +75,24 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write the Wireshark extcap launcher to DIR (and exit if no input given)")
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no status lines on stderr (listening, auto lock); errors still")
-    p.add_argument("--debug", action="store_true", help="traceback on error")
-    p.add_argument("-v", "--verbose", action="count", default=0, dest="monitor_verbose",
-                   help="log more")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
-                       description="A protocol analyser for FAP, exec async, mikroC and G485: "
-                       "reads a live port (receive-only), a raw byte file, a virtual-bus capture "
-                       "or stdin; prints frames, JSON, statistics, pcap. See docs/monitor.md.",
-                       epilog=EXAMPLES,
-                       formatter_class=argparse.RawDescriptionHelpFormatter)
-    # RawDescription keeps the epilog; defaults are spelt out in the help texts
-    p.formatter_class = _Formatter
+    p = add_command(sub, "monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
+                    description=DESCRIPTION, example=EXAMPLE)
     add_arguments(p)
     p.set_defaults(func=run)
 
 
-class _Formatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
-    pass
-
-
-def _error(msg: str) -> None:
-    print(f"fap: error: {msg}", file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
-    if args.monitor_verbose:
-        logging.getLogger().setLevel(logging.INFO if args.monitor_verbose == 1 else logging.DEBUG)
+    """The command (errors reach :func:`run_command`, the one error path of ``fap``)."""
+    from fap_py.errors import PortError
+    from fap_py.vbus import CaptureFormatError
+
     try:
         return _run(args)
-    except KeyboardInterrupt:
-        return EXIT_INTERRUPTED
-    except BrokenPipeError:
-        return 0
-    except Exception as exc:  # noqa: BLE001 - one line, as every fap subcommand
-        if args.debug:
-            raise
-        from fap_py.errors import FapError, InvalidValueError
-        from fap_py.vbus import CaptureFormatError
-
-        if isinstance(exc, CaptureFormatError):     # an unreadable file, not bad arguments
-            _error(str(exc))
-            return EXIT_IO
-        if isinstance(exc, InvalidValueError):      # e.g. a rate the port refuses
-            _error(str(exc))
-            return EXIT_USAGE
-        if isinstance(exc, (OSError, FapError)):
-            _error(str(exc))
-            return EXIT_IO
-        raise
+    except CaptureFormatError as exc:    # an unreadable file, not bad arguments: exit 3
+        raise PortError(errno.EINVAL, str(exc)) from exc
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -141,14 +106,15 @@ def _run(args: argparse.Namespace) -> int:
     if args.extcap_dir:
         print(f"wrote {install.write_extcap(args.extcap_dir)}", file=sys.stderr)
         wrote = True
-    if wrote and not (args.port or args.raw or args.capture):
+    given = [name for name in ("port", "raw", "capture") if getattr(args, name)]
+    if len(given) > 1:
+        raise UsageError(f"give one input, not {' and '.join('--' + n for n in given)}")
+    if wrote and not given:
         return 0
     if args.follow and not args.port:
-        _error("--follow needs --port")
-        return EXIT_USAGE
-    if not (args.port or args.raw or args.capture) and sys.stdin.isatty():
-        _error("no input: give --port, --raw or --capture, or pipe bytes to stdin")
-        return EXIT_USAGE
+        raise UsageError("--follow needs --port")
+    if not given and sys.stdin.isatty():
+        raise UsageError("no input: give --port, --raw or --capture, or pipe bytes to stdin")
     return monitor(args)
 
 
@@ -167,7 +133,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     pcap = None
     try:
         if args.port:
-            live = LivePort(args.port, baud or 115200)
+            live = LivePort(args.port, baud or 115200, rs485_from_args(args))
             baud = live.baud
             # tells a person (and a test) that bytes from now on are seen
             if not args.quiet:
@@ -222,7 +188,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         if live is not None:
             with live:
                 try:
-                    for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.timeout,
+                    for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.idle,
                                              lambda: stopping[0]):
                         if chunk is None:
                             emit(mon.idle(live_now()))

@@ -604,59 +604,66 @@ def soak_check8(a: argparse.Namespace, proto: str) -> Dict[str, Any]:
 # -- command ------------------------------------------------------------------------
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser(
-        "soak", help="fault soak: master + slave processes on the paced virtual bus",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    from ._options import add_command, add_link_options, add_output_options, baud, count, seconds
+
+    p = add_command(
+        sub, "soak", help="fault soak: master + slave processes on the paced virtual bus",
         description=__doc__.split("\n\n")[1] if __doc__ else None,
-        epilog="example: fap soak --seconds 30 --slaves 4 --json")
+        example="fap soak --seconds 30 --slaves 4 --json")
     p.add_argument("--protocol", choices=["fap", "exec", "mikroc", "g485", "all"], default="all",
                    help="what to soak")
-    p.add_argument("--seconds", type=float, default=30.0, help="duration of each FAP / exec soak")
-    p.add_argument("--slaves", type=int, default=3, help="slave processes (1..31)")
-    p.add_argument("--baud", type=int, default=115200, help="paced bus rate")
-    p.add_argument("--bit-error-rate", type=float, default=2e-5, help="per byte, every port")
-    p.add_argument("--drop-rate", type=float, default=2e-5, help="per byte, every port")
-    p.add_argument("--timeout", type=float, default=0.1, help="exec async reply timeout, seconds")
-    p.add_argument("--retries", type=int, default=3, help="exec async retries")
-    p.add_argument("--master-rate", type=float, default=25.0, help="FAP messages/s the master queues")
-    p.add_argument("--slave-rate", type=float, default=10.0, help="FAP messages/s each slave queues")
-    p.add_argument("--check8-seconds", type=float, default=5.0, help="mikroC / G485 channel run time")
-    p.add_argument("--check8-ber", type=float, default=0.01, help="mikroC / G485 channel bit error rate")
-    p.add_argument("--sample", type=float, default=1.0, help="resource sampling period, seconds")
-    p.add_argument("--seed", type=int, default=12, help="seed of every random choice and fault")
-    p.add_argument("--json", action="store_true", help="one JSON object per protocol, one per line")
+    p.add_argument("--seconds", metavar="S", type=seconds, default=30.0,
+                   help="duration of each FAP / exec soak")
+    p.add_argument("--slaves", metavar="N", type=count, default=3, help="slave processes (1..31)")
+    p.add_argument("--baud", metavar="N", type=baud, default=115200, help="paced bus rate, bit/s")
+    p.add_argument("--bit-error-rate", metavar="P", type=seconds, default=2e-5,
+                   help="per byte, every port")
+    p.add_argument("--drop-rate", metavar="P", type=seconds, default=2e-5, help="per byte, every port")
+    link = add_link_options(p, timeout_default=0.1, retries_default=3)
+    link.description = "exec async master"
+    p.add_argument("--master-rate", metavar="R", type=seconds, default=25.0,
+                   help="FAP messages/s the master queues")
+    p.add_argument("--slave-rate", metavar="R", type=seconds, default=10.0,
+                   help="FAP messages/s each slave queues")
+    p.add_argument("--check8-seconds", metavar="S", type=seconds, default=5.0,
+                   help="mikroC / G485 channel run time")
+    p.add_argument("--check8-ber", metavar="P", type=seconds, default=0.01,
+                   help="mikroC / G485 channel bit error rate")
+    p.add_argument("--sample", metavar="S", type=seconds, default=1.0,
+                   help="resource sampling period, seconds")
+    p.add_argument("--seed", metavar="N", type=count, default=12,
+                   help="seed of every random choice and fault")
+    add_output_options(p)
     p.set_defaults(func=run)
 
 
-def _print(res: Dict[str, Any], as_json: bool) -> None:
-    if as_json:
-        print(json.dumps(res), flush=True)
-        return
-    print(f"== {res['protocol']}")
-    for k, v in res.items():
-        if k not in ("protocol", "master_stats"):
-            print(f"  {k}: {v}")
+def _human(res: Dict[str, Any]) -> str:
+    lines = [f"== {res['protocol']}"]
+    lines += [f"  {k}: {v}" for k, v in res.items() if k not in ("protocol", "master_stats")]
+    return "\n".join(lines)
 
 
 def run(a: argparse.Namespace) -> int:
-    if not 1 <= a.slaves <= 31 or a.seconds <= 0 or a.baud <= 0:
-        print("fap: error: --slaves 1..31, --seconds > 0, --baud > 0", file=sys.stderr)
-        return 2
+    """The command: one result per protocol (JSON line or text); exit 1 if FAP or exec
+    async delivered anything corrupted or twice. Errors reach ``run_command``."""
+    from ._options import UsageError, emit
+
+    if not 1 <= a.slaves <= 31 or a.seconds <= 0 or a.sample <= 0:
+        raise UsageError(f"need --slaves 1..31, --seconds > 0, --sample > 0 (not {a.slaves}, "
+                         f"{a.seconds}, {a.sample})")
+    if not (a.bit_error_rate <= 1 and a.drop_rate <= 1 and a.check8_ber <= 1):
+        raise UsageError("--bit-error-rate, --drop-rate and --check8-ber are probabilities (0..1)")
     protos = ["fap", "exec", "mikroc", "g485"] if a.protocol == "all" else [a.protocol]
     failed = False
-    try:
-        for proto in protos:
-            if proto == "fap":
-                res = soak_fap(a)
-            elif proto == "exec":
-                res = soak_exec(a)
-            else:
-                res = soak_check8(a, proto)
-            _print(res, a.json)
-            failed |= not res.get("ok", True)
-    except KeyboardInterrupt:
-        print("fap: error: interrupted", file=sys.stderr)
-        return 130
+    for proto in protos:
+        if proto == "fap":
+            res = soak_fap(a)
+        elif proto == "exec":
+            res = soak_exec(a)
+        else:
+            res = soak_check8(a, proto)
+        emit(a, res, _human(res))
+        failed |= not res.get("ok", True)
     return 1 if failed else 0
 
 

@@ -21,8 +21,7 @@ import functools
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any, Callable, Iterable, List, Optional, Tuple, TypeVar, Union
 
-from ..errors import ClosedError, FapError
-from ..port import PortGoneError
+from ..errors import ClosedError, FapError, PortGoneError
 from .codec import SetCommand
 from .errors import RETRYABLE_ERRORS, G485Error, G485FrameError, G485ValueError, NoResponseError
 from .master import Check, Data, Flow, G485Master, ReplyWaiter

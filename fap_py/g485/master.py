@@ -23,7 +23,7 @@ from enum import Enum
 from types import GeneratorType
 from typing import Any, Callable, Dict, Generator, Iterable, List, Optional, Tuple, Union
 
-from ..port import PortGoneError
+from ..errors import PortGoneError
 from ..rs485 import RS485
 from . import codec
 from .codec import (

@@ -13,6 +13,7 @@ from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
 from .._native import ffi, lib
 from ..errors import error_from_code
+from ..rs485 import RS485, RS485Mode, port_options
 from ..vbus import read_capture
 
 READ_SIZE = 65536
@@ -69,18 +70,18 @@ def stream(fd: int, baud: int = 0) -> Iterator[Chunk]:
 class LivePort:
     """A serial device opened receive-only (never transmits, RTS left alone).
 
-    Opened through fap_port_open with rs485 mode ``none`` and the
+    Opened through fap_port_open with rs485 mode ``none`` (unless told
+    otherwise) and the
     exclusive lock (TIOCEXCL + flock) on, so a port another program holds
     is refused (-EBUSY) instead of being shared by accident.
     """
 
-    def __init__(self, path: str, baud: int) -> None:
+    def __init__(self, path: str, baud: int, rs485: Optional[RS485] = None) -> None:
         self.path = path
         self.baud = baud
-        opts = ffi.new("fap_port_options *")
-        lib.fap_port_options_init(opts)
-        opts.baud = baud
-        opts.rs485_mode = lib.FAP_RS485_NONE
+        # mode NONE by default; an explicit RS-485 mode (kernel, soft RTS)
+        # keeps a transceiver whose driver enable is on RTS off the bus
+        opts = port_options(baud, rs485 if rs485 is not None else RS485(mode=RS485Mode.NONE))
         opts.exclusive = 1
         out = ffi.new("fap_port **")
         code = lib.fap_port_open(out, os.fsencode(path), opts)

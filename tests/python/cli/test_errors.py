@@ -25,6 +25,8 @@ BAUD_COMMANDS: List[List[str]] = [
     ["g485", "sim", "--port", "/dev/null", "--address", "1"],
     ["g485", "read", "--port", "/dev/null", "--address", "1", "--register", "1"],
     ["g485", "scan", "--port", "/dev/null"],
+    ["monitor", "--port", "/dev/null"],
+    ["soak", "--protocol", "mikroc"],
 ]
 
 
@@ -80,6 +82,22 @@ def test_usage_errors(fap) -> None:
     assert r.code == 2 and r.err == "fap: error: --to 4 is not one of --slaves [3]\n"
     r = fap("exec", "master", "--port", "x", "--node", "3", "zz")
     assert r.code == 2 and "not hex bytes" in r.err
+
+
+def test_every_port_error_exits_3() -> None:
+    """Busy, gone and cannot-open are all PortErrors (fap_py.errors), all exit 3."""
+    import errno
+
+    from fap_py import errors, port
+    from fap_py.commands._options import EXIT_PORT, exit_code_for
+
+    assert port.PortBusyError is errors.PortBusyError and port.PortGoneError is errors.PortGoneError
+    busy = errors.error_from_code(-errno.EBUSY, "open", "/dev/ttyX")
+    gone = errors.error_from_code(-errno.EIO, "read", "/dev/ttyX")
+    missing = errors.error_from_code(-errno.ENOENT, "open", "/dev/ttyX")
+    assert type(busy) is errors.PortBusyError and "busy" in str(busy)
+    assert type(gone) is errors.PortGoneError and type(missing) is errors.PortError
+    assert [exit_code_for(e) for e in (busy, gone, missing)] == [EXIT_PORT] * 3
 
 
 def test_port_errors_exit_3_one_line(fap, tmp_path) -> None:

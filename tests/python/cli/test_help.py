@@ -94,7 +94,8 @@ def test_every_command_has_the_shared_options(path: Tuple[str, ...], fap) -> Non
 
 def test_top_level_help_lists_every_command_and_exit_codes(fap) -> None:
     out = fap("--help").out
-    for name in ("bus", "demo", "exec", "fap", "g485", "mikroc", "ports", "version"):
+    for name in ("bridge", "bus", "demo", "exec", "fap", "g485", "mikroc", "monitor", "ports",
+                 "soak", "version"):
         assert f"    {name} " in out
     for line in ("0    ok", "1    the operation failed on the bus", "2    usage error",
                  "3    port or file error", "130  interrupted"):

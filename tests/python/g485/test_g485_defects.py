@@ -1,6 +1,7 @@
 """The four G485 defects of issue 14, each through its entry point (API or ``fap`` command)."""
 from __future__ import annotations
 
+import json
 import os
 import select
 import subprocess
@@ -98,8 +99,12 @@ def test_scan_command(vbus, capsys) -> None:
         with G485Master(vbus.paths[0], 115200, timeout=1.0) as warm:
             assert warm.read(2, 7) == b"\x02" and warm.read(9, 7) == b"\x09"
         assert main(["g485", "scan", "--port", vbus.paths[0], "--timeout", "0.01", "--retries", "5",
-                     "--last", "12"]) == 0
-    assert capsys.readouterr().out.split() == ["2", "9"]
+                     "--last", "12", "--json"]) == 0
+    objs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    # exactly the two devices, each once, and nothing else printed
+    assert [o["address"] for o in objs if o["event"] == "found"] == [2, 9]
+    assert objs[-1] == {"event": "summary", "found": [2, 9], "tried": 12}
+    assert len(objs) == 3
 
 
 def test_master_discards_stale_input_before_each_request(pty_link) -> None:
@@ -204,7 +209,7 @@ def test_g485_read_on_a_port_held_by_exec_slave_is_busy(exec_slave, capsys) -> N
 
     code = main(["g485", "read", "--port", exec_slave, "--address", "1", "--register", "7"])
     err = capsys.readouterr().err
-    assert code != 0 and "busy" in err, err
+    assert code == 3 and "busy" in err, err      # a port error, not a failure on the bus
 
 
 def test_two_g485_sim_commands_on_one_port(vbus, tmp_path) -> None:
@@ -214,7 +219,7 @@ def test_two_g485_sim_commands_on_one_port(vbus, tmp_path) -> None:
         assert "simulating" in first.stdout.readline()  # type: ignore[union-attr]
         second = subprocess.run([sys.executable, "-m", "fap_py", "g485", "sim", "--port", vbus.paths[1],
                                  "--address", "2"], capture_output=True, text=True, timeout=30, cwd=tmp_path)
-        assert second.returncode != 0 and "busy" in second.stderr, second.stderr
+        assert second.returncode == 3 and "busy" in second.stderr, second.stderr
     finally:
         first.terminate()
         first.wait(10)

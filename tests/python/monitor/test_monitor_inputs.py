@@ -122,4 +122,4 @@ def test_exit_codes(tmp_path):
     assert run_fap("monitor", "--port", str(tmp_path / "no-tty"), "--baud", "9600").returncode == 3
     assert run_fap("monitor", "--raw", "x", "--follow").returncode == 2
     help_text = run_fap("monitor", "--help").stdout.decode()
-    assert "examples:" in help_text and "default: auto" in help_text
+    assert "example:\n  fap monitor" in help_text and "default: auto" in help_text   # the shared style

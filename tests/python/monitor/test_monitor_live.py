@@ -60,7 +60,7 @@ def test_live_port_every_vector(protocol):
     with VirtualBus(ports=3) as bus:
         proc = start_monitor(fap_cmd() + ["monitor", "--protocol", protocol, "--port",
                                           bus.paths[2], "--baud", "115200", "--json",
-                                          "--timeout", IDLE_S])
+                                          "--idle", IDLE_S])
         node_write(bus.paths[0], data)
         out, err = proc.communicate(timeout=WAIT_S)
     assert proc.returncode == 0, err
@@ -100,7 +100,7 @@ def test_live_inter_byte_gap_abandons_a_partial_frame(protocol):
 def test_live_exec_master_and_slave_reply_times():
     with VirtualBus(ports=3) as bus:
         proc = start_monitor(fap_cmd() + ["monitor", "--protocol", "exec", "--port",
-                                          bus.paths[2], "--baud", "115200", "--timeout", IDLE_S])
+                                          bus.paths[2], "--baud", "115200", "--idle", IDLE_S])
         with Slave(bus.paths[1], node=7, handler=lambda req: req.data[::-1], rs485=LINE) as slave, \
                 Master(bus.paths[0], timeout=2.0, retries=0, rs485=LINE) as master:
             slave.start()
@@ -121,7 +121,7 @@ def test_live_port_lock_is_honoured():
     with VirtualBus(ports=2) as bus:
         with LivePort(bus.paths[1], 9600):
             res = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "9600",
-                                              "--timeout", "0.1"],
+                                              "--idle", "0.1"],
                                  capture_output=True, timeout=WAIT_S)
     assert res.returncode == 3
     assert res.stderr.decode().startswith("fap: error:")
@@ -130,11 +130,11 @@ def test_live_port_lock_is_honoured():
 def test_live_port_any_termios_rate_and_bad_rate():
     with VirtualBus(ports=2) as bus:
         ok = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "1500000",
-                                         "--timeout", "0.1", "--stats"],
+                                         "--idle", "0.1", "--stats"],
                             capture_output=True, timeout=WAIT_S)
         assert ok.returncode == 0, ok.stderr
         bad = subprocess.run(fap_cmd() + ["monitor", "--port", bus.paths[1], "--baud", "12345",
-                                          "--timeout", "0.1"], capture_output=True, timeout=WAIT_S)
+                                          "--idle", "0.1"], capture_output=True, timeout=WAIT_S)
     assert bad.returncode == 2, bad.stderr
 
 
