@@ -25,6 +25,7 @@ from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
+from ._validate import check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
     FapError,
     InvalidTypeError,
@@ -78,14 +79,9 @@ class PortStats:
 
 
 def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) -> float:
-    """``value`` as seconds: a finite int/float >= 0 (> 0 unless ``zero_ok``)."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise InvalidTypeError(f"{what} must be a number of seconds, not {type(value).__name__}")
-    value = float(value)
-    if not math.isfinite(value) or value < 0 or (value == 0 and not zero_ok):
-        raise InvalidValueError(f"{what} must be a finite number of seconds "
-                                f"{'>= 0' if zero_ok else '> 0'}, not {value}")
-    return value
+    """``value`` as seconds: a finite number >= 0 (> 0 unless ``zero_ok``),
+    checked by the package's one rule (:func:`fap_py._validate.check_seconds`)."""
+    return check_seconds(value, what, lo_open=not zero_ok)
 
 
 class Port(NativeHandle):

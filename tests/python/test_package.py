@@ -90,14 +90,15 @@ def test_python_constants_equal_the_compiled_core() -> None:
 def test_stats_dataclasses_name_every_c_counter() -> None:
     from dataclasses import fields
 
-    from fap_py import execasync, fap_types, mikroc, vbus
+    from fap_py import execasync, fap_types, mikroc, port, vbus
 
     for cls, ctype, skip in ((fap_types.Stats, "fapx_stats", ()),
                              (execasync.MasterStats, "execMasterStats", ()),
                              (execasync.SlaveStats, "execSlaveStats", ()),
                              (mikroc.NodeStats, "mikrocRS485_stats",
                               ("last_rx_error", "last_send_error", "last_address")),
-                             (vbus.VirtualBusStats, "fap_vbus_stats", ())):
+                             (vbus.VirtualBusStats, "fap_vbus_stats", ()),
+                             (port.PortStats, "fap_port_stats", ())):
         want = [n for n in _c_fields(ctype) if n not in skip]
         assert [f.name for f in fields(cls)] == want, cls.__name__
 
