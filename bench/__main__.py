@@ -220,6 +220,7 @@ class Runner:
     def py_run(self, kind: str, baud: int, seconds: float, capture: bool = False) -> Dict[str, Any]:
         """One bench_g485 client (this process) / server (child) run."""
         import bench_g485 as g
+
         from fap_py.vbus import VirtualBus
 
         label, _, _, _, _, serve_tail, client = PY_KINDS[kind]

@@ -14,7 +14,12 @@ from typing import List, Optional
 
 from . import __version__, commands
 from .commands._options import (
-    EXIT_CODES, EXIT_USAGE, Parser, add_global_flags, run_command, split_global_flags,
+    EXIT_CODES,
+    EXIT_USAGE,
+    Parser,
+    add_global_flags,
+    run_command,
+    split_global_flags,
 )
 
 EXAMPLE = """\

@@ -366,7 +366,7 @@ def run_command(func: Callable[[argparse.Namespace], Optional[int]],
         except OSError:  # pragma: no cover
             pass
         return EXIT_OK
-    except Exception as exc:  # noqa: BLE001 - the one place that turns errors into exit codes
+    except Exception as exc:
         code = exit_code_for(exc)
         if debug:
             traceback.print_exc()

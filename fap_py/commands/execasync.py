@@ -14,8 +14,17 @@ from dataclasses import asdict
 
 from ._node import add_payload_options, payloads, repetitions, scan, show, stop_on_sigterm
 from ._options import (
-    BusError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
-    add_repeat_options, emit, hexbytes, integer, rs485_from_args,
+    BusError,
+    add_actions,
+    add_command,
+    add_link_options,
+    add_output_options,
+    add_port_options,
+    add_repeat_options,
+    emit,
+    hexbytes,
+    integer,
+    rs485_from_args,
 )
 
 
@@ -99,7 +108,7 @@ def run_encode(args: argparse.Namespace) -> int:
 
 
 def run_decode(args: argparse.Namespace) -> int:
-    from fap_py.execasync import Decoder, MAX_FRAME
+    from fap_py.execasync import MAX_FRAME, Decoder
 
     dec = Decoder()
     frames = dec.feed(args.data)

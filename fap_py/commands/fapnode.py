@@ -15,8 +15,17 @@ from typing import Any, List
 
 from ._node import add_payload_options, payloads, show, stop_on_sigterm
 from ._options import (
-    BusError, UsageError, add_actions, add_command, add_output_options, add_port_options,
-    add_repeat_options, emit, integer, rs485_from_args, seconds,
+    BusError,
+    UsageError,
+    add_actions,
+    add_command,
+    add_output_options,
+    add_port_options,
+    add_repeat_options,
+    emit,
+    integer,
+    rs485_from_args,
+    seconds,
 )
 
 

@@ -18,8 +18,16 @@ from typing import Any
 
 from ._node import repetitions, scan, stop_on_sigterm
 from ._options import (
-    UsageError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
-    add_repeat_options, emit, integer, rs485_from_args,
+    UsageError,
+    add_actions,
+    add_command,
+    add_link_options,
+    add_output_options,
+    add_port_options,
+    add_repeat_options,
+    emit,
+    integer,
+    rs485_from_args,
 )
 
 

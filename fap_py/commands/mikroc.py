@@ -10,8 +10,17 @@ from dataclasses import asdict
 
 from ._node import add_payload_options, payloads, repetitions, show, stop_on_sigterm
 from ._options import (
-    BusError, add_actions, add_command, add_link_options, add_output_options, add_port_options,
-    add_repeat_options, emit, hexbytes, integer, rs485_from_args,
+    BusError,
+    add_actions,
+    add_command,
+    add_link_options,
+    add_output_options,
+    add_port_options,
+    add_repeat_options,
+    emit,
+    hexbytes,
+    integer,
+    rs485_from_args,
 )
 
 BAUD_DEFAULT = 19200   # the mikroC library's usual rate

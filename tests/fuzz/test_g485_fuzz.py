@@ -7,13 +7,14 @@ import pytest
 
 sys.path.insert(0, os.path.dirname(__file__))
 try:
-    from hypothesis import given, settings, strategies as st
+    from hypothesis import given, settings
+    from hypothesis import strategies as st
 except ImportError:                         # CI installs it: a missing tool fails there
     if os.environ.get("CI"):
         raise
     pytest.skip("hypothesis not installed", allow_module_level=True)
 
-import g485_fuzz  # noqa: E402
+import g485_fuzz
 
 FRAMES = g485_fuzz._valid_frames()
 EXAMPLES = int(os.environ.get("G485_FUZZ_EXAMPLES", "300"))

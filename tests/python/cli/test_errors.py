@@ -134,7 +134,6 @@ def test_bus_failure_exit_1(fap, bus) -> None:
 def test_interrupt_exit_130(tmp_path) -> None:
     import signal
     import subprocess
-    import sys
 
     from .conftest import fap_cmd
 

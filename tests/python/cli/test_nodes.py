@@ -8,8 +8,6 @@ import subprocess
 import threading
 from typing import List
 
-import pytest
-
 from fap_py import RS485, RS485Mode, execasync, mikroc
 from fap_py import Slave as FapSlave
 from fap_py.g485 import SimDevice, Simulator

@@ -8,7 +8,8 @@ from typing import Iterator, List
 import pytest
 
 from fap_py import RS485, RS485Mode, execasync, mikroc
-from fap_py import Master as FapMaster, Slave as FapSlave
+from fap_py import Master as FapMaster
+from fap_py import Slave as FapSlave
 from fap_py.vbus import VirtualBus
 
 LINE = RS485(mode=RS485Mode.NONE)

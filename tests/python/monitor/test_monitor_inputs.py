@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-
 from monitor_helpers import check_records, json_records, run_fap, stream, vectors
 
 PROTOCOLS = ["fap", "exec", "mikroc", "g485"]

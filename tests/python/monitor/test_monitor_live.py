@@ -12,10 +12,10 @@ import time
 from typing import List
 
 import pytest
+from monitor_helpers import check_records, fap_cmd, json_records, need_tool, stream, vectors
 
 from fap_py.execasync import RS485, Master, RS485Mode, Slave
 from fap_py.vbus import VirtualBus
-from monitor_helpers import check_records, fap_cmd, json_records, need_tool, stream, vectors
 
 PROTOCOLS = ["fap", "exec", "mikroc", "g485"]
 WAIT_S = 20.0            # deadline for the monitor to start listening or to finish

@@ -8,7 +8,6 @@ import subprocess
 from pathlib import Path
 
 import pytest
-
 from monitor_helpers import json_records, need_tool, run_fap, stream
 from test_monitor_inputs import write_capture
 
