@@ -33,7 +33,7 @@ PAYLOAD = 32                 #: bytes in every demo message (goodput = data_rx x
 SLAVE_IDS = (3, 7, 12, 18, 21, 25, 29, 31)
 TICK = 0.02                  #: seconds between traffic rounds
 # Protocol timing shortened for the demo (vendor defaults: 15 s, 1 s, 15 s).
-DEMO_TIMING = dict(id_cycle=0.2, id_answer_timeout=0.1, data_done_timeout=0.5)
+DEMO_TIMING = {"id_cycle": 0.2, "id_answer_timeout": 0.1, "data_done_timeout": 0.5}
 TTY_DURATION, PLAIN_DURATION = 10.0, 3.0
 BER = 0.00005              #: --faults: per-byte probability of a flipped bit
 
@@ -214,7 +214,7 @@ def _traffic(args: argparse.Namespace, bus: Any, master: "Master", slaves: List[
         time.sleep(TICK)   # pacing of the traffic generator, not synchronisation
 
 
-def _send(node: Any, to: int, text: str, full: type) -> None:
+def _send(node: Any, to: int, text: str, full: "type[BaseException]") -> None:
     data = text.encode().ljust(PAYLOAD)[:PAYLOAD]
     try:
         node.send(data, to, timeout=0)

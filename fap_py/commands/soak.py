@@ -362,7 +362,7 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     delivered = dup = 0
     for i in range(1, n + 1):
         for rec in incs[i]:
-            for (src_inc, s), c in rec.got.items():
+            for (_src_inc, s), c in rec.got.items():
                 if (i, s) in sent:
                     delivered += 1
                     dup += c - 1
@@ -382,7 +382,9 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
                     s_dup += c - 1
                 elif rec.killed:
                     lost_killed += 1
-    ev_of = lambda kind, sid=None: [t for t, k, i in events if k == kind and (sid is None or i == sid)]
+    def ev_of(kind: str, sid: Optional[int] = None) -> List[float]:
+        return [t for t, k, i in events if k == kind and (sid is None or i == sid)]
+
     rec_active = [t - restart_time for t in ev_of("SLAVE_ACTIVE", 1) if restart_time and t >= restart_time]
     reopened = [t - disc_end for t in ev_of("PORT_REOPENED") if disc_end and t >= disc_end - 1.0]
     counted_m2s = mstats["tx_unconfirmed"] + mstats["tx_to_inactive"] + \
@@ -519,8 +521,8 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
     bstats = bus.stats()
     bus.close()
     dup = dup_seq0 = 0
-    for node, ids in execs.items():
-        for i, seqs in ids.items():
+    for ids in execs.values():
+        for seqs in ids.values():
             if len(seqs) > 1:
                 if all(s == 0 for s in seqs):
                     dup_seq0 += len(seqs) - 1     # the documented SeqNo-0 retry cost

@@ -156,8 +156,7 @@ class Monitor:
     def idle_deadline(self) -> Optional[int]:
         if self.decoder is not None:
             return self.decoder.idle_deadline()
-        ds = [d.idle_deadline() for d in self._trials.values()]
-        ds = [d for d in ds if d is not None]
+        ds = [d for d in (t.idle_deadline() for t in self._trials.values()) if d is not None]
         return min(ds) if ds else None
 
     def idle(self, now_ns: int) -> List[Record]:

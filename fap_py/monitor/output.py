@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 import json
-from typing import Dict, Optional
+from typing import Dict, Optional, cast
 
 from .core import Record
 from .decoders import FIELDS
@@ -56,7 +56,7 @@ def human_line(rec: Record, t0: Optional[float] = None) -> str:
     t = "         -" if rec.t is None else f"{rec.t - (t0 or 0.0):10.6f}"
     port = "  " if rec.port is None else f"p{rec.port}"
     if rec.ok:
-        data = (rec.fields or {}).get("data") or b""
+        data = cast(bytes, (rec.fields or {}).get("data") or b"")
         body = f"{_who(rec)}  [{len(data)}] {data.hex(' ')}  |{printable(data)}|" if data \
             else f"{_who(rec)}  [0]"
         return f"{t} {port} {rec.protocol:<6} {body}"

@@ -19,7 +19,7 @@ Records without a time get the time of the previous one (0 at first).
 from __future__ import annotations
 
 import struct
-from typing import BinaryIO, Optional
+from typing import BinaryIO, Optional, cast
 
 from .core import Record
 
@@ -38,7 +38,7 @@ def header(rec: Record) -> bytes:
         | (FLAG_TIME if rec.t is not None else 0)
     text = rec.error
     if text is None and rec.fields:
-        text = rec.fields.get("msg_name") or rec.fields.get("packet")
+        text = cast(Optional[str], rec.fields.get("msg_name") or rec.fields.get("packet"))
     reason = (text or "").encode("ascii")[:255]
     port = 0xFF if rec.port is None else rec.port & 0xFF
     return bytes((HEADER_VERSION, PROTOCOL_IDS[rec.protocol], flags, port, len(reason))) + reason

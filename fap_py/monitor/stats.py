@@ -3,7 +3,7 @@ reply times (end of a request to the start of its answer) per node."""
 from __future__ import annotations
 
 from collections import defaultdict
-from typing import Dict, List, Optional
+from typing import Any, Dict, List, Optional
 
 from .core import Record
 
@@ -72,8 +72,9 @@ class Stats:
                 self.t_first = rec.t
             self.t_last = rec.t_end if rec.t_end is not None else rec.t
         if not rec.ok:
-            self.errors[rec.error] += 1
-            self.nodes["?"].errors[rec.error] += 1
+            reason = rec.error or "?"
+            self.errors[reason] += 1
+            self.nodes["?"].errors[reason] += 1
             return
         self.frames += 1
         self.frame_bytes += len(rec.raw)
@@ -98,7 +99,7 @@ class Stats:
             return None
         return min(1.0, self.bytes * 10.0 / self.baud / span)
 
-    def summary(self) -> Dict[str, object]:
+    def summary(self) -> Dict[str, Any]:
         nodes = {}
         for name in sorted(self.nodes, key=lambda k: (k == "?", int(k) if k.isdigit() else 0)):
             ns = self.nodes[name]

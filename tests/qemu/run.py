@@ -112,13 +112,13 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
             break
     idle_t = (t_assert if t_assert is not None else t_first) - 0.100
     idle_level = None
-    for i, t, pin in crs:
+    for _i, t, pin in crs:
         if t > idle_t:
             break
         idle_level = pin
     lvl = {True: "high", False: "low", None: "?"}
     edges, prev = [], None
-    for i, t, pin in crs:   # pin changes from 60 ms before the first byte on
+    for _i, t, pin in crs:   # pin changes from 60 ms before the first byte on
         if prev is not None and pin != prev and t_first - 0.060 - before / 1e3 < t < t_last + 0.060 + after / 1e3:
             edges.append(f"{lvl[pin]}@{(t - t_first) * 1e3:+.1f}ms")
         prev = pin
@@ -252,8 +252,8 @@ def main() -> int:
             slave_out += slave.communicate()[0]
     os.close(pty_fd)
     elapsed = time.monotonic() - t0
-    for l in slave_out.decode(errors="replace").splitlines():
-        print(f"host slave| {l}")
+    for text in slave_out.decode(errors="replace").splitlines():
+        print(f"host slave| {text}")
 
     results: list[tuple[str, bool, str]] = []
     for line in guest:
@@ -266,8 +266,8 @@ def main() -> int:
             parts = line.split()
             fields = dict(p.split("=", 1) for p in parts[2:])
             results.extend(judge_trace(parts[1], fields, writes))
-    m = [l for l in guest if l.startswith("FAP-MASTER-EXIT")]
-    replies = [l for l in guest if l.startswith("reply from 7:")]
+    m = [g for g in guest if g.startswith("FAP-MASTER-EXIT")]
+    replies = [g for g in guest if g.startswith("reply from 7:")]
     results.append(("fap_master_exchanges_with_host_slave",
                     bool(m) and m[0].endswith(" 0") and len(replies) == 3 and slave is not None
                     and slave.returncode == 0,

@@ -36,13 +36,13 @@ def one_cycle() -> None:
             s.stats()
         with execasync.Master(bus.paths[0]) as em, \
                 execasync.Slave(bus.paths[1], node=2, handler=lambda r: r.data) as es:
-            em.stats
-            es.stats
+            _ = em.stats
+            _ = es.stats
         with mikroc.Master(bus.paths[0]) as mm, mikroc.Slave(bus.paths[1], address=5) as ms:
-            mm.stats
-            ms.stats
+            _ = mm.stats
+            _ = ms.stats
         with G485Master(bus.paths[2]) as g:
-            g.stats
+            _ = g.stats
 
 
 def main() -> int:
