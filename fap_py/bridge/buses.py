@@ -334,7 +334,7 @@ class G485Adapter(BusAdapter):
         from ..g485 import G485Master
 
         c = self.cfg
-        self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries)
+        self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries, rs485=c.rs485)
 
     def engine_stats(self) -> Dict[str, Any]:
         return _stats(self.engine.stats)

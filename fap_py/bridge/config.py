@@ -163,9 +163,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw: Dict[str, Any] = dict(name=name, port=port, protocol=protocol, role=role)
     kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
                         50, 10_000_000, f"{where}.baud")
-    kw["rs485"] = _rs485(t, where)
-    if protocol == "g485" and kw["rs485"] != RS485():
-        raise BridgeConfigError(f"{where}: a g485 bus runs on pyserial; the rs485/rts keys do not apply")
+    kw["rs485"] = _rs485(t, where)   # every protocol opens its port through the C port layer
     # fap: how long a tx waits for room in the engine's queue; others: per attempt
     default_timeout = 1.0 if protocol == "fap" else 0.1
     kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, default_timeout)),
