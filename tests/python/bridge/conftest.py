@@ -12,9 +12,8 @@ from typing import Any, Callable, Iterator, List
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from mosquitto import MOSQUITTO, Mosquitto  # noqa: E402
-
-from bridge_helpers import Observer, need  # noqa: E402
+from bridge_helpers import Observer, need
+from mosquitto import MOSQUITTO, Mosquitto
 
 
 @pytest.fixture(scope="session")

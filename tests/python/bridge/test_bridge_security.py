@@ -5,7 +5,6 @@ import subprocess
 import sys
 
 import pytest
-
 from bridge_helpers import WAIT, bridge_config, need
 from mosquitto import MOSQUITTO, Mosquitto, make_tls
 
