@@ -16,7 +16,7 @@ import queue
 import select
 import threading
 import time
-from typing import Any, Dict, Optional, Protocol
+from typing import Any, Dict, List, Optional, Protocol, Tuple
 
 from ..errors import FapError, InvalidValueError
 from .config import BusConfig
@@ -59,7 +59,7 @@ def _int(req: Dict[str, Any], key: str, default: Any = ...) -> int:
 
 
 def _stats(obj: Any) -> Dict[str, Any]:
-    if dataclasses.is_dataclass(obj):
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
     return dict(obj.as_dict()) if hasattr(obj, "as_dict") else {}
 
@@ -189,7 +189,7 @@ class FapAdapter(BusAdapter):
         else:
             self.engine = Slave(c.port, c.baud, id=c.id, rs485=c.rs485)
 
-    _wake: Optional[tuple] = None   # a pipe that wakes the reader at stop
+    _wake: Optional[Tuple[int, int]] = None   # a pipe that wakes the reader at stop
 
     def start(self) -> None:
         self._wake = os.pipe()
@@ -216,10 +216,12 @@ class FapAdapter(BusAdapter):
     def _reader(self) -> None:
         from ..fap import EventKind
 
-        eng, name = self.engine, self.cfg.name
+        eng, name, wake = self.engine, self.cfg.name, self._wake
+        if wake is None:   # start() opens the pipe before the reader runs
+            return
         poller = select.poll()
         poller.register(eng.fileno(), select.POLLIN)
-        poller.register(self._wake[0], select.POLLIN)
+        poller.register(wake[0], select.POLLIN)
         active = {EventKind.SLAVE_ACTIVE: True, EventKind.SLAVE_INACTIVE: False,
                   EventKind.ID_TIMEOUT: False}
         while not self._stop.is_set():
@@ -227,7 +229,7 @@ class FapAdapter(BusAdapter):
             if self._stop.is_set():
                 return
             try:
-                batch = []
+                batch: List[Tuple[int, Dict[str, Any]]] = []
                 while len(batch) < 500:     # what is queued now: one disk transaction
                     msg = eng.recv_nowait()
                     if msg is None:
@@ -334,7 +336,7 @@ class G485Adapter(BusAdapter):
         from ..g485 import G485Master
 
         c = self.cfg
-        self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries)
+        self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries, rs485=c.rs485)
 
     def engine_stats(self) -> Dict[str, Any]:
         return _stats(self.engine.stats)

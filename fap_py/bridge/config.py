@@ -160,12 +160,10 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     role = _pop(t, "role", str, where, "master")
     if role not in ("master", "slave") or (role == "slave" and protocol != "fap"):
         raise BridgeConfigError(f"{where}.role {role!r}: only fap buses may be a slave")
-    kw: Dict[str, Any] = dict(name=name, port=port, protocol=protocol, role=role)
+    kw: Dict[str, Any] = {"name": name, "port": port, "protocol": protocol, "role": role}
     kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
                         50, 10_000_000, f"{where}.baud")
-    kw["rs485"] = _rs485(t, where)
-    if protocol == "g485" and kw["rs485"] != RS485():
-        raise BridgeConfigError(f"{where}: a g485 bus runs on pyserial; the rs485/rts keys do not apply")
+    kw["rs485"] = _rs485(t, where)   # every protocol opens its port through the C port layer
     # fap: how long a tx waits for room in the engine's queue; others: per attempt
     default_timeout = 1.0 if protocol == "fap" else 0.1
     kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, default_timeout)),
@@ -232,7 +230,7 @@ def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
 def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
     where = "broker"
     host, port, tls, user, password = parse_url(_pop(t, "url", str, where))
-    kw: Dict[str, Any] = dict(host=host, port=port, tls=tls)
+    kw: Dict[str, Any] = {"host": host, "port": port, "tls": tls}
     kw["username"] = _pop(t, "username", str, where, user)
     kw["password"] = _pop(t, "password", str, where, password)
     pw_file = _pop(t, "password_file", str, where, None)
@@ -286,7 +284,7 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
         raise BridgeConfigError(f"bridge.topic_prefix {prefix!r}: empty or holds a wildcard")
     if not host or any(c in host for c in "/+#"):
         raise BridgeConfigError(f"bridge.host {host!r}: empty or holds / or a wildcard")
-    kw: Dict[str, Any] = dict(broker=broker, buses=buses, host=host, prefix=prefix)
+    kw: Dict[str, Any] = {"broker": broker, "buses": buses, "host": host, "prefix": prefix}
     kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
     kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, "."))
     kw["queue_max"] = _range(_pop(bridge, "queue_max", int, where, 100_000), 10, 100_000_000, "bridge.queue_max")

@@ -81,7 +81,9 @@ class Store:
             self._rows += 1
             if self._rows > self.queue_max:
                 self._drop_oldest(self._rows - self.queue_max)
-            return int(cur.lastrowid)
+            rowid = cur.lastrowid
+            assert rowid is not None, "an INSERT always sets lastrowid"
+            return rowid
 
     def put_many(self, items: List[Tuple[str, bytes, bool]]) -> None:
         """Append several publications in one transaction."""

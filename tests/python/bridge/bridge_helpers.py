@@ -6,7 +6,18 @@ import os
 import threading
 from typing import Any, Callable, Dict, List, Optional
 
+import pytest
+
 WAIT = float(os.environ.get("FAP_TEST_WAIT", "20"))   # longest wait for one expected message
+
+
+def need(what: str, ok: bool) -> None:
+    """Skip when ``what`` is missing, but fail under ``CI`` (CI installs it)."""
+    if ok:
+        return
+    if os.environ.get("CI"):
+        pytest.fail(f"{what} is missing (CI installs it)")
+    pytest.skip(f"{what} is not installed")
 
 
 class Observer:

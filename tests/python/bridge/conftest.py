@@ -12,17 +12,8 @@ from typing import Any, Callable, Iterator, List
 import pytest
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from mosquitto import MOSQUITTO, Mosquitto  # noqa: E402
-
-from bridge_helpers import Observer  # noqa: E402
-
-
-def _need(what: str, ok: bool) -> None:
-    if ok:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"{what} is missing (CI installs it)")
-    pytest.skip(f"{what} is not installed")
+from bridge_helpers import Observer, need
+from mosquitto import MOSQUITTO, Mosquitto
 
 
 @pytest.fixture(scope="session")
@@ -31,13 +22,13 @@ def paho_mqtt() -> Any:
         import paho.mqtt.client as mqtt
     except ImportError:
         mqtt = None
-    _need("paho-mqtt (pip install 'fap_py[bridge]')", mqtt is not None)
+    need("paho-mqtt (pip install 'fap_py[bridge]')", mqtt is not None)
     return mqtt
 
 
 @pytest.fixture
 def broker(tmp_path: Any, paho_mqtt: Any) -> Iterator[Mosquitto]:
-    _need("mosquitto", MOSQUITTO is not None)
+    need("mosquitto", MOSQUITTO is not None)
     with Mosquitto(str(tmp_path / "broker")) as b:
         yield b
 

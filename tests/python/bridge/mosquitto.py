@@ -105,8 +105,8 @@ def make_tls(workdir: str, host: str = "127.0.0.1") -> dict:
     from cryptography.x509.oid import NameOID
 
     now = datetime.datetime.now(datetime.timezone.utc)
-    valid = dict(not_valid_before=now - datetime.timedelta(minutes=5),
-                 not_valid_after=now + datetime.timedelta(days=2))
+    valid = {"not_valid_before": now - datetime.timedelta(minutes=5),
+                 "not_valid_after": now + datetime.timedelta(days=2)}
 
     def name(cn: str) -> x509.Name:
         return x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)])

@@ -3,12 +3,13 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
 from fap_py.bridge.config import BridgeConfigError, from_dict, load, parse_url
 from fap_py.errors import InvalidValueError
-from fap_py.fap import RS485Mode
+from fap_py.fap import RS485, RS485Mode
 
 BROKER = {"url": "mqtt://127.0.0.1"}
 
@@ -54,6 +55,9 @@ name = "valves"
 port = "/dev/ttyUSB2"
 protocol = "g485"
 poll_interval = 0.5
+rs485 = "soft"
+rts_after = 2
+echo_suppression = true
 device = [{address = 1, registers = [[1, 7], [8, 4]]}, {address = 2}]
 
 [[bus]]
@@ -79,6 +83,11 @@ protocol = "mikroc"
     assert line1.timeout == 1.0 and ex.timeout == 0.1
     assert (cell.role, cell.id) == ("slave", 4)
     assert valves.devices[0].registers == ((1, 7), (8, 4)) and valves.devices[1].registers == ()
+    # a g485 bus takes the same RS-485 keys as the others (all run on the C port layer)
+    assert valves.rs485 == RS485(mode=RS485Mode.SOFT_RTS, rts_active_high=True, delay_before_send_us=0,
+                                 delay_after_send_us=2000, echo_suppression=True)
+    assert ex.rs485 == RS485(mode=RS485Mode.AUTO, rts_active_high=True, delay_before_send_us=0,
+                             delay_after_send_us=0, echo_suppression=False)   # the documented defaults
     assert ex.nodes == (5, 6) and ex.poll_data == b"\x01\x02"
     assert mk.baud == 19200
 
@@ -101,7 +110,8 @@ protocol = "mikroc"
     ({"broker": BROKER, "bus": [_bus(protocol="execasync", role="slave")]}, "slave"),
     ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[{"address": 1, "registers": [[99, 5]]}])]},
      "count"),
-    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[], rs485="kernel")]}, "pyserial"),
+    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[], rs485="maybe")]}, "rs485"),
+    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[], rts_polarity="up")]}, "rts_polarity"),
     ({"broker": BROKER, "bridge": {"qos": 3}, "bus": [_bus()]}, "qos"),
     ({"broker": BROKER, "bridge": {"topic_prefix": "a/#"}, "bus": [_bus()]}, "wildcard"),
     ({"broker": BROKER, "bus": [_bus()], "extra": 1}, "extra"),
@@ -110,6 +120,15 @@ def test_bad_configs_name_the_key(data, words):
     with pytest.raises(BridgeConfigError, match=words.replace("[", r"\[").replace("]", r"\]")) as info:
         from_dict(data)
     assert isinstance(info.value, InvalidValueError)
+
+
+def test_shipped_example_parses():
+    example = Path(__file__).resolve().parents[3] / "examples" / "bridge" / "bridge.toml"
+    cfg = load(str(example))
+    assert [b.protocol for b in cfg.buses] == ["fap", "fap", "g485", "execasync", "mikroc"]
+    valves = cfg.buses[2]
+    assert valves.rs485.mode == RS485Mode.SOFT_RTS and valves.rs485.echo_suppression
+    assert valves.rs485.delay_after_send_us == 1000
 
 
 def test_url_defaults():

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import pytest
-
 from bridge_helpers import WAIT, bridge_config
 
 

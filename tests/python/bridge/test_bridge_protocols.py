@@ -48,6 +48,35 @@ def test_g485_polling_write_set(broker, observer_factory, tmp_path):
             assert stats["engine"]["transactions"] > 0 and stats["engine"]["no_response"] > 0
 
 
+
+def test_g485_line_options_reach_the_master(broker, observer_factory, tmp_path):
+    """echo_suppression on a bus that does not echo: the C port layer waits
+    for an echo that never comes, so every transaction fails with a bus
+    collision. That only happens if the bus's line options reach G485Master."""
+    from fap_py.bridge import Bridge
+    from fap_py.g485 import SimDevice, Simulator
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(2) as bus, Simulator(bus.paths[1], [SimDevice(1)]):
+        obs = observer_factory(broker.port)
+        for name, echo in (("plain", False), ("echo", True)):
+            buses = [{"name": name, "port": bus.paths[0], "protocol": "g485", "rs485": "none",
+                      "rts_polarity": "low", "echo_suppression": echo, "poll_interval": 0.05,
+                      "timeout": 0.2, "retries": 0, "device": [{"address": 1, "registers": [[1, 2]]}]}]
+            with Bridge(bridge_config(broker.port, str(tmp_path / name), buses)) as bridge:
+                assert bridge.wait_connected(WAIT)
+                obs.publish(f"fap/{name}/1/tx", {"id": f"r-{name}", "op": "read", "register": 1, "count": 2})
+                if echo:
+                    (err,) = obs.wait_for(f"fap/{name}/1/error", lambda d: d["id"] == "r-echo")
+                    assert "EchoMismatch" in err["error"] and "collision" in err["error"]
+                    obs.wait_for(f"fap/{name}/1/state", lambda d: d["state"] == "inactive")
+                    (stats,) = obs.wait_for(f"fap/{name}/stats", lambda d: d["bridge"]["poll_errors"] > 0)
+                    assert stats["bridge"]["rx"] == 0 and not obs.matching(f"fap/{name}/1/rx")
+                else:
+                    (m,) = obs.wait_for(f"fap/{name}/1/rx", lambda d: d.get("reply_to") == "r-plain")
+                    assert m["data"] == "0b01"
+                    obs.wait_for(f"fap/{name}/1/state", lambda d: d["state"] == "active")
+
 def test_execasync_master(broker, observer_factory, tmp_path):
     from fap_py.bridge import Bridge
     from fap_py.execasync import Slave

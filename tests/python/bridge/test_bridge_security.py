@@ -5,8 +5,7 @@ import subprocess
 import sys
 
 import pytest
-
-from bridge_helpers import WAIT, bridge_config
+from bridge_helpers import WAIT, bridge_config, need
 from mosquitto import MOSQUITTO, Mosquitto, make_tls
 
 
@@ -26,9 +25,7 @@ def _buses(bus):
 
 @pytest.fixture
 def need_mosquitto(paho_mqtt):
-    from conftest import _need
-
-    _need("mosquitto", MOSQUITTO is not None)
+    need("mosquitto", MOSQUITTO is not None)
 
 
 def test_tls_with_throwaway_ca(need_mosquitto, observer_factory, fap_pair, tmp_path):
