@@ -46,7 +46,6 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(HERE, "..", "..", "tests", "python", "bridge"))
 
 import paho.mqtt.client as mqtt  # noqa: E402
-
 from mosquitto import Mosquitto  # noqa: E402
 
 from fap_py.fap import Slave  # noqa: E402

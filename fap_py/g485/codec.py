@@ -477,15 +477,17 @@ class Parser:
                 pos = i + 1
                 continue
             end = i + HEADER_SIZE + length
+            if buf[i + 2] == SMA_R and 0 < self._request_end(i + 1) <= end:
+                # FF FF FF LEN is a reply header only if nothing better fits: after the
+                # wake-up preamble (FF FF FF FF) it is the request FF FF ADDR starting one
+                # byte later, complete and well-checked, that this header swallows. The
+                # request must end no later than the reply would: then the choice is the
+                # same however the bytes arrive (whole, in chunks or one by one).
+                events.append(Discarded(bytes(buf[i:i + 1]), ParseIssue.GARBAGE,
+                                        "0xff before a request (wake-up preamble)"))
+                pos = i + 1
+                continue
             if end > n:
-                if buf[i + 2] == SMA_R and self._request_after(i + 1):
-                    # FF FF FF LEN is a reply header only if nothing better fits: after the
-                    # wake-up preamble (FF FF FF FF) it is the request FF FF ADDR starting one
-                    # byte later, complete and well-checked, that this header swallows
-                    events.append(Discarded(bytes(buf[i:i + 1]), ParseIssue.GARBAGE,
-                                            "0xff before a request (wake-up preamble)"))
-                    pos = i + 1
-                    continue
                 break
             frame = bytes(buf[i:end])
             expected = check_byte(frame[2:-1])
@@ -506,17 +508,19 @@ class Parser:
             del buf[:pos]
         return events
 
-    def _request_after(self, j: int) -> bool:
-        """True if a whole, well-checked request frame starts at buffer offset ``j``."""
+    def _request_end(self, j: int) -> int:
+        """The end offset of a whole, well-checked request frame starting at buffer
+        offset ``j``; 0 if there is none (yet)."""
         buf = self._buf
         if len(buf) - j < HEADER_SIZE + MIN_LENGTH or buf[j:j + 2] != START or buf[j + 2] == SMA_R:
-            return False
+            return 0
         length = buf[j + 3]
         end = j + HEADER_SIZE + length
         if length < MIN_LENGTH or length > MAX_LENGTH or end > len(buf):
-            return False
+            return 0
         frame = bytes(buf[j:end])
-        return check_byte(frame[2:-1]) == frame[-1] and classify(frame[2], length, frame[4]) is not None
+        ok = check_byte(frame[2:-1]) == frame[-1] and classify(frame[2], length, frame[4]) is not None
+        return end if ok else 0
 
     def expire(self) -> List[Event]:
         """The line went idle: drop held partial frames byte by byte, re-parsing the rest."""

@@ -35,3 +35,17 @@ def test_frames_with_noise(parts: list, seed: int) -> None:
     clean = [p for p in parts if p in FRAMES]
     if len(clean) == len(parts):            # nothing but frames: every one is found
         assert found == len(parts)
+
+
+# Found by the fuzz smoke: preamble, a request, then a reply whose first bytes
+# with the request's read as an FF FF FF 07 reply header with a matching check.
+# Whole, the reply header used to win; byte by byte, the request: the parser's
+# choice must not depend on how the bytes arrive.
+PREAMBLE_REQUEST_REPLY = bytes.fromhex(
+    "ffffffff07027e78ffffff047e123438037f7fffffff020c0d32323232323232323232f0")
+
+
+def test_preamble_request_choice_does_not_depend_on_chunking() -> None:
+    assert g485_fuzz.check(PREAMBLE_REQUEST_REPLY) == 3
+    for seed in range(50):
+        g485_fuzz.check(PREAMBLE_REQUEST_REPLY, seed)
