@@ -40,6 +40,23 @@ _HDR = struct.Struct(">BBHI")      # src, dst, incarnation, seq
 
 # -- messages -------------------------------------------------------------
 
+
+def _teardown(master: Any, sampler: Any, children: Dict[Any, Any], threads: List[Any],
+              bus: Any) -> Any:
+    """Stop the sampler, close the master, kill the slave processes, join the
+    reader threads; return the bus counters (read before the bus closes)."""
+    sampler.stop.set()
+    sampler.join()
+    master.close()
+    for p in children.values():
+        p.kill()
+        p.wait()
+    for th in threads:
+        th.join(timeout=2)
+    bstats = bus.stats()
+    bus.close()
+    return bstats
+
 def make_message(src: int, dst: int, inc: int, seq: int, rnd: random.Random,
                  lo: int = 16, hi: int = 200) -> bytes:
     """Header (src, dst, incarnation, seq) + random payload + SHA-256 of both."""
@@ -347,16 +364,7 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
         time.sleep(0.1)                  # polling a counter with a deadline
     stop.set()
     mstats = master.stats().as_dict()
-    sampler.stop.set()
-    sampler.join()
-    master.close()
-    for p in children.values():
-        p.kill()
-        p.wait()
-    for t in threads:
-        t.join(timeout=2)
-    bstats = bus.stats()
-    bus.close()
+    bstats = _teardown(master, sampler, children, threads, bus)
 
     # master -> slaves
     delivered = dup = 0
@@ -510,16 +518,7 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
     time.sleep(0.3)
     st = master.stats
     mstats = {k: int(getattr(st, k)) for k in st.__dataclass_fields__}
-    sampler.stop.set()
-    sampler.join()
-    master.close()
-    for p in children.values():
-        p.kill()
-        p.wait()
-    for th in threads:
-        th.join(timeout=2)
-    bstats = bus.stats()
-    bus.close()
+    bstats = _teardown(master, sampler, children, threads, bus)
     dup = dup_seq0 = 0
     for ids in execs.values():
         for seqs in ids.values():
