@@ -53,6 +53,7 @@ class PortIO:
         self.baudrate = p.baudrate
         self._read = p.read_until
         self._write = p.write
+        self._transact = p.transact
         # waiting for a reply: poll here, then one read in C (the C read would first try a
         # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
         self._poller: Optional[select.poll] = None
@@ -81,6 +82,23 @@ class PortIO:
                 return b""
             return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+
+    def exchange(self, data: bytes, n: int, timeout: float) -> bytes:
+        """Drop stale input, write ``data``, then up to ``n`` bytes of the reply, waiting at
+        most ``timeout`` seconds for the first (b"" if nothing came): one call into C
+        (``fap_port_transact``). ``timeout`` must include the request's wire time."""
+        try:
+            return self._transact(data, n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+        except BusCollisionError as exc:
+            raise EchoMismatchError(f"{self.name}: {exc}") from None
+
+    def send_fresh(self, data: bytes) -> None:
+        """:meth:`flush_input` then :meth:`write` in one call into C (the reply is
+        awaited elsewhere, e.g. by an event loop's reader)."""
+        try:
+            self._transact(data, 0, 0)
+        except BusCollisionError as exc:
+            raise EchoMismatchError(f"{self.name}: {exc}") from None
 
     def _watch(self) -> None:
         """(Re)build the poller on the port's current fd (after open and after a reopen)."""
