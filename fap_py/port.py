@@ -181,6 +181,17 @@ class Port(NativeHandle):
             raise port_error(rc, "write", self.path)
         return int(rc)
 
+    def send(self, data: bytes) -> int:
+        """:meth:`write` without ``tcdrain`` unless soft RTS or echo suppression needs it
+        (``fap_port_send``): it returns once the bytes are queued, for a reply or a
+        broadcast that nobody times from the write's return. ``data`` must be bytes."""
+        if type(data) is not bytes:
+            raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
+        rc = self._call(self._lib.fap_port_send, data, len(data))
+        if rc < 0:
+            raise port_error(rc, "write", self.path)
+        return int(rc)
+
     def read(self, n: int = MAX_READ, timeout: Optional[float] = None, *,
              deadline_ns: Optional[int] = None) -> bytes:
         """Up to ``n`` bytes, waiting for the first until ``timeout`` seconds

@@ -317,6 +317,15 @@ ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
     return port_write(p, buf, n, 0);
 }
 
+ssize_t fap_port_send(fap_port *p, const void *buf, size_t n)
+{
+    if (!p || (!buf && n) || n > SSIZE_MAX)
+        return -EINVAL;
+    if (n == 0)
+        return 0;
+    return port_write(p, buf, n, 1);
+}
+
 /* ---- read -------------------------------------------------------------- */
 
 /* poll_first: the caller just sent a request, so nothing is there yet:

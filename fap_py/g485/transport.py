@@ -52,7 +52,7 @@ class PortIO:
         self.name = p.path
         self.baudrate = p.baudrate
         self._read = p.read_until
-        self._write = p.write
+        self._write = p.send  # replies and broadcasts: nobody times them from the write's return
         self._transact = p.transact
         # waiting for a reply: poll here, then one read in C (the C read would first try a
         # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
@@ -114,9 +114,10 @@ class PortIO:
         return self._read(n, 0)
 
     def write(self, data: bytes) -> None:
-        """Write all of ``data`` (direction switching, drain and echo check in C)."""
+        """Write all of ``data`` (direction switching, echo check in C; ``tcdrain`` only
+        where soft RTS or echo suppression needs it: ``fap_port_send``)."""
         try:
-            self._write(data)
+            self._write(bytes(data))
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 

@@ -815,6 +815,15 @@ static void test_transact_modes(void)
         CHECK_EQ(count_ev(&f, EV_DRAIN), 1);
         char m;
         CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+        /* fap_port_send: the same write, drained only where soft RTS needs it */
+        f.nev = 0;
+        CHECK_EQ(fap_port_send(p, "z", 1), 1);
+        CHECK_EQ(count_ev(&f, EV_WRITE), 1);
+        CHECK_EQ(count_ev(&f, EV_DRAIN), modes[i] == FAP_RS485_SOFT_RTS ? 1 : 0);
+        CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+        CHECK_EQ(m, 'z');
+        CHECK_EQ(fap_port_send(p, NULL, 1), -EINVAL);
+        CHECK_EQ(fap_port_send(p, "z", 0), 0);
         /* no reply awaited (cap 0); bad arguments */
         CHECK_EQ(fap_port_transact(p, "y", 1, NULL, 0, 0), 0);
         CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);

@@ -286,3 +286,15 @@ def test_transact_with_echo_suppression() -> None:
         assert port.transact(b"\x10\x20", 4, time.monotonic_ns() + 50_000_000) == b""  # echo not a reply
         assert other.read(2, timeout=2.0) == b"\x10\x20"
         assert port.stats.echo_bytes == 2
+
+
+def test_send_writes_and_checks_its_argument(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name) as port:
+        assert port.send(b"abc") == 3
+        got = b""
+        while len(got) < 3:
+            got += os.read(far, 3)
+        assert got == b"abc"
+        with pytest.raises(FapError):
+            port.send(bytearray(b"x"))  # type: ignore[arg-type]
