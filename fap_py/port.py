@@ -181,6 +181,17 @@ class Port(NativeHandle):
             raise port_error(rc, "write", self.path)
         return int(rc)
 
+    def send(self, data: bytes) -> int:
+        """:meth:`write` without ``tcdrain`` unless soft RTS or echo suppression needs it
+        (``fap_port_send``): it returns once the bytes are queued, for a reply or a
+        broadcast that nobody times from the write's return. ``data`` must be bytes."""
+        if type(data) is not bytes:
+            raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
+        rc = self._call(self._lib.fap_port_send, data, len(data))
+        if rc < 0:
+            raise port_error(rc, "write", self.path)
+        return int(rc)
+
     def read(self, n: int = MAX_READ, timeout: Optional[float] = None, *,
              deadline_ns: Optional[int] = None) -> bytes:
         """Up to ``n`` bytes, waiting for the first until ``timeout`` seconds
@@ -221,6 +232,31 @@ class Port(NativeHandle):
                 raise port_error(got, "read", self.path)
             if step >= deadline_ns:
                 return b""
+
+    def transact(self, data: bytes, n: int, deadline_ns: int) -> bytes:
+        """One request/reply round (``fap_port_transact``): drop input received and
+        not read yet, write all of ``data``, then up to ``n`` bytes of the reply
+        (0..MAX_READ; 0 = none awaited), waiting for the first until the absolute
+        ``deadline_ns`` (``time.monotonic_ns()``; 0 = do not wait): b"" then.
+
+        One call into C instead of three. The write skips ``tcdrain`` unless soft
+        RTS or echo suppression needs it, so ``deadline_ns`` must allow for the
+        request's own wire time. Raises like :meth:`write` and :meth:`read`.
+        """
+        if type(data) is not bytes or type(n) is not int or type(deadline_ns) is not int \
+                or not 0 <= n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
+            raise InvalidValueError(f"transact({type(data).__name__}, {n}, {deadline_ns}) out of range")
+        step = deadline_ns
+        if deadline_ns:
+            step = min(deadline_ns, time.monotonic_ns() + _SLICE_NS)
+        got = self._call(self._lib.fap_port_transact, data, len(data), self._buf, n, step)
+        if got > 0:
+            return self._buffer[:got]
+        if got < 0:
+            raise port_error(got, "transact", self.path)
+        if step >= deadline_ns or not n:
+            return b""
+        return self.read_until(n, deadline_ns)  # a long wait goes on in slices
 
     def flush_input(self) -> None:
         """Discard bytes received and not read yet (and unsent output)."""

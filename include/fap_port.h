@@ -116,6 +116,24 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns);
 /* Discard unread input (and untransmitted output). */
 int fap_port_flush(fap_port *p);
 
+/* fap_port_write without waiting for the last byte to leave the UART
+ * where nothing depends on it: tcdrain() only with soft RTS (released
+ * after the last bit) or echo suppression (its deadline counts from the
+ * drain). For a reply or a broadcast nobody times; same returns. */
+ssize_t fap_port_send(fap_port *p, const void *buf, size_t n);
+
+/* One request/reply round in one call (for protocol masters): drop the
+ * input received and not read yet (by reading it; queued output is kept),
+ * write all n bytes like fap_port_write, then read like fap_port_read
+ * (up to cap bytes, the first chunk, waiting until deadline_ns; cap 0 =
+ * no reply awaited: returns 0 after the write). Unlike fap_port_write it
+ * calls tcdrain() only when something depends on it (soft RTS, echo
+ * suppression): the caller's deadline must include the request's wire
+ * time. Returns the reply bytes read, 0 at the deadline, or a negative
+ * error (of the discard, the write or the read). */
+ssize_t fap_port_transact(fap_port *p, const void *req, size_t n, void *reply, size_t cap,
+                          int64_t deadline_ns);
+
 /* CLOCK_MONOTONIC now, in ns: the clock the deadlines above use. */
 int64_t fap_port_now_ns(void);
 

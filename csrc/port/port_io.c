@@ -248,12 +248,11 @@ static int64_t echo_deadline(const fap_port *p, size_t n)
     return lf_now_ns() + (int64_t)n * ct + wait;
 }
 
-ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
+/* lazy_drain: skip tcdrain() when nothing after it depends on the frame
+ * having left the UART (no soft RTS to release, no echo to time): the
+ * transact path, whose caller waits for the reply anyway. */
+static ssize_t port_write(fap_port *p, const void *buf, size_t n, int lazy_drain)
 {
-    if (!p || (!buf && n) || n > SSIZE_MAX)
-        return -EINVAL;
-    if (n == 0)
-        return 0;
     pthread_mutex_lock(&p->tx_mu);
     int fd;
     fap_rs485_mode mode;
@@ -280,7 +279,7 @@ ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
         delay_us(p, p->conn.delay_before_us);
     }
     err = write_all(p, fd, buf, n, &written, echo ? &es : NULL);
-    if (!err)
+    if (!err && (!lazy_drain || echo || mode == FAP_RS485_SOFT_RTS))
         err = drain(p, fd);   /* the last stop bit has left the UART */
     if (mode == FAP_RS485_SOFT_RTS) {
         if (!err)
@@ -309,12 +308,30 @@ out:
     return err ? err : (ssize_t)n;
 }
 
+ssize_t fap_port_write(fap_port *p, const void *buf, size_t n)
+{
+    if (!p || (!buf && n) || n > SSIZE_MAX)
+        return -EINVAL;
+    if (n == 0)
+        return 0;
+    return port_write(p, buf, n, 0);
+}
+
+ssize_t fap_port_send(fap_port *p, const void *buf, size_t n)
+{
+    if (!p || (!buf && n) || n > SSIZE_MAX)
+        return -EINVAL;
+    if (n == 0)
+        return 0;
+    return port_write(p, buf, n, 1);
+}
+
 /* ---- read -------------------------------------------------------------- */
 
-ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
+/* poll_first: the caller just sent a request, so nothing is there yet:
+ * wait before the first read() instead of trying one that fails with EAGAIN. */
+static ssize_t port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns, int poll_first)
 {
-    if (!p || (!buf && n))
-        return -EINVAL;
     if (n > SSIZE_MAX)
         n = SSIZE_MAX;
     int fd;
@@ -331,6 +348,9 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
         if (p->pend_len) {
             result = (ssize_t)pend_take(p, buf, n);
             parked = 1;   /* received earlier: last_rx_ns already set */
+        } else if (poll_first == 1) {
+            poll_first = 2;   /* skipped: read at least once before giving up */
+            result = 0;
         } else {
             result = read_some(p, fd, buf, n);
         }
@@ -343,6 +363,11 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
         }
         short rev;
         err = poll_until(p, fd, POLLIN, deadline_ns, &rev);   /* deadline 0 has passed */
+        if (err == -ETIMEDOUT && poll_first == 2) {
+            poll_first = 0;
+            continue;   /* the read we skipped */
+        }
+        poll_first = 0;
         if (err) {
             if (err != -ETIMEDOUT)
                 result = err;
@@ -364,6 +389,13 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
         lf_port_note_error(p, (int)result);
     lf_port_release(p);
     return result;
+}
+
+ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    return port_read(p, buf, n, deadline_ns, 0);
 }
 
 int fap_port_flush(fap_port *p)
@@ -388,4 +420,56 @@ int fap_port_flush(fap_port *p)
     pthread_mutex_unlock(&p->rx_mu);
     pthread_mutex_unlock(&p->tx_mu);
     return err;
+}
+
+/* ---- transact: discard stale input, write, first chunk of the reply ----- */
+
+/* Drop what was received and not read (parked input included) by reading
+ * it: unlike tcflush() this never touches output still queued for the far
+ * end (on a pty, a frame not yet taken). One read() when nothing waits. */
+static int discard_input(fap_port *p)
+{
+    int fd;
+    int err = lf_port_acquire(p, &fd, NULL);
+    if (err)
+        return err;
+    uint8_t tmp[256];
+    pthread_mutex_lock(&p->rx_mu);
+    if (p->pend_len) {
+        p->pend_off = p->pend_len = 0;
+        lf_port_pend_signal(p, 0);
+    }
+    ssize_t r;
+    do
+        r = read_some(p, fd, tmp, sizeof tmp);
+    while (r > 0);
+    pthread_mutex_unlock(&p->rx_mu);
+    if (r < 0) {
+        pthread_mutex_lock(&p->st_mu);
+        p->stats.read_errors++;
+        pthread_mutex_unlock(&p->st_mu);
+        lf_port_note_error(p, (int)r);
+    }
+    lf_port_release(p);
+    return (int)r;
+}
+
+ssize_t fap_port_transact(fap_port *p, const void *req, size_t n, void *reply, size_t cap,
+                          int64_t deadline_ns)
+{
+    if (!p || (!req && n) || n > SSIZE_MAX || (!reply && cap))
+        return -EINVAL;
+    int err = discard_input(p);
+    if (err)
+        return err;
+    if (n) {
+        ssize_t w = port_write(p, req, n, 1);
+        if (w < 0)
+            return w;
+    }
+    if (!cap)
+        return 0;
+    if (cap > SSIZE_MAX)
+        cap = SSIZE_MAX;
+    return port_read(p, reply, cap, deadline_ns, 1);
 }

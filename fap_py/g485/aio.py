@@ -137,10 +137,13 @@ class AsyncG485Master:
     async def _exchange(self, frame: bytes, prefix: Optional[bytes], timeout: Optional[float]) -> Optional[bytes]:
         m = self.master
         io = m._io
-        io.flush_input()  # type: ignore[union-attr]  # a late reply to an earlier request is not this one's
         if self._watching < 0:  # first exchange, or after the port failed
             self._watch()
-        io.write(m._wire(frame))  # type: ignore[union-attr]
+        if m._fast_io:  # a late reply to an earlier request is not this one's: discard + write in C
+            io.send_fresh(m._wire(frame))  # type: ignore[union-attr]
+        else:
+            io.flush_input()  # type: ignore[union-attr]
+            io.write(m._wire(frame))  # type: ignore[union-attr]
         if prefix is None:
             return None
         loop = self._loop

@@ -375,14 +375,22 @@ class G485Master:
         """Discard stale input, send ``frame``, return the whole reply frame starting with
         ``prefix`` (``codec.reply_prefix``; None: no reply awaited)."""
         io = self._io
-        io.flush_input()  # type: ignore[union-attr]  # a late reply to an earlier request is not this one's
-        io.write(self._wire(frame))  # type: ignore[union-attr]
-        if prefix is None:
-            return None
-        size = HEADER_SIZE + prefix[3]
-        wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time  # see _reply_wait
-        deadline = time.monotonic() + wait
-        chunk = io.read_within(size, wait)  # type: ignore[union-attr]
+        if prefix is not None and self._fast_io:
+            # one call into C: discard stale input, write, wait for the first chunk
+            size = HEADER_SIZE + prefix[3]
+            wire = self._wire(frame)
+            wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time  # see _reply_wait
+            deadline = time.monotonic() + wait
+            chunk = io.exchange(wire, size, wait)  # type: ignore[union-attr]
+        else:
+            io.flush_input()  # type: ignore[union-attr]  # a late reply to an earlier request is not this one's
+            io.write(self._wire(frame))  # type: ignore[union-attr]
+            if prefix is None:
+                return None
+            size = HEADER_SIZE + prefix[3]
+            wait = (timeout or self.timeout) + (self._sent + size) * self._byte_time  # see _reply_wait
+            deadline = time.monotonic() + wait
+            chunk = io.read_within(size, wait)  # type: ignore[union-attr]
         if is_exact_reply(chunk, prefix) and not _debug():
             return chunk  # the common case, decided before any waiter object exists
         waiter = ReplyWaiter(self, prefix)

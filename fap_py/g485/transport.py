@@ -52,7 +52,8 @@ class PortIO:
         self.name = p.path
         self.baudrate = p.baudrate
         self._read = p.read_until
-        self._write = p.write
+        self._write = p.send  # replies and broadcasts: nobody times them from the write's return
+        self._transact = p.transact
         # waiting for a reply: poll here, then one read in C (the C read would first try a
         # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
         self._poller: Optional[select.poll] = None
@@ -82,6 +83,23 @@ class PortIO:
             return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
+    def exchange(self, data: bytes, n: int, timeout: float) -> bytes:
+        """Drop stale input, write ``data``, then up to ``n`` bytes of the reply, waiting at
+        most ``timeout`` seconds for the first (b"" if nothing came): one call into C
+        (``fap_port_transact``). ``timeout`` must include the request's wire time."""
+        try:
+            return self._transact(data, n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+        except BusCollisionError as exc:
+            raise EchoMismatchError(f"{self.name}: {exc}") from None
+
+    def send_fresh(self, data: bytes) -> None:
+        """:meth:`flush_input` then :meth:`write` in one call into C (the reply is
+        awaited elsewhere, e.g. by an event loop's reader)."""
+        try:
+            self._transact(data, 0, 0)
+        except BusCollisionError as exc:
+            raise EchoMismatchError(f"{self.name}: {exc}") from None
+
     def _watch(self) -> None:
         """(Re)build the poller on the port's current fd (after open and after a reopen)."""
         fd = self.port.fd if self._use_poll and not self.port.closed else -1
@@ -96,9 +114,10 @@ class PortIO:
         return self._read(n, 0)
 
     def write(self, data: bytes) -> None:
-        """Write all of ``data`` (direction switching, drain and echo check in C)."""
+        """Write all of ``data`` (direction switching, echo check in C; ``tcdrain`` only
+        where soft RTS or echo suppression needs it: ``fap_port_send``)."""
         try:
-            self._write(data)
+            self._write(bytes(data))
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 

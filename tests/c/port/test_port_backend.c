@@ -5,6 +5,7 @@
  * restore on close, error paths), soft-RTS ordering and its error paths,
  * EINTR and partial writes, and the turnaround wait. */
 #include <linux/serial.h>
+#include <pthread.h>
 #include <sys/ioctl.h>
 
 #include "fap_port.h"
@@ -726,7 +727,115 @@ static void test_g485_transaction_kernel(void)
     tp_close(&t);
 }
 
-UNIT_MAIN(UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
+/* fap_port_transact: stale input is dropped (read, not tcflush: queued
+ * output survives), the request goes out, the reply's first chunk comes
+ * back in the same call. tcdrain() only where something depends on it:
+ * soft RTS (release after the last bit); not in mode none or kernel. */
+typedef struct responder {
+    int fd;
+} responder;
+
+static void *respond(void *arg)
+{
+    responder *r = arg;
+    uint8_t req[sizeof g485_request];
+    if (tp_read_exact(r->fd, req, sizeof req, 2000) == sizeof req &&
+        memcmp(req, g485_request, sizeof req) == 0)
+        (void)!write(r->fd, g485_reply, sizeof g485_reply);
+    return NULL;
+}
+
+static void transact_once(fap_port *p, test_pty *t)
+{
+    static const uint8_t stale[] = {0xff, 0xff, 0xff, 0x03, 0x09, 0x00, 0x00};
+    CHECK_EQ(write(t->master, stale, sizeof stale), (ssize_t)sizeof stale);
+    /* the stale bytes have reached the port before the call */
+    int64_t until = fap_port_now_ns() + 1000000000LL;
+    int queued = 0;
+    while (fap_port_now_ns() < until && queued < (int)sizeof stale) {
+        struct pollfd pf = {.fd = fap_port_fd(p), .events = POLLIN};
+        if (poll(&pf, 1, 100) > 0)
+            queued = (int)sizeof stale;
+    }
+    MUST(queued);
+    responder r = {.fd = t->master};
+    pthread_t th;
+    MUST(pthread_create(&th, NULL, respond, &r) == 0);
+    uint8_t got[16];
+    size_t have = 0;
+    int64_t deadline = fap_port_now_ns() + 2000000000LL;
+    ssize_t n = fap_port_transact(p, g485_request, sizeof g485_request, got, sizeof got, deadline);
+    MUST(n > 0);
+    have = (size_t)n;
+    while (have < sizeof g485_reply) {
+        n = fap_port_read(p, got + have, sizeof got - have, deadline);
+        MUST(n > 0);
+        have += (size_t)n;
+    }
+    pthread_join(th, NULL);
+    CHECK_EQ(have, sizeof g485_reply);
+    CHECK_MEM(got, g485_reply, sizeof g485_reply);
+}
+
+static int count_ev(const fake *f, enum ev_kind k)
+{
+    int c = 0;
+    for (int i = 0; i < f->nev; i++)
+        c += f->ev[i].kind == k;
+    return c;
+}
+
+static void test_transact_modes(void)
+{
+    static const fap_rs485_mode modes[] = {FAP_RS485_NONE, FAP_RS485_KERNEL, FAP_RS485_SOFT_RTS};
+    for (size_t i = 0; i < sizeof modes / sizeof modes[0]; i++) {
+        test_pty t;
+        MUST(tp_open(&t) == 0);
+        fake f;
+        fake_uart(&f);
+        fap_port_options o = opts_mode(modes[i]);
+        fap_port *p = NULL;
+        MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+        f.nev = 0;
+        transact_once(p, &t);
+        CHECK_EQ(count_ev(&f, EV_WRITE), 1);
+        CHECK_EQ(count_ev(&f, EV_DRAIN), modes[i] == FAP_RS485_SOFT_RTS ? 1 : 0);
+        if (modes[i] == FAP_RS485_SOFT_RTS) {
+            /* on, (delay), write, drain, (delay), off: as fap_port_write */
+            int w = 0;
+            while (w < f.nev && f.ev[w].kind != EV_WRITE)
+                w++;
+            MUST(w + 1 < f.nev);
+            CHECK_EQ(f.ev[w + 1].kind, EV_DRAIN);
+            CHECK(f.ev[f.nev - 1].kind == EV_RTS_SET || f.ev[f.nev - 1].kind == EV_RTS_CLEAR);
+        }
+        /* fap_port_write itself still drains in every mode */
+        f.nev = 0;
+        CHECK_EQ(fap_port_write(p, "x", 1), 1);
+        CHECK_EQ(count_ev(&f, EV_DRAIN), 1);
+        char m;
+        CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+        /* fap_port_send: the same write, drained only where soft RTS needs it */
+        f.nev = 0;
+        CHECK_EQ(fap_port_send(p, "z", 1), 1);
+        CHECK_EQ(count_ev(&f, EV_WRITE), 1);
+        CHECK_EQ(count_ev(&f, EV_DRAIN), modes[i] == FAP_RS485_SOFT_RTS ? 1 : 0);
+        CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+        CHECK_EQ(m, 'z');
+        CHECK_EQ(fap_port_send(p, NULL, 1), -EINVAL);
+        CHECK_EQ(fap_port_send(p, "z", 0), 0);
+        /* no reply awaited (cap 0); bad arguments */
+        CHECK_EQ(fap_port_transact(p, "y", 1, NULL, 0, 0), 0);
+        CHECK_EQ(tp_read_exact(t.master, &m, 1, 1000), 1);
+        CHECK_EQ(fap_port_transact(p, NULL, 1, NULL, 0, 0), -EINVAL);
+        CHECK_EQ(fap_port_transact(NULL, "y", 1, NULL, 0, 0), -EINVAL);
+        CHECK_EQ(fap_port_transact(p, "y", 1, NULL, 4, 0), -EINVAL);
+        fap_port_close(p);
+        tp_close(&t);
+    }
+}
+
+UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_kernel_active_low),
           UNIT(test_auto_gets_kernel), UNIT(test_kernel_set_einval),
           UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
           UNIT(test_auto_does_not_hide_a_dying_device),

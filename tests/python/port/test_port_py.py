@@ -212,3 +212,89 @@ def test_close_from_another_thread_ends_a_blocking_read(pty: tuple[int, str]) ->
     t.join(5)
     assert not t.is_alive() and time.monotonic() - t0 < 2.0
     assert len(result) == 1 and isinstance(result[0], ClosedError)
+
+
+def _wait_queued(port: Port, far: int, data: bytes) -> None:
+    """Write ``data`` from the far end and wait until the port has it queued (not read)."""
+    import select
+
+    os.write(far, data)
+    p = select.poll()
+    p.register(port.fd, select.POLLIN)
+    assert p.poll(2000)
+
+
+def test_transact_discards_stale_input_and_returns_the_reply(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name) as port:
+        _wait_queued(port, far, b"stale!")
+
+        def answer() -> None:
+            got = b""
+            while len(got) < 3:
+                got += os.read(far, 3 - len(got))
+            assert got == b"req"
+            os.write(far, b"reply")
+
+        t = threading.Thread(target=answer)
+        t.start()
+        try:
+            reply = port.transact(b"req", 16, time.monotonic_ns() + 2_000_000_000)
+        finally:
+            t.join()
+        while len(reply) < 5:
+            reply += port.read(16, timeout=2.0)
+        assert reply == b"reply"  # not "stale!": dropped before the request went out
+        assert port.transact(b"x", 0, 0) == b""  # no reply awaited
+        assert os.read(far, 1) == b"x"
+        t0 = time.monotonic()
+        assert port.transact(b"y", 4, time.monotonic_ns() + 50_000_000) == b""  # nobody answers
+        assert time.monotonic() - t0 >= 0.04
+        for bad in ((bytearray(b"x"), 1, 0), (b"x", -1, 0), (b"x", MAX_READ + 1, 0), (b"x", 1, -1),
+                    (b"x", 1.0, 0)):
+            with pytest.raises(InvalidValueError):
+                port.transact(*bad)  # type: ignore[arg-type]
+    with pytest.raises(ClosedError):
+        port.transact(b"x", 1, 0)
+
+
+def test_close_ends_a_blocked_transact(pty: tuple[int, str]) -> None:
+    _, name = pty
+    port = Port(name)
+    errors: list[BaseException] = []
+
+    def wait() -> None:
+        try:
+            port.transact(b"q", 8, time.monotonic_ns() + 30_000_000_000)
+        except FapError as exc:
+            errors.append(exc)
+
+    t = threading.Thread(target=wait)
+    t.start()
+    time.sleep(0.05)  # let it block (the test passes without it too)
+    port.close()
+    t.join(5.0)
+    assert not t.is_alive()
+    assert errors and isinstance(errors[0], ClosedError)
+
+
+def test_transact_with_echo_suppression() -> None:
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(ports=2, echo=True, seed=3) as bus, \
+            Port(bus.paths[0], rs485=RS485(echo_suppression=True)) as port, Port(bus.paths[1]) as other:
+        assert port.transact(b"\x10\x20", 4, time.monotonic_ns() + 50_000_000) == b""  # echo not a reply
+        assert other.read(2, timeout=2.0) == b"\x10\x20"
+        assert port.stats.echo_bytes == 2
+
+
+def test_send_writes_and_checks_its_argument(pty: tuple[int, str]) -> None:
+    far, name = pty
+    with Port(name) as port:
+        assert port.send(b"abc") == 3
+        got = b""
+        while len(got) < 3:
+            got += os.read(far, 3)
+        assert got == b"abc"
+        with pytest.raises(FapError):
+            port.send(bytearray(b"x"))  # type: ignore[arg-type]
