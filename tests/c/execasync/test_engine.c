@@ -741,6 +741,43 @@ static void test_step_timeout_seq_zero(void)
     CHECK_EQ(execMasterNextSeq(master, 2), 1);
 }
 
+/* A blocking execMasterTransact in another thread waits until the
+ * Begin/Step transaction in flight is over, then runs (seq after it). */
+typedef struct tx_arg { int rc; byte reply[255]; word rlen; } tx_arg;
+
+static void *transact_thread(void *arg)
+{
+    tx_arg *a = arg;
+    a->rc = transact_str(1, "thread", a->reply, &a->rlen);
+    return NULL;
+}
+
+static void test_transact_waits_for_step(void)
+{
+    unsigned before = load(&slaves[0].applied);
+    int64_t deadline;
+    REQUIRE_ZERO(execMasterBegin(master, 1, (const byte *)"loop", 4, &deadline));
+    tx_arg a = {.rc = -1};
+    pthread_t t;
+    pthread_create(&t, NULL, transact_thread, &a);
+    struct pollfd p = {.fd = fap_port_fd(execMasterPort(master)), .events = POLLIN};
+    byte reply[255];
+    word rlen = 0;
+    int rc;
+    do {
+        int64_t left = deadline - now_ns();
+        poll(&p, 1, left > 0 ? (int)((left + 999999) / 1000000) : 0);
+        rc = execMasterStep(master, reply, 255, &rlen, &deadline);
+    } while (rc == EXEC_MASTER_MORE);
+    CHECK_EQ(rc, 0);
+    CHECK_EQ(reply[1], before + 1);           /* ours went first */
+    CHECK_MEM(reply + 2, "loop", 4);
+    pthread_join(t, NULL);
+    CHECK_EQ(a.rc, 0);
+    CHECK_EQ(a.reply[1], before + 2);
+    CHECK_MEM(a.reply + 2, "thread", 6);
+}
+
 int main(void)
 {
     int err = setup();
@@ -764,6 +801,7 @@ int main(void)
         UNIT(test_step_busy_and_abort),
         UNIT(test_step_retry_after_dropped_reply),
         UNIT(test_step_timeout_seq_zero),
+        UNIT(test_transact_waits_for_step),
         UNIT(test_turnaround_delay),
         UNIT(test_stop_wakes_serve),
         UNIT(test_port_vanishes),

@@ -4,6 +4,7 @@ The slaves are the real engine, served in their own threads (conftest)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import threading
 from typing import Any, List, Tuple
 
@@ -187,3 +188,16 @@ def test_blocking_call_inside_atransact_loop_refused(net: Net) -> None:
         assert net.master.transact(1, b"x") == bytes([1, 1]) + b"x"
 
     asyncio.run(main())
+
+
+def test_atransact_wire_trace_as_transact(caplog: pytest.LogCaptureFixture) -> None:
+    """The C trace hook sees the async transaction as the blocking one."""
+    caplog.set_level(logging.DEBUG, logger="fap_py.wire")   # before the master installs its hook
+    with VirtualBus(ports=2) as bus, \
+            Slave(bus.paths[1], node=4, handler=lambda q: q.data, rs485=LINE).start(), \
+            Master(bus.paths[0], rs485=LINE, timeout=1.0, retries=0) as m:
+        assert asyncio.run(m.atransact(4, b"\x10ab")) == b"\x10ab"
+    frame = encode(4, b"\x10ab", 0)   # the echo reply has the same bytes
+    recs = [(r.wire_dir, r.wire_bytes, r.wire_status) for r in caplog.records  # type: ignore[attr-defined]
+            if r.name == "fap_py.wire.exec"]
+    assert sorted(recs) == sorted([("tx", frame, "ok")] * 2 + [("rx", frame, "ok")] * 2), recs
