@@ -212,7 +212,7 @@ static int step_locked(execMaster *m, int64_t wait_until)
     return EXEC_MASTER_MORE;
 }
 
-static int check_transact_args(execMaster *m, byte node, const byte *req, word req_len)
+static int check_transact_args(const execMaster *m, byte node, const byte *req, word req_len)
 {
     if (!m || node == 0 || node == EXEC_ASYNC_BROADCAST || (!req && req_len))
         return -EINVAL;
