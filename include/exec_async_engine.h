@@ -57,9 +57,9 @@ typedef struct execMasterOptions {
 } execMasterOptions;
 
 typedef struct execMasterStats {
-    uint64_t transactions;   /* execMasterTransact calls that sent something */
+    uint64_t transactions;   /* execMasterTransact/Begin calls past argument checks */
     uint64_t replies;        /* transactions that got their reply */
-    uint64_t failures;       /* transactions that gave up */
+    uint64_t failures;       /* transactions that gave up (or execMasterAbort) */
     uint64_t retries;        /* frames sent again */
     uint64_t timeouts;       /* attempts that timed out */
     uint64_t corrupt;        /* frames with a bad CRC, framing error or overflow */
