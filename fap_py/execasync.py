@@ -23,6 +23,7 @@ Example::
 """
 from __future__ import annotations
 
+import asyncio
 import ctypes
 import errno
 import logging
@@ -394,6 +395,8 @@ class Master(NativeHandle):
                  rs485: Optional[RS485] = None) -> None:
         super().__init__()
         self._lock = threading.Lock()        # one transaction at a time
+        self._alock: Optional[asyncio.Lock] = None   # the same among atransact tasks
+        self._ainflight = 0                  # atransact calls between Begin and their end
         self.path = check_path(port)
         popts = port_options(baudrate, rs485)
         mopts = ffi.new("execMasterOptions *")
@@ -445,6 +448,7 @@ class Master(NativeHandle):
         """
         _check_node(node)
         payload = _check_data(data)
+        self._not_inside_atransact()
         with self._lock, self._using() as m:
             if log.isEnabledFor(logging.DEBUG):
                 log.debug("-> node %d seq %d %s", node, lib.execMasterNextSeq(m, node), payload.hex())
@@ -456,9 +460,80 @@ class Master(NativeHandle):
             log.debug("<- node %d %s", node, reply.hex())
         return reply
 
+    def _not_inside_atransact(self) -> None:
+        """The blocking calls wait in C for an atransact in flight; in that
+        atransact's own loop thread this would never end: refuse."""
+        if not self._ainflight:
+            return
+        try:
+            asyncio.get_running_loop()
+        except RuntimeError:
+            return                           # another thread: waiting is fine
+        raise ExecAsyncError(f"{self._label()}: an atransact is in flight in this event loop; "
+                             "use atransact/abroadcast there")
+
+    async def atransact(self, node: int, data: BytesLike = b"") -> bytes:
+        """``await``-able :meth:`transact`, driven by the running asyncio loop.
+
+        The C engine's non-blocking steps (``execMasterBegin`` /
+        ``execMasterStep``: the same sequence numbers, retries, trace hook
+        and stats as :meth:`transact`) run in the loop's thread; between
+        steps the task waits on the port fd (``loop.add_reader``) or the
+        attempt's deadline (a loop timer). No worker thread. Calls on one
+        master are serialised; different masters run concurrently.
+        Cancelling ends the transaction as a failure (the next message to
+        ``node`` carries SeqNo 0) and leaves the master usable; a close()
+        from another task or thread raises :class:`~fap_py.errors.ClosedError`.
+        """
+        _check_node(node)
+        payload = _check_data(data)
+        if self._alock is None:
+            self._alock = asyncio.Lock()
+        reply = ffi.new("byte[]", MAX_DATA)
+        reply_len = ffi.new("word *")
+        deadline = ffi.new("int64_t *")
+        what = f"node {node}"
+        async with self._alock:
+            log.debug("-> node %d (async) %s", node, payload.hex())
+            rc = int(self._call(lib.execMasterBegin, node, payload, len(payload), deadline))
+            if rc == -errno.EBUSY:
+                raise ExecAsyncError(f"{self._label()}: another atransact is in flight "
+                                     "(from another event loop)")
+            _raise_for(rc, what, self.path)
+            self._ainflight += 1
+            over = False
+            try:
+                while True:
+                    left = deadline[0] / 1e9 - time.monotonic()   # both CLOCK_MONOTONIC
+                    if left > 0:
+                        await self.await_readable(left)
+                    rc = int(self._call(lib.execMasterStep, reply, MAX_DATA, reply_len, deadline))
+                    if rc != lib.EXEC_MASTER_MORE:
+                        over = True
+                        _raise_for(rc, what, self.path)
+                        out = bytes(ffi.buffer(reply, reply_len[0]))
+                        log.debug("<- node %d (async) %s", node, out.hex())
+                        return out
+            finally:
+                self._ainflight -= 1
+                if not over:                 # cancelled, closed or interrupted mid-way
+                    try:
+                        self._call(lib.execMasterAbort)
+                    except ClosedError:
+                        pass
+
+    async def abroadcast(self, data: BytesLike = b"") -> None:
+        """:meth:`broadcast` from a coroutine, in turn with this master's
+        atransact calls (a broadcast only writes: it never waits for a reply)."""
+        if self._alock is None:
+            self._alock = asyncio.Lock()
+        async with self._alock:
+            self.broadcast(data)
+
     def broadcast(self, data: BytesLike = b"") -> None:
         """Send ``data`` to every slave (node 255); nobody answers."""
         payload = _check_data(data)
+        self._not_inside_atransact()
         with self._lock, self._using() as m:
             log.debug("-> broadcast %s", payload.hex())
             _raise_for(lib.execMasterBroadcast(m, payload, len(payload)), "broadcast", self.path)

@@ -57,9 +57,9 @@ typedef struct execMasterOptions {
 } execMasterOptions;
 
 typedef struct execMasterStats {
-    uint64_t transactions;   /* execMasterTransact calls that sent something */
+    uint64_t transactions;   /* execMasterTransact/Begin calls past argument checks */
     uint64_t replies;        /* transactions that got their reply */
-    uint64_t failures;       /* transactions that gave up */
+    uint64_t failures;       /* transactions that gave up (or execMasterAbort) */
     uint64_t retries;        /* frames sent again */
     uint64_t timeouts;       /* attempts that timed out */
     uint64_t corrupt;        /* frames with a bad CRC, framing error or overflow */
@@ -84,6 +84,40 @@ int execMasterSetTimeout(execMaster *m, unsigned reply_timeout_us, unsigned retr
  * above. Thread-safe: concurrent calls are serialised. */
 int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
                        byte *reply, word reply_cap, word *reply_len);
+/* ---- master without blocking (for an event loop) -------------------------
+ * The transaction of execMasterTransact split at its waits; execMasterTransact
+ * is these two calls with a blocking wait on the port fd between steps, so
+ * retries, sequence numbers, the trace hook and the stats are the same:
+ *
+ *   rc = execMasterBegin(m, node, req, len, &deadline);
+ *   while (rc == 0 || rc == EXEC_MASTER_MORE) {
+ *       wait until execMasterPort(m)'s fd (fap_port_fd) is readable or
+ *       CLOCK_MONOTONIC reaches deadline;
+ *       rc = execMasterStep(m, reply, cap, &reply_len, &deadline);
+ *       if (rc == 0) break;                  // the reply is in
+ *   }
+ *
+ * Begin: flush the input, encode req with the node's sequence number, send.
+ * Returns 0 and *deadline_ns (CLOCK_MONOTONIC ns, may be NULL) of the first
+ * attempt, or an error (the transaction is then over: counted as a failure,
+ * the node restarts at SeqNo 0). -EBUSY: a transaction begun with
+ * execMasterBegin is still in flight (one at a time per master); a blocking
+ * execMasterTransact in another thread makes Begin wait for its end.
+ * Step: read what is queued (never waits or sleeps), decode, and resend on
+ * a corrupt reply or a passed deadline. Returns EXEC_MASTER_MORE with the
+ * current attempt's deadline (it moves on a resend), 0 with the reply as
+ * execMasterTransact, or an error of execMasterTransact; after 0 or an error
+ * the transaction is over. -EINVAL when none is in flight.
+ * Abort: end the transaction in flight (if any) as a failure (stats.failures,
+ * next SeqNo 0: the slave may have processed it). For a cancelled wait.
+ * execMasterTransact and execMasterBroadcast wait until a Begin/Step
+ * transaction is over. */
+#define EXEC_MASTER_MORE 1
+int execMasterBegin(execMaster *m, byte node, const byte *req, word req_len,
+                    int64_t *deadline_ns);
+int execMasterStep(execMaster *m, byte *reply, word reply_cap, word *reply_len,
+                   int64_t *deadline_ns);
+void execMasterAbort(execMaster *m);
 /* Send data to every slave (node 255); nobody answers. */
 int execMasterBroadcast(execMaster *m, const byte *data, word len);
 /* The sequence number the next message to node (1..255) will carry. */

@@ -1,6 +1,9 @@
 /* Exec async master: the thin I/O layer around seq_logic's transaction
  * machine. Sends on the port, feeds received bytes to execAsyncByteIn,
- * lets lf_exec_mtx decide between waiting, resending and giving up. */
+ * lets lf_exec_mtx decide between waiting, resending and giving up.
+ * begin_locked/step_locked/finish are the transaction, written once:
+ * execMasterTransact loops on them blocking on the fd, execMasterBegin and
+ * execMasterStep expose them for an event loop. */
 #include "exec_async_engine.h"
 
 #include <errno.h>
@@ -29,6 +32,10 @@ struct execMaster {
     execMasterStats stats;           /* updated and read atomically */
     lf_trace trace;                  /* wire trace hook (fap_trace.h) */
     lf_exec_tap tap;                 /* raw bytes of the reply in progress; under lock */
+    pthread_cond_t idle;             /* signalled when busy drops to 0 */
+    int busy;                        /* a transaction is in flight (t, txlen valid) */
+    lf_exec_mtx t;
+    word txlen;
 };
 
 void execMasterOptionsInit(execMasterOptions *o)
@@ -58,6 +65,7 @@ int execMasterOpen(execMaster **out, const char *path, const fap_port_options *p
         return err;
     }
     pthread_mutex_init(&m->lock, NULL);
+    pthread_cond_init(&m->idle, NULL);
     lf_trace_init(&m->trace);
     m->reply_timeout_us = o->reply_timeout_us ? o->reply_timeout_us : DEFAULT_REPLY_TIMEOUT_US;
     m->retries = o->retries;
@@ -85,81 +93,33 @@ static void count_frame(execMaster *m, const lf_exec_mtx *t)
         LF_STAT_INC(m->stats.unexpected);
 }
 
-/* Send the frame in txbuf (n bytes) until the reply is decoded into
- * m->rx/rxbuf or the attempts are used up. Lock held. */
-static int run_transaction(execMaster *m, lf_exec_mtx *t, word n)
+/* Send the frame in txbuf again (or the first time). Lock held. */
+static int send_attempt(execMaster *m)
 {
-    lf_exec_mact act = LF_EXEC_M_SEND;
-    for (;;) {
-        if (act == LF_EXEC_M_SEND) {
-            if (t->attempt > 0)
-                LF_STAT_INC(m->stats.retries);
-            memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
-            lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
-            ssize_t w = fap_port_write(m->port, m->txbuf, n);
-            lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
-                          lf_now_ns(), m->txbuf, n);
-            if (w < 0)
-                return (int)w;
-            LF_STAT_INC(m->stats.tx_frames);
-            lf_exec_mtx_sent(t, lf_now_ns());
-            act = LF_EXEC_M_WAIT;
-        }
-        byte chunk[128];
-        /* one wake-up per reply, not per byte (port/rx_pacing.h) */
-        ssize_t r = lf_port_read_paced(m->port, chunk, sizeof chunk,
-                                       lf_exec_rx_missing(&m->rx), t->deadline);
-        if (r < 0)
-            return (int)r;
-        /* Decode the whole chunk: a good reply may follow a bad frame. */
-        lf_exec_mact pending = LF_EXEC_M_WAIT;
-        lf_ns now = r > 0 && lf_trace_on(&m->trace) ? lf_now_ns() : 0;
-        for (ssize_t i = 0; i < r; i++) {
-            if (!lf_exec_byte_in_traced(chunk[i], &m->rx, m->rxbuf, &m->tap, &m->trace, now))
-                continue;
-            lf_exec_mact a = lf_exec_mtx_on_frame(t, &m->rx);
-            count_frame(m, t);
-            if (a == LF_EXEC_M_DONE)
-                return 0;              /* bytes after the reply: not ours to wait for */
-            if (a != LF_EXEC_M_WAIT)
-                pending = a;
-        }
-        if (pending != LF_EXEC_M_WAIT) {
-            act = pending;
-        } else {
-            act = lf_exec_mtx_on_time(t, lf_now_ns());
-            if (act != LF_EXEC_M_WAIT)
-                LF_STAT_INC(m->stats.timeouts);
-        }
-        if (act == LF_EXEC_M_FAIL)
-            return t->last_error;
-    }
+    lf_exec_mtx *t = &m->t;
+    if (t->attempt > 0)
+        LF_STAT_INC(m->stats.retries);
+    memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
+    lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
+    ssize_t w = fap_port_write(m->port, m->txbuf, m->txlen);
+    lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)m->txlen ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
+                  lf_now_ns(), m->txbuf, m->txlen);
+    if (w < 0)
+        return (int)w;
+    LF_STAT_INC(m->stats.tx_frames);
+    lf_exec_mtx_sent(t, lf_now_ns());
+    return 0;
 }
 
-int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
-                       byte *reply, word reply_cap, word *reply_len)
+/* End the transaction in flight: the one place that moves the sequence
+ * number and counts the outcome. Lock held. */
+static int finish(execMaster *m, int err, byte *reply, word reply_cap, word *reply_len)
 {
-    if (!m || node == 0 || node == EXEC_ASYNC_BROADCAST || (!req && req_len) ||
-        (!reply && reply_cap))
-        return -EINVAL;
-    if (req_len > EXEC_ASYNC_MAX_DATA)
-        return -EMSGSIZE;
-    pthread_mutex_lock(&m->lock);
-    uint8_t seq = m->seq.next[node];
-    word n = execAsyncBufferOut(node, (byte *)req, m->txbuf, (byte)req_len, seq);
-    lf_exec_mtx t;
-    lf_exec_mtx_start(&t, node, seq, m->retries, (lf_ns)m->reply_timeout_us * LF_NS_PER_US);
-    LF_STAT_INC(m->stats.transactions);
-    /* Whatever is waiting now came before our request and cannot be its
-     * reply; a corrupt leftover would otherwise trigger a needless retry. */
-    int err = fap_port_flush(m->port);
-    if (!err)
-        err = run_transaction(m, &t, n);
     if (err)
         lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
     /* Never reuse seq (the slave may have processed it and only the replies
      * were lost); after a failure restart the node at 0 (seq_logic.h). */
-    lf_exec_mseq_finish(&m->seq, node, seq, err == 0);
+    lf_exec_mseq_finish(&m->seq, m->t.node, m->t.seq, err == 0);
     if (!err) {
         LF_STAT_INC(m->stats.replies);
         word len = m->rx.Length;
@@ -176,6 +136,161 @@ int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
         if (reply_len)
             *reply_len = 0;
     }
+    m->busy = 0;
+    pthread_cond_broadcast(&m->idle);
+    return err;
+}
+
+/* Read and drop what is queued. Not fap_port_flush: it also discards
+ * output not yet on the wire, e.g. a broadcast sent just before. Bounded:
+ * a babbling line cannot keep us here. */
+static int discard_input(fap_port *p)
+{
+    byte junk[256];
+    for (int i = 0; i < 64; i++) {
+        ssize_t r = fap_port_read(p, junk, sizeof junk, 0);
+        if (r <= 0)
+            return (int)r;
+    }
+    return 0;
+}
+
+/* Flush, encode with the node's sequence number, send. Lock held, not busy. */
+static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
+{
+    uint8_t seq = m->seq.next[node];
+    m->txlen = execAsyncBufferOut(node, (byte *)req, m->txbuf, (byte)req_len, seq);
+    lf_exec_mtx_start(&m->t, node, seq, m->retries, (lf_ns)m->reply_timeout_us * LF_NS_PER_US);
+    m->busy = 1;
+    LF_STAT_INC(m->stats.transactions);
+    /* Whatever is waiting now came before our request and cannot be its
+     * reply; a corrupt leftover would otherwise trigger a needless retry. */
+    int err = discard_input(m->port);
+    if (!err)
+        err = send_attempt(m);
+    return err;
+}
+
+/* Read what comes until wait_until (0 = only what is queued), decode it,
+ * and let seq_logic decide: reply (0), wait more (EXEC_MASTER_MORE), resend
+ * (done here, then EXEC_MASTER_MORE) or give up (its error). An error ends
+ * nothing here: the caller passes it to finish(). Lock held, busy. */
+static int step_locked(execMaster *m, int64_t wait_until)
+{
+    lf_exec_mtx *t = &m->t;
+    byte chunk[128];
+    /* one wake-up per reply, not per byte (port/rx_pacing.h) */
+    ssize_t r = lf_port_read_paced(m->port, chunk, sizeof chunk,
+                                   lf_exec_rx_missing(&m->rx), wait_until);
+    if (r < 0)
+        return (int)r;
+    /* Decode the whole chunk: a good reply may follow a bad frame. */
+    lf_exec_mact act = LF_EXEC_M_WAIT;
+    lf_ns now = r > 0 && lf_trace_on(&m->trace) ? lf_now_ns() : 0;
+    for (ssize_t i = 0; i < r; i++) {
+        if (!lf_exec_byte_in_traced(chunk[i], &m->rx, m->rxbuf, &m->tap, &m->trace, now))
+            continue;
+        lf_exec_mact a = lf_exec_mtx_on_frame(t, &m->rx);
+        count_frame(m, t);
+        if (a == LF_EXEC_M_DONE)
+            return 0;              /* bytes after the reply: not ours to wait for */
+        if (a != LF_EXEC_M_WAIT)
+            act = a;
+    }
+    if (act == LF_EXEC_M_WAIT) {
+        act = lf_exec_mtx_on_time(t, lf_now_ns());
+        if (act != LF_EXEC_M_WAIT)
+            LF_STAT_INC(m->stats.timeouts);
+    }
+    if (act == LF_EXEC_M_FAIL)
+        return t->last_error;
+    if (act == LF_EXEC_M_SEND) {
+        int err = send_attempt(m);
+        if (err)
+            return err;
+    }
+    return EXEC_MASTER_MORE;
+}
+
+static int check_transact_args(const execMaster *m, byte node, const byte *req, word req_len)
+{
+    if (!m || node == 0 || node == EXEC_ASYNC_BROADCAST || (!req && req_len))
+        return -EINVAL;
+    if (req_len > EXEC_ASYNC_MAX_DATA)
+        return -EMSGSIZE;
+    return 0;
+}
+
+int execMasterBegin(execMaster *m, byte node, const byte *req, word req_len,
+                    int64_t *deadline_ns)
+{
+    int err = check_transact_args(m, node, req, req_len);
+    if (err)
+        return err;
+    pthread_mutex_lock(&m->lock);
+    if (m->busy) {
+        pthread_mutex_unlock(&m->lock);
+        return -EBUSY;
+    }
+    err = begin_locked(m, node, req, req_len);
+    if (err)
+        finish(m, err, NULL, 0, NULL);
+    else if (deadline_ns)
+        *deadline_ns = m->t.deadline;
+    pthread_mutex_unlock(&m->lock);
+    return err;
+}
+
+int execMasterStep(execMaster *m, byte *reply, word reply_cap, word *reply_len,
+                   int64_t *deadline_ns)
+{
+    if (!m || (!reply && reply_cap))
+        return -EINVAL;
+    pthread_mutex_lock(&m->lock);
+    if (!m->busy) {
+        pthread_mutex_unlock(&m->lock);
+        return -EINVAL;
+    }
+    int rc = step_locked(m, 0);
+    if (rc == EXEC_MASTER_MORE) {
+        if (deadline_ns)
+            *deadline_ns = m->t.deadline;
+    } else {
+        rc = finish(m, rc, reply, reply_cap, reply_len);
+    }
+    pthread_mutex_unlock(&m->lock);
+    return rc;
+}
+
+void execMasterAbort(execMaster *m)
+{
+    if (!m)
+        return;
+    pthread_mutex_lock(&m->lock);
+    if (m->busy)
+        finish(m, -ECANCELED, NULL, 0, NULL);
+    pthread_mutex_unlock(&m->lock);
+}
+
+int execMasterTransact(execMaster *m, byte node, const byte *req, word req_len,
+                       byte *reply, word reply_cap, word *reply_len)
+{
+    int err = check_transact_args(m, node, req, req_len);
+    if (err || (!reply && reply_cap))
+        return err ? err : -EINVAL;
+    pthread_mutex_lock(&m->lock);
+    while (m->busy)                 /* a Begin/Step transaction is in flight */
+        pthread_cond_wait(&m->idle, &m->lock);
+    err = begin_locked(m, node, req, req_len);
+    /* the same step as execMasterStep, but its read waits on the fd until
+     * the attempt's deadline instead of returning at once */
+    while (!err) {
+        err = step_locked(m, m->t.deadline);
+        if (err != EXEC_MASTER_MORE)
+            break;
+        err = 0;
+    }
+    err = finish(m, err, reply, reply_cap, reply_len);
     pthread_mutex_unlock(&m->lock);
     return err;
 }
@@ -187,6 +302,8 @@ int execMasterBroadcast(execMaster *m, const byte *data, word len)
     if (len > EXEC_ASYNC_MAX_DATA)
         return -EMSGSIZE;
     pthread_mutex_lock(&m->lock);
+    while (m->busy)                 /* txbuf holds a request that may be resent */
+        pthread_cond_wait(&m->idle, &m->lock);
     uint8_t seq = m->seq.next[EXEC_ASYNC_BROADCAST];
     word n = execAsyncBufferOut(EXEC_ASYNC_BROADCAST, (byte *)data, m->txbuf, (byte)len, seq);
     m->seq.next[EXEC_ASYNC_BROADCAST] = lf_exec_seq_next(seq);
@@ -238,6 +355,7 @@ void execMasterClose(execMaster *m)
         return;
     fap_port_close(m->port);
     pthread_mutex_destroy(&m->lock);
+    pthread_cond_destroy(&m->idle);
     lf_trace_destroy(&m->trace);
     free(m);
 }

@@ -601,6 +601,183 @@ static void test_stop_wakes_serve(void)
     fap_vbus_close(b2);
 }
 
+/* ---- execMasterBegin/Step: what an event loop does, with poll() ---- */
+
+static int step_loop(byte node, const char *s, byte *reply, word cap, word *rlen)
+{
+    int64_t deadline = 0;
+    int rc = execMasterBegin(master, node, (const byte *)s, (word)strlen(s), &deadline);
+    if (rc)
+        return rc;
+    CHECK(deadline > now_ns());
+    struct pollfd p = {.fd = fap_port_fd(execMasterPort(master)), .events = POLLIN};
+    for (;;) {
+        int64_t left = deadline - now_ns();
+        poll(&p, 1, left > 0 ? (int)((left + 999999) / 1000000) : 0);
+        rc = execMasterStep(master, reply, cap, rlen, &deadline);
+        if (rc != EXEC_MASTER_MORE)
+            return rc;
+    }
+}
+
+static void test_step_transaction(void)
+{
+    slave_ctx *c = &slaves[0];
+    unsigned before = load(&c->applied);
+    int seq = execMasterNextSeq(master, 1);
+    execMasterStats m0;
+    execMasterGetStats(master, &m0);
+    byte reply[255];
+    word rlen = 0;
+    CHECK_EQ(step_loop(1, "step", reply, 255, &rlen), 0);
+    CHECK_EQ(rlen, 6);
+    CHECK_EQ(reply[0], 1);
+    CHECK_EQ(reply[1], before + 1);
+    CHECK_MEM(reply + 2, "step", 4);
+    CHECK_EQ(execMasterNextSeq(master, 1), seq == 255 ? 1 : seq + 1);
+    execMasterStats m1;
+    execMasterGetStats(master, &m1);
+    CHECK_EQ(m1.transactions, m0.transactions + 1);
+    CHECK_EQ(m1.replies, m0.replies + 1);
+    CHECK_EQ(m1.tx_frames, m0.tx_frames + 1);
+    /* nothing in flight any more */
+    CHECK_EQ(execMasterStep(master, reply, 255, &rlen, NULL), -EINVAL);
+    /* a reply too long for the buffer: as execMasterTransact */
+    CHECK_EQ(step_loop(1, "long", reply, 3, &rlen), -ENOBUFS);
+    CHECK_EQ(rlen, 6);
+    CHECK_MEM(reply, ((byte[]){1, (byte)(before + 2), 'l'}), 3);
+}
+
+/* One transaction at a time; Abort ends it as a failure (next SeqNo 0). */
+static void test_step_busy_and_abort(void)
+{
+    byte reply[255];
+    word rlen = 0;
+    CHECK_EQ(step_loop(3, "a", reply, 255, &rlen), 0);
+    CHECK(execMasterNextSeq(master, 3) != 0);
+    execMasterStats m0;
+    execMasterGetStats(master, &m0);
+    int64_t d;
+    REQUIRE_ZERO(execMasterBegin(master, 3, (const byte *)"b", 1, &d));
+    CHECK_EQ(execMasterBegin(master, 2, (const byte *)"c", 1, &d), -EBUSY);
+    execMasterAbort(master);
+    execMasterAbort(master);                  /* nothing in flight: no-op */
+    CHECK_EQ(execMasterNextSeq(master, 3), 0);
+    execMasterStats m1;
+    execMasterGetStats(master, &m1);
+    CHECK_EQ(m1.failures, m0.failures + 1);
+    CHECK_EQ(m1.transactions, m0.transactions + 1);
+    /* the aborted request's reply may still come: flushed by the next Begin */
+    CHECK_EQ(step_loop(3, "d", reply, 255, &rlen), 0);
+    CHECK_MEM(reply + 2, "d", 1);
+    CHECK_EQ(step_loop(0, "x", reply, 255, &rlen), -EINVAL);
+    CHECK_EQ(step_loop(EXEC_ASYNC_BROADCAST, "x", reply, 255, &rlen), -EINVAL);
+    CHECK_EQ(execMasterStep(NULL, reply, 255, &rlen, NULL), -EINVAL);
+    CHECK_EQ(execMasterBegin(NULL, 1, NULL, 0, NULL), -EINVAL);
+    execMasterAbort(NULL);
+}
+
+/* The reply is lost: Step resends with the same seq, the slave resends its
+ * reply without applying the request twice. */
+static void test_step_retry_after_dropped_reply(void)
+{
+    slave_ctx *c = &slaves[1];
+    unsigned before = load(&c->applied);
+    int seq = execMasterNextSeq(master, 2);
+    byte expect[6] = {2, (byte)(before + 1), 'o', 'n', 'c', 'e'};
+    byte frame[32];
+    word flen = execAsyncBufferOut(2, expect, frame, 6, (byte)seq);
+    execMasterStats m0;
+    execMasterGetStats(master, &m0);
+    REQUIRE_ZERO(execMasterSetTimeout(master, 50000, 5));
+    REQUIRE_ZERO(fap_vbus_drop_next(bus, 2, flen));
+    byte reply[255];
+    word rlen = 0;
+    CHECK_EQ(step_loop(2, "once", reply, 255, &rlen), 0);
+    CHECK_EQ(rlen, 6);
+    CHECK_MEM(reply, expect, 6);
+    CHECK_EQ(load(&c->applied), before + 1);
+    execMasterStats m1;
+    execMasterGetStats(master, &m1);
+    CHECK(m1.retries >= m0.retries + 1);
+    CHECK(m1.timeouts >= m0.timeouts + 1);
+    CHECK_EQ(m1.replies, m0.replies + 1);
+    CHECK_EQ(execMasterNextSeq(master, 2), seq == 255 ? 1 : seq + 1);
+    REQUIRE_ZERO(execMasterSetTimeout(master, 1000000, 5));
+}
+
+/* Every reply lost (no retries left): -ETIMEDOUT, and the node restarts at
+ * SeqNo 0; an absent node times out after every attempt. */
+static void test_step_timeout_seq_zero(void)
+{
+    slave_ctx *c = &slaves[1];
+    byte reply[255];
+    word rlen = 0;
+    CHECK_EQ(step_loop(2, "warm", reply, 255, &rlen), 0);
+    int seq = execMasterNextSeq(master, 2);
+    CHECK(seq != 0);
+    byte expect[6] = {2, (byte)(load(&c->applied) + 1), 'l', 'o', 's', 't'};
+    byte frame[32];
+    word flen = execAsyncBufferOut(2, expect, frame, 6, (byte)seq);
+    REQUIRE_ZERO(execMasterSetTimeout(master, 50000, 0));
+    REQUIRE_ZERO(fap_vbus_drop_next(bus, 2, flen));
+    rlen = 99;
+    CHECK_EQ(step_loop(2, "lost", reply, 255, &rlen), -ETIMEDOUT);
+    CHECK_EQ(rlen, 0);
+    CHECK_EQ(execMasterNextSeq(master, 2), 0);
+    REQUIRE_ZERO(execMasterSetTimeout(master, 5000, 2));
+    execMasterStats m0;
+    execMasterGetStats(master, &m0);
+    CHECK_EQ(step_loop(78, "?", reply, 255, &rlen), -ETIMEDOUT);
+    execMasterStats m1;
+    execMasterGetStats(master, &m1);
+    CHECK_EQ(m1.timeouts, m0.timeouts + 3);
+    CHECK_EQ(m1.retries, m0.retries + 2);
+    CHECK_EQ(m1.failures, m0.failures + 1);
+    CHECK_EQ(execMasterNextSeq(master, 78), 0);
+    REQUIRE_ZERO(execMasterSetTimeout(master, 1000000, 5));
+    /* and the node answers seq 0 afresh */
+    CHECK_EQ(step_loop(2, "again", reply, 255, &rlen), 0);
+    CHECK_EQ(execMasterNextSeq(master, 2), 1);
+}
+
+/* A blocking execMasterTransact in another thread waits until the
+ * Begin/Step transaction in flight is over, then runs (seq after it). */
+typedef struct tx_arg { int rc; byte reply[255]; word rlen; } tx_arg;
+
+static void *transact_thread(void *arg)
+{
+    tx_arg *a = arg;
+    a->rc = transact_str(1, "thread", a->reply, &a->rlen);
+    return NULL;
+}
+
+static void test_transact_waits_for_step(void)
+{
+    unsigned before = load(&slaves[0].applied);
+    int64_t deadline;
+    REQUIRE_ZERO(execMasterBegin(master, 1, (const byte *)"loop", 4, &deadline));
+    tx_arg a = {.rc = -1};
+    pthread_t t;
+    pthread_create(&t, NULL, transact_thread, &a);
+    struct pollfd p = {.fd = fap_port_fd(execMasterPort(master)), .events = POLLIN};
+    byte reply[255];
+    word rlen = 0;
+    int rc;
+    do {
+        int64_t left = deadline - now_ns();
+        poll(&p, 1, left > 0 ? (int)((left + 999999) / 1000000) : 0);
+        rc = execMasterStep(master, reply, 255, &rlen, &deadline);
+    } while (rc == EXEC_MASTER_MORE);
+    CHECK_EQ(rc, 0);
+    CHECK_EQ(reply[1], before + 1);           /* ours went first */
+    CHECK_MEM(reply + 2, "loop", 4);
+    pthread_join(t, NULL);
+    CHECK_EQ(a.rc, 0);
+    CHECK_EQ(a.reply[1], before + 2);
+    CHECK_MEM(a.reply + 2, "thread", 6);
+}
+
 int main(void)
 {
     int err = setup();
@@ -620,6 +797,11 @@ int main(void)
         UNIT(test_broadcast_during_reply_processed),
         UNIT(test_absent_node_times_out),
         UNIT(test_bad_arguments),
+        UNIT(test_step_transaction),
+        UNIT(test_step_busy_and_abort),
+        UNIT(test_step_retry_after_dropped_reply),
+        UNIT(test_step_timeout_seq_zero),
+        UNIT(test_transact_waits_for_step),
         UNIT(test_turnaround_delay),
         UNIT(test_stop_wakes_serve),
         UNIT(test_port_vanishes),

@@ -242,3 +242,15 @@ def test_reopen_after_the_port_comes_back() -> None:
         assert slave.serve(5) is ServeResult.PROCESSED
         t.join(5)
         assert result == [b"cba"]
+
+
+def test_broadcast_then_transact_at_once_keeps_the_broadcast(net) -> None:
+    """The transaction's discard of stale input must not discard the
+    broadcast still in our output queue (it once did: tcflush(TCIOFLUSH))."""
+    for i in range(10):
+        net.master.broadcast(bytes([i]))
+        assert net.master.transact(2, b"t") == bytes([2, i + 1]) + b"t"
+    for node in (1, 3):   # a slave handles frames in order: its reply means it saw them all
+        assert net.master.transact(node, b"t") == bytes([node, 1]) + b"t"
+    for c in net.counters.values():
+        assert c.broadcasts == [bytes([i]) for i in range(10)], (c.node, c.broadcasts)
