@@ -116,6 +116,11 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns);
 /* Discard unread input (and untransmitted output). */
 int fap_port_flush(fap_port *p);
 
+/* Drop input received and not yet read, by reading it (at most 64 reads of
+ * 256 bytes): unlike fap_port_flush, output still queued for the wire is
+ * kept (a broadcast sent just before). 0, or a negative error. */
+int fap_port_discard_input(fap_port *p);
+
 /* fap_port_write without waiting for the last byte to leave the UART
  * where nothing depends on it: tcdrain() only with soft RTS (released
  * after the last bit) or echo suppression (its deadline counts from the

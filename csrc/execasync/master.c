@@ -141,20 +141,6 @@ static int finish(execMaster *m, int err, byte *reply, word reply_cap, word *rep
     return err;
 }
 
-/* Read and drop what is queued. Not fap_port_flush: it also discards
- * output not yet on the wire, e.g. a broadcast sent just before. Bounded:
- * a babbling line cannot keep us here. */
-static int discard_input(fap_port *p)
-{
-    byte junk[256];
-    for (int i = 0; i < 64; i++) {
-        ssize_t r = fap_port_read(p, junk, sizeof junk, 0);
-        if (r <= 0)
-            return (int)r;
-    }
-    return 0;
-}
-
 /* Flush, encode with the node's sequence number, send. Lock held, not busy. */
 static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
 {
@@ -165,7 +151,9 @@ static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
     LF_STAT_INC(m->stats.transactions);
     /* Whatever is waiting now came before our request and cannot be its
      * reply; a corrupt leftover would otherwise trigger a needless retry. */
-    int err = discard_input(m->port);
+    /* Not fap_port_flush: it also drops output not yet on the wire, e.g. a
+     * broadcast sent just before. */
+    int err = fap_port_discard_input(m->port);
     if (!err)
         err = send_attempt(m);
     return err;

@@ -426,9 +426,12 @@ int fap_port_flush(fap_port *p)
 
 /* Drop what was received and not read (parked input included) by reading
  * it: unlike tcflush() this never touches output still queued for the far
- * end (on a pty, a frame not yet taken). One read() when nothing waits. */
-static int discard_input(fap_port *p)
+ * end (on a pty, a frame not yet taken). One read() when nothing waits;
+ * bounded, so a babbling line cannot keep the caller here. */
+int fap_port_discard_input(fap_port *p)
 {
+    if (!p)
+        return -EINVAL;
     int fd;
     int err = lf_port_acquire(p, &fd, NULL);
     if (err)
@@ -440,9 +443,12 @@ static int discard_input(fap_port *p)
         lf_port_pend_signal(p, 0);
     }
     ssize_t r;
+    int reads = 0;
     do
         r = read_some(p, fd, tmp, sizeof tmp);
-    while (r > 0);
+    while (r > 0 && ++reads < 64);
+    if (r > 0)
+        r = 0;
     pthread_mutex_unlock(&p->rx_mu);
     if (r < 0) {
         pthread_mutex_lock(&p->st_mu);
@@ -459,7 +465,7 @@ ssize_t fap_port_transact(fap_port *p, const void *req, size_t n, void *reply, s
 {
     if (!p || (!req && n) || n > SSIZE_MAX || (!reply && cap))
         return -EINVAL;
-    int err = discard_input(p);
+    int err = fap_port_discard_input(p);
     if (err)
         return err;
     if (n) {

@@ -72,6 +72,12 @@ static void test_port(void)
     char buf[2048];
     CHECK(fap_port_read(NULL, buf, 1, 0) < 0);
     CHECK(fap_port_flush(NULL) < 0);
+    CHECK(fap_port_discard_input(NULL) < 0);
+    CHECK(fap_port_send(NULL, "x", 1) < 0);
+    CHECK(fap_port_transact(NULL, "x", 1, buf, sizeof buf, 0) < 0);
+    CHECK(fap_port_transact(a, NULL, 5, buf, sizeof buf, 0) < 0);    /* NULL request, n > 0 */
+    CHECK(fap_port_transact(a, "x", 1, NULL, 5, 0) < 0);             /* NULL reply, cap > 0 */
+    CHECK_EQ(fap_port_discard_input(a), 0);
     fap_port_get_stats(NULL, NULL);
     fap_port_stats ps;
     fap_port_get_stats(NULL, &ps);
@@ -442,6 +448,14 @@ static void test_exec_engine(void)
     /* NULL handles */
     CHECK_EQ(execMasterSetTimeout(NULL, 1, 1), -EINVAL);
     CHECK_EQ(execMasterTransact(NULL, 1, NULL, 0, NULL, 0, NULL), -EINVAL);
+    {
+        int64_t dl = 0;
+        word rl = 0;
+        byte rb[4];
+        CHECK(execMasterBegin(NULL, 1, NULL, 0, &dl) < 0);
+        CHECK(execMasterStep(NULL, rb, sizeof rb, &rl, &dl) < 0);
+        execMasterAbort(NULL);   /* no-op, no crash */
+    }
     CHECK_EQ(execMasterBroadcast(NULL, NULL, 0), -EINVAL);
     CHECK_EQ(execMasterNextSeq(NULL, 1), -EINVAL);
     execMasterResetSequence(NULL);
