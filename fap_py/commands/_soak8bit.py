@@ -190,17 +190,18 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
             continue
         t = time.monotonic() - t0
         d = m.data
-        if m.address != node:
-            r_wrong_node += 1
-        elif d == mikroc_reply(s, node):
+        late = len(d) == 3 and (m.address, int.from_bytes(d[:2], "big")) in sent \
+            and d == mikroc_reply(int.from_bytes(d[:2], "big"), m.address)
+        if m.address != node and not late:
+            r_wrong_node += 1            # a damaged address the check let through
+        elif d == mikroc_reply(s, node) and m.address == node:
             replies[(node, s)] = replies.get((node, s), 0) + 1
             if node == 1 and restart_time is not None and rec_restart is None and t >= restart_time:
                 rec_restart = t - restart_time
             if disc_end is not None and rec_port is None and t >= disc_end:
                 rec_port = t - disc_end
-        elif len(d) == 3 and (node, int.from_bytes(d[:2], "big")) in sent \
-                and d == mikroc_reply(int.from_bytes(d[:2], "big"), node):
-            r_late += 1                  # an intact reply to an earlier request
+        elif late:
+            r_late += 1                  # an intact reply to an earlier request (maybe another node's)
         else:
             r_corrupt += 1
     mstats = dataclasses.asdict(master.stats) if master is not None else {}

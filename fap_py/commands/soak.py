@@ -8,12 +8,15 @@ so the report can say: sent / delivered intact / corrupted / duplicated /
 lost, which counters account for the losses, how long recovery took, and
 how RSS, threads and fds of every process moved.
 
-mikroC and G485 guard their frames with an 8-bit check: their part
-measures how many corrupted frames those checks let through (a channel
-with bit errors fed to the real decoders), a rate to document, not hide.
+mikroC and G485 guard their frames with an 8-bit check: they run on the
+same bus with the same faults (at a higher bit error rate) and count how
+many corrupted messages those checks let through, a rate to document, not
+hide; a simulated bit-error channel fed to the decoders gives a second
+figure.
 
 The exit status is 1 when FAP or exec async delivered anything corrupted
-or twice (or returned a stale reply); docs/reliability.md has figures.
+or twice (or returned a stale reply), or mikroC delivered a frame twice;
+docs/reliability.md has figures.
 """
 from __future__ import annotations
 
