@@ -8,12 +8,15 @@ so the report can say: sent / delivered intact / corrupted / duplicated /
 lost, which counters account for the losses, how long recovery took, and
 how RSS, threads and fds of every process moved.
 
-mikroC and G485 guard their frames with an 8-bit check: their part
-measures how many corrupted frames those checks let through (a channel
-with bit errors fed to the real decoders), a rate to document, not hide.
+mikroC and G485 guard their frames with an 8-bit check: they run on the
+same bus with the same faults (at a higher bit error rate) and count how
+many corrupted messages those checks let through, a rate to document, not
+hide; a simulated bit-error channel fed to the decoders gives a second
+figure.
 
 The exit status is 1 when FAP or exec async delivered anything corrupted
-or twice (or returned a stale reply); docs/reliability.md has figures.
+or twice (or returned a stale reply), or mikroC delivered a frame twice;
+docs/reliability.md has figures.
 """
 from __future__ import annotations
 
@@ -614,14 +617,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--protocol", choices=["fap", "exec", "mikroc", "g485", "all"], default="all",
                    help="what to soak")
     p.add_argument("--seconds", metavar="S", type=seconds, default=30.0,
-                   help="duration of each FAP / exec soak")
+                   help="duration of each protocol's bus soak")
     p.add_argument("--slaves", metavar="N", type=count, default=3, help="slave processes (1..31)")
     p.add_argument("--baud", metavar="N", type=baud, default=115200, help="paced bus rate, bit/s")
     p.add_argument("--bit-error-rate", metavar="P", type=seconds, default=2e-5,
                    help="per byte, every port")
     p.add_argument("--drop-rate", metavar="P", type=seconds, default=2e-5, help="per byte, every port")
+    p.add_argument("--bus8-bit-error-rate", metavar="P", type=seconds, default=0.005,
+                   help="mikroC / G485 bus soak: bit error rate per byte (higher than "
+                        "--bit-error-rate, so that enough frames are damaged to measure what "
+                        "the 8-bit checks let through)")
     link = add_link_options(p, timeout_default=0.1, retries_default=3)
-    link.description = "exec async master"
+    link.description = "exec async, mikroC and G485 master"
     p.add_argument("--master-rate", metavar="R", type=seconds, default=25.0,
                    help="FAP messages/s the master queues")
     p.add_argument("--slave-rate", metavar="R", type=seconds, default=10.0,
@@ -646,14 +653,16 @@ def _human(res: Dict[str, Any]) -> str:
 
 def run(a: argparse.Namespace) -> int:
     """The command: one result per protocol (JSON line or text); exit 1 if FAP or exec
-    async delivered anything corrupted or twice. Errors reach ``run_command``."""
+    async delivered anything corrupted or twice, or mikroC delivered a frame twice
+    (mikroC / G485 corruption is measured, not failed on). Errors reach ``run_command``."""
     from ._options import UsageError, emit
 
     if not 1 <= a.slaves <= 31 or a.seconds <= 0 or a.sample <= 0:
         raise UsageError(f"need --slaves 1..31, --seconds > 0, --sample > 0 (not {a.slaves}, "
                          f"{a.seconds}, {a.sample})")
-    if not (a.bit_error_rate <= 1 and a.drop_rate <= 1 and a.check8_ber <= 1):
-        raise UsageError("--bit-error-rate, --drop-rate and --check8-ber are probabilities (0..1)")
+    if not (a.bit_error_rate <= 1 and a.drop_rate <= 1 and a.check8_ber <= 1 and a.bus8_bit_error_rate <= 1):
+        raise UsageError("--bit-error-rate, --drop-rate, --bus8-bit-error-rate and --check8-ber "
+                         "are probabilities (0..1)")
     protos = ["fap", "exec", "mikroc", "g485"] if a.protocol == "all" else [a.protocol]
     failed = False
     for proto in protos:
@@ -662,7 +671,10 @@ def run(a: argparse.Namespace) -> int:
         elif proto == "exec":
             res = soak_exec(a)
         else:
-            res = soak_check8(a, proto)
+            from . import _soak8bit
+            res = (_soak8bit.soak_mikroc if proto == "mikroc" else _soak8bit.soak_g485)(a)
+            # the 8-bit check alone on a simulated channel: a second figure
+            res["channel"] = soak_check8(a, proto)
         emit(a, res, _human(res))
         failed |= not res.get("ok", True)
     return 1 if failed else 0
@@ -681,8 +693,13 @@ def _die_with_parent() -> None:
 if __name__ == "__main__" and len(sys.argv) > 2 and sys.argv[1] == "--child":
     _die_with_parent()
     _kind, _path, _node, _baud, _seed, _rate, _until = sys.argv[2:9]
-    fn = _fap_slave_child if _kind == "fap" else _exec_slave_child
     try:
+        if _kind in ("mikroc", "g485"):
+            from fap_py.commands import _soak8bit
+            if _kind == "mikroc":
+                sys.exit(_soak8bit.mikroc_slave_child(_path, int(_node), int(_baud)))
+            sys.exit(_soak8bit.g485_sim_child(_path, int(_node), int(_baud), int(_seed)))
+        fn = _fap_slave_child if _kind == "fap" else _exec_slave_child
         sys.exit(fn(_path, int(_node), int(_baud), int(_seed), float(_rate), float(_until)))
     except (KeyboardInterrupt, BrokenPipeError):
         sys.exit(0)
