@@ -23,14 +23,13 @@ import dataclasses
 import hashlib
 import json
 import random
-import signal
 import subprocess
 import sys
 import threading
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Tuple
 
-from .soak import Sampler, _child, _teardown
+from .soak import FaultPlan, Sampler, _child, _teardown
 
 _KEY = b"fap-soak"
 G485_FIRST = 8          # first user register
@@ -84,10 +83,6 @@ def mikroc_slave_child(path: str, node: int, baud: int) -> int:
                 last = time.monotonic()
 
 
-def _faults(a: argparse.Namespace) -> Tuple[float, float, float]:
-    """kill slave 1 at 1/3 (back 2 s later), master's port gone at 2/3 for 1 s"""
-    return a.seconds / 3, a.seconds / 3 + 2.0, 2 * a.seconds / 3
-
 
 def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
     from fap_py.errors import FapError, FapTimeoutError
@@ -136,28 +131,11 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
     sent: Dict[Tuple[int, int], int] = {}          # (node, seq) -> 1
     replies: Dict[Tuple[int, int], int] = {}       # (node, seq) -> intact replies
     r_corrupt = r_late = r_wrong_node = no_reply = frame_errors = port_errors = reopens = 0
-    kill_at, restart_at, disc_at = _faults(a)
-    killed = restarted = disconnected = False
-    restart_time: Optional[float] = None
-    disc_end: Optional[float] = None
-    rec_restart: Optional[float] = None
-    rec_port: Optional[float] = None
     seq = 0
     t0 = time.monotonic()
+    plan = FaultPlan(a.seconds, t0)
     while time.monotonic() - t0 < a.seconds:
-        now = time.monotonic() - t0
-        if not killed and now >= kill_at:
-            children["slave1"].send_signal(signal.SIGKILL)
-            children["slave1"].wait()
-            killed = True
-        if killed and not restarted and now >= restart_at:
-            start_slave(1)
-            restart_time = time.monotonic() - t0
-            restarted = True
-        if not disconnected and now >= disc_at:
-            bus.disconnect(0, 1.0)
-            disc_end = now + 1.0
-            disconnected = True
+        plan.step(children, start_slave, bus)
         node, s = 1 + seq % n, seq & 0xFFFF
         if master is None:              # the port vanished: open it again when it is back
             try:
@@ -196,10 +174,7 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
             r_wrong_node += 1            # a damaged address the check let through
         elif d == mikroc_reply(s, node) and m.address == node:
             replies[(node, s)] = replies.get((node, s), 0) + 1
-            if node == 1 and restart_time is not None and rec_restart is None and t >= restart_time:
-                rec_restart = t - restart_time
-            if disc_end is not None and rec_port is None and t >= disc_end:
-                rec_port = t - disc_end
+            plan.good_exchange(node, t)
         elif late:
             r_late += 1                  # an intact reply to an earlier request (maybe another node's)
         else:
@@ -247,8 +222,8 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
                              "loss_counters": {"no_reply": no_reply, "frame_errors": frame_errors,
                                                "port_errors": port_errors}},
         "undetected_corruption_rate": round((corrupt + r_corrupt + r_wrong_node) / max(1, 2 * len(sent)), 6),
-        "recovery_s": {"slave_restart_to_reply": round(rec_restart, 3) if rec_restart is not None else None,
-                       "port_back_to_reply": round(rec_port, 3) if rec_port is not None else None},
+        "recovery_s": {"slave_restart_to_reply": round(plan.rec_restart, 3) if plan.rec_restart is not None else None,
+                       "port_back_to_reply": round(plan.rec_port, 3) if plan.rec_port is not None else None},
         "master_reopens": reopens, "master_stats": mstats, "resources": sampler.summary(),
         # mikroC never sends a frame twice: a duplicate would be a bus or engine defect
         "ok": dup == 0 and s_dup == 0,
@@ -328,27 +303,10 @@ def soak_g485(a: argparse.Namespace) -> Dict[str, Any]:
     master = G485Master(bus.paths[0], a.baud, timeout=a.timeout, retries=a.retries)
     cycles = intact = corrupt = stale = w_fail = r_fail = port_errors = 0
     written: Dict[int, Dict[bytes, int]] = {i: {} for i in range(1, n + 1)}   # node -> block -> seq
-    kill_at, restart_at, disc_at = _faults(a)
-    killed = restarted = disconnected = False
-    restart_time: Optional[float] = None
-    disc_end: Optional[float] = None
-    rec_restart: Optional[float] = None
-    rec_port: Optional[float] = None
     t0 = time.monotonic()
+    plan = FaultPlan(a.seconds, t0)
     while time.monotonic() - t0 < a.seconds:
-        now = time.monotonic() - t0
-        if not killed and now >= kill_at:
-            children["slave1"].send_signal(signal.SIGKILL)
-            children["slave1"].wait()
-            killed = True
-        if killed and not restarted and now >= restart_at:
-            start_slave(1)
-            restart_time = time.monotonic() - t0
-            restarted = True
-        if not disconnected and now >= disc_at:
-            bus.disconnect(0, 1.0)
-            disc_end = now + 1.0
-            disconnected = True
+        plan.step(children, start_slave, bus)
         node = 1 + cycles % n
         block = g485_block(cycles, node, rnd)
         cycles += 1
@@ -374,10 +332,7 @@ def soak_g485(a: argparse.Namespace) -> Dict[str, Any]:
         t = time.monotonic() - t0
         if back == block:
             intact += 1
-            if node == 1 and restart_time is not None and rec_restart is None and t >= restart_time:
-                rec_restart = t - restart_time
-            if disc_end is not None and rec_port is None and t >= disc_end:
-                rec_port = t - disc_end
+            plan.good_exchange(node, t)
         elif back in written[node] and g485_intact(back, node):
             stale += 1                   # an older block: this confirmed write did not land
         else:
@@ -401,8 +356,8 @@ def soak_g485(a: argparse.Namespace) -> Dict[str, Any]:
         "failed": {"write": w_fail, "read": r_fail, "port": port_errors},
         "every_loss_counted": cycles - intact - corrupt - stale == failed,
         "undetected_corruption_rate": round(corrupt / max(1, cycles), 6),
-        "recovery_s": {"slave_restart_to_readback": round(rec_restart, 3) if rec_restart is not None else None,
-                       "port_back_to_readback": round(rec_port, 3) if rec_port is not None else None},
+        "recovery_s": {"slave_restart_to_readback": round(plan.rec_restart, 3) if plan.rec_restart is not None else None,
+                       "port_back_to_readback": round(plan.rec_port, 3) if plan.rec_port is not None else None},
         "master_stats": mstats, "simulators": sim_stats, "resources": sampler.summary(),
         "ok": True,
     }

@@ -44,6 +44,50 @@ _HDR = struct.Struct(">BBHI")      # src, dst, incarnation, seq
 # -- messages -------------------------------------------------------------
 
 
+
+class FaultPlan:
+    """The faults every soak injects, on one schedule: slave 1 killed at a
+    third of the run and restarted 2 s later, the master's port gone at two
+    thirds for 1 s. Also measures recovery: the first good exchange with
+    slave 1 after its restart and with anyone after the port came back."""
+
+    def __init__(self, seconds: float, t0: float) -> None:
+        self.t0 = t0
+        self.kill_at, self.restart_at, self.disc_at = seconds / 3, seconds / 3 + 2.0, 2 * seconds / 3
+        self.killed = self.restarted = self.disconnected = False
+        self.restart_time: Optional[float] = None
+        self.disc_end: Optional[float] = None
+        self.rec_restart: Optional[float] = None
+        self.rec_port: Optional[float] = None
+
+    def step(self, children: Dict[str, Any], start_slave: Any, bus: Any,
+             on_kill: Any = None) -> float:
+        """Inject what is due now; return the run time in seconds."""
+        now = time.monotonic() - self.t0
+        if not self.killed and now >= self.kill_at:
+            children["slave1"].send_signal(signal.SIGKILL)
+            children["slave1"].wait()
+            if on_kill is not None:
+                on_kill()
+            self.killed = True
+        if self.killed and not self.restarted and now >= self.restart_at:
+            start_slave(1)
+            self.restart_time = time.monotonic() - self.t0
+            self.restarted = True
+        if not self.disconnected and now >= self.disc_at:
+            bus.disconnect(0, 1.0)
+            self.disc_end = time.monotonic() - self.t0 + 1.0
+            self.disconnected = True
+        return now
+
+    def good_exchange(self, node: int, t: float) -> None:
+        """Note a good exchange with ``node`` at run time ``t`` (recovery times)."""
+        if node == 1 and self.restart_time is not None and self.rec_restart is None \
+                and t >= self.restart_time:
+            self.rec_restart = t - self.restart_time
+        if self.disc_end is not None and self.rec_port is None and t >= self.disc_end:
+            self.rec_port = t - self.disc_end
+
 def _teardown(master: Any, sampler: Any, children: Dict[Any, Any], threads: List[Any],
               bus: Any) -> Any:
     """Stop the sampler, close the master, kill the slave processes, join the
@@ -322,26 +366,12 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     except Exception as e:               # reported below as losses, not a crash
         log.warning("slaves not all active at the start: %s", e)
     # faults: kill slave 1 at 1/3 (back after 2 s), master port gone at 2/3 for 1 s
-    kill_at, restart_at, disc_at = a.seconds / 3, a.seconds / 3 + 2.0, 2 * a.seconds / 3
-    killed = restarted = disconnected = False
-    restart_time = disc_end = None
+    plan = FaultPlan(a.seconds, t0)
     seq = 0
     deadline = t0 + a.seconds
     while time.monotonic() < deadline:
-        now = time.monotonic() - t0
-        if not killed and now >= kill_at:
-            children["slave1"].send_signal(signal.SIGKILL)
-            children["slave1"].wait()
-            incs[1][-1].killed = True
-            killed = True
-        if killed and not restarted and now >= restart_at:
-            start_slave(1).wait(10)
-            restart_time = time.monotonic() - t0
-            restarted = True
-        if not disconnected and now >= disc_at:
-            bus.disconnect(0, 1.0)
-            disc_end = time.monotonic() - t0 + 1.0
-            disconnected = True
+        plan.step(children, lambda i: start_slave(i).wait(10), bus,
+                  on_kill=lambda: setattr(incs[1][-1], "killed", True))
         dst = 1 + seq % n
         msg = make_message(0, dst, 0, seq, rnd)
         try:
@@ -396,6 +426,7 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     def ev_of(kind: str, sid: Optional[int] = None) -> List[float]:
         return [t for t, k, i in events if k == kind and (sid is None or i == sid)]
 
+    restart_time, disc_end = plan.restart_time, plan.disc_end
     rec_active = [t - restart_time for t in ev_of("SLAVE_ACTIVE", 1) if restart_time and t >= restart_time]
     reopened = [t - disc_end for t in ev_of("PORT_REOPENED") if disc_end and t >= disc_end - 1.0]
     counted_m2s = mstats["tx_unconfirmed"] + mstats["tx_to_inactive"] + \
@@ -469,26 +500,9 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
     mid = 0
     ok = corrupted = stale = failures = port_errors = 0
     sent_ids: Dict[int, int] = {}
-    kill_at, restart_at, disc_at = a.seconds / 3, a.seconds / 3 + 2.0, 2 * a.seconds / 3
-    killed = restarted = disconnected = False
-    restart_time: Optional[float] = None
-    disc_end: Optional[float] = None
-    rec_restart: Optional[float] = None
-    rec_port: Optional[float] = None
+    plan = FaultPlan(a.seconds, t0)
     while time.monotonic() - t0 < a.seconds:
-        now = time.monotonic() - t0
-        if not killed and now >= kill_at:
-            children["slave1"].kill()
-            children["slave1"].wait()
-            killed = True
-        if killed and not restarted and now >= restart_at:
-            start_slave(1)
-            restart_time = time.monotonic() - t0
-            restarted = True
-        if not disconnected and now >= disc_at:
-            bus.disconnect(0, 1.0)
-            disc_end = now + 1.0
-            disconnected = True
+        plan.step(children, start_slave, bus)
         node = 1 + mid % n
         body = mid.to_bytes(8, "big") + rnd.randbytes(rnd.randint(8, 180))
         req = body + hashlib.sha256(body).digest()
@@ -513,10 +527,7 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
             corrupted += 1
         else:
             ok += 1
-            if node == 1 and restart_time and rec_restart is None and t >= restart_time:
-                rec_restart = t - restart_time
-            if disc_end and rec_port is None and t >= disc_end:
-                rec_port = t - disc_end
+            plan.good_exchange(node, t)
         mid += 1
     time.sleep(0.3)
     st = master.stats
@@ -542,8 +553,8 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
         "corrupt_requests_reaching_handler": bad_at_slave[0],
         # every transaction that got no intact reply is in the master's failures
         "every_loss_counted": mid - ok - corrupted - stale == mstats["failures"],
-        "recovery_s": {"slave_restart_to_reply": round(rec_restart, 3) if rec_restart is not None else None,
-                       "port_back_to_reply": round(rec_port, 3) if rec_port is not None else None},
+        "recovery_s": {"slave_restart_to_reply": round(plan.rec_restart, 3) if plan.rec_restart is not None else None,
+                       "port_back_to_reply": round(plan.rec_port, 3) if plan.rec_port is not None else None},
         "master_stats": mstats, "resources": sampler.summary(),
         "ok": corrupted == 0 and stale == 0 and dup == 0 and bad_at_slave[0] == 0,
     }
