@@ -35,7 +35,8 @@ def test_g485_block_digest_detects_any_single_bit_flip() -> None:
 
 
 def _soak(proto: str) -> dict:
-    r = run_proc("soak", "--protocol", proto, "--seconds", "4", "--slaves", "2",
+    # 6 s: the port comes back at 5 s, leaving time for the reopen and a good exchange
+    r = run_proc("soak", "--protocol", proto, "--seconds", "6", "--slaves", "2",
                  "--check8-seconds", "0.2", "--json", timeout=120)
     assert r.code == 0, r.err
     lines = r.lines()
