@@ -8,8 +8,11 @@ mount -t sysfs sys /sys
 mount -t devtmpfs dev /dev
 insmod /virtio_mmio.ko
 insmod /virtio_console.ko
+# Wait until hvc0 can really be opened, not only until its node exists: a
+# failed redirection on `exec` ends this shell, and with it init (a kernel
+# panic, seen once in CI). The subshell takes the failure instead.
 i=0
-while [ ! -e /dev/hvc0 ] && [ $i -lt 200 ]; do usleep 10000; i=$((i+1)); done
+while ! (: </dev/hvc0) 2>/dev/null && [ $i -lt 1000 ]; do usleep 10000; i=$((i+1)); done
 exec </dev/hvc0 >/dev/hvc0 2>&1
 echo "GUEST-UP $(uname -r)"
 /rs485_checks /dev/ttyAMA0
