@@ -29,7 +29,7 @@ import threading
 import time
 from typing import Any, Dict, List, Tuple
 
-from .soak import FaultPlan, Sampler, _child, _teardown
+from .soak import FaultPlan, Sampler, _child, _teardown, _watch
 
 _KEY = b"fap-soak"
 G485_FIRST = 8          # first user register
@@ -115,13 +115,8 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
                 st.update(json.loads(rest))
 
     def start_slave(i: int) -> None:
-        up = threading.Event()
         p = _child("mikroc", bus.paths[i], i, a.baud, a.seed + i, 0)
-        children[f"slave{i}"] = p
-        t = threading.Thread(target=reader, args=(p, i, up), daemon=True)
-        t.start()
-        threads.append(t)
-        up.wait(10)
+        _watch(p, i, children, threads, reader, i).wait(10)
 
     sampler = Sampler(a.sample, children)
     sampler.start()
@@ -287,14 +282,8 @@ def soak_g485(a: argparse.Namespace) -> Dict[str, Any]:
                 sim_stats[name] = json.loads(f[1])
 
     def start_slave(i: int) -> None:
-        up = threading.Event()
         p = _child("g485", bus.paths[i], i, a.baud, a.seed + i, 0)
-        name = f"slave{i}.{len(threads)}"
-        children[f"slave{i}"] = p
-        t = threading.Thread(target=reader, args=(p, name, up), daemon=True)
-        t.start()
-        threads.append(t)
-        up.wait(10)
+        _watch(p, i, children, threads, reader, f"slave{i}.{len(threads)}").wait(10)
 
     sampler = Sampler(a.sample, children)
     sampler.start()

@@ -88,6 +88,18 @@ class FaultPlan:
         if self.disc_end is not None and self.rec_port is None and t >= self.disc_end:
             self.rec_port = t - self.disc_end
 
+
+def _watch(p: Any, i: int, children: Dict[str, Any], threads: List[Any], reader: Any,
+           key: Any) -> threading.Event:
+    """Register ``p`` as slave ``i``'s process and start the thread reading its
+    reports (``reader(p, key, up)``); ``up`` is set when the child says it is up."""
+    up = threading.Event()
+    children[f"slave{i}"] = p
+    t = threading.Thread(target=reader, args=(p, key, up), daemon=True)
+    t.start()
+    threads.append(t)
+    return up
+
 def _teardown(master: Any, sampler: Any, children: Dict[Any, Any], threads: List[Any],
               bus: Any) -> Any:
     """Stop the sampler, close the master, kill the slave processes, join the
@@ -305,15 +317,10 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
 
     def start_slave(i: int) -> threading.Event:
         rec = Incarnation()
-        up = threading.Event()
         p = _child("fap", bus.paths[i], i, a.baud, a.seed + i, a.slave_rate,
                    max(0.0, a.seconds - (time.monotonic() - t_start)))
-        children[f"slave{i}"] = p
         incs[i].append(rec)
-        t = threading.Thread(target=_reader, args=(p, rec, up), daemon=True)
-        t.start()
-        threads.append(t)
-        return up
+        return _watch(p, i, children, threads, _reader, rec)
 
     sampler = Sampler(a.sample, children)
     sampler.start()
@@ -467,7 +474,7 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
     children: Dict[str, "subprocess.Popen[bytes]"] = {}
     execs: Dict[int, Dict[int, List[int]]] = {i: {} for i in range(1, n + 1)}   # node -> id -> seqs
     bad_at_slave = [0]
-    threads = []
+    threads: List[threading.Thread] = []
 
     def reader(p: "subprocess.Popen[bytes]", node: int, up: threading.Event) -> None:
         assert p.stdout is not None
@@ -483,13 +490,8 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
                 execs[node].setdefault(int(f[1]), []).append(int(f[2]))
 
     def start_slave(i: int) -> None:
-        up = threading.Event()
         p = _child("exec", bus.paths[i], i, a.baud, a.seed + i, 0)
-        children[f"slave{i}"] = p
-        t = threading.Thread(target=reader, args=(p, i, up), daemon=True)
-        t.start()
-        threads.append(t)
-        up.wait(10)
+        _watch(p, i, children, threads, reader, i).wait(10)
 
     sampler = Sampler(a.sample, children)
     sampler.start()
