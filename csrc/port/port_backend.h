@@ -33,6 +33,9 @@ typedef struct lf_port_backend {
     /* Sleep until an absolute CLOCK_MONOTONIC time in ns (RTS delays and
      * turnaround); a fake may record the call instead of sleeping. */
     void (*sleep_until)(void *ctx, int64_t deadline_ns);
+    /* Optional: free ctx when the port is freed (a backend that owns its
+     * ctx, port_net.c); NULL = the caller owns it. */
+    void (*destroy)(void *ctx);
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
