@@ -51,6 +51,7 @@ typedef struct lf_net {
     unsigned answered[16];        /* answers per COM-PORT command (cmd - 100) */
     uint32_t answer_val[16];      /* the last answer's value */
     struct termios tio;           /* what tcsetattr stored (tcgetattr hands it back) */
+    int purged;                   /* tcsetattr sent PURGE-DATA: the open's flush need not */
 } lf_net;
 
 static void set_warning(lf_net *c, const char *text)
@@ -415,9 +416,15 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     want[LF_CPC_SET_DATASIZE] = 8;
     want[LF_CPC_SET_PARITY] = LF_CPC_PARITY_NONE;
     want[LF_CPC_SET_STOPSIZE] = LF_CPC_STOP_1;
-    uint8_t msg[16 * (sizeof line_cmds + sizeof control_vals)];
+    uint8_t msg[16 * (1 + sizeof line_cmds + sizeof control_vals)];
     size_t len = 0;
     memset(c->answered, 0, sizeof c->answered);
+    /* Purge first: the server works in order, so once the settings are
+     * answered the purge is done, and no byte that arrives after the open
+     * is purged late (ser2net never answers PURGE-DATA itself). */
+    const uint8_t both = LF_CPC_PURGE_BOTH;
+    len += lf_telnet_cpc(LF_CPC_PURGE_DATA, &both, 1, msg + len);
+    c->purged = 1;
     for (size_t i = 0; i < sizeof line_cmds; i++) {
         uint8_t cmd = line_cmds[i];
         uint8_t v[4] = {(uint8_t)(baud >> 24), (uint8_t)(baud >> 16), (uint8_t)(baud >> 8),
@@ -465,7 +472,9 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
 static int net_tcflush(void *ctx, int fd, int queue)
 {
     lf_net *c = ctx;
-    if (c->url.scheme == LF_PORT_RFC2217) {
+    int purged = c->purged;   /* the open's flush: tcsetattr purged in order */
+    c->purged = 0;
+    if (c->url.scheme == LF_PORT_RFC2217 && !purged) {
         uint8_t what = queue == TCIFLUSH ? LF_CPC_PURGE_RX
                        : queue == TCOFLUSH ? LF_CPC_PURGE_TX : LF_CPC_PURGE_BOTH;
         uint8_t msg[16];
