@@ -129,8 +129,8 @@ class Port(NativeHandle):
         self._buf = ffi.new("unsigned char[]", MAX_READ)
         self._buffer = ffi.buffer(self._buf)
         self.baudrate = int(lib.fap_port_baud(out[0]))
-        note = ffi.new("char[]", 256)
-        if lib.fap_port_warning(out[0], note, 256):   # a network server's quirk, open went on
+        note = ffi.new("char[]", 512)
+        if lib.fap_port_warning(out[0], note, 512):   # a network server's quirk, open went on
             log.warning("%s: %s", self.path, ffi.string(note).decode(errors="replace"))
         self._adopt(out[0])
 

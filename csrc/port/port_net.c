@@ -44,7 +44,7 @@ typedef struct lf_net {
     int fd;                       /* the connection, -1 when none */
     pthread_mutex_t tx_mu;        /* one sender: data and Telnet answers */
     pthread_mutex_t st_mu;        /* warning[] */
-    char warning[200];
+    char warning[400];
     /* RFC 2217 (stream state: used under the port's rx_mu or at open) */
     lf_telnet tn;
     uint8_t us[256], him[256];    /* option states, OPT_* */
@@ -54,10 +54,12 @@ typedef struct lf_net {
     int purged;                   /* tcsetattr sent PURGE-DATA: the open's flush need not */
 } lf_net;
 
+/* Add a note to this connection's warning ("" clears it). */
 static void set_warning(lf_net *c, const char *text)
 {
     pthread_mutex_lock(&c->st_mu);
-    snprintf(c->warning, sizeof c->warning, "%s", text);
+    size_t len = text[0] ? strlen(c->warning) : 0;
+    snprintf(c->warning + len, sizeof c->warning - len, "%s%s", len ? "; " : "", text);
     pthread_mutex_unlock(&c->st_mu);
 }
 

@@ -50,7 +50,7 @@ static int parse_query(const char *q, lf_port_url *u)
         {"rtt_ms", offsetof(lf_port_url, rtt_ms)},
         {"option_ms", offsetof(lf_port_url, option_ms)},
     };
-    while (*q) {
+    for (;;) {                        /* key=value[&key=value...], none empty */
         const char *amp = strchr(q, '&');
         const char *end = amp ? amp : q + strlen(q);
         const char *eq = memchr(q, '=', (size_t)(end - q));
@@ -69,7 +69,9 @@ static int parse_query(const char *q, lf_port_url *u)
         }
         if (!found)
             return FAP_PORT_EURL;
-        q = amp ? amp + 1 : end;
+        if (!amp)
+            break;
+        q = amp + 1;
     }
     return 0;
 }
