@@ -100,6 +100,39 @@ def test_g485_master_and_simulator(served: Tuple[VirtualBus, Ser2net],
         assert master.read(2, 8, 2) == bytes([0x32, 0x10])
 
 
+def _example(name: str) -> Path:
+    """A built example program (the meson build directory next to the sources)."""
+    root = Path(__file__).resolve().parents[3]
+    for build in (os.environ.get("FAP_BUILD_DIR"), root / "build"):
+        if build and (Path(build) / "examples" / "fap" / name).exists():
+            return Path(build) / "examples" / "fap" / name
+    pytest.skip(f"examples/fap/{name} is not built")
+
+
+def test_classic_api_programs_through_ser2net(served: Tuple[VirtualBus, Ser2net]) -> None:
+    """The vendor API's example master and slave, unchanged, given URLs as
+    their device: fapInit("rfc2217://...") and fapInit("tcp://...")."""
+    import subprocess
+
+    _, s = served
+    slave = subprocess.Popen([str(_example("fap_slave")), s.urls[1], "7", "3"],
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        assert slave.stdout is not None
+        assert slave.stdout.readline().strip() == "slave 7 ready"
+        master = subprocess.run([str(_example("fap_master")), s.urls[0], "7", "3"],
+                                capture_output=True, text=True, timeout=120)
+        assert master.returncode == 0, master.stdout + master.stderr
+        assert "master: 3 of 3 replies" in master.stdout
+        assert "reply from 7: slave 7 got: hello 2 from the master" in master.stdout
+        out, _ = slave.communicate(timeout=WAIT)
+        assert slave.returncode == 0, out
+    finally:
+        if slave.poll() is None:
+            slave.kill()
+            slave.communicate()
+
+
 class Traffic:
     """Numbered messages master -> slave 3, one every few ms, until stopped:
     ``sent`` and ``got`` hold (time, number) for each message sent / received."""
