@@ -13,7 +13,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Iterator, List, Tuple
+from typing import Callable, Iterator, List, Tuple
 
 import pytest
 
@@ -235,3 +235,54 @@ def test_fap_through_a_resetting_jittery_proxy(served: Tuple[VirtualBus, Ser2net
         assert max(reconnects) < 5.0
         st = master.stats()
         assert st.port_lost >= 3 and st.port_reopened >= 3     # every reset counted
+
+
+def _until_ok(fn: Callable[[], object], what: str) -> float:
+    """Call fn until it stops raising a port or bus error; the seconds it took."""
+    t0 = time.monotonic()
+
+    def attempt() -> bool:
+        try:
+            fn()
+            return True
+        except FapError:
+            return False
+
+    wait_until(attempt, what)
+    return time.monotonic() - t0
+
+
+def test_exec_master_reconnects_after_a_reset(served: Tuple[VirtualBus, Ser2net]) -> None:
+    """exec async reports the dropped connection like a vanished device
+    (PortGoneError); reopen() connects again and the exchanges go on."""
+    from fap_py.errors import PortGoneError
+    from fap_py.execasync import RS485, Master, RS485Mode, Slave
+
+    none = RS485(mode=RS485Mode.NONE)
+    _, s = served
+    with FaultProxy(s.ports[0]) as px, \
+            Slave(s.urls[1], node=5, handler=lambda r: r.data, rs485=none).start(), \
+            Master(px.url("tcp"), timeout=0.5, retries=1, rs485=none) as master:
+        assert master.transact(5, b"before") == b"before"
+        px.reset()
+        with pytest.raises(PortGoneError):
+            for _ in range(50):                  # the reset reaches the next call or the one after
+                master.transact(5, b"lost?")
+        took = _until_ok(master.reopen, "the reopen")
+        assert took < 5.0
+        assert master.transact(5, b"after") == b"after"
+        assert master.stats.replies >= 2
+
+
+def test_g485_master_reopens_by_itself_after_a_reset(served: Tuple[VirtualBus, Ser2net]) -> None:
+    from fap_py.g485 import G485Master, SimDevice, Simulator
+
+    _, s = served
+    with FaultProxy(s.ports[1]) as px, \
+            Simulator(s.urls[0], [SimDevice(2)], baudrate=115200), \
+            G485Master(px.url("rfc2217"), 115200, timeout=0.5) as master:
+        master.handshake(2)
+        px.reset()
+        took = _until_ok(lambda: master.handshake(2), "a handshake after the reset")
+        assert took < 5.0
+        assert master.stats.reopens >= 1
