@@ -95,8 +95,30 @@ def _port_codes() -> Dict[str, int]:
     parts of fap_py) does not need the extension."""
     from ._native import lib
 
-    return {"FAP_PORT_ECOLLISION": int(lib.FAP_PORT_ECOLLISION),
-            "FAP_PORT_ECLOSED": int(lib.FAP_PORT_ECLOSED)}
+    names = ("FAP_PORT_ECOLLISION", "FAP_PORT_ECLOSED", "FAP_PORT_EURL", "FAP_PORT_ENET485",
+             "FAP_PORT_ERESOLVE", "FAP_PORT_EREFUSED")
+    return {name: int(getattr(lib, name)) for name in names}
+
+
+def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
+    """The exception for a network transport's code (tcp://, rfc2217://), or None.
+
+    A bad URL or an RS-485 mode a URL cannot have is a usage error; a name
+    that does not resolve, a server that refuses a setting or a connect that
+    times out is a port error (docs/port.md, "Network transports")."""
+    from ._native import ffi, lib
+
+    codes = _port_codes()
+    text = f"{prefix}{ffi.string(lib.fap_port_strerror(code)).decode()}"
+    if code in (codes["FAP_PORT_EURL"], codes["FAP_PORT_ENET485"]):
+        return InvalidValueError(f"{path}: {text}" if path else text)
+    if code == codes["FAP_PORT_ERESOLVE"]:
+        return PortError(_errno.EHOSTUNREACH, text, path)
+    if code == codes["FAP_PORT_EREFUSED"]:
+        return PortError(_errno.EPROTO, text, path)
+    if code == -_errno.ETIMEDOUT and path and "://" in path and "open" in prefix:
+        return PortError(_errno.ETIMEDOUT, f"{prefix}connection timed out", path)
+    return None
 
 
 def __getattr__(name: str) -> int:
@@ -113,6 +135,9 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
         return BusCollisionError(f"{prefix}bus collision (echo differs from what was sent)")
     if code == codes["FAP_PORT_ECLOSED"]:
         return ClosedError(f"{prefix}port closed")
+    net = _net_error(code, prefix, path)
+    if net is not None:
+        return net
     err = -code
     if err == _errno.ETIMEDOUT:
         return FapTimeoutError(f"{prefix}{os.strerror(err)}")

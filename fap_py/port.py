@@ -17,6 +17,7 @@ in :meth:`Port.read` does not hold up the rest of the program.
 from __future__ import annotations
 
 import errno as _errno
+import logging
 import math
 import os
 import time
@@ -36,6 +37,8 @@ from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to
     error_from_code,
 )
 from .rs485 import RS485, RS485Mode, port_options
+
+log = logging.getLogger(__name__)
 
 PathLike = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
 
@@ -126,6 +129,9 @@ class Port(NativeHandle):
         self._buf = ffi.new("unsigned char[]", MAX_READ)
         self._buffer = ffi.buffer(self._buf)
         self.baudrate = int(lib.fap_port_baud(out[0]))
+        note = ffi.new("char[]", 512)
+        if lib.fap_port_warning(out[0], note, 512):   # a network server's quirk, open went on
+            log.warning("%s: %s", self.path, ffi.string(note).decode(errors="replace"))
         self._adopt(out[0])
 
     # -- NativeHandle ----------------------------------------------------------

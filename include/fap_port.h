@@ -22,6 +22,12 @@ extern "C" {
 /* libfap specific error codes (negative, outside the errno range). */
 #define FAP_PORT_ECOLLISION  (-10001)  /* echo read back differs from what was sent */
 #define FAP_PORT_ECLOSED     (-10002)  /* port closed (by fap_port_close/shutdown)  */
+/* Network transports (tcp://, rfc2217://; docs/port.md "Network transports"). */
+#define FAP_PORT_EURL        (-10010)  /* bad URL: unknown scheme, no host, bad port or query */
+#define FAP_PORT_ENET485     (-10011)  /* kernel or soft-RTS direction asked on a URL */
+#define FAP_PORT_ERESOLVE    (-10012)  /* the URL's host name does not resolve */
+#define FAP_PORT_EREFUSED    (-10013)  /* the RFC 2217 server refused COM-PORT-OPTION,
+                                          the baud rate or 8N1 */
 
 /* How the transmitter is switched on and off. */
 typedef enum fap_rs485_mode {
@@ -99,6 +105,12 @@ const char *fap_rs485_mode_name(fap_rs485_mode m);
 int fap_port_fd(const fap_port *p);
 const char *fap_port_path(const fap_port *p);
 unsigned fap_port_baud(const fap_port *p);
+
+/* Network transports: the last note of the connection's set-up (an RFC
+ * 2217 server that did not answer a setting: the open went on), copied
+ * into buf (n bytes, always terminated). Returns its length, 0 when there
+ * is none or p is a device. */
+size_t fap_port_warning(const fap_port *p, char *buf, size_t n);
 
 /* Write all n bytes: waits out the turnaround delay, switches direction per
  * the mode, handles EINTR and partial writes, drains with tcdrain(), reads

@@ -15,6 +15,7 @@
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "execasync/stats_atomic.h"
+#include "port/port_net.h"
 #include "port/rx_pacing.h"
 
 #define DEFAULT_REPLY_TIMEOUT_US 100000u
@@ -146,7 +147,9 @@ static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
 {
     uint8_t seq = m->seq.next[node];
     m->txlen = execAsyncBufferOut(node, (byte *)req, m->txbuf, (byte)req_len, seq);
-    lf_exec_mtx_start(&m->t, node, seq, m->retries, (lf_ns)m->reply_timeout_us * LF_NS_PER_US);
+    /* a network transport's round trip on top (port/port_net.h) */
+    lf_exec_mtx_start(&m->t, node, seq, m->retries,
+                      (lf_ns)m->reply_timeout_us * LF_NS_PER_US + lf_port_link_slack_ns(m->port));
     m->busy = 1;
     LF_STAT_INC(m->stats.transactions);
     /* Whatever is waiting now came before our request and cannot be its

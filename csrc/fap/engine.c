@@ -8,6 +8,7 @@
  * No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
 #include "common/mono_timerfd.h"
+#include "port/port_net.h"
 #include "port/rx_pacing.h"
 #include <errno.h>
 #include <sys/epoll.h>
@@ -320,13 +321,16 @@ void *lf_fapx_engine_main(void *arg)
     lf_ns now = lf_now_ns();
     lf_fap_timing t = {
         .idc = us_ns(h->o.idc_us),
-        .id_answer = us_ns(h->o.id_answer_us),
+        /* a network transport's round trip on top (port/port_net.h) */
+        .id_answer = us_ns(h->o.id_answer_us) + lf_port_link_slack_ns(h->port),
         .data_done = us_ns(h->o.data_done_us),
         .send_budget = us_ns(h->o.send_budget_us),
     };
     lf_fap_io io = { .ctx = h, .tx_pop = sm_tx_pop, .deliver = sm_deliver, .event = sm_event };
+    /* default gap: a frame split across TCP segments is still one frame */
     lf_ns gap = h->o.gap_us ? us_ns(h->o.gap_us)
-                            : lf_fap_default_gap(fap_port_baud(h->port));
+                            : lf_fap_default_gap(fap_port_baud(h->port)) +
+                                  lf_port_link_slack_ns(h->port);
     lf_fap_decoder_init(&h->dec, gap);
     lf_fap_decoder_on_reject(&h->dec, on_reject, h);
     if (h->mode == FAPX_MASTER)
@@ -345,6 +349,7 @@ void *lf_fapx_engine_main(void *arg)
     uint32_t reg_events = 0;          /* its epoll events (0 while holding) */
     lf_ns hold_until = 0;             /* a frame is arriving: read it then */
     unsigned baud = fap_port_baud(h->port);
+    lf_rx_pace pace = {0};            /* the link's observed pace, per frame */
 
     for (;;) {
         now = lf_now_ns();
@@ -432,6 +437,7 @@ void *lf_fapx_engine_main(void *arg)
             port_ev |= EPOLLIN;
         }
         size_t fed = 0;
+        int frame_start = lf_fap_decoder_missing(&h->dec) == 0;   /* for the pace */
         if (port_ev && !h->port_down) {
             for (int rounds = 0; rounds < 4; rounds++) {
                 ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
@@ -447,10 +453,12 @@ void *lf_fapx_engine_main(void *arg)
             }
         }
         /* Bytes came and the frame is not complete: sleep until all but its
-         * last byte can be in (never past the gap deadline). A hold that
-         * brought nothing means the wire stalled: watch the port again. */
+         * last byte can be in at the link's observed pace (never past the
+         * gap deadline; port/rx_pacing.h). A hold that brought nothing
+         * means the wire stalled: watch the port again. */
         if (fed && !h->port_down) {
-            lf_ns hold = lf_rx_hold_ns(baud, lf_fap_decoder_missing(&h->dec));
+            lf_ns hold = lf_rx_pace_hold(&pace, baud, frame_start, fed,
+                                         lf_fap_decoder_missing(&h->dec), now);
             hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
         } else if (h->port_down) {
             hold_until = 0;

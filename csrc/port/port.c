@@ -10,6 +10,8 @@
 #include <unistd.h>
 
 #include "common/mono_clock.h"
+#include "port/port_net.h"
+#include "port/port_url.h"
 
 void fap_port_options_init(fap_port_options *o)
 {
@@ -93,6 +95,8 @@ static void port_free(fap_port *p)
     pthread_mutex_destroy(&p->rx_mu);
     pthread_mutex_destroy(&p->tx_mu);
     free(p->path);
+    if (p->be->destroy)
+        p->be->destroy(p->ctx);
     free(p);
 }
 
@@ -139,6 +143,8 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
 
 int fap_port_open(fap_port **out, const char *path, const fap_port_options *o)
 {
+    if (lf_port_url_scheme(path) != LF_PORT_DEVICE)   /* tcp://, rfc2217:// (port_net.c) */
+        return lf_port_net_open(out, path, o);
     return lf_port_open_with_backend(out, path, o, &lf_port_posix_backend, NULL);
 }
 

@@ -33,6 +33,12 @@ typedef struct lf_port_backend {
     /* Sleep until an absolute CLOCK_MONOTONIC time in ns (RTS delays and
      * turnaround); a fake may record the call instead of sleeping. */
     void (*sleep_until)(void *ctx, int64_t deadline_ns);
+    /* Optional: free ctx when the port is freed (a backend that owns its
+     * ctx, port_net.c); NULL = the caller owns it. */
+    void (*destroy)(void *ctx);
+    /* Optional: the clock rx pacing measures the link's pace with
+     * (CLOCK_MONOTONIC ns); NULL = lf_now_ns. A fake wire runs its own. */
+    int64_t (*now)(void *ctx);
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;

@@ -21,6 +21,11 @@ const char *fap_port_strerror(int err)
     case 0: return "success";
     case FAP_PORT_ECOLLISION: return "bus collision: the echo differs from the bytes sent";
     case FAP_PORT_ECLOSED: return "port closed";
+    case FAP_PORT_EURL: return "bad port URL (tcp://HOST:PORT or rfc2217://HOST:PORT)";
+    case FAP_PORT_ENET485: return "RS-485 direction on a network port is the server's: "
+                                  "use mode none (or auto)";
+    case FAP_PORT_ERESOLVE: return "host name not found";
+    case FAP_PORT_EREFUSED: return "the RFC 2217 server refused a line setting";
     default: break;
     }
     long e = err < 0 ? -(long)err : err;   /* -INT_MIN does not fit an int */

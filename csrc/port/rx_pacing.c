@@ -16,11 +16,35 @@
 
 lf_ns lf_rx_hold_ns(unsigned baud, size_t missing)
 {
-    if (missing < 2 || baud == 0)
+    return baud ? lf_rx_hold_ct_ns(lf_char_time_ns(baud), missing) : 0;
+}
+
+lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing)
+{
+    if (missing < 2 || ct <= 0)
         return 0;
-    lf_ns ct = lf_char_time_ns(baud);
     lf_ns hold = (lf_ns)(missing - 1) * ct - (ct > HOLD_MARGIN_NS ? ct : HOLD_MARGIN_NS);
     return hold >= HOLD_MIN_NS ? hold : 0;
+}
+
+lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t missing,
+                      lf_ns now)
+{
+    lf_ns last = s->t_last;
+    s->t_last = missing ? now : 0;
+    if (first || last <= 0 || n == 0 || missing == 0)
+        return 0;                     /* nothing observed yet: wait for the next piece */
+    lf_ns seen = (now - last) / (lf_ns)n;
+    if (seen < 1)
+        seen = 1;
+    lf_ns ct = baud ? lf_char_time_ns(baud) : seen;
+    return lf_rx_hold_ct_ns(seen < ct ? seen : ct, missing);
+}
+
+/* The backend's clock: a fake backend in the tests runs its own. */
+static lf_ns pace_now(const fap_port *p)
+{
+    return p->be->now ? p->be->now(p->ctx) : lf_now_ns();
 }
 
 ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
@@ -35,22 +59,31 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
         return r;
     size_t got = (size_t)r;
     unsigned baud = fap_port_baud(p);
+    lf_rx_pace pace = {0};
+    lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, pace_now(p));
+    int observed = 0;
     while (got < want) {
-        lf_ns hold = lf_rx_hold_ns(baud, want - got);
-        if (hold == 0)
-            break;                    /* the last byte: the caller waits on the fd */
-        lf_ns until = lf_now_ns() + hold;
-        if (until > deadline_ns)
-            until = deadline_ns;
-        /* the backend's sleep: a fake backend in the tests records it */
-        if (until > lf_now_ns())
-            p->be->sleep_until(p->ctx, until);
-        r = fap_port_read(p, (uint8_t *)buf + got, n - got, 0);
+        lf_ns until = deadline_ns;
+        if (observed) {
+            if (hold == 0)
+                break;                /* the last byte: the caller waits on the fd */
+            until = lf_now_ns() + hold;
+            if (until > deadline_ns)
+                until = deadline_ns;
+            /* the backend's sleep: a fake backend in the tests records it */
+            if (until > lf_now_ns())
+                p->be->sleep_until(p->ctx, until);
+        }
+        /* the first time: the next piece as the fd brings it, to see the pace */
+        r = fap_port_read(p, (uint8_t *)buf + got, n - got, observed ? 0 : deadline_ns);
         if (r <= 0)
             break;                    /* stalled or failed: report what we have */
         got += (size_t)r;
-        if (until >= deadline_ns)
+        hold = lf_rx_pace_hold(&pace, baud, 0, (size_t)r, want > got ? want - got : 0,
+                               pace_now(p));
+        if (observed && until >= deadline_ns)
             break;
+        observed = 1;
     }
     return (ssize_t)got;
 }

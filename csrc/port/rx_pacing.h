@@ -8,6 +8,16 @@
  * sooner than their wire time (10 bits per byte at the port's baud), so
  * the engine may sleep that long and read them together.
  *
+ * "Their wire time" is that of the link actually observed, not of the
+ * baud the port was opened with: a pty in front of socat or ser2net, a
+ * virtual bus paced at another rate or a network transport deliver at
+ * their own pace. So no hold comes before the frame's second piece: the
+ * bytes it brought over the time since the first piece give the link's
+ * character time, and the hold uses that (never more than the baud's
+ * character time; a baud of 0 trusts the observation alone). A wrong or
+ * meaningless local baud costs at most the one extra wake-up for that
+ * observation per frame.
+ *
  * The sleep covers all but the LAST missing byte, less a margin for the
  * engine's wake-up latency: the engine then waits for the rest on the fd
  * as usual, so the answer is not later than with per-byte wake-ups (a
@@ -29,15 +39,34 @@
  * is under 100 us (not worth a timer: short frames at 1 Mbaud) or the
  * baud is 0. */
 lf_ns lf_rx_hold_ns(unsigned baud, size_t missing);
+/* The same for a character time ct (ns per byte) instead of a baud. */
+lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing);
+
+/* The observed pace of one frame, for engines that read the frame's
+ * pieces themselves (the FAP engine's epoll loop). */
+typedef struct lf_rx_pace {
+    lf_ns t_last;                     /* when the previous piece was read; 0 = none */
+} lf_rx_pace;
+
+/* A piece of n > 0 bytes was read at now and `missing` more are due
+ * (missing 0: the frame is complete). first: the piece starts a frame.
+ * Returns how long to hold: 0 on a frame's first piece (the engine waits
+ * for the next one, which measures the link), else lf_rx_hold_ct_ns() of
+ * the smaller of the observed and the baud's character time. */
+lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t missing,
+                      lf_ns now);
 
 /* Read into buf (capacity n) until `want` bytes are in, sleeping the wire
  * time of the missing bytes instead of waking per byte:
  *  1. nothing queued: wait for the first bytes until deadline_ns (as
  *     fap_port_read; 0 = do not wait);
- *  2. while fewer than want and lf_rx_hold_ns() of the missing bytes is
- *     not 0: sleep that long (never past deadline_ns), read what is queued;
- *  3. return once want is reached, the hold is 0 (the caller waits for the
- *     last bytes on the fd), or a sleep brought nothing (the wire stalled).
+ *  2. fewer than want: wait for the next piece on the fd (until
+ *     deadline_ns), which gives the link's observed pace;
+ *  3. while fewer than want and the hold (lf_rx_pace_hold) of the missing
+ *     bytes is not 0: sleep that long (never past deadline_ns), read what
+ *     is queued;
+ *  4. return once want is reached, the hold is 0 (the caller waits for the
+ *     last bytes on the fd), or a wait brought nothing (the wire stalled).
  * Returns the bytes read (0: deadline passed with nothing), or a negative
  * error as fap_port_read when nothing was read (with bytes in hand the
  * error is left for the next call). */

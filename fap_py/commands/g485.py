@@ -101,8 +101,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _rs485(args: argparse.Namespace) -> Any:
-    """Line options for a device path; None for a pyserial URL (it has its own)."""
-    return None if "://" in args.port else rs485_from_args(args)
+    """Line options for a device path or libfap's tcp:// / rfc2217:// (the C port
+    layer); None for a pyserial URL (it has its own)."""
+    pyserial_url = "://" in args.port and not args.port.startswith(("tcp://", "rfc2217://"))
+    return None if pyserial_url else rs485_from_args(args)
 
 
 def run_sim(args: argparse.Namespace) -> int:

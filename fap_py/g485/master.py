@@ -237,7 +237,8 @@ class G485Master:
 
     :param port: a device path (opened through libfap's port layer, with an
         exclusive lock: a second opener gets :class:`fap_py.port.PortBusyError`),
-        a pyserial URL (``socket://``, ``rfc2217://``, ``loop://``, ``spy://``),
+        libfap's ``tcp://HOST:PORT`` or ``rfc2217://HOST:PORT`` (the same C port
+        layer), a pyserial URL (``socket://``, ``loop://``, ``spy://``),
         an open pyserial object, or a raw fd.
     :param baudrate: line speed; above 28,800 baud the wake-up preamble
         ``FF FF FF FF`` precedes the first packet after open (``wake_up``).

@@ -4,7 +4,8 @@
   through libfap's C port layer (:class:`fap_py.port.Port`): RS-485 direction
   control (kernel / soft RTS), echo suppression, turnaround, the exclusive
   lock, deadline reads and reopen, exactly as every other protocol gets them;
-* a pyserial URL (``socket://``, ``rfc2217://``, ``loop://``, ``spy://``), an
+* a pyserial URL (``socket://``, ``loop://``, ``spy://``; libfap's own ``tcp://`` and
+  ``rfc2217://`` go through the C port layer like a device path), an
   open pyserial object or a raw fd goes through :class:`SerialIO`, a thin
   adapter over pyserial's own ``read``/``write`` (so ``spy://`` logs both
   directions) or over ``os.read``/``os.write`` for a raw fd.
@@ -34,8 +35,14 @@ from .errors import EchoMismatchError, G485ValueError
 PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
 
 
+#: URL schemes the C port layer opens itself (docs/port.md, "Network transports")
+_NATIVE_SCHEMES = ("tcp://", "rfc2217://")
+
+
 def _is_url(name: str) -> bool:
-    return "://" in name
+    """A pyserial URL (``socket://`` ...); libfap's own ``tcp://`` and
+    ``rfc2217://`` go through the C port layer like a device path."""
+    return "://" in name and not name.startswith(_NATIVE_SCHEMES)
 
 
 class PortIO:

@@ -1,0 +1,628 @@
+/* port_net.c - tcp:// and rfc2217:// as a port-layer backend (see
+ * port_net.h, docs/port.md "Network transports").
+ *
+ * The port logic (port.c, port_io.c) stays as it is: this backend's open
+ * connects a socket and hands back its fd; read/write/poll work on it as
+ * on a tty; the tty-only calls are answered here: the exclusive lock and
+ * the RS-485 ioctls have no meaning on a socket (ENOTTY for RS-485, so
+ * AUTO settles on NONE), tcsetattr becomes the RFC 2217 line settings
+ * (raw TCP: the server's own), tcflush reads the socket empty (RFC 2217
+ * also asks the server to purge). A dropped connection reads as end of
+ * file or a reset, reported as EIO: the layer's "device vanished", so
+ * every engine's reopen reconnects. */
+#include "port/port_net.h"
+
+#include <fcntl.h>
+#include <netdb.h>
+#include <netinet/in.h>
+#include <netinet/tcp.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include "port/port_internal.h"
+#include "port/port_telnet.h"
+#include "port/port_url.h"
+
+/* Keepalive: a server that vanished without a reset (power cut, cable)
+ * is found within about 5 s of silence; unacknowledged data, within
+ * TCP_USER_TIMEOUT. */
+#define KEEP_IDLE_S 2
+#define KEEP_INTVL_S 1
+#define KEEP_CNT 3
+#define USER_TIMEOUT_MS 5000
+/* The longest a send may wait for room in the socket buffer. */
+#define SEND_WAIT_MS 2000
+
+enum { OPT_OFF = 0, OPT_ASKED, OPT_ON, OPT_REFUSED };
+
+typedef struct lf_net {
+    lf_port_url url;
+    int fd;                       /* the connection, -1 when none */
+    pthread_mutex_t tx_mu;        /* one sender: data and Telnet answers */
+    pthread_mutex_t st_mu;        /* warning[] */
+    char warning[400];
+    /* RFC 2217 (stream state: used under the port's rx_mu or at open) */
+    lf_telnet tn;
+    uint8_t us[256], him[256];    /* option states, OPT_* */
+    unsigned answered[16];        /* answers per COM-PORT command (cmd - 100) */
+    uint32_t answer_val[16];      /* the last answer's value */
+    struct termios tio;           /* what tcsetattr stored (tcgetattr hands it back) */
+    int purged;                   /* tcsetattr sent PURGE-DATA: the open's flush need not */
+} lf_net;
+
+/* Add a note to this connection's warning ("" clears it). */
+static void set_warning(lf_net *c, const char *text)
+{
+    pthread_mutex_lock(&c->st_mu);
+    size_t len = text[0] ? strlen(c->warning) : 0;
+    snprintf(c->warning + len, sizeof c->warning - len, "%s%s", len ? "; " : "", text);
+    pthread_mutex_unlock(&c->st_mu);
+}
+
+/* Errors that mean the connection is gone: reported as EIO, the port
+ * layer's "device vanished" (port_internal.h), so it is reopened. */
+static void map_gone(void)
+{
+    switch (errno) {
+    case ECONNRESET: case EPIPE: case ETIMEDOUT: case ENOTCONN: case ECONNABORTED:
+    case EHOSTUNREACH: case ENETUNREACH: case ENETDOWN: case EHOSTDOWN:
+        errno = EIO;
+        break;
+    default:
+        break;
+    }
+}
+
+/* Send all n bytes (the socket is non-blocking), bounded in time. */
+static int send_all(lf_net *c, int fd, const uint8_t *buf, size_t n)
+{
+    pthread_mutex_lock(&c->tx_mu);
+    int64_t deadline = lf_now_ns() + (int64_t)SEND_WAIT_MS * LF_NS_PER_MS;
+    size_t off = 0;
+    int err = 0;
+    while (off < n) {
+        ssize_t w = send(fd, buf + off, n - off, MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (w > 0) {
+            off += (size_t)w;
+            continue;
+        }
+        if (w < 0 && errno == EINTR)
+            continue;
+        if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
+            map_gone();
+            err = errno;
+            break;
+        }
+        int64_t now = lf_now_ns();
+        if (now >= deadline) {
+            err = ETIMEDOUT;
+            break;
+        }
+        struct pollfd pf = {.fd = fd, .events = POLLOUT};
+        (void)poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
+    }
+    pthread_mutex_unlock(&c->tx_mu);
+    if (err) {
+        errno = err;
+        return -1;
+    }
+    return 0;
+}
+
+/* ---- Telnet option negotiation (the client's side) --------------------- */
+
+static void send_cmd(lf_net *c, uint8_t verb, uint8_t opt)
+{
+    uint8_t b[3] = {LF_TN_IAC, verb, opt};
+    (void)send_all(c, c->fd, b, sizeof b);   /* a failure shows on the next read */
+}
+
+/* What we do ourselves: binary, COM-PORT-OPTION. What we want the server
+ * to do: binary, suppress go-ahead. Anything else (ECHO: the server would
+ * echo our frames back) is refused once. */
+static int we_may(uint8_t opt) { return opt == LF_TN_OPT_BINARY || opt == LF_TN_OPT_COMPORT; }
+static int he_may(uint8_t opt) { return opt == LF_TN_OPT_BINARY || opt == LF_TN_OPT_SGA; }
+
+static void on_cmd(void *ctx, uint8_t verb, uint8_t opt, const uint8_t *sb, size_t len)
+{
+    lf_net *c = ctx;
+    switch (verb) {
+    case LF_TN_DO:
+        if (we_may(opt)) {
+            if (c->us[opt] != OPT_ASKED && c->us[opt] != OPT_ON)
+                send_cmd(c, LF_TN_WILL, opt);
+            c->us[opt] = OPT_ON;
+        } else if (c->us[opt] != OPT_REFUSED) {
+            c->us[opt] = OPT_REFUSED;
+            send_cmd(c, LF_TN_WONT, opt);
+        }
+        break;
+    case LF_TN_DONT:
+        if (c->us[opt] == OPT_ON)
+            send_cmd(c, LF_TN_WONT, opt);
+        c->us[opt] = OPT_REFUSED;
+        break;
+    case LF_TN_WILL:
+        if (he_may(opt)) {
+            if (c->him[opt] != OPT_ASKED && c->him[opt] != OPT_ON)
+                send_cmd(c, LF_TN_DO, opt);
+            c->him[opt] = OPT_ON;
+        } else if (c->him[opt] != OPT_REFUSED) {
+            c->him[opt] = OPT_REFUSED;
+            send_cmd(c, LF_TN_DONT, opt);
+        }
+        break;
+    case LF_TN_WONT:
+        if (c->him[opt] == OPT_ON)
+            send_cmd(c, LF_TN_DONT, opt);
+        c->him[opt] = OPT_REFUSED;
+        break;
+    case LF_TN_SB:
+        /* COM-PORT answers: cmd + 100, then the value (1 or 4 bytes) */
+        if (opt == LF_TN_OPT_COMPORT && len >= 1 && sb[0] >= LF_CPC_SERVER &&
+            sb[0] < LF_CPC_SERVER + 16) {
+            unsigned k = sb[0] - LF_CPC_SERVER;
+            uint32_t v = 0;
+            for (size_t i = 1; i < len && i <= 4; i++)
+                v = (v << 8) | sb[i];
+            c->answer_val[k] = v;
+            c->answered[k]++;
+        }
+        break;
+    default:
+        break;
+    }
+}
+
+/* Receive what is there and run it through the Telnet parser; data bytes
+ * go to out (room for n). Same returns as recv(); only commands read:
+ * -1 with EAGAIN (nothing for the caller). */
+static ssize_t telnet_recv(lf_net *c, int fd, uint8_t *out, size_t n)
+{
+    uint8_t raw[512];
+    for (;;) {
+        size_t want = n < sizeof raw ? n : sizeof raw;
+        ssize_t r = recv(fd, raw, want, MSG_DONTWAIT);
+        if (r <= 0) {
+            if (r < 0)
+                map_gone();
+            return r;
+        }
+        size_t d = lf_telnet_rx(&c->tn, raw, (size_t)r, out, on_cmd, c);
+        if (d > 0)
+            return (ssize_t)d;
+    }
+}
+
+/* Read and parse until cond(c) holds or the deadline passes (data bytes
+ * read meanwhile are dropped: this runs before the port's opening flush).
+ * 0, or -1 with errno (EIO: the server closed). */
+static int pump_until(lf_net *c, int fd, int (*cond)(const lf_net *), int64_t deadline)
+{
+    uint8_t junk[512];
+    while (!cond(c)) {
+        int64_t now = lf_now_ns();
+        if (now >= deadline)
+            return 0;
+        struct pollfd pf = {.fd = fd, .events = POLLIN};
+        int pr = poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
+        if (pr <= 0)
+            continue;
+        ssize_t r = telnet_recv(c, fd, junk, sizeof junk);
+        if (r == 0) {
+            errno = EIO;
+            return -1;
+        }
+        if (r < 0 && errno != EAGAIN && errno != EWOULDBLOCK && errno != EINTR)
+            return -1;
+    }
+    return 0;
+}
+
+static int comport_settled(const lf_net *c)
+{
+    return c->us[LF_TN_OPT_COMPORT] != OPT_ASKED;
+}
+
+/* The line settings the open sends (SET-CONTROL three times). */
+static const uint8_t line_cmds[] = {LF_CPC_SET_BAUDRATE, LF_CPC_SET_DATASIZE,
+                                    LF_CPC_SET_PARITY, LF_CPC_SET_STOPSIZE};
+static const uint8_t control_vals[] = {LF_CPC_CONTROL_NOFLOW, LF_CPC_CONTROL_DTR_ON,
+                                       LF_CPC_CONTROL_RTS_ON};
+
+static int settings_answered(const lf_net *c)
+{
+    for (size_t i = 0; i < sizeof line_cmds; i++)
+        if (!c->answered[line_cmds[i]])
+            return 0;
+    return c->answered[LF_CPC_SET_CONTROL] >= sizeof control_vals;
+}
+
+/* ---- connect ----------------------------------------------------------- */
+
+static void tune_socket(int fd)
+{
+    int one = 1, idle = KEEP_IDLE_S, intvl = KEEP_INTVL_S, cnt = KEEP_CNT;
+    unsigned ut = USER_TIMEOUT_MS;
+    /* best effort: a kernel without one of them still works, only slower
+     * to notice a dead peer or to send a short frame */
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
+    (void)setsockopt(fd, SOL_SOCKET, SO_KEEPALIVE, &one, sizeof one);
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_KEEPIDLE, &idle, sizeof idle);
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_KEEPINTVL, &intvl, sizeof intvl);
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_KEEPCNT, &cnt, sizeof cnt);
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_USER_TIMEOUT, &ut, sizeof ut);
+}
+
+/* Delayed ACKs hold back a server's next segment behind Nagle (30-40 ms):
+ * ACK at once. The flag does not stick, so it is set after every read. */
+static void quickack(int fd)
+{
+    int one = 1;
+    (void)setsockopt(fd, IPPROTO_TCP, TCP_QUICKACK, &one, sizeof one);
+}
+
+static int connect_one(const struct addrinfo *ai, int64_t deadline)
+{
+    int fd = socket(ai->ai_family, ai->ai_socktype | SOCK_NONBLOCK | SOCK_CLOEXEC,
+                    ai->ai_protocol);
+    if (fd < 0)
+        return -1;
+    if (connect(fd, ai->ai_addr, ai->ai_addrlen) == 0)
+        return fd;
+    int err = errno;
+    while (err == EINPROGRESS || err == EINTR) {
+        int64_t now = lf_now_ns();
+        if (now >= deadline) {
+            err = ETIMEDOUT;
+            break;
+        }
+        struct pollfd pf = {.fd = fd, .events = POLLOUT};
+        int pr = poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
+        if (pr < 0 && errno != EINTR) {
+            err = errno;
+            break;
+        }
+        if (pr > 0) {
+            socklen_t len = sizeof err;
+            if (getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &len) < 0)
+                err = errno;
+            if (err == 0)
+                return fd;
+            break;
+        }
+        err = EINPROGRESS;
+    }
+    close(fd);
+    errno = err;
+    return -1;
+}
+
+static int net_connect(lf_net *c)
+{
+    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM,
+                             .ai_flags = AI_NUMERICSERV | AI_ADDRCONFIG};
+    struct addrinfo *res = NULL;
+    int gai = getaddrinfo(c->url.host, c->url.port, &hints, &res);
+    if (gai != 0) {
+        errno = gai == EAI_SYSTEM ? errno : -FAP_PORT_ERESOLVE;
+        return -1;
+    }
+    int64_t deadline = lf_now_ns() + (int64_t)c->url.connect_ms * LF_NS_PER_MS;
+    int fd = -1, err = ECONNREFUSED;
+    for (struct addrinfo *ai = res; ai && fd < 0; ai = ai->ai_next) {
+        fd = connect_one(ai, deadline);
+        if (fd < 0)
+            err = errno;
+    }
+    freeaddrinfo(res);
+    if (fd < 0) {
+        errno = err;
+        return -1;
+    }
+    tune_socket(fd);
+    return fd;
+}
+
+/* RFC 2217: binary both ways and COM-PORT-OPTION. A server that answers
+ * DONT COM-PORT-OPTION is not one (FAP_PORT_EREFUSED); one that does not
+ * answer within option_ms gets a warning and is used anyway. */
+static int rfc2217_start(lf_net *c, int fd)
+{
+    lf_telnet_init(&c->tn);
+    memset(c->us, 0, sizeof c->us);
+    memset(c->him, 0, sizeof c->him);
+    const uint8_t hello[] = {LF_TN_IAC, LF_TN_WILL, LF_TN_OPT_BINARY,
+                             LF_TN_IAC, LF_TN_DO, LF_TN_OPT_BINARY,
+                             LF_TN_IAC, LF_TN_WILL, LF_TN_OPT_COMPORT};
+    c->us[LF_TN_OPT_BINARY] = c->him[LF_TN_OPT_BINARY] = OPT_ASKED;
+    c->us[LF_TN_OPT_COMPORT] = OPT_ASKED;
+    if (send_all(c, fd, hello, sizeof hello) < 0)
+        return -1;
+    int64_t deadline = lf_now_ns() + (int64_t)c->url.option_ms * LF_NS_PER_MS;
+    if (pump_until(c, fd, comport_settled, deadline) < 0)
+        return -1;
+    if (c->us[LF_TN_OPT_COMPORT] == OPT_REFUSED) {
+        errno = -FAP_PORT_EREFUSED;
+        return -1;
+    }
+    if (c->us[LF_TN_OPT_COMPORT] == OPT_ASKED)
+        set_warning(c, "rfc2217: no answer to WILL COM-PORT-OPTION; continuing");
+    return 0;
+}
+
+/* ---- the backend table --------------------------------------------------- */
+
+static int net_open(void *ctx, const char *path, int flags)
+{
+    (void)path;   /* parsed into ctx by lf_port_net_open */
+    (void)flags;
+    lf_net *c = ctx;
+    set_warning(c, "");   /* a new connection: earlier notes are stale */
+    int fd = net_connect(c);
+    if (fd < 0)
+        return -1;
+    c->fd = fd;
+    if (c->url.scheme == LF_PORT_RFC2217 && rfc2217_start(c, fd) < 0) {
+        int err = errno;
+        close(fd);
+        c->fd = -1;
+        errno = err;
+        return -1;
+    }
+    return fd;
+}
+
+static int net_close(void *ctx, int fd)
+{
+    lf_net *c = ctx;
+    if (c->fd == fd)
+        c->fd = -1;
+    return close(fd);
+}
+
+static int net_ioctl(void *ctx, int fd, unsigned long request, void *arg)
+{
+    (void)ctx;
+    (void)fd;
+    (void)arg;
+    if (request == TIOCEXCL || request == TIOCNXCL)
+        return 0;   /* a connection is ours alone; the server decides who connects */
+    errno = ENOTTY; /* RS-485 and modem lines: the server's (RFC 2217: SET-CONTROL) */
+    return -1;
+}
+
+static int net_tcgetattr(void *ctx, int fd, struct termios *t)
+{
+    (void)fd;
+    *t = ((lf_net *)ctx)->tio;
+    return 0;
+}
+
+/* The line settings: stored (raw TCP: the server's own are in force); on
+ * RFC 2217 sent to the server, and its answers checked. */
+static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
+{
+    (void)action;
+    lf_net *c = ctx;
+    c->tio = *t;
+    if (c->url.scheme != LF_PORT_RFC2217)
+        return 0;
+    uint32_t baud = lf_port_speed_to_baud(cfgetospeed(t));
+    uint32_t want[16] = {0};
+    want[LF_CPC_SET_BAUDRATE] = baud;
+    want[LF_CPC_SET_DATASIZE] = 8;
+    want[LF_CPC_SET_PARITY] = LF_CPC_PARITY_NONE;
+    want[LF_CPC_SET_STOPSIZE] = LF_CPC_STOP_1;
+    uint8_t msg[16 * (1 + sizeof line_cmds + sizeof control_vals)];
+    size_t len = 0;
+    memset(c->answered, 0, sizeof c->answered);
+    /* Purge first: the server works in order, so once the settings are
+     * answered the purge is done, and no byte that arrives after the open
+     * is purged late (ser2net never answers PURGE-DATA itself). */
+    const uint8_t both = LF_CPC_PURGE_BOTH;
+    len += lf_telnet_cpc(LF_CPC_PURGE_DATA, &both, 1, msg + len);
+    c->purged = 1;
+    for (size_t i = 0; i < sizeof line_cmds; i++) {
+        uint8_t cmd = line_cmds[i];
+        uint8_t v[4] = {(uint8_t)(baud >> 24), (uint8_t)(baud >> 16), (uint8_t)(baud >> 8),
+                        (uint8_t)baud};
+        if (cmd == LF_CPC_SET_BAUDRATE)
+            len += lf_telnet_cpc(cmd, v, 4, msg + len);
+        else
+            len += lf_telnet_cpc(cmd, (const uint8_t[]){(uint8_t)want[cmd]}, 1, msg + len);
+    }
+    for (size_t i = 0; i < sizeof control_vals; i++)
+        len += lf_telnet_cpc(LF_CPC_SET_CONTROL, &control_vals[i], 1, msg + len);
+    if (send_all(c, fd, msg, len) < 0)
+        return -1;
+    int64_t deadline = lf_now_ns() + (int64_t)c->url.option_ms * LF_NS_PER_MS;
+    if (pump_until(c, fd, settings_answered, deadline) < 0)
+        return -1;
+    /* A line setting answered with another value: the server cannot do
+     * 8N1 at this baud, and frames would be garbage: an error. Unanswered:
+     * some servers never answer; a warning. Control lines (flow off,
+     * DTR/RTS on) never fail an open: ser2net on a pty never answers. */
+    char note[200] = "";
+    for (size_t i = 0; i < sizeof line_cmds; i++) {
+        uint8_t cmd = line_cmds[i];
+        if (c->answered[cmd] && c->answer_val[cmd] != want[cmd]) {
+            set_warning(c, cmd == LF_CPC_SET_BAUDRATE
+                               ? "rfc2217: the server refused the baud rate"
+                               : "rfc2217: the server refused 8 data bits, no parity, 1 stop bit");
+            errno = -FAP_PORT_EREFUSED;
+            return -1;
+        }
+        if (!c->answered[cmd] && !note[0])
+            snprintf(note, sizeof note, "rfc2217: no answer to a line setting within %u ms; "
+                     "continuing", c->url.option_ms);
+    }
+    if (!note[0] && c->answered[LF_CPC_SET_CONTROL] < sizeof control_vals)
+        snprintf(note, sizeof note, "rfc2217: the server did not answer every SET-CONTROL "
+                 "(flow off, DTR on, RTS on) within %u ms; continuing", c->url.option_ms);
+    if (note[0])
+        set_warning(c, note);
+    return 0;
+}
+
+/* Read the socket empty (bounded); RFC 2217 also purges the server's
+ * buffers, without waiting for its answer (the parser takes it later). */
+static int net_tcflush(void *ctx, int fd, int queue)
+{
+    lf_net *c = ctx;
+    int purged = c->purged;   /* the open's flush: tcsetattr purged in order */
+    c->purged = 0;
+    if (c->url.scheme == LF_PORT_RFC2217 && !purged) {
+        uint8_t what = queue == TCIFLUSH ? LF_CPC_PURGE_RX
+                       : queue == TCOFLUSH ? LF_CPC_PURGE_TX : LF_CPC_PURGE_BOTH;
+        uint8_t msg[16];
+        if (send_all(c, fd, msg, lf_telnet_cpc(LF_CPC_PURGE_DATA, &what, 1, msg)) < 0)
+            return -1;
+    }
+    if (queue == TCOFLUSH)
+        return 0;
+    uint8_t junk[512];
+    for (int i = 0; i < 64; i++) {
+        ssize_t r = c->url.scheme == LF_PORT_RFC2217 ? telnet_recv(c, fd, junk, sizeof junk)
+                                                     : recv(fd, junk, sizeof junk, MSG_DONTWAIT);
+        if (r == 0) {
+            errno = EIO;
+            return -1;
+        }
+        if (r < 0) {
+            if (errno == EAGAIN || errno == EWOULDBLOCK)
+                return 0;
+            map_gone();
+            return -1;
+        }
+    }
+    return 0;
+}
+
+static int net_tcdrain(void *ctx, int fd)
+{
+    (void)ctx;
+    (void)fd;
+    return 0;   /* the bytes are the server's once sent; no way to see its UART */
+}
+
+static int net_flock(void *ctx, int fd, int op)
+{
+    (void)ctx;
+    (void)fd;
+    (void)op;
+    return 0;
+}
+
+static ssize_t net_read(void *ctx, int fd, void *buf, size_t n)
+{
+    lf_net *c = ctx;
+    ssize_t r = c->url.scheme == LF_PORT_RFC2217 ? telnet_recv(c, fd, buf, n)
+                                                 : recv(fd, buf, n, MSG_DONTWAIT);
+    if (r > 0)
+        quickack(fd);
+    else if (r < 0)
+        map_gone();
+    return r;
+}
+
+static ssize_t net_write(void *ctx, int fd, const void *buf, size_t n)
+{
+    lf_net *c = ctx;
+    if (c->url.scheme != LF_PORT_RFC2217) {
+        ssize_t w = send(fd, buf, n, MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (w < 0)
+            map_gone();
+        return w;
+    }
+    /* escaped, one chunk per call: the port layer loops over the rest */
+    uint8_t enc[2 * 1024];
+    size_t take = n < sizeof enc / 2 ? n : sizeof enc / 2;
+    size_t len = lf_telnet_escape(buf, take, enc);
+    if (send_all(c, fd, enc, len) < 0)
+        return -1;
+    return (ssize_t)take;
+}
+
+static int net_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms)
+{
+    (void)ctx;
+    return poll(fds, n, timeout_ms);
+}
+
+static void net_sleep_until(void *ctx, int64_t deadline_ns)
+{
+    (void)ctx;
+    lf_sleep_until(deadline_ns);
+}
+
+static void net_destroy(void *ctx)
+{
+    lf_net *c = ctx;
+    pthread_mutex_destroy(&c->tx_mu);
+    pthread_mutex_destroy(&c->st_mu);
+    free(c);
+}
+
+static const lf_port_backend net_backend = {
+    .open = net_open,
+    .close = net_close,
+    .ioctl = net_ioctl,
+    .tcgetattr = net_tcgetattr,
+    .tcsetattr = net_tcsetattr,
+    .tcflush = net_tcflush,
+    .tcdrain = net_tcdrain,
+    .flock = net_flock,
+    .read = net_read,
+    .write = net_write,
+    .poll = net_poll,
+    .sleep_until = net_sleep_until,
+    .destroy = net_destroy,
+};
+
+int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o)
+{
+    if (!out || !url)
+        return -EINVAL;
+    lf_net *c = calloc(1, sizeof *c);
+    if (!c)
+        return -ENOMEM;
+    int err = lf_port_url_parse(url, &c->url);
+    if (!err && o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS))
+        err = FAP_PORT_ENET485;
+    if (err) {
+        free(c);
+        return err;
+    }
+    c->fd = -1;
+    pthread_mutex_init(&c->tx_mu, NULL);
+    pthread_mutex_init(&c->st_mu, NULL);
+    /* the port owns c from here: freed by net_destroy, also on failure */
+    return lf_port_open_with_backend(out, url, o, &net_backend, c);
+}
+
+lf_ns lf_port_link_slack_ns(const fap_port *p)
+{
+    if (!p || p->be != &net_backend)
+        return 0;
+    return (lf_ns)((const lf_net *)p->ctx)->url.rtt_ms * LF_NS_PER_MS;
+}
+
+size_t fap_port_warning(const fap_port *p, char *buf, size_t n)
+{
+    if (buf && n)
+        buf[0] = '\0';
+    if (!p || p->be != &net_backend)
+        return 0;
+    lf_net *c = p->ctx;
+    pthread_mutex_lock(&c->st_mu);
+    size_t len = strlen(c->warning);
+    if (buf && n)
+        snprintf(buf, n, "%s", c->warning);
+    pthread_mutex_unlock(&c->st_mu);
+    return len;
+}
