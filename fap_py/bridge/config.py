@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
-from ..errors import InvalidValueError
+from ..errors import InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
+from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -28,6 +29,10 @@ _RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
 
 class BridgeConfigError(InvalidValueError):
     """The bridge configuration is missing a key, has an unknown one, or a bad value."""
+
+
+class BridgeConfigTypeError(BridgeConfigError, InvalidTypeError):
+    """:func:`load` was given something that is not a path."""
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,7 @@ class BusConfig:
     devices: Tuple[G485Device, ...] = ()
     id_cycle: Optional[float] = None
     data_done_timeout: Optional[float] = None
+    reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
 
 
 @dataclass(frozen=True)
@@ -77,6 +83,8 @@ class BrokerConfig:
     reconnect_min: float = 0.5
     reconnect_max: float = 30.0
     connect_timeout: float = 10.0
+    protocol: str = "5"            #: MQTT "5" or "3.1.1"
+    session_expiry: int = 604_800  #: MQTT 5: seconds the broker keeps our session while we are away
 
 
 @dataclass(frozen=True)
@@ -93,6 +101,7 @@ class BridgeConfig:
     seen_max: int = 10_000
     stats_interval: float = 10.0
     inflight: int = 100
+    metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
 
 
 # -- checking helpers -----------------------------------------------------------
@@ -171,6 +180,8 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["retries"] = _range(_pop(t, "retries", int, where, 2), 0, 1000, f"{where}.retries")
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
                                  0.001, 86400, f"{where}.poll_interval")
+    kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
+                                   0.01, 3600, f"{where}.reopen_interval")
     if protocol == "fap" and role == "master":
         kw["slaves"] = _ids(_pop(t, "slaves", list, where), 1, 31, f"{where}.slaves")
         for key in ("id_cycle", "data_done_timeout"):
@@ -214,8 +225,12 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
 
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
-    parts = urlsplit(url)
-    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
+    try:
+        parts = urlsplit(url)
+        hostname = parts.hostname
+    except ValueError as exc:   # "mqtt://[::1": an unclosed IPv6 bracket
+        raise BridgeConfigError(f"broker.url {url!r}: {exc}") from None
+    if parts.scheme not in ("mqtt", "mqtts") or not hostname:
         raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {url!r}")
     tls = parts.scheme == "mqtts"
     try:
@@ -224,7 +239,7 @@ def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
         raise BridgeConfigError(f"broker.url has a bad port: {url!r}") from None
     user = unquote(parts.username) if parts.username else None
     password = unquote(parts.password) if parts.password else None
-    return parts.hostname, port, tls, user, password
+    return hostname, port, tls, user, password
 
 
 def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
@@ -235,11 +250,11 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
     kw["password"] = _pop(t, "password", str, where, password)
     pw_file = _pop(t, "password_file", str, where, None)
     if pw_file is not None:
+        raw = read_bounded(os.path.join(base, pw_file), SECRET_MAX, "broker.password_file")
         try:
-            with open(os.path.join(base, pw_file)) as f:
-                kw["password"] = f.read().strip()
-        except OSError as exc:
-            raise BridgeConfigError(f"broker.password_file: {exc}") from None
+            kw["password"] = raw.decode("utf-8").strip()
+        except UnicodeDecodeError:
+            raise BridgeConfigError(f"broker.password_file {pw_file!r} is not UTF-8 text") from None
     for key in ("ca", "cert", "key"):
         value = _pop(t, key, str, where, None)
         if value is not None:
@@ -254,12 +269,19 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
                                  "broker.reconnect_min")
     kw["reconnect_max"] = _range(float(_pop(t, "reconnect_max", (int, float), where, 30.0)),
                                  kw["reconnect_min"], 3600, "broker.reconnect_max")
+    kw["protocol"] = _pop(t, "protocol", str, where, "5")
+    if kw["protocol"] not in ("5", "3.1.1"):
+        raise BridgeConfigError(f"broker.protocol must be \"5\" or \"3.1.1\", not {kw['protocol']!r}")
+    kw["session_expiry"] = _range(_pop(t, "session_expiry", int, where, 604_800), 0, 0xFFFFFFFF,
+                                  "broker.session_expiry")
     _done(t, where)
     return BrokerConfig(**kw)
 
 
 def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     """A checked :class:`BridgeConfig` from parsed TOML; relative paths are relative to ``base``."""
+    if not isinstance(data, Mapping):
+        raise BridgeConfigError(f"the configuration must be a table, not {type(data).__name__}")
     top = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     if not isinstance(top.get("broker"), dict):
         raise BridgeConfigError("missing [broker] table")
@@ -270,7 +292,13 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     bus_tables = top.pop("bus", None)
     if not isinstance(bus_tables, list) or not bus_tables:
         raise BridgeConfigError("at least one [[bus]] table is needed")
+    metrics = top.pop("metrics", {})
+    if not isinstance(metrics, dict):
+        raise BridgeConfigError("[metrics] must be a table")
     _done(top, "top level")
+    for i, b in enumerate(bus_tables):   # [[bus]] only: a list of lists is not a table
+        if not isinstance(b, dict):
+            raise BridgeConfigError(f"bus[{i}] must be a table ([[bus]]), not {type(b).__name__}")
     buses = tuple(_bus(dict(b), i) for i, b in enumerate(bus_tables))
     names = [b.name for b in buses]
     if len(set(names)) != len(names):
@@ -286,30 +314,72 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
         raise BridgeConfigError(f"bridge.host {host!r}: empty or holds / or a wildcard")
     kw: Dict[str, Any] = {"broker": broker, "buses": buses, "host": host, "prefix": prefix}
     kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
-    kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, "."))
+    # under systemd, StateDirectory= sets $STATE_DIRECTORY: the default when the file names none
+    default_state = os.environ.get("STATE_DIRECTORY", ".").split(":")[0] or "."
+    kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, default_state))
     kw["queue_max"] = _range(_pop(bridge, "queue_max", int, where, 100_000), 10, 100_000_000, "bridge.queue_max")
     kw["seen_max"] = _range(_pop(bridge, "seen_max", int, where, 10_000), 10, 10_000_000, "bridge.seen_max")
     kw["stats_interval"] = _range(float(_pop(bridge, "stats_interval", (int, float), where, 10.0)),
                                   0.05, 86400, "bridge.stats_interval")
     kw["inflight"] = _range(_pop(bridge, "inflight", int, where, 100), 1, 65535, "bridge.inflight")
     _done(bridge, where)
+    listen = _pop(metrics, "listen", str, "metrics", None)
+    if listen is not None:
+        kw["metrics_listen"] = parse_listen(listen)
+    _done(metrics, "metrics")
     return BridgeConfig(**kw)
 
 
-def load(path: str) -> BridgeConfig:
-    """Read and check a bridge.toml.
+def parse_listen(text: str) -> Tuple[str, int]:
+    """``host:port`` or ``[v6]:port`` -> (host, port), for ``[metrics] listen``."""
+    host, sep, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port.isascii() or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise BridgeConfigError(f"metrics.listen must be host:port, e.g. 127.0.0.1:9464, not {text!r}")
+    return host, int(port)
+
+
+def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
+    """Check every file the configuration names (BridgeFileError, exit 3, at the first bad one):
+    the TLS files, the state directory and, with ``ports``, every bus's port. Creates nothing."""
+    b = cfg.broker
+    for key in ("ca", "cert", "key"):
+        path = getattr(b, key)
+        if path is not None:
+            read_bounded(path, TLS_FILE_MAX, f"broker.{key}")
+    check_state_dir(cfg.state_dir)
+    if ports:
+        for bus in cfg.buses:
+            check_port(bus.port, f"bus {bus.name!r}.port")
+
+
+def load(path: "str | os.PathLike[str]") -> BridgeConfig:
+    """Read and check a bridge.toml (a regular file of at most 1 MiB of UTF-8).
 
     Raises:
-        OSError: the file cannot be read.
-        BridgeConfigError: bad TOML or a bad value.
+        BridgeConfigTypeError: ``path`` is not a path (an int is not taken as a file descriptor).
+        BridgeFileError: the file cannot be read, is not a regular file or is too big (an OSError).
+        BridgeConfigError: not UTF-8, bad TOML or a bad value.
     """
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise BridgeConfigError(f"{path}: {exc}") from None
+    if not isinstance(path, (str, os.PathLike)):
+        raise BridgeConfigTypeError(f"the configuration path must be a str or os.PathLike, "
+                                    f"not {type(path).__name__}")
+    path = os.fspath(path)
+    if not isinstance(path, str):
+        raise BridgeConfigTypeError("the configuration path must be text, not bytes")
+    raw = read_bounded(path, CONFIG_MAX, "configuration")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BridgeConfigError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BridgeConfigError(f"{path}: {exc}") from None
+    except RecursionError:   # tomllib recurses per nesting level: "a = [[[[..."
+        raise BridgeConfigError(f"{path}: arrays or tables nested too deeply") from None
     return from_dict(data, os.path.dirname(os.path.abspath(path)))
 
 
-__all__ = ["BridgeConfig", "BridgeConfigError", "BrokerConfig", "BusConfig", "G485Device",
-           "PROTOCOLS", "from_dict", "load", "parse_url"]
+__all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
+           "G485Device", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

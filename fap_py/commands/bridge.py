@@ -59,13 +59,15 @@ def run(args: argparse.Namespace) -> int:
         MissingDependencyError,
         load_config,
     )
+    from fap_py.bridge.config import verify_files
 
     try:
         config = load_config(args.config)
     except BridgeConfigError as exc:            # a bad file is a usage error (exit 2)
         raise UsageError(f"{args.config}: {exc}") from exc
     broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
-    if args.check:
+    if args.check:   # every file the configuration names: BridgeFileError (exit 3) names the key
+        verify_files(config, ports=True)
         emit(args, {"config": args.config, "ok": True, "buses": [b.name for b in config.buses],
                     "broker": broker, "prefix": config.prefix, "host": config.host},
              f"{args.config}: ok: {len(config.buses)} bus(es), broker {broker}, "
@@ -87,8 +89,9 @@ def run(args: argparse.Namespace) -> int:
         bridge.start()
         try:
             if args.connect_timeout is not None and not bridge.wait_connected(args.connect_timeout):
+                why = bridge.link.last_error
                 raise BusError(f"broker {config.broker.host}:{config.broker.port} not reached "
-                               f"within {args.connect_timeout} s")
+                               f"within {args.connect_timeout} s" + (f": {why}" if why else ""))
             while not stop.wait(0.5):
                 if bridge.link.refused:
                     raise BrokerRefusedError(bridge.link.refused)

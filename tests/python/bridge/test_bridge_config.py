@@ -149,11 +149,14 @@ def test_cli_exit_codes(tmp_path):
     res = _fap("bridge", "--config", str(bad), cwd=tmp_path)
     assert res.returncode == 2 and "protocol" in res.stderr and len(res.stderr.splitlines()) == 1
     good = tmp_path / "good.toml"
-    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = 'p'\nprotocol = 'fap'\nslaves = [1]\n")
+    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = '/dev/null'\n"
+                    "protocol = 'fap'\nslaves = [1]\n")
     res = _fap("bridge", "--config", str(good), "--check", cwd=tmp_path)
     assert res.returncode == 0 and "ok: 1 bus" in res.stdout
-    res = _fap("bridge", "--config", str(good), cwd=tmp_path)     # port p does not exist
-    assert res.returncode == 3 and len(res.stderr.splitlines()) == 1, res.stderr
+    missing = tmp_path / "missing-port.toml"    # --check names a port that is not there
+    missing.write_text(good.read_text().replace("/dev/null", "p"))
+    res = _fap("bridge", "--config", str(missing), "--check", cwd=tmp_path)
+    assert res.returncode == 3 and res.stderr == "fap: error: bus 'l'.port: p: No such file or directory\n"
     res = _fap("bridge", "--help", cwd=tmp_path)
     assert res.returncode == 0 and "example:" in res.stdout
 
