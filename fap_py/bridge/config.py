@@ -106,28 +106,41 @@ class BridgeConfig:
 
 # -- checking helpers -----------------------------------------------------------
 
+def _show(value: Any, limit: int = 60) -> str:
+    """A value for an error line: bounded (a 1 MB string or a 10,000-digit number is not echoed)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
+        return f"a {value.bit_length()}-bit integer"
+    try:
+        text = repr(value)
+    except ValueError:   # an int inside a list past Python's digit limit
+        text = f"a {type(value).__name__}"
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def _pop(table: Dict[str, Any], key: str, kind: Any, where: str, default: Any = ...) -> Any:
     if key not in table:
         if default is ...:
-            raise BridgeConfigError(f"{where}: missing key {key!r}")
+            raise BridgeConfigError(f"{where}: missing key {_show(key)}")
         return default
     value = table.pop(key)
     ok = isinstance(value, kind) and not (isinstance(value, bool) and kind in (int, float, (int, float)))
     if not ok:
         name = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
-        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {value!r}")
+        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {_show(value)}")
+    if kind == (int, float) and isinstance(value, int) and abs(value) > 1e300:   # float() would overflow
+        raise BridgeConfigError(f"{where}.{key}: {_show(value)} is out of range")
     return value
 
 
 def _range(value: Any, lo: float, hi: float, what: str) -> Any:
     if not lo <= value <= hi:
-        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {value}")
+        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {_show(value)}")
     return value
 
 
 def _done(table: Dict[str, Any], where: str) -> None:
     if table:
-        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))}")
+        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))[:200]}")
 
 
 def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
@@ -137,19 +150,19 @@ def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
     for v in values:
         _range(v, lo, hi, what)
     if len(set(values)) != len(values):
-        raise BridgeConfigError(f"{what} lists an ID twice: {values}")
+        raise BridgeConfigError(f"{what} lists an ID twice: {_show(values)}")
     return tuple(values)
 
 
 def _rs485(t: Dict[str, Any], where: str) -> RS485:
     mode = _pop(t, "rs485", str, where, "auto")
     if mode not in _RS485_MODES:
-        raise BridgeConfigError(f"{where}.rs485 must be one of {', '.join(_RS485_MODES)}, not {mode!r}")
+        raise BridgeConfigError(f"{where}.rs485 must be one of {', '.join(_RS485_MODES)}, not {_show(mode)}")
     before = _range(_pop(t, "rts_before", (int, float), where, 0), 0, 1000, f"{where}.rts_before")
     after = _range(_pop(t, "rts_after", (int, float), where, 0), 0, 1000, f"{where}.rts_after")
     polarity = _pop(t, "rts_polarity", str, where, "high")
     if polarity not in ("high", "low"):
-        raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {polarity!r}")
+        raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {_show(polarity)}")
     echo = _pop(t, "echo_suppression", bool, where, False)
     return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
                  delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
@@ -160,15 +173,15 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     where = f"bus[{index}]"
     name = _pop(t, "name", str, where)
     if not name or any(c in name for c in "/+#"):
-        raise BridgeConfigError(f"{where}.name {name!r}: empty or holds an MQTT wildcard or /")
-    where = f"bus {name!r}"
+        raise BridgeConfigError(f"{where}.name {_show(name)}: empty or holds an MQTT wildcard or /")
+    where = f"bus {_show(name)}"
     port = _pop(t, "port", str, where)
     protocol = _pop(t, "protocol", str, where)
     if protocol not in PROTOCOLS:
-        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {_show(protocol)}")
     role = _pop(t, "role", str, where, "master")
     if role not in ("master", "slave") or (role == "slave" and protocol != "fap"):
-        raise BridgeConfigError(f"{where}.role {role!r}: only fap buses may be a slave")
+        raise BridgeConfigError(f"{where}.role {_show(role)}: only fap buses may be a slave")
     kw: Dict[str, Any] = {"name": name, "port": port, "protocol": protocol, "role": role}
     kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
                         50, 10_000_000, f"{where}.baud")
@@ -197,7 +210,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
             try:
                 kw["poll_data"] = bytes.fromhex(data)
             except ValueError:
-                raise BridgeConfigError(f"{where}.poll_data is not hex: {data!r}") from None
+                raise BridgeConfigError(f"{where}.poll_data is not hex: {_show(data)}") from None
     else:
         devices = []
         for j, d in enumerate(_pop(t, "device", list, where)):
@@ -210,7 +223,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
             for run in _pop(d, "registers", list, dw, []):
                 if (not isinstance(run, list) or len(run) != 2
                         or not all(isinstance(v, int) and not isinstance(v, bool) for v in run)):
-                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {run!r}")
+                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {_show(run)}")
                 _range(run[0], 1, 100, f"{dw}.registers first")
                 _range(run[1], 1, 101 - run[0], f"{dw}.registers count")
                 runs.append((run[0], run[1]))
@@ -229,14 +242,14 @@ def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
         parts = urlsplit(url)
         hostname = parts.hostname
     except ValueError as exc:   # "mqtt://[::1": an unclosed IPv6 bracket
-        raise BridgeConfigError(f"broker.url {url!r}: {exc}") from None
+        raise BridgeConfigError(f"broker.url {_show(url)}: {exc}") from None
     if parts.scheme not in ("mqtt", "mqtts") or not hostname:
-        raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {url!r}")
+        raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {_show(url)}")
     tls = parts.scheme == "mqtts"
     try:
         port = parts.port or (8883 if tls else 1883)
     except ValueError:
-        raise BridgeConfigError(f"broker.url has a bad port: {url!r}") from None
+        raise BridgeConfigError(f"broker.url has a bad port: {_show(url)}") from None
     user = unquote(parts.username) if parts.username else None
     password = unquote(parts.password) if parts.password else None
     return hostname, port, tls, user, password
@@ -254,7 +267,7 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
         try:
             kw["password"] = raw.decode("utf-8").strip()
         except UnicodeDecodeError:
-            raise BridgeConfigError(f"broker.password_file {pw_file!r} is not UTF-8 text") from None
+            raise BridgeConfigError(f"broker.password_file {_show(pw_file)} is not UTF-8 text") from None
     for key in ("ca", "cert", "key"):
         value = _pop(t, key, str, where, None)
         if value is not None:
@@ -271,7 +284,7 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
                                  kw["reconnect_min"], 3600, "broker.reconnect_max")
     kw["protocol"] = _pop(t, "protocol", str, where, "5")
     if kw["protocol"] not in ("5", "3.1.1"):
-        raise BridgeConfigError(f"broker.protocol must be \"5\" or \"3.1.1\", not {kw['protocol']!r}")
+        raise BridgeConfigError(f"broker.protocol must be \"5\" or \"3.1.1\", not {_show(kw['protocol'])}")
     kw["session_expiry"] = _range(_pop(t, "session_expiry", int, where, 604_800), 0, 0xFFFFFFFF,
                                   "broker.session_expiry")
     _done(t, where)
@@ -302,16 +315,16 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     buses = tuple(_bus(dict(b), i) for i, b in enumerate(bus_tables))
     names = [b.name for b in buses]
     if len(set(names)) != len(names):
-        raise BridgeConfigError(f"bus names must differ: {names}")
+        raise BridgeConfigError(f"bus names must differ: {_show(names)}")
     if "bridge" in names:
         raise BridgeConfigError("a bus may not be called 'bridge' (that topic holds the bridge status)")
     where = "bridge"
     host = _pop(bridge, "host", str, where, socket.gethostname())
     prefix = _pop(bridge, "topic_prefix", str, where, "fap").strip("/")
     if not prefix or any(c in prefix for c in "+#"):
-        raise BridgeConfigError(f"bridge.topic_prefix {prefix!r}: empty or holds a wildcard")
+        raise BridgeConfigError(f"bridge.topic_prefix {_show(prefix)}: empty or holds a wildcard")
     if not host or any(c in host for c in "/+#"):
-        raise BridgeConfigError(f"bridge.host {host!r}: empty or holds / or a wildcard")
+        raise BridgeConfigError(f"bridge.host {_show(host)}: empty or holds / or a wildcard")
     kw: Dict[str, Any] = {"broker": broker, "buses": buses, "host": host, "prefix": prefix}
     kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
     # under systemd, StateDirectory= sets $STATE_DIRECTORY: the default when the file names none
@@ -335,7 +348,7 @@ def parse_listen(text: str) -> Tuple[str, int]:
     host, sep, port = text.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
     if not sep or not host or not port.isascii() or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise BridgeConfigError(f"metrics.listen must be host:port, e.g. 127.0.0.1:9464, not {text!r}")
+        raise BridgeConfigError(f"metrics.listen must be host:port, e.g. 127.0.0.1:9464, not {_show(text)}")
     return host, int(port)
 
 
@@ -378,6 +391,8 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
         raise BridgeConfigError(f"{path}: {exc}") from None
     except RecursionError:   # tomllib recurses per nesting level: "a = [[[[..."
         raise BridgeConfigError(f"{path}: arrays or tables nested too deeply") from None
+    except ValueError as exc:   # an integer of more than 4300 digits (int() refuses it)
+        raise BridgeConfigError(f"{path}: {str(exc).split(':')[0]}") from None
     return from_dict(data, os.path.dirname(os.path.abspath(path)))
 
 
