@@ -78,11 +78,20 @@ class Bridge:
         self._bus_lock = threading.Lock()        # opening a bus vs stopping the bridge
         self._stats_thread: Optional[threading.Thread] = None
         self._reopeners: List[threading.Thread] = []
+        self.metrics: Any = None   # the MetricsServer, with [metrics] listen
 
     # -- lifetime --------------------------------------------------------------------
     def start(self) -> "Bridge":
         """Open every bus (one whose port fails is published ``unavailable`` and retried in
         the background: the others run), then connect to the broker."""
+        if self.config.metrics_listen is not None:
+            from .metrics import MetricsServer
+
+            try:
+                self.metrics = MetricsServer(self, *self.config.metrics_listen)
+            except BaseException:
+                self.store.close()
+                raise
         for bus in self.buses.values():
             if not self._open_bus(bus):
                 t = threading.Thread(target=self._reopen_loop, args=(bus,), daemon=True,
@@ -140,6 +149,22 @@ class Bridge:
                       retain=True)
         self._publish_health()
 
+    def alive(self) -> bool:
+        """The bridge's own threads run (what the systemd watchdog vouches for)."""
+        return (not self._stop.is_set() and self.link.alive()
+                and self._stats_thread is not None and self._stats_thread.is_alive())
+
+    def status_line(self) -> str:
+        """One line for systemd's STATUS=: the broker, the buses, the outbox."""
+        link = self.link
+        broker = "connected" if link.connected else f"not connected ({link.last_error or 'connecting'})"
+        down = [n for n, b in self.buses.items() if b.open_error is not None]
+        buses = f"{len(self.buses) - len(down)}/{len(self.buses)} buses running"
+        if down:
+            buses += f" (unavailable: {', '.join(down)})"
+        store = "" if self.store_error is None else f", outbox failing: {self.not_stored} not stored"
+        return clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
+
     def _stop_buses(self) -> None:
         with self._bus_lock:
             for bus in self.buses.values():
@@ -164,6 +189,8 @@ class Bridge:
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
         self.link.stop()
+        if self.metrics is not None:
+            self.metrics.close()
         self.store.close()
 
     def __enter__(self) -> "Bridge":
@@ -243,6 +270,11 @@ class Bridge:
             self._seen(bus, node, t)
         self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
                             for node, fields in items])
+
+    def node_states(self) -> Dict[Tuple[str, int], bool]:
+        """(bus, node) -> active, for every node whose state is known."""
+        with self._lock:
+            return {k: bool(st[0]) for k, st in self._states.items() if st[0] is not None}
 
     def _seen(self, bus: str, node: int, t: float) -> None:
         with self._lock:

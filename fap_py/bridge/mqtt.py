@@ -173,6 +173,10 @@ class MqttLink:
     def connected(self) -> bool:
         return self._connected
 
+    def alive(self) -> bool:
+        """The outbox pump runs."""
+        return self._pump_thread is not None and self._pump_thread.is_alive()
+
     @property
     def refused_total(self) -> int:
         """Publications the broker refused (MQTT 5 PUBACK reason code >= 0x80)."""
