@@ -23,6 +23,7 @@ from typing import Any, Dict, List, Optional, Tuple
 from ..errors import FapError
 from .buses import BusAdapter, TxError, make_adapter
 from .config import BridgeConfig, verify_files
+from .homeassistant import Discovery
 from .mqtt import MqttLink
 from .store import Store, StoreError, now_iso
 
@@ -73,7 +74,11 @@ class Bridge:
         except BaseException:
             self.store.close()
             raise
-        self.link.on_connected = self._publish_health
+        self.discovery = Discovery(config, lambda topic, payload: self.link.publish_now(topic, payload))
+        if self.discovery.enabled:
+            self.discovery.add_configured({n: b.configured_nodes() for n, b in self.buses.items()})
+            self.link.extra[self.discovery.status_topic] = self._on_ha_status
+        self.link.on_connected = self._on_connected
         self._stop = threading.Event()
         self._bus_lock = threading.Lock()        # opening a bus vs stopping the bridge
         self._stats_thread: Optional[threading.Thread] = None
@@ -271,6 +276,15 @@ class Bridge:
         self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
                             for node, fields in items])
 
+    def _on_connected(self) -> None:
+        self._publish_health()
+        if self.discovery.enabled:
+            self.discovery.republish()
+
+    def _on_ha_status(self, payload: bytes) -> None:
+        if payload.strip() == b"online":   # Home Assistant (re)started: it wants the configs again
+            self.discovery.republish()
+
     def node_states(self) -> Dict[Tuple[str, int], bool]:
         """(bus, node) -> active, for every node whose state is known."""
         with self._lock:
@@ -285,6 +299,8 @@ class Bridge:
 
     def state(self, bus: str, node: int, active: bool) -> None:
         """Publish the retained state of ``node`` when it changes."""
+        if self.discovery.enabled:
+            self.discovery.node_seen(bus, node)
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
             if active:
@@ -352,7 +368,8 @@ class Bridge:
         adapter = self.buses[bus]
         return {"bus": bus, "state": "running" if adapter.open_error is None else "unavailable",
                 "bridge": dict(adapter.counters, jobs_waiting=adapter.jobs.qsize()),
-                "engine": adapter.engine_stats(),
+                "engine": adapter.engine_stats(), "health": adapter.health_counters(),
+                "nodes": adapter.node_report(),
                 "outbox": {"pending": self.store.pending, "dropped": self.store.dropped,
                            "not_stored": self.not_stored, "error": self.store_error},
                 "broker": {"connected": self.link.connected, "connects": self.link.connects,

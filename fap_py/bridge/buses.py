@@ -28,6 +28,19 @@ _JOBS_MAX = 1000    # tx jobs waiting per bus; past that a tx is refused (error 
 #: upper bounds (seconds) of the reply-time histogram buckets (Prometheus ``le``)
 REPLY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
 
+# The engines' own counter names behind each protocol-neutral bus health counter
+# (stats "health", Prometheus, Home Assistant).
+_HEALTH: Dict[str, Dict[str, Tuple[str, ...]]] = {
+    "frames_rx": {"fap": ("frames_rx",), "execasync": ("rx_frames",), "mikroc": ("frames",)},
+    "frames_tx": {"fap": ("frames_tx",), "execasync": ("tx_frames",), "g485": ("transactions",)},
+    "crc_errors": {"fap": ("crc_errors",), "execasync": ("corrupt",),
+                   "g485": ("frame_errors", "check_mismatches"), "mikroc": ("damaged",)},
+    "timeouts": {"fap": ("id_timeouts", "data_done_timeouts"), "execasync": ("timeouts",),
+                 "g485": ("no_response",)},
+    "retries": {"execasync": ("retries",), "g485": ("retries",)},
+    "collisions": {"fap": ("collisions",)},
+}
+
 
 class NodeCounters:
     """What the bridge saw of one node: messages each way, failures, reply times."""
@@ -40,6 +53,7 @@ class NodeCounters:
         self.buckets = [0] * len(REPLY_BUCKETS)   # non-cumulative; the exporter sums
         self.reply_sum = 0.0
         self.reply_count = 0
+        self.last_reply: Optional[float] = None   # seconds
 
     def reply(self, seconds: float) -> None:
         for i, le in enumerate(REPLY_BUCKETS):
@@ -48,6 +62,13 @@ class NodeCounters:
                 break
         self.reply_sum += seconds
         self.reply_count += 1
+        self.last_reply = seconds
+
+    def report(self) -> Dict[str, Any]:
+        """The node's counters as published in stats (``reply_ms``: the last reply time)."""
+        return {"rx": self.rx, "tx": self.tx, "errors": self.errors, "timeouts": self.timeouts,
+                "replies": self.reply_count,
+                "reply_ms": None if self.last_reply is None else round(self.last_reply * 1000, 3)}
 
     def failed(self, exc: BaseException) -> None:
         self.errors += 1
@@ -117,6 +138,31 @@ class BusAdapter:
         if c is None:
             c = self.nodes[node] = NodeCounters()
         return c
+
+    def configured_nodes(self) -> Tuple[int, ...]:
+        """The nodes the configuration names (more may appear at run time)."""
+        c = self.cfg
+        if c.protocol == "fap":
+            return c.slaves if c.role == "master" else (0,)
+        if c.protocol == "g485":
+            return tuple(d.address for d in c.devices)
+        return c.nodes
+
+    def health_counters(self) -> Dict[str, int]:
+        """The engine's counters under protocol-neutral names (only those this protocol has)."""
+        stats = self.engine_stats()
+        out = {}
+        for name, per_proto in _HEALTH.items():
+            values = [stats[k] for k in per_proto.get(self.cfg.protocol, ()) if isinstance(stats.get(k), int)]
+            if values:
+                out[name] = sum(values)
+        return out
+
+    def node_report(self) -> Dict[str, Dict[str, Any]]:
+        """Every known node's counters, keyed by the node number as text."""
+        for node in self.configured_nodes():
+            self.node(node)
+        return {str(n): c.report() for n, c in sorted(self.nodes.items())}
 
     def timed(self, node: int, call: Any, *args: Any, **kw: Any) -> Any:
         """``call(*args)``, its time recorded as ``node``'s reply time; a failure counted."""

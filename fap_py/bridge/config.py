@@ -64,6 +64,7 @@ class BusConfig:
     id_cycle: Optional[float] = None
     data_done_timeout: Optional[float] = None
     reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
+    homeassistant: bool = False    #: publish Home Assistant MQTT discovery for its nodes
 
 
 @dataclass(frozen=True)
@@ -102,6 +103,7 @@ class BridgeConfig:
     stats_interval: float = 10.0
     inflight: int = 100
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
+    discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
 
 
 # -- checking helpers -----------------------------------------------------------
@@ -193,6 +195,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["retries"] = _range(_pop(t, "retries", int, where, 2), 0, 1000, f"{where}.retries")
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
                                  0.001, 86400, f"{where}.poll_interval")
+    kw["homeassistant"] = _pop(t, "homeassistant", bool, where, False)
     kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
                                    0.01, 3600, f"{where}.reopen_interval")
     if protocol == "fap" and role == "master":
@@ -335,6 +338,10 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     kw["stats_interval"] = _range(float(_pop(bridge, "stats_interval", (int, float), where, 10.0)),
                                   0.05, 86400, "bridge.stats_interval")
     kw["inflight"] = _range(_pop(bridge, "inflight", int, where, 100), 1, 65535, "bridge.inflight")
+    disc = _pop(bridge, "discovery_prefix", str, where, "homeassistant").strip("/")
+    if not disc or any(c in disc for c in "+#"):
+        raise BridgeConfigError(f"bridge.discovery_prefix {_show(disc)}: empty or holds a wildcard")
+    kw["discovery_prefix"] = disc
     _done(bridge, where)
     listen = _pop(metrics, "listen", str, "metrics", None)
     if listen is not None:

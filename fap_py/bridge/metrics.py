@@ -10,7 +10,7 @@ from __future__ import annotations
 import errno
 import logging
 import threading
-from typing import TYPE_CHECKING, Any, Dict, Iterator, List, Optional, Tuple
+from typing import TYPE_CHECKING, Any, Iterator, List
 
 from ..errors import PortError
 from .buses import REPLY_BUCKETS
@@ -23,26 +23,8 @@ log = logging.getLogger(__name__)
 
 METRICS_HINT = "[metrics] needs prometheus_client: pip install 'fap_py[bridge]'"
 
-# The engines' own counter names behind each protocol-neutral metric.
-_FRAMES: Dict[str, Dict[str, Tuple[str, ...]]] = {
-    "fap": {"rx": ("frames_rx",), "tx": ("frames_tx",)},
-    "execasync": {"rx": ("rx_frames",), "tx": ("tx_frames",)},
-    "g485": {"tx": ("transactions",)},
-    "mikroc": {"rx": ("frames",)},
-}
-_NEUTRAL: Dict[str, Dict[str, Tuple[str, ...]]] = {
-    "crc_errors": {"fap": ("crc_errors",), "execasync": ("corrupt",),
-                   "g485": ("frame_errors", "check_mismatches"), "mikroc": ("damaged",)},
-    "timeouts": {"fap": ("id_timeouts", "data_done_timeouts"), "execasync": ("timeouts",),
-                 "g485": ("no_response",)},
-    "retries": {"execasync": ("retries",), "g485": ("retries",)},
-    "collisions": {"fap": ("collisions",)},
-}
-
-
-def _sum(stats: Dict[str, Any], keys: Tuple[str, ...]) -> Optional[int]:
-    values = [stats[k] for k in keys if isinstance(stats.get(k), int)]
-    return sum(values) if values else None
+# protocol-neutral bus metrics: the adapter's health counters (buses._HEALTH)
+_NEUTRAL = ("crc_errors", "timeouts", "retries", "collisions")
 
 
 class BridgeCollector:
@@ -80,16 +62,14 @@ class BridgeCollector:
         for name, adapter in b.buses.items():
             proto = adapter.cfg.protocol
             up.add_metric([name, proto], 1.0 if adapter.open_error is None else 0.0)
-            stats = adapter.engine_stats()
-            for direction, keys in _FRAMES.get(proto, {}).items():
-                value = _sum(stats, keys)
-                if value is not None:
-                    frames.add_metric([name, direction], value)
-            for metric, per_proto in _NEUTRAL.items():
-                value = _sum(stats, per_proto.get(proto, ()))
-                if value is not None:
-                    neutral[metric].add_metric([name], value)
-            for key, value in stats.items():
+            health = adapter.health_counters()
+            for direction in ("rx", "tx"):
+                if f"frames_{direction}" in health:
+                    frames.add_metric([name, direction], health[f"frames_{direction}"])
+            for metric in _NEUTRAL:
+                if metric in health:
+                    neutral[metric].add_metric([name], health[metric])
+            for key, value in adapter.engine_stats().items():
                 if isinstance(value, int) and not isinstance(value, bool):
                     engine.add_metric([name, key], value)
             for key, value in adapter.counters.items():

@@ -139,6 +139,7 @@ class MqttLink:
         self.last_error: Optional[str] = None    # why the last connection attempt failed
         self._failures = 0                       # failed attempts since the last success
         self.on_connected: Optional[Callable[[], None]] = None   # after each (re)connect
+        self.extra: Dict[str, Callable[[bytes], None]] = {}    # more topics to subscribe: topic -> handler
         self._inflight: Dict[int, Tuple[int, str]] = {}   # paho mid -> outbox seq, topic
         self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
         self._acked: List[int] = []           # seqs to delete
@@ -248,7 +249,7 @@ class MqttLink:
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
         client.publish(self.status_topic, b"online", qos=1, retain=True)
-        client.subscribe([(f, self.config.qos) for f in self.tx_filters])
+        client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
             self.connects += 1
@@ -305,6 +306,13 @@ class MqttLink:
                           seq, topic, reason, n)
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        handler = self.extra.get(msg.topic)
+        if handler is not None:
+            try:
+                handler(msg.payload)
+            except Exception:   # one bad message must not kill paho's thread
+                log.exception("message on %s", msg.topic[:200])
+            return
         expiry = getattr(getattr(msg, "properties", None), "MessageExpiryInterval", None)
         deadline = None if expiry is None else time.monotonic() + expiry
         try:
