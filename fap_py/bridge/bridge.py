@@ -7,7 +7,9 @@ Topics under ``<prefix>``::
     <prefix>/<bus>/<node>/state   retained: {"state": "active"|"inactive", "last_seen": ...}
     <prefix>/<bus>/<node>/error   a tx that could not be carried out
     <prefix>/<bus>/stats          periodic counters
+    <prefix>/<bus>/state          retained: {"state": "running"|"unavailable", "error": ...}
     <prefix>/bridge/<host>/status retained "online"; last will "offline"
+    <prefix>/bridge/<host>/health retained: the outbox's health and each bus's state
 """
 from __future__ import annotations
 
@@ -20,11 +22,27 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from ..errors import FapError
 from .buses import BusAdapter, TxError, make_adapter
-from .config import BridgeConfig
+from .config import BridgeConfig, verify_files
+from .homeassistant import Discovery
 from .mqtt import MqttLink
-from .store import Store, now_iso
+from .store import Store, StoreError, now_iso
 
 log = logging.getLogger(__name__)
+
+TX_MAX = 64 << 10   #: bytes: a larger tx is refused before it is parsed
+ECHO_MAX = 256      #: bytes of a refused tx echoed on the error topic
+TEXT_MAX = 300      #: characters of an error text (published and logged)
+
+
+def clip(text: str, limit: int = TEXT_MAX) -> str:
+    """``text`` cut to ``limit`` characters, saying how much was cut."""
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, RecursionError):
+        return "TxError: JSON nested too deeply"
+    return clip(f"{type(exc).__name__}: {exc}")
 
 
 class Bridge:
@@ -39,6 +57,7 @@ class Bridge:
 
     def __init__(self, config: BridgeConfig) -> None:
         self.config = config
+        verify_files(config, ports=False)   # a missing CA names its key before anything is created
         path = os.path.join(config.state_dir, f"fap-bridge-{config.host}.sqlite")
         self.store = Store(path, config.queue_max, config.seen_max)
         self._lock = threading.Lock()
@@ -46,24 +65,44 @@ class Bridge:
         self._states: Dict[Tuple[str, int], List[Any]] = {}   # (bus, node) -> [active, last_seen, published]
         self.duplicates = 0
         self.tx_refused = 0
+        self.not_stored = 0                      # publications the outbox could not take
+        self.store_error: Optional[str] = None   # the outbox's last error while it fails
+        self._health_sent: Optional[Tuple[Any, ...]] = None
         self.buses: Dict[str, BusAdapter] = {b.name: make_adapter(b, self) for b in config.buses}
-        self.link = MqttLink(config, self.store, self._on_tx)
+        try:
+            self.link = MqttLink(config, self.store, self._on_tx)
+        except BaseException:
+            self.store.close()
+            raise
+        self.discovery = Discovery(config, lambda topic, payload: self.link.publish_now(topic, payload))
+        if self.discovery.enabled:
+            self.discovery.add_configured({n: b.configured_nodes() for n, b in self.buses.items()})
+            self.link.extra[self.discovery.status_topic] = self._on_ha_status
+        self.link.on_connected = self._on_connected
         self._stop = threading.Event()
+        self._bus_lock = threading.Lock()        # opening a bus vs stopping the bridge
         self._stats_thread: Optional[threading.Thread] = None
-        self._started: List[BusAdapter] = []
+        self._reopeners: List[threading.Thread] = []
+        self.metrics: Any = None   # the MetricsServer, with [metrics] listen
 
     # -- lifetime --------------------------------------------------------------------
     def start(self) -> "Bridge":
-        try:
-            for bus in self.buses.values():
-                bus.open()
-                self._started.append(bus)
-            for bus in self._started:
-                bus.start()
-        except BaseException:
-            self._stop_buses()
-            self.store.close()
-            raise
+        """Open every bus (one whose port fails is published ``unavailable`` and retried in
+        the background: the others run), then connect to the broker."""
+        if self.config.metrics_listen is not None:
+            from .metrics import MetricsServer
+
+            try:
+                self.metrics = MetricsServer(self, *self.config.metrics_listen)
+            except BaseException:
+                self.store.close()
+                raise
+        for bus in self.buses.values():
+            if not self._open_bus(bus):
+                t = threading.Thread(target=self._reopen_loop, args=(bus,), daemon=True,
+                                     name=f"fap-bridge-{bus.cfg.name}-reopen")
+                t.start()
+                self._reopeners.append(t)
         self.link.start()
         self._stats_thread = threading.Thread(target=self._stats_loop, name="fap-bridge-stats", daemon=True)
         self._stats_thread.start()
@@ -75,13 +114,71 @@ class Bridge:
         """True once the broker accepted us (BrokerRefusedError if it refused)."""
         return self.link.wait_connected(timeout)
 
-    def _stop_buses(self) -> None:
-        for bus in self._started:
+    def _open_bus(self, bus: BusAdapter) -> bool:
+        """Open and start ``bus``; False (state ``unavailable`` published) if its port fails."""
+        with self._bus_lock:
+            if self._stop.is_set():
+                return True
             try:
-                bus.stop()
-            except Exception:
-                log.exception("bus %s: stop failed", bus.cfg.name)
-        self._started = []
+                bus.open()
+                bus.start()
+            except (FapError, OSError) as exc:
+                if bus.engine is not None:   # opened, then failed to start
+                    bus.engine.close()
+                    bus.engine = None
+                first = bus.open_error is None
+                bus.open_error = clip(f"{type(exc).__name__}: {exc}")
+                if first:
+                    log.warning("bus %s: cannot open %s: %s (retrying every %g s; the other buses run)",
+                                bus.cfg.name, bus.cfg.port, exc, bus.cfg.reopen_interval)
+                    self._bus_state(bus)
+                else:
+                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, bus.cfg.port, exc)
+                return False
+            was_down = bus.open_error is not None
+            bus.open_error = None
+        if was_down:
+            log.warning("bus %s: %s opened", bus.cfg.name, bus.cfg.port)
+        self._bus_state(bus)
+        return True
+
+    def _reopen_loop(self, bus: BusAdapter) -> None:
+        while not self._stop.wait(bus.cfg.reopen_interval):
+            if self._open_bus(bus):
+                return
+
+    def _bus_state(self, bus: BusAdapter) -> None:
+        state = "running" if bus.open_error is None else "unavailable"
+        self._publish(self._topic(bus.cfg.name, None, "state"),
+                      {"bus": bus.cfg.name, "state": state, "port": bus.cfg.port, "error": bus.open_error},
+                      retain=True)
+        self._publish_health()
+
+    def alive(self) -> bool:
+        """The bridge's own threads run (what the systemd watchdog vouches for)."""
+        return (not self._stop.is_set() and self.link.alive()
+                and self._stats_thread is not None and self._stats_thread.is_alive())
+
+    def status_line(self) -> str:
+        """One line for systemd's STATUS=: the broker, the buses, the outbox."""
+        link = self.link
+        broker = "connected" if link.connected else f"not connected ({link.last_error or 'connecting'})"
+        down = [n for n, b in self.buses.items() if b.open_error is not None]
+        buses = f"{len(self.buses) - len(down)}/{len(self.buses)} buses running"
+        if down:
+            buses += f" (unavailable: {', '.join(down)})"
+        store = "" if self.store_error is None else f", outbox failing: {self.not_stored} not stored"
+        return clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
+
+    def _stop_buses(self) -> None:
+        with self._bus_lock:
+            for bus in self.buses.values():
+                if not bus.running:
+                    continue
+                try:
+                    bus.stop()
+                except Exception:
+                    log.exception("bus %s: stop failed", bus.cfg.name)
 
     def stop(self, drain: float = 5.0) -> None:
         """Stop the buses, drain the outbox (up to ``drain`` s), go offline."""
@@ -89,12 +186,16 @@ class Bridge:
             return
         self._stop.set()
         self._stop_buses()
+        for t in self._reopeners:
+            t.join(5.0)
         if self._stats_thread is not None:
             self._stats_thread.join(5.0)
         if self.link.connected and not self.link.drain(drain):
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
         self.link.stop()
+        if self.metrics is not None:
+            self.metrics.close()
         self.store.close()
 
     def __enter__(self) -> "Bridge":
@@ -112,8 +213,13 @@ class Bridge:
         self._publish_many([(topic, fields, retain)])
 
     def _publish_many(self, items: List[Tuple[str, Dict[str, Any], bool]]) -> None:
-        """Number the publications and append them to the outbox in one transaction."""
+        """Number the publications and append them to the outbox in one transaction.
+
+        If the outbox cannot take them (disk full, I/O error) they are counted in
+        ``not_stored`` and the caller goes on: a bus reader never dies of a full disk,
+        and delivery resumes by itself when a write succeeds again."""
         with self._lock:   # seq == outbox row: one order for both
+            first = self._seq
             rows = []
             for topic, fields, retain in items:
                 fields["seq"] = self._seq
@@ -121,8 +227,41 @@ class Bridge:
                 fields.setdefault("ts", now_iso())
                 rows.append((topic, json.dumps(fields, separators=(",", ":")).encode(), retain))
                 self._seq += 1
-            self.store.put_many(rows)
+            try:
+                self.store.put_many(rows)
+            except StoreError as exc:
+                self._seq = first          # rolled back: the numbers were not used
+                self.not_stored += len(rows)
+                changed = self.store_error is None
+                self.store_error = clip(str(exc))
+                if changed:
+                    log.error("%s: publications are counted as not stored until it works again", exc)
+            else:
+                changed = self.store_error is not None
+                if changed:
+                    log.warning("bridge state %s writable again (%d publications were not stored)",
+                                self.store.path, self.not_stored)
+                    self.store_error = None
+        if changed:
+            self._publish_health()
         self.link.notify()
+
+    def health(self) -> Dict[str, Any]:
+        """The bridge's own state, published retained on ``<prefix>/bridge/<host>/health``."""
+        return {"host": self.config.host, "store": "ok" if self.store_error is None else "error",
+                "store_error": self.store_error, "not_stored": self.not_stored,
+                "buses": {name: {"state": "running" if b.open_error is None else "unavailable",
+                                 "error": b.open_error} for name, b in self.buses.items()},
+                "ts": now_iso()}
+
+    def _publish_health(self, force: bool = True) -> None:
+        """Publish :meth:`health` outside the outbox (it reports the outbox failing)."""
+        doc = self.health()
+        key = (doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True))
+        if not force and key == self._health_sent:
+            return
+        self._health_sent = key
+        self.link.publish_now(self.link.health_topic, json.dumps(doc, separators=(",", ":")).encode())
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""
@@ -137,6 +276,20 @@ class Bridge:
         self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
                             for node, fields in items])
 
+    def _on_connected(self) -> None:
+        self._publish_health()
+        if self.discovery.enabled:
+            self.discovery.republish()
+
+    def _on_ha_status(self, payload: bytes) -> None:
+        if payload.strip() == b"online":   # Home Assistant (re)started: it wants the configs again
+            self.discovery.republish()
+
+    def node_states(self) -> Dict[Tuple[str, int], bool]:
+        """(bus, node) -> active, for every node whose state is known."""
+        with self._lock:
+            return {k: bool(st[0]) for k, st in self._states.items() if st[0] is not None}
+
     def _seen(self, bus: str, node: int, t: float) -> None:
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
@@ -146,6 +299,8 @@ class Bridge:
 
     def state(self, bus: str, node: int, active: bool) -> None:
         """Publish the retained state of ``node`` when it changes."""
+        if self.discovery.enabled:
+            self.discovery.node_seen(bus, node)
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
             if active:
@@ -161,14 +316,21 @@ class Bridge:
                       {"bus": bus, "node": node, "state": "active" if active else "inactive",
                        "last_seen": None if last_seen is None else now_iso(last_seen)}, retain=True)
 
-    def error(self, bus: str, node: int, tx_id: Optional[str], message: str) -> None:
-        """A tx that could not be carried out."""
-        log.warning("bus %s node %d: tx %s failed: %s", bus, node, tx_id, message)
-        self._publish(self._topic(bus, node, "error"),
-                      {"bus": bus, "node": node, "id": tx_id, "error": message})
+    def error(self, bus: str, node: Any, tx_id: Optional[str], message: str,
+              payload: Optional[bytes] = None, node_text: Optional[str] = None) -> None:
+        """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded)."""
+        message = clip(message)
+        tx_id = None if tx_id is None else clip(tx_id, 100)
+        log.warning("bus %s node %s: tx %s failed: %s", bus, node if node is not None else node_text,
+                    tx_id, message)
+        fields: Dict[str, Any] = {"bus": bus, "node": node, "id": tx_id, "error": message}
+        if payload is not None:
+            fields["payload"] = payload[:ECHO_MAX].decode("utf-8", "replace")
+            fields["payload_bytes"] = len(payload)
+        self._publish(f"{self.config.prefix}/{bus}/{node if node is not None else node_text}/error", fields)
 
     # -- tx (paho's network thread: quick, never blocks on a bus) -----------------------
-    def _on_tx(self, topic: str, payload: bytes) -> None:
+    def _on_tx(self, topic: str, payload: bytes, deadline: Optional[float] = None) -> None:
         parts = topic.split("/")
         prefix = self.config.prefix.split("/")
         bus_name, node_text = parts[len(prefix)], parts[len(prefix) + 1]
@@ -176,12 +338,14 @@ class Bridge:
         if bus is None:
             return   # another bridge's bus on the same broker
         tx_id: Optional[str] = None
+        node: Optional[int] = None
         try:
+            if not (node_text.isascii() and node_text.isdigit()) or len(node_text) > 5:
+                raise TxError(f"node {clip(node_text, 40)!r} is not a node number")
             node = int(node_text)
-        except ValueError:
-            log.warning("tx on %s: node %r is not a number", topic, node_text)
-            return
-        try:
+            bus.check_node(node)
+            if len(payload) > TX_MAX:
+                raise TxError(f"payload of {len(payload)} bytes (at most {TX_MAX})")
             req = json.loads(payload)
             if not isinstance(req, dict):
                 raise TxError("payload must be a JSON object")
@@ -193,20 +357,24 @@ class Bridge:
                 self.duplicates += 1
                 log.info("tx %s on %s: already executed (redelivery), ignored", tx_id, topic)
                 return
-            bus.submit(node, tx_id, req)
-        except (ValueError, FapError) as exc:   # json.JSONDecodeError is a ValueError
+            bus.submit(node, tx_id, req, deadline)
+        except Exception as exc:   # every malformed tx: bad JSON, too deep (RecursionError), store ...
             self.tx_refused += 1
-            self.error(bus_name, node, tx_id, f"{type(exc).__name__}: {exc}")
+            self.error(bus_name, node, tx_id, _describe(exc), payload, node_text=node_text)
 
     # -- stats --------------------------------------------------------------------------
     def stats(self, bus: str) -> Dict[str, Any]:
         """The counters published on ``<prefix>/<bus>/stats``."""
         adapter = self.buses[bus]
-        return {"bus": bus, "bridge": dict(adapter.counters, jobs_waiting=adapter.jobs.qsize()),
-                "engine": adapter.engine_stats(),
-                "outbox": {"pending": self.store.pending, "dropped": self.store.dropped},
+        return {"bus": bus, "state": "running" if adapter.open_error is None else "unavailable",
+                "bridge": dict(adapter.counters, jobs_waiting=adapter.jobs.qsize()),
+                "engine": adapter.engine_stats(), "health": adapter.health_counters(),
+                "nodes": adapter.node_report(),
+                "outbox": {"pending": self.store.pending, "dropped": self.store.dropped,
+                           "not_stored": self.not_stored, "error": self.store_error},
                 "broker": {"connected": self.link.connected, "connects": self.link.connects,
-                           "disconnects": self.link.disconnects, "published": self.link.published},
+                           "disconnects": self.link.disconnects, "published": self.link.published,
+                           "refused": dict(self.link.refused_pubs)},
                 "tx_duplicates": self.duplicates, "tx_refused": self.tx_refused}
 
     def _stats_loop(self) -> None:
@@ -224,3 +392,4 @@ class Bridge:
                     self._states[k][2] = self._states[k][1]
             for (bus, node), seen in stale:
                 self._publish_state(bus, node, True, seen)
+            self._publish_health(force=False)

@@ -18,12 +18,62 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Protocol, Tuple
 
-from ..errors import FapError, InvalidValueError
+from ..errors import FapError, FapTimeoutError, InvalidValueError
 from .config import BusConfig
 
 log = logging.getLogger(__name__)
 
 _JOBS_MAX = 1000    # tx jobs waiting per bus; past that a tx is refused (error topic)
+
+#: upper bounds (seconds) of the reply-time histogram buckets (Prometheus ``le``)
+REPLY_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0)
+
+# The engines' own counter names behind each protocol-neutral bus health counter
+# (stats "health", Prometheus, Home Assistant).
+_HEALTH: Dict[str, Dict[str, Tuple[str, ...]]] = {
+    "frames_rx": {"fap": ("frames_rx",), "execasync": ("rx_frames",), "mikroc": ("frames",)},
+    "frames_tx": {"fap": ("frames_tx",), "execasync": ("tx_frames",), "g485": ("transactions",)},
+    "crc_errors": {"fap": ("crc_errors",), "execasync": ("corrupt",),
+                   "g485": ("frame_errors", "check_mismatches"), "mikroc": ("damaged",)},
+    "timeouts": {"fap": ("id_timeouts", "data_done_timeouts"), "execasync": ("timeouts",),
+                 "g485": ("no_response",)},
+    "retries": {"execasync": ("retries",), "g485": ("retries",)},
+    "collisions": {"fap": ("collisions",)},
+}
+
+
+class NodeCounters:
+    """What the bridge saw of one node: messages each way, failures, reply times."""
+
+    def __init__(self) -> None:
+        self.rx = 0
+        self.tx = 0
+        self.errors = 0
+        self.timeouts = 0
+        self.buckets = [0] * len(REPLY_BUCKETS)   # non-cumulative; the exporter sums
+        self.reply_sum = 0.0
+        self.reply_count = 0
+        self.last_reply: Optional[float] = None   # seconds
+
+    def reply(self, seconds: float) -> None:
+        for i, le in enumerate(REPLY_BUCKETS):
+            if seconds <= le:
+                self.buckets[i] += 1
+                break
+        self.reply_sum += seconds
+        self.reply_count += 1
+        self.last_reply = seconds
+
+    def report(self) -> Dict[str, Any]:
+        """The node's counters as published in stats (``reply_ms``: the last reply time)."""
+        return {"rx": self.rx, "tx": self.tx, "errors": self.errors, "timeouts": self.timeouts,
+                "replies": self.reply_count,
+                "reply_ms": None if self.last_reply is None else round(self.last_reply * 1000, 3)}
+
+    def failed(self, exc: BaseException) -> None:
+        self.errors += 1
+        if isinstance(exc, FapTimeoutError) or "NoResponse" in type(exc).__name__:
+            self.timeouts += 1
 
 
 class TxError(InvalidValueError):
@@ -76,7 +126,54 @@ class BusAdapter:
         self.jobs: "queue.Queue[Optional[tuple]]" = queue.Queue(_JOBS_MAX)
         self._stop = threading.Event()
         self._threads: list = []
-        self.counters = {"rx": 0, "tx": 0, "tx_errors": 0, "poll_errors": 0, "rx_overflow": 0}
+        self.counters = {"rx": 0, "tx": 0, "tx_errors": 0, "tx_expired": 0, "poll_errors": 0,
+                         "rx_overflow": 0, "reader_errors": 0}
+        self.nodes: Dict[int, NodeCounters] = {}
+        self.running = False
+        self.open_error: Optional[str] = None   #: why the port could not be opened (None: open)
+
+    def node(self, node: int) -> NodeCounters:
+        """The counters of ``node`` (created on first use)."""
+        c = self.nodes.get(node)
+        if c is None:
+            c = self.nodes[node] = NodeCounters()
+        return c
+
+    def configured_nodes(self) -> Tuple[int, ...]:
+        """The nodes the configuration names (more may appear at run time)."""
+        c = self.cfg
+        if c.protocol == "fap":
+            return c.slaves if c.role == "master" else (0,)
+        if c.protocol == "g485":
+            return tuple(d.address for d in c.devices)
+        return c.nodes
+
+    def health_counters(self) -> Dict[str, int]:
+        """The engine's counters under protocol-neutral names (only those this protocol has)."""
+        stats = self.engine_stats()
+        out = {}
+        for name, per_proto in _HEALTH.items():
+            values = [stats[k] for k in per_proto.get(self.cfg.protocol, ()) if isinstance(stats.get(k), int)]
+            if values:
+                out[name] = sum(values)
+        return out
+
+    def node_report(self) -> Dict[str, Dict[str, Any]]:
+        """Every known node's counters, keyed by the node number as text."""
+        for node in self.configured_nodes():
+            self.node(node)
+        return {str(n): c.report() for n, c in sorted(self.nodes.items())}
+
+    def timed(self, node: int, call: Any, *args: Any, **kw: Any) -> Any:
+        """``call(*args)``, its time recorded as ``node``'s reply time; a failure counted."""
+        t0 = time.monotonic()
+        try:
+            result = call(*args, **kw)
+        except FapError as exc:
+            self.node(node).failed(exc)
+            raise
+        self.node(node).reply(time.monotonic() - t0)
+        return result
 
     # -- lifetime ------------------------------------------------------------
     def open(self) -> None:
@@ -85,6 +182,7 @@ class BusAdapter:
 
     def start(self) -> None:
         self._spawn(self._worker, "worker")
+        self.running = True
 
     def _spawn(self, target: Any, what: str) -> None:
         t = threading.Thread(target=target, name=f"fap-bridge-{self.cfg.name}-{what}", daemon=True)
@@ -103,22 +201,35 @@ class BusAdapter:
             self.engine.close()
 
     def engine_stats(self) -> Dict[str, Any]:
+        if self.engine is None:   # the port is not open (yet)
+            return {}
         try:
             return _stats(self.engine.stats() if callable(self.engine.stats) else self.engine.stats)
         except FapError:
             return {}
 
     # -- tx ------------------------------------------------------------------------
-    def submit(self, node: int, tx_id: str, req: Dict[str, Any]) -> None:
-        """Queue a tx for the worker (TxError if the node is out of range or the queue is full)."""
+    def check_node(self, node: int) -> None:
+        """TxError unless ``node`` is a node number of this protocol and the bus runs."""
         if not self.nodes_lo <= node <= self.nodes_hi:
             raise TxError(f"node {node} outside {self.nodes_lo}..{self.nodes_hi} for {self.cfg.protocol}")
+        if not self.running:
+            raise TxError(f"bus {self.cfg.name} is unavailable: {self.open_error}")
+
+    def submit(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float] = None) -> None:
+        """Queue a tx for the worker (TxError if the queue is full); ``deadline`` (monotonic):
+        the tx expires then (MQTT 5 message expiry) and is not run after it."""
+        self.check_node(node)
         try:
-            self.jobs.put_nowait((node, tx_id, req))
+            self.jobs.put_nowait((node, tx_id, req, deadline))
         except queue.Full:
             raise TxError(f"bus {self.cfg.name}: {_JOBS_MAX} tx already waiting") from None
 
-    def _run_tx(self, node: int, tx_id: str, req: Dict[str, Any]) -> None:
+    def _run_tx(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float]) -> None:
+        if deadline is not None and time.monotonic() > deadline:
+            self.counters["tx_expired"] += 1
+            self.sink.error(self.cfg.name, node, tx_id, "expired before it could run (MQTT message expiry)")
+            return
         try:
             reply = self.execute(node, req)
         except FapError as exc:
@@ -126,6 +237,7 @@ class BusAdapter:
             self.sink.error(self.cfg.name, node, tx_id, f"{type(exc).__name__}: {exc}")
             return
         self.counters["tx"] += 1
+        self.node(node).tx += 1
         if reply is not None:
             self.counters["rx"] += 1
             self.sink.rx(self.cfg.name, node, dict(reply, reply_to=tx_id))
@@ -163,6 +275,7 @@ class BusAdapter:
     def _polled(self, node: int, fields: Optional[Dict[str, Any]], exc: Optional[Exception]) -> None:
         if exc is None:
             self.counters["rx"] += 1
+            self.node(node).rx += 1
             self.sink.state(self.cfg.name, node, True)
             if fields is not None:
                 self.sink.rx(self.cfg.name, node, fields)
@@ -237,6 +350,8 @@ class FapAdapter(BusAdapter):
                     batch.append((msg.source, {"data": msg.data.hex()}))
                 if batch:
                     self.counters["rx"] += len(batch)
+                    for source, _ in batch:
+                        self.node(source).rx += 1
                     self.sink.rx_many(name, batch)
                 for ev in eng.events(0):
                     if ev.kind in active:
@@ -254,6 +369,10 @@ class FapAdapter(BusAdapter):
                 if not self._stop.is_set():
                     log.error("bus %s: reader stopped: %s", name, exc)
                 return
+            except Exception:   # the reader outlives any one failure (it is the bus's only reader)
+                self.counters["reader_errors"] += 1
+                if self.counters["reader_errors"] <= 3:
+                    log.exception("bus %s: reader error (it goes on reading)", name)
 
 
 class ExecAsyncAdapter(BusAdapter):
@@ -273,7 +392,7 @@ class ExecAsyncAdapter(BusAdapter):
     def poll(self) -> None:
         for node in self.cfg.nodes:
             try:
-                reply = self.engine.transact(node, self.cfg.poll_data)
+                reply = self.timed(node, self.engine.transact, node, self.cfg.poll_data)
             except FapError as exc:
                 self._polled(node, None, exc)
             else:
@@ -287,7 +406,7 @@ class ExecAsyncAdapter(BusAdapter):
         if node == 255:
             self.engine.broadcast(data)
             return {"data": ""}
-        reply = self.engine.transact(node, data)
+        reply = self.timed(node, self.engine.transact, node, data)
         self.sink.state(self.cfg.name, node, True)
         return {"data": reply.hex()}
 
@@ -307,7 +426,8 @@ class MikrocAdapter(BusAdapter):
     def poll(self) -> None:
         for node in self.cfg.nodes:
             try:
-                reply = self.engine.request(node, self.cfg.poll_data, timeout=self.cfg.timeout)
+                reply = self.timed(node, self.engine.request, node, self.cfg.poll_data,
+                                   timeout=self.cfg.timeout)
             except FapError as exc:
                 self._polled(node, None, exc)
             else:
@@ -323,7 +443,7 @@ class MikrocAdapter(BusAdapter):
         if node == BROADCAST:
             self.engine.send(node, data)
             return {"data": ""}
-        reply = self.engine.request(node, data, timeout=self.cfg.timeout)
+        reply = self.timed(node, self.engine.request, node, data, timeout=self.cfg.timeout)
         return {"data": reply.data.hex()}
 
 
@@ -339,7 +459,7 @@ class G485Adapter(BusAdapter):
         self.engine = G485Master(c.port, c.baud, timeout=c.timeout, retries=c.retries, rs485=c.rs485)
 
     def engine_stats(self) -> Dict[str, Any]:
-        return _stats(self.engine.stats)
+        return {} if self.engine is None else _stats(self.engine.stats)
 
     def _polls(self) -> bool:
         return any(d.registers for d in self.cfg.devices)
@@ -348,7 +468,7 @@ class G485Adapter(BusAdapter):
         for dev in self.cfg.devices:
             for first, count in dev.registers:
                 try:
-                    data = self.engine.read(dev.address, first, count)
+                    data = self.timed(dev.address, self.engine.read, dev.address, first, count)
                 except FapError as exc:
                     self._polled(dev.address, None, exc)
                     break          # the device is not answering: skip its other runs this round
@@ -359,13 +479,14 @@ class G485Adapter(BusAdapter):
         op = req.get("op")
         if op == "read":
             register, count = _int(req, "register"), _int(req, "count", 1)
-            return {"op": op, "register": register, "data": m.read(node, register, count).hex()}
+            return {"op": op, "register": register,
+                    "data": self.timed(node, m.read, node, register, count).hex()}
         if op == "write":
             register, data = _int(req, "register"), _hex(req)
             if node == 0:
                 m.broadcast_write(register, data)
             else:
-                m.write(node, register, data)
+                self.timed(node, m.write, node, register, data)
             return {"op": op, "register": register, "data": data.hex()}
         if op == "set":
             command = req.get("command")

@@ -13,8 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
-from ..errors import InvalidValueError
+from ..errors import InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
+from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -28,6 +29,10 @@ _RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
 
 class BridgeConfigError(InvalidValueError):
     """The bridge configuration is missing a key, has an unknown one, or a bad value."""
+
+
+class BridgeConfigTypeError(BridgeConfigError, InvalidTypeError):
+    """:func:`load` was given something that is not a path."""
 
 
 @dataclass(frozen=True)
@@ -58,6 +63,8 @@ class BusConfig:
     devices: Tuple[G485Device, ...] = ()
     id_cycle: Optional[float] = None
     data_done_timeout: Optional[float] = None
+    reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
+    homeassistant: bool = False    #: publish Home Assistant MQTT discovery for its nodes
 
 
 @dataclass(frozen=True)
@@ -77,6 +84,8 @@ class BrokerConfig:
     reconnect_min: float = 0.5
     reconnect_max: float = 30.0
     connect_timeout: float = 10.0
+    protocol: str = "5"            #: MQTT "5" or "3.1.1"
+    session_expiry: int = 604_800  #: MQTT 5: seconds the broker keeps our session while we are away
 
 
 @dataclass(frozen=True)
@@ -93,32 +102,47 @@ class BridgeConfig:
     seen_max: int = 10_000
     stats_interval: float = 10.0
     inflight: int = 100
+    metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
+    discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
 
 
 # -- checking helpers -----------------------------------------------------------
 
+def _show(value: Any, limit: int = 60) -> str:
+    """A value for an error line: bounded (a 1 MB string or a 10,000-digit number is not echoed)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
+        return f"a {value.bit_length()}-bit integer"
+    try:
+        text = repr(value)
+    except ValueError:   # an int inside a list past Python's digit limit
+        text = f"a {type(value).__name__}"
+    return text if len(text) <= limit else text[:limit] + "..."
+
+
 def _pop(table: Dict[str, Any], key: str, kind: Any, where: str, default: Any = ...) -> Any:
     if key not in table:
         if default is ...:
-            raise BridgeConfigError(f"{where}: missing key {key!r}")
+            raise BridgeConfigError(f"{where}: missing key {_show(key)}")
         return default
     value = table.pop(key)
     ok = isinstance(value, kind) and not (isinstance(value, bool) and kind in (int, float, (int, float)))
     if not ok:
         name = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
-        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {value!r}")
+        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {_show(value)}")
+    if kind == (int, float) and isinstance(value, int) and abs(value) > 1e300:   # float() would overflow
+        raise BridgeConfigError(f"{where}.{key}: {_show(value)} is out of range")
     return value
 
 
 def _range(value: Any, lo: float, hi: float, what: str) -> Any:
     if not lo <= value <= hi:
-        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {value}")
+        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {_show(value)}")
     return value
 
 
 def _done(table: Dict[str, Any], where: str) -> None:
     if table:
-        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))}")
+        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))[:200]}")
 
 
 def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
@@ -128,19 +152,19 @@ def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
     for v in values:
         _range(v, lo, hi, what)
     if len(set(values)) != len(values):
-        raise BridgeConfigError(f"{what} lists an ID twice: {values}")
+        raise BridgeConfigError(f"{what} lists an ID twice: {_show(values)}")
     return tuple(values)
 
 
 def _rs485(t: Dict[str, Any], where: str) -> RS485:
     mode = _pop(t, "rs485", str, where, "auto")
     if mode not in _RS485_MODES:
-        raise BridgeConfigError(f"{where}.rs485 must be one of {', '.join(_RS485_MODES)}, not {mode!r}")
+        raise BridgeConfigError(f"{where}.rs485 must be one of {', '.join(_RS485_MODES)}, not {_show(mode)}")
     before = _range(_pop(t, "rts_before", (int, float), where, 0), 0, 1000, f"{where}.rts_before")
     after = _range(_pop(t, "rts_after", (int, float), where, 0), 0, 1000, f"{where}.rts_after")
     polarity = _pop(t, "rts_polarity", str, where, "high")
     if polarity not in ("high", "low"):
-        raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {polarity!r}")
+        raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {_show(polarity)}")
     echo = _pop(t, "echo_suppression", bool, where, False)
     return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
                  delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
@@ -151,15 +175,15 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     where = f"bus[{index}]"
     name = _pop(t, "name", str, where)
     if not name or any(c in name for c in "/+#"):
-        raise BridgeConfigError(f"{where}.name {name!r}: empty or holds an MQTT wildcard or /")
-    where = f"bus {name!r}"
+        raise BridgeConfigError(f"{where}.name {_show(name)}: empty or holds an MQTT wildcard or /")
+    where = f"bus {_show(name)}"
     port = _pop(t, "port", str, where)
     protocol = _pop(t, "protocol", str, where)
     if protocol not in PROTOCOLS:
-        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {_show(protocol)}")
     role = _pop(t, "role", str, where, "master")
     if role not in ("master", "slave") or (role == "slave" and protocol != "fap"):
-        raise BridgeConfigError(f"{where}.role {role!r}: only fap buses may be a slave")
+        raise BridgeConfigError(f"{where}.role {_show(role)}: only fap buses may be a slave")
     kw: Dict[str, Any] = {"name": name, "port": port, "protocol": protocol, "role": role}
     kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
                         50, 10_000_000, f"{where}.baud")
@@ -171,6 +195,9 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["retries"] = _range(_pop(t, "retries", int, where, 2), 0, 1000, f"{where}.retries")
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
                                  0.001, 86400, f"{where}.poll_interval")
+    kw["homeassistant"] = _pop(t, "homeassistant", bool, where, False)
+    kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
+                                   0.01, 3600, f"{where}.reopen_interval")
     if protocol == "fap" and role == "master":
         kw["slaves"] = _ids(_pop(t, "slaves", list, where), 1, 31, f"{where}.slaves")
         for key in ("id_cycle", "data_done_timeout"):
@@ -186,7 +213,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
             try:
                 kw["poll_data"] = bytes.fromhex(data)
             except ValueError:
-                raise BridgeConfigError(f"{where}.poll_data is not hex: {data!r}") from None
+                raise BridgeConfigError(f"{where}.poll_data is not hex: {_show(data)}") from None
     else:
         devices = []
         for j, d in enumerate(_pop(t, "device", list, where)):
@@ -199,7 +226,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
             for run in _pop(d, "registers", list, dw, []):
                 if (not isinstance(run, list) or len(run) != 2
                         or not all(isinstance(v, int) and not isinstance(v, bool) for v in run)):
-                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {run!r}")
+                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {_show(run)}")
                 _range(run[0], 1, 100, f"{dw}.registers first")
                 _range(run[1], 1, 101 - run[0], f"{dw}.registers count")
                 runs.append((run[0], run[1]))
@@ -214,17 +241,21 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
 
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
-    parts = urlsplit(url)
-    if parts.scheme not in ("mqtt", "mqtts") or not parts.hostname:
-        raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {url!r}")
+    try:
+        parts = urlsplit(url)
+        hostname = parts.hostname
+    except ValueError as exc:   # "mqtt://[::1": an unclosed IPv6 bracket
+        raise BridgeConfigError(f"broker.url {_show(url)}: {exc}") from None
+    if parts.scheme not in ("mqtt", "mqtts") or not hostname:
+        raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {_show(url)}")
     tls = parts.scheme == "mqtts"
     try:
         port = parts.port or (8883 if tls else 1883)
     except ValueError:
-        raise BridgeConfigError(f"broker.url has a bad port: {url!r}") from None
+        raise BridgeConfigError(f"broker.url has a bad port: {_show(url)}") from None
     user = unquote(parts.username) if parts.username else None
     password = unquote(parts.password) if parts.password else None
-    return parts.hostname, port, tls, user, password
+    return hostname, port, tls, user, password
 
 
 def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
@@ -235,11 +266,11 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
     kw["password"] = _pop(t, "password", str, where, password)
     pw_file = _pop(t, "password_file", str, where, None)
     if pw_file is not None:
+        raw = read_bounded(os.path.join(base, pw_file), SECRET_MAX, "broker.password_file")
         try:
-            with open(os.path.join(base, pw_file)) as f:
-                kw["password"] = f.read().strip()
-        except OSError as exc:
-            raise BridgeConfigError(f"broker.password_file: {exc}") from None
+            kw["password"] = raw.decode("utf-8").strip()
+        except UnicodeDecodeError:
+            raise BridgeConfigError(f"broker.password_file {_show(pw_file)} is not UTF-8 text") from None
     for key in ("ca", "cert", "key"):
         value = _pop(t, key, str, where, None)
         if value is not None:
@@ -254,12 +285,19 @@ def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
                                  "broker.reconnect_min")
     kw["reconnect_max"] = _range(float(_pop(t, "reconnect_max", (int, float), where, 30.0)),
                                  kw["reconnect_min"], 3600, "broker.reconnect_max")
+    kw["protocol"] = _pop(t, "protocol", str, where, "5")
+    if kw["protocol"] not in ("5", "3.1.1"):
+        raise BridgeConfigError(f"broker.protocol must be \"5\" or \"3.1.1\", not {_show(kw['protocol'])}")
+    kw["session_expiry"] = _range(_pop(t, "session_expiry", int, where, 604_800), 0, 0xFFFFFFFF,
+                                  "broker.session_expiry")
     _done(t, where)
     return BrokerConfig(**kw)
 
 
 def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     """A checked :class:`BridgeConfig` from parsed TOML; relative paths are relative to ``base``."""
+    if not isinstance(data, Mapping):
+        raise BridgeConfigError(f"the configuration must be a table, not {type(data).__name__}")
     top = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
     if not isinstance(top.get("broker"), dict):
         raise BridgeConfigError("missing [broker] table")
@@ -270,46 +308,100 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     bus_tables = top.pop("bus", None)
     if not isinstance(bus_tables, list) or not bus_tables:
         raise BridgeConfigError("at least one [[bus]] table is needed")
+    metrics = top.pop("metrics", {})
+    if not isinstance(metrics, dict):
+        raise BridgeConfigError("[metrics] must be a table")
     _done(top, "top level")
+    for i, b in enumerate(bus_tables):   # [[bus]] only: a list of lists is not a table
+        if not isinstance(b, dict):
+            raise BridgeConfigError(f"bus[{i}] must be a table ([[bus]]), not {type(b).__name__}")
     buses = tuple(_bus(dict(b), i) for i, b in enumerate(bus_tables))
     names = [b.name for b in buses]
     if len(set(names)) != len(names):
-        raise BridgeConfigError(f"bus names must differ: {names}")
+        raise BridgeConfigError(f"bus names must differ: {_show(names)}")
     if "bridge" in names:
         raise BridgeConfigError("a bus may not be called 'bridge' (that topic holds the bridge status)")
     where = "bridge"
     host = _pop(bridge, "host", str, where, socket.gethostname())
     prefix = _pop(bridge, "topic_prefix", str, where, "fap").strip("/")
     if not prefix or any(c in prefix for c in "+#"):
-        raise BridgeConfigError(f"bridge.topic_prefix {prefix!r}: empty or holds a wildcard")
+        raise BridgeConfigError(f"bridge.topic_prefix {_show(prefix)}: empty or holds a wildcard")
     if not host or any(c in host for c in "/+#"):
-        raise BridgeConfigError(f"bridge.host {host!r}: empty or holds / or a wildcard")
+        raise BridgeConfigError(f"bridge.host {_show(host)}: empty or holds / or a wildcard")
     kw: Dict[str, Any] = {"broker": broker, "buses": buses, "host": host, "prefix": prefix}
     kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
-    kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, "."))
+    # under systemd, StateDirectory= sets $STATE_DIRECTORY: the default when the file names none
+    default_state = os.environ.get("STATE_DIRECTORY", ".").split(":")[0] or "."
+    kw["state_dir"] = os.path.join(base, _pop(bridge, "state_dir", str, where, default_state))
     kw["queue_max"] = _range(_pop(bridge, "queue_max", int, where, 100_000), 10, 100_000_000, "bridge.queue_max")
     kw["seen_max"] = _range(_pop(bridge, "seen_max", int, where, 10_000), 10, 10_000_000, "bridge.seen_max")
     kw["stats_interval"] = _range(float(_pop(bridge, "stats_interval", (int, float), where, 10.0)),
                                   0.05, 86400, "bridge.stats_interval")
     kw["inflight"] = _range(_pop(bridge, "inflight", int, where, 100), 1, 65535, "bridge.inflight")
+    disc = _pop(bridge, "discovery_prefix", str, where, "homeassistant").strip("/")
+    if not disc or any(c in disc for c in "+#"):
+        raise BridgeConfigError(f"bridge.discovery_prefix {_show(disc)}: empty or holds a wildcard")
+    kw["discovery_prefix"] = disc
     _done(bridge, where)
+    listen = _pop(metrics, "listen", str, "metrics", None)
+    if listen is not None:
+        kw["metrics_listen"] = parse_listen(listen)
+    _done(metrics, "metrics")
     return BridgeConfig(**kw)
 
 
-def load(path: str) -> BridgeConfig:
-    """Read and check a bridge.toml.
+def parse_listen(text: str) -> Tuple[str, int]:
+    """``host:port`` or ``[v6]:port`` -> (host, port), for ``[metrics] listen``."""
+    host, sep, port = text.rpartition(":")
+    host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
+    if not sep or not host or not port.isascii() or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise BridgeConfigError(f"metrics.listen must be host:port, e.g. 127.0.0.1:9464, not {_show(text)}")
+    return host, int(port)
+
+
+def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
+    """Check every file the configuration names (BridgeFileError, exit 3, at the first bad one):
+    the TLS files, the state directory and, with ``ports``, every bus's port. Creates nothing."""
+    b = cfg.broker
+    for key in ("ca", "cert", "key"):
+        path = getattr(b, key)
+        if path is not None:
+            read_bounded(path, TLS_FILE_MAX, f"broker.{key}")
+    check_state_dir(cfg.state_dir)
+    if ports:
+        for bus in cfg.buses:
+            check_port(bus.port, f"bus {bus.name!r}.port")
+
+
+def load(path: "str | os.PathLike[str]") -> BridgeConfig:
+    """Read and check a bridge.toml (a regular file of at most 1 MiB of UTF-8).
 
     Raises:
-        OSError: the file cannot be read.
-        BridgeConfigError: bad TOML or a bad value.
+        BridgeConfigTypeError: ``path`` is not a path (an int is not taken as a file descriptor).
+        BridgeFileError: the file cannot be read, is not a regular file or is too big (an OSError).
+        BridgeConfigError: not UTF-8, bad TOML or a bad value.
     """
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as exc:
-            raise BridgeConfigError(f"{path}: {exc}") from None
+    if not isinstance(path, (str, os.PathLike)):
+        raise BridgeConfigTypeError(f"the configuration path must be a str or os.PathLike, "
+                                    f"not {type(path).__name__}")
+    path = os.fspath(path)
+    if not isinstance(path, str):
+        raise BridgeConfigTypeError("the configuration path must be text, not bytes")
+    raw = read_bounded(path, CONFIG_MAX, "configuration")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise BridgeConfigError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise BridgeConfigError(f"{path}: {exc}") from None
+    except RecursionError:   # tomllib recurses per nesting level: "a = [[[[..."
+        raise BridgeConfigError(f"{path}: arrays or tables nested too deeply") from None
+    except ValueError as exc:   # an integer of more than 4300 digits (int() refuses it)
+        raise BridgeConfigError(f"{path}: {str(exc).split(':')[0]}") from None
     return from_dict(data, os.path.dirname(os.path.abspath(path)))
 
 
-__all__ = ["BridgeConfig", "BridgeConfigError", "BrokerConfig", "BusConfig", "G485Device",
-           "PROTOCOLS", "from_dict", "load", "parse_url"]
+__all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
+           "G485Device", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

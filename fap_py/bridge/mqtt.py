@@ -13,12 +13,16 @@ when the connection dropped are re-sent by paho itself after the reconnect
 from __future__ import annotations
 
 import logging
+import socket
+import ssl
+import sys
 import threading
-from typing import Any, Callable, Dict, List, Optional
+import time
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from ..errors import FapError
 from .config import BridgeConfig
-from .store import Store
+from .store import Store, StoreError
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +51,28 @@ def paho() -> Any:
 # CONNACK codes that no retry can fix: bad credentials, not authorised, banned.
 _FATAL_CONNACK = {4, 5, 134, 135, 138, 140}
 
+_LOG_FIRST = 10   # refused publications logged one by one; after that every 1000th
+
+
+def describe_connect_error(exc: Optional[BaseException], host: str, port: int) -> str:
+    """One line naming why a connection attempt failed (TLS, refused, DNS, timeout ...)."""
+    where = f"{host}:{port}"
+    if exc is None:
+        return f"{where}: connection failed"
+    if isinstance(exc, ssl.SSLCertVerificationError):
+        return f"{where}: TLS certificate verification failed: {exc.verify_message or exc.reason}"
+    if isinstance(exc, ssl.SSLError):
+        return f"{where}: TLS error: {exc.reason or exc}"
+    if isinstance(exc, ConnectionRefusedError):
+        return f"{where}: connection refused (no broker listening)"
+    if isinstance(exc, socket.gaierror):
+        return f"{where}: DNS: cannot resolve {host!r}: {exc.strerror or exc}"
+    if isinstance(exc, (socket.timeout, TimeoutError)):
+        return f"{where}: timed out"
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"{where}: {exc.strerror}"
+    return f"{where}: {type(exc).__name__}: {exc}"
+
 
 class MqttLink:
     """The broker connection: connect with backoff, the status topic, the
@@ -60,7 +86,7 @@ class MqttLink:
     """
 
     def __init__(self, config: BridgeConfig, store: Store,
-                 on_tx: Callable[[str, bytes], None]) -> None:
+                 on_tx: Callable[[str, bytes, Optional[float]], None]) -> None:
         mqtt = paho()
         self._mqtt = mqtt
         self.config = config
@@ -69,10 +95,21 @@ class MqttLink:
         b = config.broker
         self.status_topic = f"{config.prefix}/bridge/{config.host}/status"
         self.tx_filters = [f"{config.prefix}/{bus.name}/+/tx" for bus in config.buses]
+        self.health_topic = f"{config.prefix}/bridge/{config.host}/health"
         client_id = b.client_id or f"fap-bridge-{config.host}"
-        # A persistent session: tx published while the bridge is away wait at the broker.
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
-                                  clean_session=False)
+        self.v5 = b.protocol == "5"
+        # A persistent session: tx published while the bridge is away wait at the broker
+        # (MQTT 5: clean start off and a session expiry; 3.1.1: clean session off).
+        if self.v5:
+            from paho.mqtt.packettypes import PacketTypes
+            from paho.mqtt.properties import Properties
+
+            self._props = (Properties, PacketTypes)
+            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                      protocol=mqtt.MQTTv5)
+        else:
+            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                      clean_session=False, protocol=mqtt.MQTTv311)
         # paho's own messages at debug: it logs every failed reconnect attempt as an error,
         # and the outage is already reported once by _on_disconnect
         if log.isEnabledFor(logging.DEBUG):   # paho formats a line per packet for on_log
@@ -89,6 +126,7 @@ class MqttLink:
         self.client.on_publish = self._on_publish
         self.client.on_message = self._on_message
         self.client.on_subscribe = self._on_subscribe
+        self.client.on_connect_fail = self._on_connect_fail
         self._cond = threading.Condition()
         self._connected = False
         self._subscribed = False    # the broker confirmed the tx subscription
@@ -97,8 +135,13 @@ class MqttLink:
         self.connects = 0
         self.disconnects = 0
         self.published = 0
-        self._inflight: Dict[int, int] = {}   # paho mid -> outbox seq
-        self._early: set = set()              # mids acknowledged before publish() returned
+        self.refused_pubs: Dict[str, int] = {}   # PUBACK reason -> publications the broker refused
+        self.last_error: Optional[str] = None    # why the last connection attempt failed
+        self._failures = 0                       # failed attempts since the last success
+        self.on_connected: Optional[Callable[[], None]] = None   # after each (re)connect
+        self.extra: Dict[str, Callable[[bytes], None]] = {}    # more topics to subscribe: topic -> handler
+        self._inflight: Dict[int, Tuple[int, str]] = {}   # paho mid -> outbox seq, topic
+        self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
         self._pump_thread: Optional[threading.Thread] = None
@@ -107,7 +150,13 @@ class MqttLink:
     def start(self) -> None:
         """Connect in the background (paho retries with backoff) and start the pump."""
         b = self.config.broker
-        self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
+        if self.v5:
+            props = self._props[0](self._props[1].CONNECT)
+            props.SessionExpiryInterval = b.session_expiry
+            self.client.connect_async(b.host, b.port, keepalive=b.keepalive, clean_start=False,
+                                      properties=props)
+        else:
+            self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
         self.client.loop_start()
         self._pump_thread = threading.Thread(target=self._pump, name="fap-bridge-pump", daemon=True)
         self._pump_thread.start()
@@ -124,6 +173,21 @@ class MqttLink:
     @property
     def connected(self) -> bool:
         return self._connected
+
+    def alive(self) -> bool:
+        """The outbox pump runs."""
+        return self._pump_thread is not None and self._pump_thread.is_alive()
+
+    @property
+    def refused_total(self) -> int:
+        """Publications the broker refused (MQTT 5 PUBACK reason code >= 0x80)."""
+        return sum(self.refused_pubs.values())
+
+    def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> None:
+        """Publish outside the outbox (QoS 1, best effort): the bridge's own health, which
+        must get out even when the outbox cannot be written."""
+        if self._connected:
+            self.client.publish(topic, payload, qos=1, retain=retain)
 
     def drain(self, timeout: float) -> bool:
         """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
@@ -150,6 +214,23 @@ class MqttLink:
         self.client.loop_stop()
 
     # -- paho callbacks (network thread) ------------------------------------------
+    def _on_connect_fail(self, client: Any, userdata: Any) -> None:
+        # paho calls this from inside its ``except OSError``: the exception is the current one
+        b = self.config.broker
+        self._failed(describe_connect_error(sys.exc_info()[1], b.host, b.port))
+
+    def _failed(self, text: str) -> None:
+        """A connection attempt failed: named at once (warning), again on each retry (info, -v)."""
+        self._failures += 1
+        with self._cond:
+            self.last_error = text
+            self._cond.notify_all()
+        if self._failures == 1:
+            log.warning("broker %s (retrying every %g..%g s)", text, self.config.broker.reconnect_min,
+                        self.config.broker.reconnect_max)
+        else:
+            log.info("broker %s (attempt %d)", text, self._failures)
+
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
             b = self.config.broker
@@ -161,16 +242,23 @@ class MqttLink:
                     self.refused = f"broker refused the connection: {reason}"
                     self._cond.notify_all()
             else:
-                log.error("broker %s:%d refused the connection: %s (retrying)", b.host, b.port, reason)
+                self._failed(f"{b.host}:{b.port}: refused the connection: {reason}")
             return
+        self._failures = 0
+        self.last_error = None
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
         client.publish(self.status_topic, b"online", qos=1, retain=True)
-        client.subscribe([(f, self.config.qos) for f in self.tx_filters])
+        client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
             self.connects += 1
             self._cond.notify_all()
+        if self.on_connected is not None:
+            try:
+                self.on_connected()
+            except Exception:   # never let a hook kill paho's thread
+                log.exception("after connect")
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         with self._cond:
@@ -181,6 +269,9 @@ class MqttLink:
             self._cond.notify_all()
         if was and not self._stopping:
             log.warning("lost the broker (%s); reconnecting with backoff", reason)
+        elif not was and not self._stopping and getattr(reason, "is_failure", False):
+            b = self.config.broker   # dropped before CONNACK (a TLS or protocol failure after TCP)
+            self._failed(f"{b.host}:{b.port}: disconnected before the session started: {reason}")
 
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any) -> None:
         failed = [r for r in reasons if r.is_failure]
@@ -193,25 +284,54 @@ class MqttLink:
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
         with self._cond:
-            seq = self._inflight.pop(mid, None)
-            if seq is None:
-                self._early.add(mid)
+            entry = self._inflight.pop(mid, None)
+            if entry is None:
+                self._early[mid] = reason
             else:
-                self._acked.append(seq)
+                self._acked_one(entry, reason)
             self._cond.notify_all()
 
+    def _acked_one(self, entry: Tuple[int, str], reason: Any) -> None:
+        """Under ``_cond``: the broker answered publication ``entry``. A refusal (MQTT 5
+        reason >= 0x80, e.g. not authorised) is counted and logged: no retry can fix it, so
+        the row leaves the outbox like a success, but never silently."""
+        seq, topic = entry
+        self._acked.append(seq)
+        if reason is not None and getattr(reason, "is_failure", False):
+            key = str(reason)
+            self.refused_pubs[key] = self.refused_pubs.get(key, 0) + 1
+            n = self.refused_total
+            if n <= _LOG_FIRST or n % 1000 == 0:
+                log.error("broker refused publication seq %d on %s: %s (%d refused so far)",
+                          seq, topic, reason, n)
+
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        handler = self.extra.get(msg.topic)
+        if handler is not None:
+            try:
+                handler(msg.payload)
+            except Exception:   # one bad message must not kill paho's thread
+                log.exception("message on %s", msg.topic[:200])
+            return
+        expiry = getattr(getattr(msg, "properties", None), "MessageExpiryInterval", None)
+        deadline = None if expiry is None else time.monotonic() + expiry
         try:
-            self._on_tx(msg.topic, msg.payload)
+            self._on_tx(msg.topic, msg.payload, deadline)
         except Exception:   # one bad message must not kill paho's thread
-            log.exception("tx on %s failed", msg.topic)
+            log.exception("tx on %s failed", msg.topic[:200])
 
     # -- outbox pump -------------------------------------------------------------
     def _flush_acked(self) -> None:
         with self._cond:
             acked, self._acked = self._acked, []
         if acked:
-            self.store.delete(acked)
+            try:
+                self.store.delete(acked)
+            except StoreError as exc:   # kept for the next round: a row is never lost here
+                log.warning("%s (retried)", exc)
+                with self._cond:
+                    self._acked[:0] = acked
+                return
             self.published += len(acked)
             with self._cond:
                 self._cond.notify_all()
@@ -227,23 +347,34 @@ class MqttLink:
             and self.store.pending > len(self._inflight))
 
     def _pump(self) -> None:
-        qos = self.config.qos
         while True:
             with self._cond:
                 self._cond.wait_for(self._ready, 1.0)
                 if self._stopping:
                     return
                 room = self.config.inflight - len(self._inflight) if self._connected else 0
-            self._flush_acked()
-            if room <= 0:
-                continue
-            for seq, topic, payload, retain in self.store.after(self._last_handed, room):
-                # paho keeps what it could not send (even QoS 0) and sends it on reconnect
-                info = self.client.publish(topic, payload, qos=qos, retain=retain)
-                self._last_handed = seq
+            try:
+                self._pump_once(room)
+            except StoreError as exc:   # a disk that fails a read: try again next round
+                log.warning("%s (retried)", exc)
                 with self._cond:
-                    if info.mid in self._early:
-                        self._early.discard(info.mid)
-                        self._acked.append(seq)
-                    else:
-                        self._inflight[info.mid] = seq
+                    self._cond.wait(1.0)
+
+    def _pump_once(self, room: int) -> None:
+        self._flush_acked()
+        if room <= 0:
+            return
+        qos = self.config.qos
+        for seq, topic, payload, retain in self.store.after(self._last_handed, room):
+            props = None
+            if self.v5:   # the consumer's dedup key without parsing the payload
+                props = self._props[0](self._props[1].PUBLISH)
+                props.UserProperty = [("host", self.config.host), ("seq", str(seq))]
+            # paho keeps what it could not send (even QoS 0) and sends it on reconnect
+            info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
+            self._last_handed = seq
+            with self._cond:
+                if info.mid in self._early:
+                    self._acked_one((seq, topic), self._early.pop(info.mid))
+                else:
+                    self._inflight[info.mid] = (seq, topic)

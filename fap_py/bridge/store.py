@@ -10,12 +10,14 @@ keeps the newest ``seen_max`` ids.
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import sqlite3
 import threading
 import time
-from typing import List, Optional, Tuple
+from contextlib import contextmanager
+from typing import Iterator, List, Optional, Tuple
 
 from ..errors import PortError
 
@@ -39,6 +41,15 @@ CREATE TABLE IF NOT EXISTS counters (
 """
 
 Row = Tuple[int, str, bytes, bool]
+
+
+class StoreError(PortError):
+    """The state file refused a write or a read (disk full, I/O error): nothing was changed."""
+
+
+def _errno_of(exc: sqlite3.Error) -> int:
+    code = getattr(exc, "sqlite_errorcode", None)
+    return errno.ENOSPC if code == 13 or "full" in str(exc) else errno.EIO   # 13: SQLITE_FULL
 
 
 class Store:
@@ -72,31 +83,46 @@ class Store:
         row = self._db.execute("SELECT value FROM counters WHERE name=?", (name,)).fetchone()
         return int(row[0]) if row else 0
 
+    @contextmanager
+    def _txn(self, what: str) -> Iterator[None]:
+        """One transaction under the lock: rolled back and StoreError on any sqlite error."""
+        with self._lock:
+            try:
+                self._db.execute("BEGIN")
+                yield
+                self._db.execute("COMMIT")
+            except sqlite3.Error as exc:
+                try:
+                    self._db.execute("ROLLBACK")
+                except sqlite3.Error:   # no transaction left to roll back
+                    pass
+                raise StoreError(_errno_of(exc), f"bridge state {self.path}: {what}: {exc}") from exc
+
     # -- outbox ---------------------------------------------------------------
     def put(self, topic: str, payload: bytes, retain: bool = False) -> int:
         """Append a publication; returns its sequence number (never reused)."""
-        with self._lock:
+        with self._txn("append"):
             cur = self._db.execute("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)",
                                    (topic, payload, int(retain)))
-            self._rows += 1
-            if self._rows > self.queue_max:
-                self._drop_oldest(self._rows - self.queue_max)
+            rows = self._rows + 1
+            if rows > self.queue_max:
+                rows -= self._drop_oldest(rows - self.queue_max)
             rowid = cur.lastrowid
-            assert rowid is not None, "an INSERT always sets lastrowid"
-            return rowid
+        self._rows = rows
+        assert rowid is not None, "an INSERT always sets lastrowid"
+        return rowid
 
     def put_many(self, items: List[Tuple[str, bytes, bool]]) -> None:
         """Append several publications in one transaction."""
         if not items:
             return
-        with self._lock:
-            self._db.execute("BEGIN")
+        with self._txn("append"):
             self._db.executemany("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)",
                                  [(t, p, int(r)) for t, p, r in items])
-            self._db.execute("COMMIT")
-            self._rows += len(items)
-            if self._rows > self.queue_max:
-                self._drop_oldest(self._rows - self.queue_max)
+            rows = self._rows + len(items)
+            if rows > self.queue_max:
+                rows -= self._drop_oldest(rows - self.queue_max)
+        self._rows = rows
 
     def next_seq(self) -> int:
         """The sequence number the next :meth:`put` will get."""
@@ -104,28 +130,34 @@ class Store:
             row = self._db.execute("SELECT seq FROM sqlite_sequence WHERE name='outbox'").fetchone()
             return (int(row[0]) if row else 0) + 1
 
-    def _drop_oldest(self, n: int) -> None:
+    def _drop_oldest(self, n: int) -> int:
+        """Inside a transaction: drop the ``n`` oldest rows; returns ``n``."""
         self._db.execute("DELETE FROM outbox WHERE seq IN (SELECT seq FROM outbox ORDER BY seq LIMIT ?)", (n,))
-        self._rows -= n
-        self.dropped += n
-        self._db.execute("INSERT OR REPLACE INTO counters(name, value) VALUES ('dropped', ?)", (self.dropped,))
+        self._db.execute("INSERT OR REPLACE INTO counters(name, value) VALUES ('dropped', ?)",
+                         (self.dropped + n,))
+        self.dropped += n   # only reached when both statements worked
         log.warning("outbox full (%d rows): dropped the %d oldest publications (%d so far)",
                     self.queue_max, n, self.dropped)
+        return n
 
     def after(self, seq: int, limit: int) -> List[Row]:
         """Up to ``limit`` rows with a sequence number above ``seq``, oldest first."""
         with self._lock:
-            rows = self._db.execute("SELECT seq, topic, payload, retain FROM outbox WHERE seq > ? "
-                                    "ORDER BY seq LIMIT ?", (seq, limit)).fetchall()
+            try:
+                rows = self._db.execute("SELECT seq, topic, payload, retain FROM outbox WHERE seq > ? "
+                                        "ORDER BY seq LIMIT ?", (seq, limit)).fetchall()
+            except sqlite3.Error as exc:
+                raise StoreError(_errno_of(exc), f"bridge state {self.path}: read: {exc}") from exc
         return [(int(s), t, bytes(p), bool(r)) for s, t, p, r in rows]
 
     def delete(self, seqs: List[int]) -> None:
         """Forget acknowledged rows."""
         if not seqs:
             return
-        with self._lock:
+        with self._txn("delete"):
             cur = self._db.executemany("DELETE FROM outbox WHERE seq=?", [(s,) for s in seqs])
-            self._rows -= max(0, cur.rowcount)
+            gone = max(0, cur.rowcount)
+        self._rows -= gone
 
     @property
     def pending(self) -> int:
@@ -136,16 +168,17 @@ class Store:
     def first_time(self, tx_id: str) -> bool:
         """Record ``tx_id``; False if it was recorded before (a redelivery)."""
         with self._lock:
-            try:
-                self._db.execute("INSERT INTO seen(id) VALUES (?)", (tx_id,))
-            except sqlite3.IntegrityError:
+            if self._db.execute("SELECT 1 FROM seen WHERE id=?", (tx_id,)).fetchone():
                 return False
-            self._seen_rows += 1
-            if self._seen_rows > self.seen_max + self.seen_max // 10:   # trim in batches, not per insert
+        with self._txn("record tx id"):
+            self._db.execute("INSERT INTO seen(id) VALUES (?)", (tx_id,))
+            rows = self._seen_rows + 1
+            if rows > self.seen_max + self.seen_max // 10:   # trim in batches, not per insert
                 self._db.execute("DELETE FROM seen WHERE n IN (SELECT n FROM seen ORDER BY n LIMIT ?)",
-                                 (self._seen_rows - self.seen_max,))
-                self._seen_rows = self.seen_max
-            return True
+                                 (rows - self.seen_max,))
+                rows = self.seen_max
+        self._seen_rows = rows
+        return True
 
     def close(self) -> None:
         with self._lock:

@@ -12,6 +12,8 @@ import argparse
 import logging
 import signal
 import threading
+import time
+from typing import TYPE_CHECKING
 
 from ._options import (
     EXIT_INTERRUPTED,
@@ -22,6 +24,10 @@ from ._options import (
     emit,
     seconds,
 )
+
+if TYPE_CHECKING:   # pragma: no cover
+    from fap_py.bridge import Bridge
+    from fap_py.bridge.sdnotify import Notifier
 
 log = logging.getLogger(__name__)
 
@@ -55,17 +61,19 @@ def run(args: argparse.Namespace) -> int:
     from fap_py.bridge import (
         Bridge,
         BridgeConfigError,
-        BrokerRefusedError,
         MissingDependencyError,
         load_config,
     )
+    from fap_py.bridge.config import verify_files
+    from fap_py.bridge.sdnotify import Notifier
 
     try:
         config = load_config(args.config)
     except BridgeConfigError as exc:            # a bad file is a usage error (exit 2)
         raise UsageError(f"{args.config}: {exc}") from exc
     broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
-    if args.check:
+    if args.check:   # every file the configuration names: BridgeFileError (exit 3) names the key
+        verify_files(config, ports=True)
         emit(args, {"config": args.config, "ok": True, "buses": [b.name for b in config.buses],
                     "broker": broker, "prefix": config.prefix, "host": config.host},
              f"{args.config}: ok: {len(config.buses)} bus(es), broker {broker}, "
@@ -83,21 +91,49 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    notifier = Notifier()      # systemd Type=notify; does nothing outside systemd
     try:
-        bridge.start()
         try:
-            if args.connect_timeout is not None and not bridge.wait_connected(args.connect_timeout):
-                raise BusError(f"broker {config.broker.host}:{config.broker.port} not reached "
-                               f"within {args.connect_timeout} s")
-            while not stop.wait(0.5):
-                if bridge.link.refused:
-                    raise BrokerRefusedError(bridge.link.refused)
+            bridge.start()
+        except MissingDependencyError as exc:   # [metrics] without prometheus_client (exit 2)
+            raise UsageError(str(exc)) from exc
+        try:
+            notifier.notify(READY=1, STATUS=bridge.status_line())
+            _supervise(bridge, args, stop, notifier)
         finally:
+            notifier.notify(STOPPING=1, STATUS="stopping: draining the outbox")
             bridge.stop(drain=args.drain)
     finally:
+        notifier.close()
         for s, h in old.items():
             signal.signal(s, h)
     code = EXIT_INTERRUPTED if signal.SIGINT in interrupted else 0
     emit(args, {"event": "stopped", "signal": interrupted[0] if interrupted else None,
                 "exit": code}, None)
     return code
+
+
+def _supervise(bridge: "Bridge", args: argparse.Namespace, stop: threading.Event, notifier: "Notifier") -> None:
+    """Until a signal: the broker's refusal and --connect-timeout end the run; the systemd
+    watchdog is fed while the bridge's threads run, STATUS= follows the bridge's state."""
+    from fap_py.bridge import BrokerRefusedError
+
+    cfg = bridge.config.broker
+    deadline = None if args.connect_timeout is None else time.monotonic() + args.connect_timeout
+    tick = min(0.5, notifier.watchdog or 0.5)
+    status = ""
+    while not stop.wait(tick):
+        if bridge.link.refused:
+            raise BrokerRefusedError(bridge.link.refused)
+        if deadline is not None:
+            if bridge.wait_connected(0):
+                deadline = None
+            elif time.monotonic() > deadline:
+                why = bridge.link.last_error
+                raise BusError(f"broker {cfg.host}:{cfg.port} not reached within {args.connect_timeout} s"
+                               + (f": {why}" if why else ""))
+        if notifier.watchdog is not None and bridge.alive():
+            notifier.notify(WATCHDOG=1)
+        if notifier.enabled and bridge.status_line() != status:
+            status = bridge.status_line()
+            notifier.notify(STATUS=status)

@@ -24,11 +24,15 @@ class Observer:
     """An MQTT client that records every message on ``topics`` and waits for them."""
 
     def __init__(self, mqtt: Any, port: int, topics: str = "fap/#", *, client_id: str = "observer",
-                 clean: bool = True, tls: Optional[dict] = None, auth: Optional[tuple] = None) -> None:
+                 clean: bool = True, tls: Optional[dict] = None, auth: Optional[tuple] = None,
+                 v5: bool = False) -> None:
         self.messages: List[Any] = []
         self._cond = threading.Condition()
         self._subscribed = threading.Event()
-        self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=clean)
+        if v5:   # MQTT 5: sees the bridge's user properties
+            self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+        else:
+            self.c = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, clean_session=clean)
         if tls:
             self.c.tls_set(ca_certs=tls["ca"])
         if auth:

@@ -27,7 +27,7 @@ class Mosquitto:
     """``start()`` / ``stop()`` / ``restart()`` a mosquitto on ``port`` (a context manager)."""
 
     def __init__(self, workdir: str, *, port: Optional[int] = None, users: Optional[dict] = None,
-                 tls: Optional[dict] = None, start_timeout: float = 10.0) -> None:
+                 tls: Optional[dict] = None, acl: Optional[str] = None, start_timeout: float = 10.0) -> None:
         self.workdir = workdir
         self.port = port or free_port()
         self.start_timeout = start_timeout
@@ -48,6 +48,11 @@ class Mosquitto:
             lines += ["allow_anonymous false", f"password_file {pw}"]
         else:
             lines += ["allow_anonymous true"]
+        if acl is not None:   # mosquitto's acl_file text (anonymous rules first)
+            path = os.path.join(workdir, "acl")
+            with open(path, "w") as f:
+                f.write(acl)
+            lines.append(f"acl_file {path}")
         if tls:
             lines += [f"cafile {tls['ca']}", f"certfile {tls['cert']}", f"keyfile {tls['key']}"]
         self.conf = os.path.join(workdir, "mosquitto.conf")

@@ -1,6 +1,7 @@
 """bridge.toml checking and the command's exit codes (no broker needed)."""
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -149,11 +150,14 @@ def test_cli_exit_codes(tmp_path):
     res = _fap("bridge", "--config", str(bad), cwd=tmp_path)
     assert res.returncode == 2 and "protocol" in res.stderr and len(res.stderr.splitlines()) == 1
     good = tmp_path / "good.toml"
-    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = 'p'\nprotocol = 'fap'\nslaves = [1]\n")
+    good.write_text("[broker]\nurl = 'mqtt://x'\n[[bus]]\nname = 'l'\nport = '/dev/null'\n"
+                    "protocol = 'fap'\nslaves = [1]\n")
     res = _fap("bridge", "--config", str(good), "--check", cwd=tmp_path)
     assert res.returncode == 0 and "ok: 1 bus" in res.stdout
-    res = _fap("bridge", "--config", str(good), cwd=tmp_path)     # port p does not exist
-    assert res.returncode == 3 and len(res.stderr.splitlines()) == 1, res.stderr
+    missing = tmp_path / "missing-port.toml"    # --check names a port that is not there
+    missing.write_text(good.read_text().replace("/dev/null", "p"))
+    res = _fap("bridge", "--config", str(missing), "--check", cwd=tmp_path)
+    assert res.returncode == 3 and res.stderr == "fap: error: bus 'l'.port: p: No such file or directory\n"
     res = _fap("bridge", "--help", cwd=tmp_path)
     assert res.returncode == 0 and "example:" in res.stdout
 
@@ -172,3 +176,125 @@ def test_without_paho(tmp_path):
                          capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert res.returncode == 2
     assert res.stderr.strip() == "fap: error: fap bridge needs paho-mqtt 2.x: pip install 'fap_py[bridge]'"
+
+
+# -- hostile configurations (issue 26): exit 2 and one line naming the field, never "internal error"
+
+BASE = "[broker]\nurl = 'mqtt://x'\n"
+GOOD_BUS = "[[bus]]\nname = 'l'\nport = '/dev/null'\nprotocol = 'fap'\nslaves = [1]\n"
+
+
+@pytest.mark.parametrize("text, words", [
+    (b"\xff\xfe" + BASE.encode() + GOOD_BUS.encode(), "not UTF-8"),
+    (b"bus = [1]\n" + BASE.encode(), "bus[0] must be a table"),
+    (b'bus = ["ab"]\n' + BASE.encode(), "bus[0] must be a table"),
+    (b'bus = [[["name", "x"]]]\n' + BASE.encode(), "bus[0] must be a table"),
+    (b'[broker]\nurl = "mqtt://[::1"\n' + GOOD_BUS.encode(), "broker.url"),
+    (b"x = " + b"[" * 3000 + b"]" * 3000 + b"\n" + BASE.encode(), "nested too deeply"),
+    (BASE.encode() + b"[metrics]\nlisten = 'nowhere'\n" + GOOD_BUS.encode(), "metrics.listen"),
+    (BASE.encode() + GOOD_BUS.encode() + b"timeout = 1" + b"0" * 400 + b"\n", ".timeout"),
+    (BASE.encode() + GOOD_BUS.encode() + b"timeout = 1" + b"0" * 5000 + b"\n", "4300 digits"),
+    (BASE.replace("[broker]", "[broker]\nprotocol = '4'").encode() + GOOD_BUS.encode(), "broker.protocol"),
+])
+def test_bad_config_files_exit_2_naming_the_field(tmp_path, text, words):
+    conf = tmp_path / "bridge.toml"
+    conf.write_bytes(text)
+    res = _fap("bridge", "--config", str(conf), "--check", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith("fap: error: ") and words in res.stderr and len(res.stderr.splitlines()) == 1
+
+
+def test_load_takes_paths_only(tmp_path):
+    from fap_py.bridge.config import BridgeConfigTypeError
+
+    for bad in (5, None, b"bridge.toml", 1.5):
+        with pytest.raises(BridgeConfigTypeError) as info:
+            load(bad)
+        assert isinstance(info.value, TypeError) and isinstance(info.value, BridgeConfigError)
+    conf = tmp_path / "bridge.toml"
+    conf.write_text(BASE + GOOD_BUS)
+    assert load(conf).buses[0].name == "l"          # os.PathLike is a path
+
+
+@pytest.mark.parametrize("target", ["/dev/zero", "dir", "fifo", "big"])
+def test_named_files_are_bounded(tmp_path, target):
+    from fap_py.bridge.files import BridgeFileError
+
+    (tmp_path / "dir").mkdir()
+    os.mkfifo(tmp_path / "fifo")       # nobody writes it: opening must not wait
+    (tmp_path / "big").write_bytes(b"x" * (2 << 20))
+    conf = tmp_path / "bridge.toml"
+    conf.write_text(BASE.replace("[broker]", f"[broker]\npassword_file = '{target}'") + GOOD_BUS)
+    with pytest.raises(BridgeFileError, match="broker.password_file"):
+        load(str(conf))
+    with pytest.raises(BridgeFileError, match="configuration"):
+        load(str(tmp_path / target))
+
+
+KEYS = ["broker", "bridge", "bus", "metrics", "url", "name", "port", "protocol", "slaves", "role", "id",
+        "device", "address", "registers", "baud", "timeout", "qos", "host", "topic_prefix", "state_dir",
+        "password_file", "ca", "cert", "key", "listen", "nodes", "poll_data", "rs485", "rts_before",
+        "reopen_interval", "session_expiry", "keepalive", "reconnect_min", "reconnect_max", "queue_max"]
+
+
+def _values():
+    from hypothesis import strategies as st
+
+    scalars = st.one_of(st.booleans(), st.integers(), st.integers(-2, 300), st.sampled_from([10**400, -10**400, 10**1000]),
+                        st.floats(allow_nan=True, allow_infinity=True),
+                        st.sampled_from(["fap", "g485", "execasync", "mikroc", "master", "slave", "mqtt://h",
+                                         "mqtts://h:1", "mqtt://[::1", "/dev/null", "/dev/zero", "5", "3.1.1",
+                                         "127.0.0.1:0", "auto", "zz", ""]),
+                        st.text(max_size=8))
+    return st.recursive(scalars, lambda inner: st.one_of(
+        st.lists(inner, max_size=4),
+        st.dictionaries(st.one_of(st.sampled_from(KEYS), st.text(max_size=4)), inner, max_size=6)),
+        max_leaves=30)
+
+
+def test_random_configs_never_end_in_an_internal_error(tmp_path):
+    """A valid configuration with random keys set to random values anywhere (from_dict), and
+    its file with random bytes written over it (load): a config or file error, nothing else."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+
+    from fap_py.bridge.files import BridgeFileError
+
+    def base():
+        return {"broker": {"url": "mqtt://x"}, "bridge": {}, "metrics": {},
+                "bus": [{"name": "l", "port": "/dev/null", "protocol": "fap", "slaves": [1]},
+                        {"name": "g", "port": "/dev/null", "protocol": "g485",
+                         "device": [{"address": 1, "registers": [[1, 2]]}]}]}
+
+    places = st.sampled_from(["top", "broker", "bridge", "metrics", "bus0", "bus1", "device"])
+
+    @settings(max_examples=500, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @given(st.lists(st.tuples(places, st.sampled_from(KEYS), _values()), min_size=1, max_size=4))
+    def tables(edits):
+        data = base()
+        tables = {"top": data, "broker": data["broker"], "bridge": data["bridge"], "metrics": data["metrics"],
+                  "bus0": data["bus"][0], "bus1": data["bus"][1], "device": data["bus"][1]["device"][0]}
+        for place, key, value in edits:    # the tables of the base, whatever an edit replaced
+            tables[place][key] = value
+        try:
+            from_dict(data, str(tmp_path))
+        except (BridgeConfigError, BridgeFileError):
+            pass
+
+    good = (BASE + GOOD_BUS).encode()
+
+    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @given(st.lists(st.tuples(st.integers(0, len(good)), st.binary(max_size=6)), max_size=4))
+    def files(edits):
+        text = good
+        for at, insert in edits:
+            text = text[:at] + insert + text[at + len(insert):]
+        conf = tmp_path / "fuzz.toml"
+        conf.write_bytes(text)
+        try:
+            load(str(conf))
+        except (BridgeConfigError, BridgeFileError):
+            pass
+
+    tables()
+    files()

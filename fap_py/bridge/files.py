@@ -1,0 +1,97 @@
+"""The files a bridge configuration names, opened with a type check and a size bound.
+
+A path in bridge.toml may point anywhere (``/dev/zero``, a FIFO, a
+directory, a 10 GB log): every file is opened without blocking, must be a
+regular file and is read up to a bound, so a wrong path is one clear line
+instead of a hang or a memory blow-up. ``--check`` uses the same checks
+and creates nothing.
+"""
+from __future__ import annotations
+
+import errno
+import os
+import stat
+from typing import Optional
+
+from ..errors import PortError
+
+CONFIG_MAX = 1 << 20        #: bridge.toml
+SECRET_MAX = 64 << 10       #: password_file
+TLS_FILE_MAX = 1 << 20      #: ca, cert, key
+
+
+class BridgeFileError(PortError):
+    """A file or directory named in the configuration cannot be used (exit 3)."""
+
+    def __init__(self, err: int, field: str, path: str, why: str) -> None:
+        super().__init__(err, f"{field}: {path}: {why}")
+        self.path = path
+        self.field = field
+
+
+def read_bounded(path: str, limit: int, field: str) -> bytes:
+    """The content of the regular file ``path``, at most ``limit`` bytes (else BridgeFileError)."""
+    try:
+        # O_NONBLOCK: opening a FIFO or a tty must not wait for the other end
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
+    except OSError as exc:
+        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.strerror or str(exc)) from None
+    except ValueError:   # an embedded NUL
+        raise BridgeFileError(errno.EINVAL, field, repr(path), "a path cannot hold a NUL byte") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise BridgeFileError(errno.EINVAL, field, path, "not a regular file")
+        if st.st_size > limit:
+            raise BridgeFileError(errno.EFBIG, field, path, f"{st.st_size} bytes, more than {limit}")
+        chunks, total = [], 0
+        while total <= limit:          # the file may grow after fstat: stop at the bound
+            chunk = os.read(fd, limit + 1 - total)
+            if not chunk:
+                break
+            chunks.append(chunk)
+            total += len(chunk)
+        if total > limit:
+            raise BridgeFileError(errno.EFBIG, field, path, f"more than {limit} bytes")
+        return b"".join(chunks)
+    except OSError as exc:
+        if isinstance(exc, BridgeFileError):
+            raise
+        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.strerror or str(exc)) from None
+    finally:
+        os.close(fd)
+
+
+def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
+    """``path`` is (or can be created as) a writable directory; creates nothing."""
+    probe: Optional[str] = os.path.abspath(path)
+    while probe is not None:
+        try:
+            st = os.stat(probe)
+        except FileNotFoundError:
+            parent = os.path.dirname(probe)
+            probe = None if parent == probe else parent
+            continue
+        except (OSError, ValueError) as exc:
+            raise BridgeFileError(getattr(exc, "errno", None) or errno.EINVAL, field, path, str(exc)) from None
+        if not stat.S_ISDIR(st.st_mode):
+            raise BridgeFileError(errno.ENOTDIR, field, path, f"{probe} is not a directory")
+        if not os.access(probe, os.W_OK | os.X_OK):
+            raise BridgeFileError(errno.EACCES, field, path, f"{probe} is not writable")
+        return
+    raise BridgeFileError(errno.ENOENT, field, path, "no existing parent directory")
+
+
+def check_port(path: str, field: str) -> None:
+    """``path`` exists and is a character device (a serial port or a pty); opens nothing."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError) as exc:
+        raise BridgeFileError(getattr(exc, "errno", None) or errno.EINVAL, field, path,
+                              getattr(exc, "strerror", None) or str(exc)) from None
+    if not stat.S_ISCHR(st.st_mode):
+        raise BridgeFileError(errno.ENODEV, field, path, "not a character device (a serial port)")
+
+
+__all__ = ["BridgeFileError", "CONFIG_MAX", "SECRET_MAX", "TLS_FILE_MAX", "check_port",
+           "check_state_dir", "read_bounded"]

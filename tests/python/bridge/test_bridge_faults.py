@@ -1,0 +1,277 @@
+"""What a full disk, a hostile tx, a bad broker and a missing port do to the bridge (issue 23)."""
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sqlite3
+import subprocess
+import sys
+import threading
+
+import pytest
+from bridge_helpers import WAIT, bridge_config, need
+from mosquitto import MOSQUITTO, Mosquitto, free_port, make_tls
+
+
+@pytest.fixture
+def fap_pair():
+    from fap_py.fap import Slave
+    from fap_py.vbus import VirtualBus
+
+    with VirtualBus(2) as bus:
+        with Slave(bus.paths[1], id=1) as s1:
+            yield bus, s1
+
+
+def _line1(bus, **kw):
+    return [dict({"name": "line1", "port": bus.paths[0], "protocol": "fap", "slaves": [1], "id_cycle": 0.1},
+                 **kw)]
+
+
+def _fill(store) -> None:
+    """Make every later write of the bridge's sqlite fail with SQLITE_FULL, as a full disk
+    does: cap the file at its current size and use up its free pages."""
+    with store._lock:
+        db = store._db
+        db.execute("CREATE TABLE IF NOT EXISTS filler (b BLOB)")
+        pages = db.execute("PRAGMA page_count").fetchone()[0]
+        db.execute(f"PRAGMA max_page_count = {pages}")
+        for size in (4096, 512, 64, 8, 1):
+            while True:
+                try:
+                    db.execute("INSERT INTO filler VALUES (?)", (b"x" * size,))
+                except sqlite3.OperationalError as exc:
+                    assert "full" in str(exc)
+                    break
+
+
+def _free(store) -> None:
+    with store._lock:
+        store._db.execute("PRAGMA max_page_count = 1073741823")
+        store._db.execute("DELETE FROM filler")
+
+
+def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_factory, fap_pair, tmp_path):
+    """Issue 23's repro: the broker away, the disk fills mid-burst; then space and broker return."""
+    from fap_py.bridge import Bridge
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    with Bridge(bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))) as bridge:
+        assert bridge.wait_connected(WAIT)
+        s1.send(b"\x00")
+        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "00")
+        broker.stop()
+        with bridge.link._cond:
+            assert bridge.link._cond.wait_for(lambda: not bridge.link.connected, WAIT)
+        _fill(bridge.store)
+        for i in range(1, 61):               # the first ones fit in the file's last page, then full
+            s1.send(bytes([i]), timeout=WAIT)
+        with bridge.link._cond:              # the reader keeps reading: every message accounted for
+            assert bridge.link._cond.wait_for(lambda: bridge.not_stored >= 30 and sum(
+                1 for _, t, _, _ in bridge.store.after(0, 1000) if t.endswith("/rx")) + bridge.not_stored >= 60,
+                WAIT)
+        assert "full" in bridge.store_error
+        broker.start()                       # the health topic says so at once (outside the outbox)
+        obs.wait_for("fap/bridge/test/health", lambda d: d["store"] == "error" and d["not_stored"] >= 30)
+        _free(bridge.store)                  # space returns: the same reader goes on
+        for i in range(100, 105):
+            s1.send(bytes([i]), timeout=WAIT)
+        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "68")
+        obs.wait_for("fap/bridge/test/health", lambda d: d["store"] == "ok" and d["not_stored"] >= 30)
+        (st,) = obs.wait_for("fap/line1/stats", lambda d: d["outbox"]["not_stored"] >= 30)
+        assert st["outbox"]["error"] is None
+        got = [int(d["data"], 16) for d in obs.matching("fap/line1/1/rx")]
+        stored = len(got) - 6
+        assert got == [0, *range(1, stored + 1), *range(100, 105)]     # in order, no gap but the lost tail
+        assert stored + bridge.not_stored >= 60
+
+
+def test_every_malformed_tx_reaches_the_error_topic_bounded(broker, observer_factory, fap_pair, tmp_path,
+                                                            caplog):
+    from fap_py.bridge import Bridge
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    caplog.set_level(logging.INFO, logger="fap_py.bridge")
+    with Bridge(bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))) as bridge:
+        assert bridge.wait_connected(WAIT)
+        obs.publish("fap/line1/1/tx", "[" * 5000)                               # RecursionError
+        err = obs.wait_for("fap/line1/1/error", lambda d: "deep" in d["error"])[0]
+        assert err["payload"] == "[" * 256 and err["payload_bytes"] == 5000 and err["id"] is None
+        huge = json.dumps({"id": "h", "data": "zz" * 500_000})                    # 1 MB
+        obs.publish("fap/line1/1/tx", huge)
+        obs.wait_for("fap/line1/1/error", lambda d: d["payload_bytes"] == len(huge))
+        obs.publish("fap/line1/1/tx", b"\xff\xfe not json")
+        obs.publish("fap/line1/abc/tx", {"id": "n", "data": "00"})
+        obs.wait_for("fap/line1/abc/error", lambda d: "node" in d["error"] and d["id"] is None)
+        obs.publish("fap/line1/1/tx", json.dumps({"id": "x" * 100_000, "data": "zz"}))
+        obs.wait_for("fap/line1/stats", lambda d: d["tx_refused"] == 5)
+        for m in obs.messages:
+            if m.topic.endswith("/error"):
+                assert len(m.payload) < 2000, m.payload[:100]
+        s1.send(b"\x07")                          # and the bridge still works
+        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "07")
+    assert all(len(r.getMessage()) < 2000 for r in caplog.records)
+
+
+def _cli(conf, *args, timeout=WAIT + 30):
+    return subprocess.run([sys.executable, "-m", "fap_py", *args, "bridge", "--config", str(conf),
+                           "--connect-timeout", "1.5"], capture_output=True, text=True,
+                          timeout=timeout, cwd=os.path.dirname(conf))
+
+
+def _conf(tmp_path, url, extra="", port="/dev/null"):
+    conf = tmp_path / "bridge.toml"
+    conf.write_text(f'[bridge]\nhost = "cli"\nstate_dir = "st"\n[broker]\nurl = "{url}"\n'
+                    f'reconnect_min = 0.1\nreconnect_max = 0.2\n{extra}'
+                    f'[[bus]]\nname = "line1"\nport = "{port}"\nprotocol = "fap"\nslaves = [1]\n')
+    return conf
+
+
+@pytest.mark.parametrize("kind", ["tls", "refused", "dns"])
+def test_connection_failures_are_named(paho_mqtt, tmp_path, fap_pair, kind):
+    bus, s1 = fap_pair
+    if kind == "tls":
+        need("mosquitto", MOSQUITTO is not None)
+        tls = make_tls(str(tmp_path))
+        (tmp_path / "other").mkdir()
+        other = make_tls(str(tmp_path / "other"))   # a CA that did not sign the broker
+        broker = Mosquitto(str(tmp_path / "broker"), tls=tls).start()
+        url, extra, words = f"mqtts://127.0.0.1:{broker.port}", f'ca = "{other["ca"]}"\n', "certificate verif"
+    else:
+        broker = None
+        url = f"mqtt://127.0.0.1:{free_port()}" if kind == "refused" else "mqtt://nonexistent.invalid"
+        extra, words = "", "connection refused" if kind == "refused" else "DNS: cannot resolve"
+    try:
+        res = _cli(_conf(tmp_path, url, extra, port=bus.paths[0]), "-v")
+    finally:
+        if broker is not None:
+            broker.stop()
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 1, res.stderr
+    assert lines[-1].startswith("fap: error: broker 127.0.0.1" if kind != "dns" else "fap: error: broker")
+    assert words in lines[-1]                                        # the final line says why
+    warned = [ln for ln in lines if " WARNING " in ln and words in ln]
+    retried = [ln for ln in lines if " INFO " in ln and words in ln and "attempt" in ln]
+    assert len(warned) == 1 and len(retried) >= 2, res.stderr        # at once, then each retry at -v
+
+
+def test_check_names_every_file_and_creates_nothing(tmp_path):
+    conf = _conf(tmp_path, "mqtts://127.0.0.1", 'ca = "missing-ca.pem"\n')
+    res = subprocess.run([sys.executable, "-m", "fap_py", "bridge", "--config", str(conf), "--check"],
+                         capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
+    assert res.returncode == 3
+    assert res.stderr == f"fap: error: broker.ca: {tmp_path}/missing-ca.pem: No such file or directory\n"
+    res = _cli(conf)                                # the real run stops at the same line ...
+    assert res.returncode == 3 and "broker.ca" in res.stderr and len(res.stderr.splitlines()) == 1
+    assert not (tmp_path / "st").exists()           # ... before creating the state directory
+    (tmp_path / "missing-ca.pem").write_text("x")
+    conf.write_text(conf.read_text().replace("[broker]", '[broker]\npassword_file = "/dev/zero"'))
+    res = subprocess.run([sys.executable, "-m", "fap_py", "bridge", "--config", str(conf), "--check"],
+                         capture_output=True, text=True, timeout=60, cwd=str(tmp_path))
+    assert res.returncode == 3 and res.stderr == \
+        "fap: error: broker.password_file: /dev/zero: not a regular file\n"
+    assert not (tmp_path / "st").exists()
+
+
+def test_an_unopenable_port_is_retried_while_the_others_run(broker, observer_factory, fap_pair, tmp_path):
+    from fap_py.bridge import Bridge
+    from fap_py.fap import Slave
+    from fap_py.vbus import VirtualBus
+
+    bus, s1 = fap_pair
+    later = tmp_path / "later-port"           # plugged in after the bridge started
+    buses = _line1(bus) + [{"name": "line2", "port": str(later), "protocol": "fap", "slaves": [3],
+                            "id_cycle": 0.1, "reopen_interval": 0.05}]
+    obs = observer_factory(broker.port)
+    with Bridge(bridge_config(broker.port, str(tmp_path / "state"), buses)) as bridge:
+        assert bridge.wait_connected(WAIT)
+        (st,) = obs.wait_for("fap/line2/state", lambda d: d["state"] == "unavailable")
+        assert "No such file" in st["error"]
+        s1.send(b"\x01")                          # line1 runs meanwhile
+        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "01")
+        obs.publish("fap/line2/3/tx", {"id": "t", "data": "00"})
+        obs.wait_for("fap/line2/3/error", lambda d: "unavailable" in d["error"])
+        with VirtualBus(2) as bus2, Slave(bus2.paths[1], id=3) as s3:
+            os.symlink(bus2.paths[0], later)
+            obs.wait_for("fap/line2/state", lambda d: d["state"] == "running")
+            s3.send(b"\x33")
+            obs.wait_for("fap/line2/3/rx", lambda d: d["data"] == "33")
+            obs.wait_for("fap/bridge/test/health", lambda d: d["buses"]["line2"]["state"] == "running")
+            bridge.stop()
+            os.unlink(later)
+
+
+def test_a_refused_publication_is_counted_and_logged(paho_mqtt, observer_factory, fap_pair, tmp_path, caplog):
+    """MQTT 5: a broker that denies rx on ACL grounds says so in the PUBACK (3.1.1 cannot)."""
+    from fap_py.bridge import Bridge
+
+    need("mosquitto", MOSQUITTO is not None)
+    bus, s1 = fap_pair
+    acl = "topic read fap/#\n" + "".join(f"topic write {t}\n" for t in (
+        "fap/bridge/#", "fap/line1/+/state", "fap/line1/+/tx", "fap/line1/+/error", "fap/line1/stats",
+        "fap/line1/state"))      # no write on fap/line1/+/rx
+    caplog.set_level(logging.INFO, logger="fap_py.bridge")
+    with Mosquitto(str(tmp_path / "broker"), acl=acl) as broker:
+        obs = observer_factory(broker.port, v5=True)
+        with Bridge(bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))) as bridge:
+            assert bridge.wait_connected(WAIT)
+            for i in range(3):
+                s1.send(bytes([i]), timeout=WAIT)
+            (st,) = obs.wait_for("fap/line1/stats", lambda d: sum(d["broker"]["refused"].values()) >= 3)
+            assert list(st["broker"]["refused"]) == ["Not authorized"]
+            assert not obs.matching("fap/line1/1/rx")
+            # what the broker took carries the dedup key as MQTT 5 user properties
+            m = next(m for m in obs.messages if m.topic == "fap/line1/stats")
+            props = dict(m.properties.UserProperty)
+            assert props["host"] == "test" and props["seq"] == str(json.loads(m.payload)["seq"])
+    refused = [r for r in caplog.records if "refused publication" in r.getMessage()]
+    assert refused and refused[0].levelno == logging.ERROR and "fap/line1/1/rx" in refused[0].getMessage()
+
+
+def test_mqtt_311_still_works(broker, observer_factory, fap_pair, tmp_path):
+    from fap_py.bridge import Bridge
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    cfg = bridge_config(broker.port, str(tmp_path / "state"), _line1(bus), protocol="3.1.1")
+    with Bridge(cfg) as bridge:
+        assert bridge.wait_connected(WAIT) and not bridge.link.v5
+        s1.send(b"\x31")
+        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "31")
+
+
+def test_stale_tx_is_not_run(broker, observer_factory, tmp_path):
+    """A tx whose MQTT 5 message expiry passed while it waited for the bus is refused."""
+    from paho.mqtt.packettypes import PacketTypes
+    from paho.mqtt.properties import Properties
+
+    from fap_py.bridge import Bridge
+    from fap_py.execasync import Slave
+    from fap_py.vbus import VirtualBus
+
+    gate = threading.Event()
+
+    def slow(req):
+        gate.wait(WAIT)                # the bus is busy until the test says so
+        return b"ok"
+
+    with VirtualBus(2) as bus, Slave(bus.paths[1], node=5, handler=slow).start():
+        obs = observer_factory(broker.port, v5=True)
+        buses = [{"name": "ex", "port": bus.paths[0], "protocol": "execasync", "timeout": WAIT, "retries": 0}]
+        with Bridge(bridge_config(broker.port, str(tmp_path), buses)) as bridge:
+            assert bridge.wait_connected(WAIT)
+            obs.publish("fap/ex/5/tx", {"id": "busy", "data": "00"})
+            props = Properties(PacketTypes.PUBLISH)
+            props.MessageExpiryInterval = 1
+            obs.c.publish("fap/ex/5/tx", json.dumps({"id": "stale", "data": "01"}), qos=1,
+                          properties=props).wait_for_publish(WAIT)
+            with bridge.link._cond:      # the stale tx waits in the bus queue
+                assert bridge.link._cond.wait_for(lambda: bridge.buses["ex"].jobs.qsize() >= 1, WAIT)
+            threading.Event().wait(1.2)  # its one second of lifetime passes: what is tested, not a sync
+            gate.set()
+            obs.wait_for("fap/ex/5/rx", lambda d: d.get("reply_to") == "busy")
+            obs.wait_for("fap/ex/5/error", lambda d: d["id"] == "stale" and "expired" in d["error"])
+            obs.wait_for("fap/ex/stats", lambda d: d["bridge"]["tx_expired"] == 1)
