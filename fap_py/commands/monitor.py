@@ -128,6 +128,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
 
     out = out or sys.stdout
     baud = args.baud or 0
+    stopped: List[int] = []           # the signals received (see on_signal below)
     live: Optional[LivePort] = None
     fh = None
     pcap = None
@@ -142,7 +143,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         elif args.raw:
             fh = open(args.raw, "rb")
         elif args.capture:
-            cap_baud, cap_chunks = capture_file(args.capture)
+            cap_baud, cap_chunks = capture_file(args.capture, lambda: bool(stopped))
             baud = baud or cap_baud
         # after the input: an extcap fifo's reader sees the header once the port is open
         pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
@@ -155,13 +156,26 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     mon = Monitor(args.protocol, baud)
     stats = Stats(baud)
     flush = bool(live)
+    # wall-clock times (live port, stdin) are shown from the first record on
+    relative = args.capture is None and args.raw is None
     t0: List[Optional[float]] = [None]
     announced = [mon.locked is not None]
 
+    def announce() -> None:
+        if announced[0] or not mon.locked:
+            return
+        announced[0] = True
+        if args.quiet:
+            return
+        if mon.lock_frames:
+            print(f"fap monitor: auto: locked on {mon.locked} ({mon.lock_frames} good frames)",
+                  file=sys.stderr)
+        else:
+            print(f"fap monitor: auto: no protocol recognised (no good frame in "
+                  f"{mon.bytes} bytes); showing the bytes as {mon.locked}", file=sys.stderr)
+
     def emit(recs) -> None:
-        if not announced[0] and mon.locked and not args.quiet:
-            announced[0] = True
-            print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+        announce()
         for rec in recs:
             stats.add(rec)
             if pcap:
@@ -171,52 +185,54 @@ def monitor(args: argparse.Namespace, out=None) -> int:
             if args.json:
                 out.write(json_line(rec) + "\n")
             else:
-                if t0[0] is None and rec.t is not None and live is not None:
+                if t0[0] is None and rec.t is not None and relative:
                     t0[0] = rec.t
                 out.write(human_line(rec, t0[0]) + "\n")
             if flush:
                 out.flush()
 
-    stopping = [False]
+    # SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
+    # POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary; the
+    # handler only sets a flag, so no KeyboardInterrupt lands inside a cffi callback
+    def on_signal(signum, frame) -> None:
+        stopped.append(signum)
 
-    def on_term(signum, frame) -> None:  # SIGTERM (extcap's stop): end cleanly
-        stopping[0] = True
+    def stop() -> bool:
+        return bool(stopped)
 
-    old = signal.signal(signal.SIGTERM, on_term)
-    interrupted = False
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         if live is not None:
             with live:
-                try:
-                    for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.idle,
-                                             lambda: stopping[0]):
-                        if chunk is None:
-                            emit(mon.idle(live_now()))
-                        else:
-                            emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port,
-                                          chunk.now_ns))
-                except KeyboardInterrupt:
-                    interrupted = True
+                for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.idle,
+                                         stop):
+                    if chunk is None:
+                        emit(mon.idle(live_now()))
+                    else:
+                        emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port,
+                                      chunk.now_ns))
         else:
             if fh is not None:
-                chunks = raw_file(fh)
+                chunks = raw_file(fh, stop)
             elif args.capture:
                 chunks = cap_chunks
             else:
-                chunks = stream(sys.stdin.fileno(), baud)
+                chunks = stream(sys.stdin.fileno(), baud, stop)
             for chunk in chunks:
                 emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port, chunk.now_ns))
+                if stopped:
+                    break
         emit(mon.finish())
     finally:
-        signal.signal(signal.SIGTERM, old)
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
         if fh is not None:
             fh.close()
         if pcap:
             pcap.close()
             pcap._fh.close()
     stats.bytes = mon.bytes
-    if not announced[0] and mon.locked and not args.quiet:
-        print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+    announce()
     if args.json and args.stats:
         summary = stats.summary()
         summary["protocol"] = mon.locked
@@ -224,7 +240,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     elif not args.json:
         out.write(stats.footer() + "\n")
     out.flush()
-    return EXIT_INTERRUPTED if interrupted else 0
+    return EXIT_INTERRUPTED if signal.SIGINT in stopped else 0
 
 
 def live_now() -> int:

@@ -21,13 +21,23 @@ from ..g485 import codec as g485
 
 PROTOCOLS = ("fap", "exec", "mikroc", "g485")
 
+#: the longest garbage record: a longer run of bytes outside any frame is
+#: reported in records of this size as it comes (docs/monitor.md)
+GARBAGE_MAX = 256
+#: the longest run of overlapping rejected candidates held to see whether a
+#: good frame starts inside (longer than any frame of the four protocols)
+HOLD_MAX = 4096
+
 #: fields of each protocol's good frames, in output order (the JSON schema)
 FIELDS: Dict[str, Tuple[str, ...]] = {
     "fap": ("msg", "msg_name", "dst", "src", "data"),
     "exec": ("node", "seq", "data"),
     "mikroc": ("address", "from_master", "data"),
-    "g485": ("address", "rw", "pid", "data", "packet"),
+    "g485": ("address", "rw", "pid", "data", "packet", "device"),
 }
+
+#: the G485 packet name of a wake-up preamble run (0xFF bytes before a request)
+G485_PREAMBLE = "Wake-up-Preamble"
 
 #: FAP message names, from the C enum (LF_FAP_SEND_DATA -> "SEND_DATA")
 FAP_MSG_NAMES: Dict[int, str] = {
@@ -82,6 +92,11 @@ class Decoder:
     def finish(self) -> List[Event]:
         """End of input: what is still held is a truncated frame or garbage."""
         return []
+
+    def refine(self, events: List[Event], final: bool = False) -> List[Event]:
+        """The filtered records in order, for a protocol's last look (G485: the
+        wake-up preamble, the device a reply answers). ``final``: hand on all."""
+        return events
 
 
 class _Spans:
@@ -181,6 +196,13 @@ class _SpanDecoder(Decoder):
         """Stream offset where the partial frame the codec holds starts (else its position)."""
         raise NotImplementedError
 
+    def _early_garbage(self, out: List[Event]) -> None:
+        """A long run outside any frame is reported now, not held: all of it but the
+        last byte (with the next one it may start a frame: exec's DLE STX)."""
+        upto = self._held_from() - 1
+        if upto - self._cursor >= GARBAGE_MAX:
+            self._garbage_to(out, upto)
+
     def idle(self, now_ns: int) -> List[Event]:
         """These receivers have no gap rule; a quiet line only shows the garbage so far."""
         out: List[Event] = []
@@ -222,6 +244,7 @@ class ExecDecoder(_SpanDecoder):
             else:
                 reason = ffi.string(lib.lf_exec_status_reason(st.Status)).decode()
                 self._report(out, s.rep_start, s.rep_end, reason, None)
+        self._early_garbage(out)
         self._trim()
         return out
 
@@ -275,6 +298,7 @@ class MikrocDecoder(_SpanDecoder):
                     "data": bytes(f.data[0:f.count])})
             else:
                 self._report(out, s.rep_start, s.rep_end, ffi.string(s.reason).decode(), None)
+        self._early_garbage(out)
         keep = self._cursor
         if lib.lf_mikroc_scan_in_frame(s):
             keep = min(keep, s.start)
@@ -316,6 +340,8 @@ class G485Decoder(Decoder):
         self._gap = gap_ns or int(max(0.02, 50.0 / baud if baud else 0.02) * 1e9)
         self._last = 0
         self._spans = _Spans()
+        self._ff: List[Event] = []        # 0xFF records that may be a wake-up preamble
+        self._asked: Optional[int] = None  # address of the last request (replies answer it)
 
     def _expire(self, reason: str) -> List[Event]:
         """The parser drops a stale partial byte by byte; report the partial once, whole."""
@@ -361,6 +387,44 @@ class G485Decoder(Decoder):
     def finish(self) -> List[Event]:
         return self._expire("truncated")
 
+    def refine(self, events: List[Event], final: bool = False) -> List[Event]:
+        """Up to four 0xFF bytes rejected just before a request are its wake-up
+        preamble (master.py sends FF FF FF FF): one good record, not errors.
+        Replies carry the master's address (127): ``device`` names the
+        device asked by the last request."""
+        out: List[Event] = []
+        for ev in events:
+            held = self._ff
+            if ev.error is not None and ev.raw.count(0xFF) == len(ev.raw) and \
+                    (not held or held[-1].end == ev.offset) and \
+                    sum(len(e.raw) for e in held) + len(ev.raw) <= len(g485.WAKE_UP_PREAMBLE):
+                held.append(ev)
+                continue
+            if held:
+                if ev.fields is not None and ev.raw[2] != g485.SMA_R and held[-1].end == ev.offset:
+                    raw = b"".join(e.raw for e in held)
+                    out.append(Event("g485", held[0].offset, raw, None, {
+                        "address": None, "rw": None, "pid": None, "data": raw,
+                        "packet": G485_PREAMBLE, "device": None}))
+                else:
+                    out.extend(held)
+                self._ff = []
+                if ev.error is not None and ev.raw.count(0xFF) == len(ev.raw) \
+                        and len(ev.raw) <= len(g485.WAKE_UP_PREAMBLE):
+                    self._ff = [ev]
+                    continue
+            f = ev.fields
+            if f is not None:
+                if ev.raw[2] == g485.SMA_R:
+                    f["device"] = self._asked
+                else:
+                    f["device"] = self._asked = f["address"]
+            out.append(ev)
+        if final:
+            out.extend(self._ff)
+            self._ff = []
+        return out
+
 
 def make_decoder(protocol: str, baud: int = 0) -> Decoder:
     """A fresh adapter for ``protocol`` (one of :data:`PROTOCOLS`)."""
@@ -376,54 +440,99 @@ def make_decoder(protocol: str, baud: int = 0) -> Decoder:
 
 
 class EventFilter:
-    """Drop bytes reported again after a bad frame covered them; merge garbage runs.
+    """Order the decoder's events into records that tile the stream once.
 
     A codec that rejects a candidate resumes at its second byte, so the
     rest of a bad frame comes back as garbage or as more rejected
-    candidates; the monitor reports the bad frame once. Good frames are
-    never dropped.
+    candidates; the monitor reports the bad frame once. A bad frame is held
+    until the decoder has moved past it: a good frame found inside it wins,
+    and the candidate's bytes before that frame become garbage, so records
+    never overlap (unless more than :data:`HOLD_MAX` bytes of overlapping
+    bad candidates chain up, which only a crafted stream does). Good frames
+    are never dropped. Adjacent garbage is merged into records of at most
+    :data:`GARBAGE_MAX` bytes, handed on as soon as one is full: an
+    unframed stream is reported as it comes, never held.
     """
 
-    __slots__ = ("_covered", "_garbage")
+    __slots__ = ("_covered", "_pending", "_garbage", "_g_proto", "_g_off")
 
     def __init__(self) -> None:
-        self._covered = 0
-        self._garbage: Optional[Event] = None
+        self._covered = 0                  # stream offset up to which bytes are reported or held
+        self._pending: List[Event] = []    # a bad frame (and what follows it) until resolved
+        self._garbage = bytearray()        # the garbage run held (< GARBAGE_MAX bytes)
+        self._g_proto = ""
+        self._g_off = 0                    # stream offset of the held run's first byte
 
-    def _flush(self, out: List[Event]) -> None:
-        if self._garbage is not None:
-            out.append(self._garbage)
-            self._garbage = None
+    def _flush_garbage(self, out: List[Event]) -> None:
+        if self._garbage:
+            out.append(Event(self._g_proto, self._g_off, bytes(self._garbage), "garbage"))
+            self._garbage = bytearray()
+
+    def _emit(self, out: List[Event], ev: Event) -> None:
+        if ev.error != "garbage":
+            self._flush_garbage(out)
+            out.append(ev)
+            return
+        if self._garbage and self._g_off + len(self._garbage) != ev.offset:
+            self._flush_garbage(out)
+        raw, pos = ev.raw, 0
+        while pos < len(raw):
+            if not self._garbage:
+                self._g_proto, self._g_off = ev.protocol, ev.offset + pos
+            take = min(len(raw) - pos, GARBAGE_MAX - len(self._garbage))
+            self._garbage += raw[pos:pos + take]
+            pos += take
+            if len(self._garbage) >= GARBAGE_MAX:
+                self._flush_garbage(out)
+
+    def _flush_pending(self, out: List[Event]) -> None:
+        for ev in self._pending:
+            self._emit(out, ev)
+        self._pending = []
+
+    def _cut_pending(self, at: int) -> None:
+        """A good frame starts at ``at``: held bytes from there on are its."""
+        kept: List[Event] = []
+        for ev in self._pending:
+            if ev.offset >= at:
+                break
+            if ev.end > at:
+                ev = Event(ev.protocol, ev.offset, ev.raw[:at - ev.offset], "garbage")
+            kept.append(ev)
+        self._pending = kept
 
     def push(self, events: List[Event]) -> List[Event]:
         out: List[Event] = []
         for ev in events:
             if ev.error is None:
-                self._flush(out)
-                out.append(ev)
-                self._covered = max(self._covered, ev.end)
+                inside = bool(self._pending) and ev.offset < self._covered
+                if inside:
+                    self._cut_pending(ev.offset)
+                self._flush_pending(out)
+                self._emit(out, ev)
+                # after a frame found inside held bytes the decoder goes on from its end
+                self._covered = ev.end if inside else max(self._covered, ev.end)
                 continue
-            if ev.end <= self._covered:
+            if ev.end <= self._covered:          # scanned again inside a bad frame
                 continue
-            if ev.offset < self._covered:        # partly inside a reported bad frame
+            straddles = ev.offset < self._covered
+            if straddles:                        # partly inside: its new bytes are garbage
                 cut = self._covered - ev.offset
-                ev = Event(ev.protocol, self._covered, ev.raw[cut:], ev.error, None)
-                if ev.error != "garbage":
-                    ev.error = "garbage"
-            if ev.error == "garbage":
-                g = self._garbage
-                if g is not None and g.end == ev.offset:
-                    g.raw += ev.raw
-                else:
-                    self._flush(out)
-                    self._garbage = ev
-                continue
-            self._flush(out)
-            out.append(ev)
-            self._covered = max(self._covered, ev.end)
+                ev = Event(ev.protocol, self._covered, ev.raw[cut:], "garbage")
+            elif self._pending:                  # the decoder has passed the held frame
+                self._flush_pending(out)
+            if self._pending or ev.error != "garbage":
+                self._pending.append(ev)
+            else:
+                self._emit(out, ev)
+            self._covered = ev.end
+            if self._pending and self._covered - self._pending[0].offset > HOLD_MAX:
+                self._flush_pending(out)
         return out
 
     def finish(self) -> List[Event]:
+        """Hand on everything held (end of input, or a quiet line)."""
         out: List[Event] = []
-        self._flush(out)
+        self._flush_pending(out)
+        self._flush_garbage(out)
         return out

@@ -5,7 +5,8 @@ import json
 from typing import Dict, Optional, cast
 
 from .core import Record
-from .decoders import FIELDS
+from ..g485.codec import MASTER_ADDRESS
+from .decoders import FIELDS, G485_PREAMBLE
 
 
 def to_json(rec: Record) -> Dict[str, object]:
@@ -47,8 +48,15 @@ def _who(rec: Record) -> str:
         return f"node {f['node']:>3} seq {f['seq']:>3}"
     if p == "mikroc":
         return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
+    if f["packet"] == G485_PREAMBLE:
+        return f"{f['packet']} master"
     rw = "R" if f["rw"] else "W"
-    return f"{f['packet']} addr {f['address']} {rw} pid 0x{f['pid']:02x}"
+    if f["address"] == MASTER_ADDRESS:      # a reply: from the device the last request asked
+        device = "?" if f.get("device") is None else f["device"]
+        who = f"{device} -> master"
+    else:
+        who = f"master -> {f['address']}"
+    return f"{f['packet']} {who} {rw} pid 0x{f['pid']:02x}"
 
 
 def human_line(rec: Record, t0: Optional[float] = None) -> str:

@@ -8,15 +8,23 @@ receiver's inter-byte gap can be applied.
 from __future__ import annotations
 
 import os
+import select
 import time
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
 from .._native import ffi, lib
+from .._validate import U32
 from ..errors import error_from_code
 from ..rs485 import RS485, RS485Mode, port_options
-from ..vbus import read_capture
+from ..vbus import CaptureFormatError, CaptureRecord, iter_capture_file
 
-READ_SIZE = 65536
+#: bytes read at once: small enough that decoding one read takes well under
+#: the 0.5 s within which a signal must end the monitor
+READ_SIZE = 16384
+#: how often a blocked stdin read looks at the stop request, seconds
+POLL_S = 0.1
+#: the latest capture time a record may carry (a pcap record's u32 seconds)
+T_MAX_US = U32 * 1_000_000
 
 
 class Chunk(NamedTuple):
@@ -32,34 +40,70 @@ def char_seconds(baud: int) -> float:
     return 10.0 / baud if baud else 0.0
 
 
-def raw_file(fh: BinaryIO) -> Iterator[Chunk]:
-    """Bytes as recorded from a port: no times, no senders."""
-    while True:
+def _never() -> bool:
+    return False
+
+
+def raw_file(fh: BinaryIO, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
+    """Bytes as recorded from a port: no times, no senders (until ``stop()``)."""
+    while not stop():
         data = fh.read(READ_SIZE)
         if not data:
             return
         yield Chunk(data, None, 0.0, None, 0)
 
 
-def capture_file(path: str) -> "tuple[int, Iterator[Chunk]]":
-    """(baud of the capture, its data lines as chunks with times and senders)."""
-    cap = read_capture(path)
-    try:
-        baud = int(cap.header.get("baud", "0"))
-    except ValueError:
-        baud = 0
+def capture_file(path: str, stop: Callable[[], bool] = _never) -> "tuple[int, Iterator[Chunk]]":
+    """(baud of the capture, its data lines as chunks with times and senders).
+
+    The file is streamed (a regular file, bounded lines: vbus.capture_lines);
+    a bad header rate, a time beyond 2**32 s or a sender beyond 255 is a
+    CaptureFormatError naming the file.
+    """
+    items = iter_capture_file(path)
+    first = next(items, None)
+    baud = 0
+    if isinstance(first, dict):
+        text = first.get("baud", "0")
+        try:
+            baud = int(text)
+        except ValueError:
+            baud = -1
+        if not 0 <= baud <= U32:
+            raise CaptureFormatError(f"{path}: header baud={text} is not a rate (0..{U32})")
     char_s = char_seconds(baud)
 
     def chunks() -> Iterator[Chunk]:
-        for r in cap.records:
+        for r in _records(first, items):
+            if stop():
+                return
+            if r.t_us >= T_MAX_US or r.port > 255:
+                raise CaptureFormatError(
+                    f"{path}: data line t={r.t_us} port={r.port}: time beyond 2**32 s "
+                    "or sender beyond 255")
             yield Chunk(r.data, r.t_us / 1e6, char_s, r.port, 0)
     return baud, chunks()
 
 
-def stream(fd: int, baud: int = 0) -> Iterator[Chunk]:
-    """A pipe or file descriptor (stdin): arrival times, no senders."""
+def _records(first: object, rest: Iterator[object]) -> Iterator[CaptureRecord]:
+    """The data lines of a capture (the first item already read), events skipped."""
+    if isinstance(first, CaptureRecord):
+        yield first
+    for item in rest:
+        if isinstance(item, CaptureRecord):
+            yield item
+
+
+def stream(fd: int, baud: int = 0, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
+    """A pipe or file descriptor (stdin): arrival times, no senders.
+
+    Waits for bytes at most POLL_S at a time, so ``stop()`` ends even a pipe
+    that never delivers."""
     char_s = char_seconds(baud)
-    while True:
+    while not stop():
+        ready, _, _ = select.select([fd], [], [], POLL_S)
+        if not ready:
+            continue
         data = os.read(fd, READ_SIZE)
         if not data:
             return

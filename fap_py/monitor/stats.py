@@ -5,7 +5,10 @@ from __future__ import annotations
 from collections import defaultdict
 from typing import Any, Dict, List, Optional
 
+from .._validate import U32, check_int
+from ..errors import InvalidTypeError
 from .core import Record
+from .decoders import G485_PREAMBLE
 
 #: G485 packet types that answer a request
 _G485_REPLIES = frozenset({"User-Register-Read-Response", "Handshake-Response",
@@ -34,7 +37,8 @@ class Stats:
     """Accumulates records; :meth:`summary` gives the footer's numbers."""
 
     def __init__(self, baud: int = 0) -> None:
-        self.baud = baud
+        """``baud``: the line rate, 0..2**32-1 (0 unknown: no utilisation)."""
+        self.baud = check_int(baud, "baud", 0, U32)
         self.nodes: Dict[str, NodeStats] = defaultdict(NodeStats)
         self.frames = 0
         self.errors: Dict[str, int] = defaultdict(int)
@@ -62,11 +66,14 @@ class Stats:
         if p == "mikroc":
             return f["address"], "req" if f["from_master"] else "ans", f["address"]
         if f["packet"] in _G485_REPLIES:
-            pend = self._pending
-            return (pend[0] if pend else f["address"]), "ans", None
+            device = f.get("device")
+            return (f["address"] if device is None else device), "ans", None
         return f["address"], ("req" if f["address"] else None), None
 
     def add(self, rec: Record) -> None:
+        """Count one record (InvalidTypeError for anything but a :class:`Record`)."""
+        if not isinstance(rec, Record):
+            raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
         if rec.t is not None:
             if self.t_first is None:
                 self.t_first = rec.t
@@ -76,6 +83,8 @@ class Stats:
             self.errors[reason] += 1
             self.nodes["?"].errors[reason] += 1
             return
+        if rec.fields and rec.fields.get("packet") == G485_PREAMBLE:
+            return                        # wakes the devices: neither a frame nor an error
         self.frames += 1
         self.frame_bytes += len(rec.raw)
         node, role, key = self._node_and_role(rec)
