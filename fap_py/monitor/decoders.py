@@ -340,7 +340,7 @@ class G485Decoder(Decoder):
         self._gap = gap_ns or int(max(0.02, 50.0 / baud if baud else 0.02) * 1e9)
         self._last = 0
         self._spans = _Spans()
-        self._ff: List[Event] = []        # 0xFF records that may be a wake-up preamble
+        self._held: Optional[Event] = None  # garbage ending in 0xFF: a wake-up preamble?
         self._asked: Optional[int] = None  # address of the last request (replies answer it)
 
     def _expire(self, reason: str) -> List[Event]:
@@ -388,31 +388,28 @@ class G485Decoder(Decoder):
         return self._expire("truncated")
 
     def refine(self, events: List[Event], final: bool = False) -> List[Event]:
-        """Up to four 0xFF bytes rejected just before a request are its wake-up
-        preamble (master.py sends FF FF FF FF): one good record, not errors.
-        Replies carry the master's address (127): ``device`` names the
-        device asked by the last request."""
+        """Up to four 0xFF bytes of garbage just before a request are its wake-up
+        preamble (master.py sends FF FF FF FF): one good record, not an error.
+        Replies carry the master's address (127): ``device`` names the device
+        asked by the last request."""
         out: List[Event] = []
         for ev in events:
-            held = self._ff
-            if ev.error is not None and ev.raw.count(0xFF) == len(ev.raw) and \
-                    (not held or held[-1].end == ev.offset) and \
-                    sum(len(e.raw) for e in held) + len(ev.raw) <= len(g485.WAKE_UP_PREAMBLE):
-                held.append(ev)
-                continue
-            if held:
-                if ev.fields is not None and ev.raw[2] != g485.SMA_R and held[-1].end == ev.offset:
-                    raw = b"".join(e.raw for e in held)
-                    out.append(Event("g485", held[0].offset, raw, None, {
+            held, self._held = self._held, None
+            if held is not None:
+                if ev.fields is not None and ev.raw[2] != g485.SMA_R and held.end == ev.offset:
+                    n = min(len(held.raw) - len(held.raw.rstrip(b"\xff")),
+                            len(g485.WAKE_UP_PREAMBLE))
+                    if n < len(held.raw):
+                        out.append(Event("g485", held.offset, held.raw[:-n], "garbage"))
+                    raw = held.raw[-n:]
+                    out.append(Event("g485", held.end - n, raw, None, {
                         "address": None, "rw": None, "pid": None, "data": raw,
                         "packet": G485_PREAMBLE, "device": None}))
                 else:
-                    out.extend(held)
-                self._ff = []
-                if ev.error is not None and ev.raw.count(0xFF) == len(ev.raw) \
-                        and len(ev.raw) <= len(g485.WAKE_UP_PREAMBLE):
-                    self._ff = [ev]
-                    continue
+                    out.append(held)
+            if ev.error == "garbage" and ev.raw.endswith(b"\xff"):
+                self._held = ev
+                continue
             f = ev.fields
             if f is not None:
                 if ev.raw[2] == g485.SMA_R:
@@ -420,9 +417,9 @@ class G485Decoder(Decoder):
                 else:
                     f["device"] = self._asked = f["address"]
             out.append(ev)
-        if final:
-            out.extend(self._ff)
-            self._ff = []
+        if final and self._held is not None:
+            out.append(self._held)
+            self._held = None
         return out
 
 
@@ -515,6 +512,8 @@ class EventFilter:
                 continue
             if ev.end <= self._covered:          # scanned again inside a bad frame
                 continue
+            if len(ev.raw) == 1:                 # a byte that starts no frame
+                ev = Event(ev.protocol, ev.offset, ev.raw, "garbage")
             straddles = ev.offset < self._covered
             if straddles:                        # partly inside: its new bytes are garbage
                 cut = self._covered - ev.offset
