@@ -23,7 +23,6 @@ import os
 import stat
 import threading
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
 
 from ._handle import NativeHandle
@@ -316,8 +315,12 @@ def iter_capture(lines: Iterable[str]) -> Iterator[CaptureItem]:
 
 def parse_capture(lines: Iterable[str]) -> Capture:
     """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+    return _collect(iter_capture(lines))
+
+
+def _collect(items: Iterable[CaptureItem]) -> Capture:
     cap = Capture()
-    for item in iter_capture(lines):
+    for item in items:
         if isinstance(item, CaptureRecord):
             cap.records.append(item)
         elif isinstance(item, CaptureEvent):
@@ -375,5 +378,5 @@ def iter_capture_file(path: PathLike, max_size: Optional[int] = None) -> Iterato
 def read_capture(path: PathLike) -> Capture:
     """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``
     (a regular file of at most CAPTURE_SIZE_MAX bytes; see :func:`capture_lines`)."""
-    return parse_capture(iter_capture_file(path, CAPTURE_SIZE_MAX))
+    return _collect(iter_capture_file(path, CAPTURE_SIZE_MAX))
 

@@ -155,7 +155,8 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         raise
     mon = Monitor(args.protocol, baud)
     stats = Stats(baud)
-    flush = bool(live)
+    # a live port or a pipe: each read's records are on stdout before the next read
+    flush = bool(live) or not (args.raw or args.capture)
     # wall-clock times (live port, stdin) are shown from the first record on
     relative = args.capture is None and args.raw is None
     t0: List[Optional[float]] = [None]
@@ -179,7 +180,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         for rec in recs:
             stats.add(rec)
             if pcap:
-                pcap.write(rec, flush)
+                pcap.write(rec)
             if args.stats:
                 continue
             if args.json:
@@ -188,8 +189,10 @@ def monitor(args: argparse.Namespace, out=None) -> int:
                 if t0[0] is None and rec.t is not None and relative:
                     t0[0] = rec.t
                 out.write(human_line(rec, t0[0]) + "\n")
-            if flush:
-                out.flush()
+        if flush and recs:
+            out.flush()
+            if pcap:
+                pcap.flush()
 
     # SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
     # POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary; the

@@ -14,7 +14,7 @@ from typing import Any, Dict, List, Optional
 
 from .._validate import U32, check_bytes, check_int
 from ..errors import InvalidTypeError, InvalidValueError
-from .decoders import PROTOCOLS, Decoder, Event, EventFilter, make_decoder
+from .decoders import NS_MAX, PROTOCOLS, Decoder, Event, EventFilter, make_decoder
 
 log = logging.getLogger(__name__)
 
@@ -22,8 +22,6 @@ log = logging.getLogger(__name__)
 AUTO_LOCK_FRAMES = 2
 #: bytes after which ``auto`` picks the best decoder even without a clear lead
 AUTO_GIVE_UP_BYTES = 4096
-#: the largest ``now_ns`` (CLOCK_MONOTONIC ns, a C int64)
-NS_MAX = 2**63 - 1
 #: the largest wire time a record may carry, seconds (what a pcap record holds)
 T_MAX = float(U32)
 
@@ -47,6 +45,13 @@ class Record:
 
     def __init__(self, event: Event, t: Optional[float], t_end: Optional[float],
                  port: Optional[int]) -> None:
+        if not isinstance(event, Event):
+            raise InvalidTypeError(f"event must be an Event, not {type(event).__name__}")
+        for name, value in (("t", t), ("t_end", t_end)):
+            if value is not None:
+                _check_time(value, name, 0.0, 2.0 * T_MAX)
+        if port is not None:
+            check_int(port, "port", 0, 255)
         self.event = event
         self.t = t
         self.t_end = t_end
@@ -205,7 +210,7 @@ class Monitor:
             return []
         self.timeline.add(len(data), t, char_s, port)
         self.bytes += len(data)
-        return self._records(self._decode("feed", data, now_ns))
+        return self._records(self._decode("_feed", data, now_ns))
 
     def idle_deadline(self) -> Optional[int]:
         if self.decoder is not None:
@@ -216,7 +221,7 @@ class Monitor:
     def idle(self, now_ns: int) -> List[Record]:
         """The line is quiet: apply the receiver's gap, and show a held garbage run now."""
         check_int(now_ns, "now_ns", 0, NS_MAX)
-        recs = self._records(self._decode("idle", now_ns))
+        recs = self._records(self._decode("_idle", now_ns))
         return recs + self._flush()
 
     def _place(self, events: List[Event]) -> List[Record]:

@@ -13,14 +13,17 @@ drops those repeats and merges adjacent garbage runs.
 """
 from __future__ import annotations
 
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Callable, Dict, List, Optional, Tuple, cast
 
 from .._native import ffi, lib
-from ..errors import InvalidValueError
+from .._validate import U32, check_bytes, check_int
+from ..errors import InvalidTypeError, InvalidValueError
 from ..g485 import codec as g485
 
 PROTOCOLS = ("fap", "exec", "mikroc", "g485")
 
+#: the largest ``now_ns`` (CLOCK_MONOTONIC ns, a C int64)
+NS_MAX = 2**63 - 1
 #: the longest garbage record: a longer run of bytes outside any frame is
 #: reported in records of this size as it comes (docs/monitor.md)
 GARBAGE_MAX = 256
@@ -79,10 +82,20 @@ class Decoder:
     name = ""
 
     def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        raise NotImplementedError
+        """Decode bytes (any bytes-like object) that arrived at ``now_ns``
+        (CLOCK_MONOTONIC ns, 0 unknown); InvalidTypeError / InvalidValueError
+        for anything else."""
+        data = check_bytes(data, "data", 0, 2**62)
+        return self._feed(data, check_int(now_ns, "now_ns", 0, NS_MAX))
 
     def idle(self, now_ns: int) -> List[Event]:
         """The line has been quiet: apply the receiver's inter-byte gap, if it has one."""
+        return self._idle(check_int(now_ns, "now_ns", 0, NS_MAX))
+
+    def _feed(self, data: bytes, now_ns: int) -> List[Event]:
+        raise NotImplementedError
+
+    def _idle(self, now_ns: int) -> List[Event]:
         return []
 
     def idle_deadline(self) -> Optional[int]:
@@ -127,6 +140,8 @@ class FapDecoder(Decoder):
     name = "fap"
 
     def __init__(self, baud: int = 0, gap_ns: int = 0) -> None:
+        check_int(baud, "baud", 0, U32)
+        check_int(gap_ns, "gap_ns", 0, NS_MAX)
         self._d = ffi.new("lf_fap_decoder *")
         lib.lf_fap_decoder_init(self._d, gap_ns or lib.lf_fap_default_gap(baud))
         self._out: List[Event] = []
@@ -148,7 +163,7 @@ class FapDecoder(Decoder):
         out, self._out = self._out, []
         return out
 
-    def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
+    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         lib.lf_fap_decoder_feed(self._d, data, len(data), now_ns, lib.fap_py_mon_fap_frame,
                                 self._handle)
         return self._take()
@@ -156,7 +171,7 @@ class FapDecoder(Decoder):
     def idle_deadline(self) -> Optional[int]:
         return lib.lf_fap_decoder_deadline(self._d) if self._d.n else None
 
-    def idle(self, now_ns: int) -> List[Event]:
+    def _idle(self, now_ns: int) -> List[Event]:
         lib.lf_fap_decoder_tick(self._d, now_ns, lib.fap_py_mon_fap_frame, self._handle)
         return self._take()
 
@@ -203,7 +218,7 @@ class _SpanDecoder(Decoder):
         if upto - self._cursor >= GARBAGE_MAX:
             self._garbage_to(out, upto)
 
-    def idle(self, now_ns: int) -> List[Event]:
+    def _idle(self, now_ns: int) -> List[Event]:
         """These receivers have no gap rule; a quiet line only shows the garbage so far."""
         out: List[Event] = []
         self._garbage_to(out, self._held_from())
@@ -226,7 +241,7 @@ class ExecDecoder(_SpanDecoder):
         self._s = ffi.new("lf_exec_scan *")
         lib.lf_exec_scan_init(self._s)
 
-    def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
+    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         s = self._s
         self._spans.add(data)
         out: List[Event] = []
@@ -278,7 +293,7 @@ class MikrocDecoder(_SpanDecoder):
         lib.lf_mikroc_scan_init(self._s)
         self._master_flag = lib.MIKROC_RS485_DL_MASTER
 
-    def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
+    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         s = self._s
         self._spans.add(data)
         out: List[Event] = []
@@ -334,6 +349,8 @@ class G485Decoder(Decoder):
     name = "g485"
 
     def __init__(self, baud: int = 0, gap_ns: int = 0) -> None:
+        check_int(baud, "baud", 0, U32)
+        check_int(gap_ns, "gap_ns", 0, NS_MAX)
         self._p = g485.Parser()
         self._offset = 0          # stream offset of the parser's first held byte
         # the G485 simulator's default idle timeout
@@ -369,7 +386,7 @@ class G485Decoder(Decoder):
             self._offset += 1 if ev.issue is g485.ParseIssue.BAD_CHECK else len(ev.data)
         return out
 
-    def feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
+    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         self._last = now_ns
         self._spans.add(data)
         out = self._events(self._p.feed(data))
@@ -379,7 +396,7 @@ class G485Decoder(Decoder):
     def idle_deadline(self) -> Optional[int]:
         return self._last + self._gap if self._p.buffered else None
 
-    def idle(self, now_ns: int) -> List[Event]:
+    def _idle(self, now_ns: int) -> List[Event]:
         if not self._p.buffered or now_ns < self._last + self._gap:
             return []
         return self._expire("gap")
@@ -415,7 +432,8 @@ class G485Decoder(Decoder):
                 if ev.raw[2] == g485.SMA_R:
                     f["device"] = self._asked
                 else:
-                    f["device"] = self._asked = f["address"]
+                    self._asked = cast(int, f["address"])
+                    f["device"] = self._asked
             out.append(ev)
         if final and self._held is not None:
             out.append(self._held)
@@ -431,8 +449,11 @@ def make_decoder(protocol: str, baud: int = 0) -> Decoder:
         "mikroc": MikrocDecoder,
         "g485": lambda: G485Decoder(baud),
     }
+    if not isinstance(protocol, str):
+        raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
     if protocol not in factories:
         raise InvalidValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+    check_int(baud, "baud", 0, U32)
     return factories[protocol]()
 
 

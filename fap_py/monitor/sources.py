@@ -44,12 +44,24 @@ def _never() -> bool:
     return False
 
 
-def raw_file(fh: BinaryIO, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
-    """Bytes as recorded from a port: no times, no senders (until ``stop()``)."""
+def _reads(fd: int, stop: Callable[[], bool]) -> Iterator[bytes]:
+    """What ``fd`` delivers, READ_SIZE at most at once, until its end or ``stop()``.
+
+    Waits for bytes at most POLL_S at a time, so ``stop()`` ends even a pipe
+    or fifo that never delivers (a regular file is always ready)."""
     while not stop():
-        data = fh.read(READ_SIZE)
+        ready, _, _ = select.select([fd], [], [], POLL_S)
+        if not ready:
+            continue
+        data = os.read(fd, READ_SIZE)
         if not data:
             return
+        yield data
+
+
+def raw_file(fh: BinaryIO, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
+    """Bytes as recorded from a port: no times, no senders (until ``stop()``)."""
+    for data in _reads(fh.fileno(), stop):
         yield Chunk(data, None, 0.0, None, 0)
 
 
@@ -95,18 +107,9 @@ def _records(first: object, rest: Iterator[object]) -> Iterator[CaptureRecord]:
 
 
 def stream(fd: int, baud: int = 0, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
-    """A pipe or file descriptor (stdin): arrival times, no senders.
-
-    Waits for bytes at most POLL_S at a time, so ``stop()`` ends even a pipe
-    that never delivers."""
+    """A pipe or file descriptor (stdin): arrival times, no senders (until ``stop()``)."""
     char_s = char_seconds(baud)
-    while not stop():
-        ready, _, _ = select.select([fd], [], [], POLL_S)
-        if not ready:
-            continue
-        data = os.read(fd, READ_SIZE)
-        if not data:
-            return
+    for data in _reads(fd, stop):
         now = time.time()
         yield Chunk(data, now - len(data) * char_s, char_s, None, time.monotonic_ns())
 
