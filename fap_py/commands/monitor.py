@@ -119,7 +119,30 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def monitor(args: argparse.Namespace, out=None) -> int:
-    """Run the monitor over the input named in ``args``; the records go to ``out``."""
+    """Run the monitor over the input named in ``args``; the records go to ``out``.
+
+    SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
+    POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary: exit 0
+    and 130. The handler only sets a flag, so no KeyboardInterrupt lands
+    inside a cffi callback; it is installed before the input opens.
+    """
+    stopped: List[int] = []           # the signals received
+
+    def on_signal(signum, frame) -> None:
+        stopped.append(signum)
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return _monitor(args, out, stopped)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
+    def stop() -> bool:
+        return bool(stopped)
+
     from fap_py.monitor.core import Monitor
     from fap_py.monitor.output import human_line, json_line
     from fap_py.monitor.pcap import PcapWriter
@@ -128,7 +151,6 @@ def monitor(args: argparse.Namespace, out=None) -> int:
 
     out = out or sys.stdout
     baud = args.baud or 0
-    stopped: List[int] = []           # the signals received (see on_signal below)
     live: Optional[LivePort] = None
     fh = None
     pcap = None
@@ -143,7 +165,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         elif args.raw:
             fh = open(args.raw, "rb")
         elif args.capture:
-            cap_baud, cap_chunks = capture_file(args.capture, lambda: bool(stopped))
+            cap_baud, cap_chunks = capture_file(args.capture, stop)
             baud = baud or cap_baud
         # after the input: an extcap fifo's reader sees the header once the port is open
         pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
@@ -194,16 +216,6 @@ def monitor(args: argparse.Namespace, out=None) -> int:
             if pcap:
                 pcap.flush()
 
-    # SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
-    # POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary; the
-    # handler only sets a flag, so no KeyboardInterrupt lands inside a cffi callback
-    def on_signal(signum, frame) -> None:
-        stopped.append(signum)
-
-    def stop() -> bool:
-        return bool(stopped)
-
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         if live is not None:
             with live:
@@ -227,8 +239,6 @@ def monitor(args: argparse.Namespace, out=None) -> int:
                     break
         emit(mon.finish())
     finally:
-        for sig, handler in old.items():
-            signal.signal(sig, handler)
         if fh is not None:
             fh.close()
         if pcap:
