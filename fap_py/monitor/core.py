@@ -182,7 +182,7 @@ class Monitor:
 
     # -- input ---------------------------------------------------------
     def _refine(self, events: List[Event], final: bool = False) -> List[Event]:
-        return self.decoder.refine(events, final) if self.decoder is not None else events
+        return self.decoder._refine(events, final) if self.decoder is not None else events
 
     def _records(self, events: List[Event]) -> List[Record]:
         return self._place(self._refine(self.filter.push(events)))
@@ -236,3 +236,6 @@ class Monitor:
         """End of input: flush the decoder (truncated frames, trailing garbage)."""
         events = self._decode("finish", force=True)
         return self._records(events) + self._flush()
+
+
+__all__ = ["AUTO_GIVE_UP_BYTES", "AUTO_LOCK_FRAMES", "Monitor", "Record"]

@@ -16,7 +16,7 @@ from __future__ import annotations
 from typing import Callable, Dict, List, Optional, Tuple, cast
 
 from .._native import ffi, lib
-from .._validate import U32, check_bytes, check_int
+from .._validate import U32, check_bool, check_bytes, check_int
 from ..errors import InvalidTypeError, InvalidValueError
 from ..g485 import codec as g485
 
@@ -58,6 +58,16 @@ class Event:
 
     def __init__(self, protocol: str, offset: int, raw: bytes, error: Optional[str],
                  fields: Optional[Dict[str, object]] = None) -> None:
+        """Checked: InvalidTypeError / InvalidValueError for a bad argument."""
+        if protocol not in PROTOCOLS:
+            raise InvalidValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, "
+                                    f"not {protocol!r}")
+        check_int(offset, "offset", 0, 2**64 - 1)
+        raw = check_bytes(raw, "raw", 0, 2**62)
+        if error is not None and not isinstance(error, str):
+            raise InvalidTypeError(f"error must be None or a str, not {type(error).__name__}")
+        if fields is not None and not isinstance(fields, dict):
+            raise InvalidTypeError(f"fields must be None or a dict, not {type(fields).__name__}")
         self.protocol = protocol
         self.offset = offset
         self.raw = raw
@@ -74,6 +84,14 @@ class Event:
 
     def __repr__(self) -> str:
         return f"<Event {self.protocol} @{self.offset} {self.error or 'ok'} {self.raw.hex()}>"
+
+
+def _ev(protocol: str, offset: int, raw: bytes, error: Optional[str],
+        fields: Optional[Dict[str, object]] = None) -> Event:
+    """An Event from the adapters' own values (unchecked: the hot path)."""
+    ev = Event.__new__(Event)
+    ev.protocol, ev.offset, ev.raw, ev.error, ev.fields = protocol, offset, raw, error, fields
+    return ev
 
 
 class Decoder:
@@ -109,6 +127,9 @@ class Decoder:
     def refine(self, events: List[Event], final: bool = False) -> List[Event]:
         """The filtered records in order, for a protocol's last look (G485: the
         wake-up preamble, the device a reply answers). ``final``: hand on all."""
+        return self._refine(_check_events(events), check_bool(final, "final"))
+
+    def _refine(self, events: List[Event], final: bool) -> List[Event]:
         return events
 
 
@@ -150,13 +171,13 @@ class FapDecoder(Decoder):
 
     def _frame(self, f: "ffi.CData") -> None:
         data = bytes(ffi.buffer(f.data, f.len)) if f.len else b""
-        self._out.append(Event("fap", f.offset, bytes(ffi.buffer(f.raw, f.raw_len)), None, {
+        self._out.append(_ev("fap", f.offset, bytes(ffi.buffer(f.raw, f.raw_len)), None, {
             "msg": f.msg, "msg_name": FAP_MSG_NAMES.get(f.msg, str(f.msg)),
             "dst": f.dst, "src": f.src, "data": data}))
 
     def _reject(self, reason: int, raw: "ffi.CData", n: int, offset: int) -> None:
         name = ffi.string(lib.lf_fap_reject_name(reason)).decode()
-        self._out.append(Event("fap", offset, bytes(ffi.buffer(raw, n)),
+        self._out.append(_ev("fap", offset, bytes(ffi.buffer(raw, n)),
                                name if reason != lib.LF_FAP_REJ_GARBAGE else "garbage"))
 
     def _take(self) -> List[Event]:
@@ -180,7 +201,7 @@ class FapDecoder(Decoder):
             return []
         far = lib.lf_fap_decoder_deadline(self._d)
         lib.lf_fap_decoder_tick(self._d, far, lib.fap_py_mon_fap_frame, self._handle)
-        return [Event(e.protocol, e.offset, e.raw, "truncated") if e.error == "gap" else e
+        return [_ev(e.protocol, e.offset, e.raw, "truncated") if e.error == "gap" else e
                 for e in self._take()]
 
 
@@ -204,7 +225,7 @@ class _SpanDecoder(Decoder):
 
     def _garbage_to(self, out: List[Event], upto: int) -> None:
         if upto > self._cursor:
-            out.append(Event(self.name, self._cursor, self._spans.get(self._cursor, upto), "garbage"))
+            out.append(_ev(self.name, self._cursor, self._spans.get(self._cursor, upto), "garbage"))
         self._cursor = max(self._cursor, upto)
 
     def _held_from(self) -> int:
@@ -227,7 +248,7 @@ class _SpanDecoder(Decoder):
     def _report(self, out: List[Event], start: int, end: int, error: Optional[str],
                 fields: Optional[Dict[str, object]]) -> None:
         self._garbage_to(out, start)
-        out.append(Event(self.name, start, self._spans.get(start, end), error, fields))
+        out.append(_ev(self.name, start, self._spans.get(start, end), error, fields))
         self._cursor = end
 
 
@@ -365,7 +386,7 @@ class G485Decoder(Decoder):
         start, held = self._offset, self._p.buffered
         events = self._events(self._p.expire())
         if held:
-            whole = Event("g485", start, self._spans.get(start, start + held), reason)
+            whole = _ev("g485", start, self._spans.get(start, start + held), reason)
             events = [whole] + [e for e in events if not (e.offset == start and e.error == "gap")]
         return events
 
@@ -375,13 +396,13 @@ class G485Decoder(Decoder):
             off = self._offset
             if isinstance(ev, g485.Packet):
                 raw = ev.raw
-                out.append(Event("g485", off, raw, None, {
+                out.append(_ev("g485", off, raw, None, {
                     "address": ev.address, "rw": raw[2] & 1, "pid": ev.pid,
                     "data": ev.data, "packet": ev.kind.value}))
                 self._offset += len(raw)
                 continue
             reason = _G485_REASONS[ev.issue]
-            out.append(Event("g485", off, ev.data, reason))
+            out.append(_ev("g485", off, ev.data, reason))
             # a bad check resynchronises one byte after the candidate's start
             self._offset += 1 if ev.issue is g485.ParseIssue.BAD_CHECK else len(ev.data)
         return out
@@ -404,7 +425,7 @@ class G485Decoder(Decoder):
     def finish(self) -> List[Event]:
         return self._expire("truncated")
 
-    def refine(self, events: List[Event], final: bool = False) -> List[Event]:
+    def _refine(self, events: List[Event], final: bool = False) -> List[Event]:
         """Up to four 0xFF bytes of garbage just before a request are its wake-up
         preamble (master.py sends FF FF FF FF): one good record, not an error.
         Replies carry the master's address (127): ``device`` names the device
@@ -417,9 +438,9 @@ class G485Decoder(Decoder):
                     n = min(len(held.raw) - len(held.raw.rstrip(b"\xff")),
                             len(g485.WAKE_UP_PREAMBLE))
                     if n < len(held.raw):
-                        out.append(Event("g485", held.offset, held.raw[:-n], "garbage"))
+                        out.append(_ev("g485", held.offset, held.raw[:-n], "garbage"))
                     raw = held.raw[-n:]
-                    out.append(Event("g485", held.end - n, raw, None, {
+                    out.append(_ev("g485", held.end - n, raw, None, {
                         "address": None, "rw": None, "pid": None, "data": raw,
                         "packet": G485_PREAMBLE, "device": None}))
                 else:
@@ -439,6 +460,12 @@ class G485Decoder(Decoder):
             out.append(self._held)
             self._held = None
         return out
+
+
+def _check_events(events: object) -> List[Event]:
+    if not isinstance(events, list) or not all(isinstance(e, Event) for e in events):
+        raise InvalidTypeError(f"events must be a list of Event, not {type(events).__name__}")
+    return events
 
 
 def make_decoder(protocol: str, baud: int = 0) -> Decoder:
@@ -483,7 +510,7 @@ class EventFilter:
 
     def _flush_garbage(self, out: List[Event]) -> None:
         if self._garbage:
-            out.append(Event(self._g_proto, self._g_off, bytes(self._garbage), "garbage"))
+            out.append(_ev(self._g_proto, self._g_off, bytes(self._garbage), "garbage"))
             self._garbage = bytearray()
 
     def _emit(self, out: List[Event], ev: Event) -> None:
@@ -515,7 +542,7 @@ class EventFilter:
             if ev.offset >= at:
                 break
             if ev.end > at:
-                ev = Event(ev.protocol, ev.offset, ev.raw[:at - ev.offset], "garbage")
+                ev = _ev(ev.protocol, ev.offset, ev.raw[:at - ev.offset], "garbage")
             kept.append(ev)
         self._pending = kept
 
@@ -534,11 +561,11 @@ class EventFilter:
             if ev.end <= self._covered:          # scanned again inside a bad frame
                 continue
             if len(ev.raw) == 1:                 # a byte that starts no frame
-                ev = Event(ev.protocol, ev.offset, ev.raw, "garbage")
+                ev = _ev(ev.protocol, ev.offset, ev.raw, "garbage")
             straddles = ev.offset < self._covered
             if straddles:                        # partly inside: its new bytes are garbage
                 cut = self._covered - ev.offset
-                ev = Event(ev.protocol, self._covered, ev.raw[cut:], "garbage")
+                ev = _ev(ev.protocol, self._covered, ev.raw[cut:], "garbage")
             elif self._pending:                  # the decoder has passed the held frame
                 self._flush_pending(out)
             if self._pending or ev.error != "garbage":
@@ -556,3 +583,7 @@ class EventFilter:
         self._flush_pending(out)
         self._flush_garbage(out)
         return out
+
+
+__all__ = ["FIELDS", "G485_PREAMBLE", "GARBAGE_MAX", "HOLD_MAX", "PROTOCOLS", "Event",
+           "ExecDecoder", "FapDecoder", "G485Decoder", "MikrocDecoder", "make_decoder"]

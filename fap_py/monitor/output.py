@@ -79,3 +79,6 @@ def human_line(rec: Record, t0: Optional[float] = None) -> str:
             else f"{_who(rec)}  [0]"
         return f"{t} {port} {rec.protocol:<6} {body}"
     return f"{t} {port} {rec.protocol:<6} !! {rec.error:<9} [{len(rec.raw)}] {rec.raw.hex(' ')}"
+
+
+__all__ = ["human_line", "json_line", "printable", "to_json"]

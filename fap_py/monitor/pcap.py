@@ -21,6 +21,7 @@ from __future__ import annotations
 import struct
 from typing import BinaryIO, Optional, cast
 
+from .._validate import check_bool
 from ..errors import InvalidTypeError, InvalidValueError
 from .core import Record
 
@@ -64,6 +65,7 @@ class PcapWriter:
 
     def write(self, rec: Record, flush: bool = False) -> None:
         """Append one record; its time must fit a pcap record (0 <= t < 2**32 s)."""
+        check_bool(flush, "flush")
         if not isinstance(rec, Record):
             raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
         t = self._last if rec.t is None else rec.t
@@ -92,3 +94,5 @@ class PcapWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+
+__all__ = ["LINKTYPE", "PcapWriter", "header"]

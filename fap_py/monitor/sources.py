@@ -13,8 +13,8 @@ import time
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
 from .._native import ffi, lib
-from .._validate import U32
-from ..errors import error_from_code
+from .._validate import U32, check_baud, check_int, check_path, check_seconds
+from ..errors import ClosedError, InvalidTypeError, error_from_code
 from ..rs485 import RS485, RS485Mode, port_options
 from ..vbus import CaptureFormatError, CaptureRecord, iter_capture_file
 
@@ -36,8 +36,14 @@ class Chunk(NamedTuple):
 
 
 def char_seconds(baud: int) -> float:
-    """Wire time of one byte: 10 bits (start, 8 data, stop)."""
+    """Wire time of one byte: 10 bits (start, 8 data, stop); 0 for baud 0 (unknown)."""
+    check_int(baud, "baud", 0, U32)
     return 10.0 / baud if baud else 0.0
+
+
+def _check_stop(stop: object, what: str = "stop") -> None:
+    if not callable(stop):
+        raise InvalidTypeError(f"{what} must be callable, not {type(stop).__name__}")
 
 
 def _never() -> bool:
@@ -61,7 +67,18 @@ def _reads(fd: int, stop: Callable[[], bool]) -> Iterator[bytes]:
 
 def raw_file(fh: BinaryIO, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
     """Bytes as recorded from a port: no times, no senders (until ``stop()``)."""
-    for data in _reads(fh.fileno(), stop):
+    if not callable(getattr(fh, "fileno", None)):
+        raise InvalidTypeError(f"fh must be an open file, not {type(fh).__name__}")
+    _check_stop(stop)
+    try:
+        fd = fh.fileno()
+    except (OSError, ValueError) as exc:     # io.BytesIO, a closed file
+        raise InvalidTypeError(f"fh must be an open file with a descriptor ({exc})") from None
+    return _raw_chunks(fd, stop)
+
+
+def _raw_chunks(fd: int, stop: Callable[[], bool]) -> Iterator[Chunk]:
+    for data in _reads(fd, stop):
         yield Chunk(data, None, 0.0, None, 0)
 
 
@@ -72,6 +89,7 @@ def capture_file(path: str, stop: Callable[[], bool] = _never) -> "tuple[int, It
     a bad header rate, a time beyond 2**32 s or a sender beyond 255 is a
     CaptureFormatError naming the file.
     """
+    _check_stop(stop)
     items = iter_capture_file(path)
     first = next(items, None)
     baud = 0
@@ -108,7 +126,12 @@ def _records(first: object, rest: Iterator[object]) -> Iterator[CaptureRecord]:
 
 def stream(fd: int, baud: int = 0, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
     """A pipe or file descriptor (stdin): arrival times, no senders (until ``stop()``)."""
-    char_s = char_seconds(baud)
+    check_int(fd, "fd", 0, 2**31 - 1)
+    _check_stop(stop)
+    return _stream_chunks(fd, char_seconds(baud), stop)
+
+
+def _stream_chunks(fd: int, char_s: float, stop: Callable[[], bool]) -> Iterator[Chunk]:
     for data in _reads(fd, stop):
         now = time.time()
         yield Chunk(data, now - len(data) * char_s, char_s, None, time.monotonic_ns())
@@ -124,6 +147,11 @@ class LivePort:
     """
 
     def __init__(self, path: str, baud: int, rs485: Optional[RS485] = None) -> None:
+        self._port = ffi.NULL
+        path = check_path(path, "path")
+        baud = check_baud(baud, "baud")
+        if rs485 is not None and not isinstance(rs485, RS485):
+            raise InvalidTypeError(f"rs485 must be None or an RS485, not {type(rs485).__name__}")
         self.path = path
         self.baud = baud
         # mode NONE by default; an explicit RS-485 mode (kernel, soft RTS)
@@ -156,6 +184,16 @@ class LivePort:
         A read that times out (the gap deadline, or a quiet 200 ms) yields
         None: the line is idle.
         """
+        _check_stop(deadline, "deadline")
+        _check_stop(stop)
+        if idle_s is not None:
+            idle_s = check_seconds(idle_s, "idle_s")
+        if self._port == ffi.NULL:
+            raise ClosedError(f"{self.path}: closed")
+        return self._chunks(deadline, idle_s, stop)
+
+    def _chunks(self, deadline: Callable[[], Optional[int]], idle_s: Optional[float],
+                stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
         char_s = char_seconds(self.baud)
         last = lib.fap_port_now_ns()
         while not stop():
@@ -180,4 +218,4 @@ class LivePort:
             yield Chunk(bytes(ffi.buffer(self._buf, n)), t - n * char_s, char_s, None, now)
 
 
-__all__ = ["Chunk", "LivePort", "capture_file", "char_seconds", "raw_file", "stream"]
+__all__ = ["LivePort", "capture_file", "char_seconds", "raw_file", "stream"]

@@ -139,3 +139,6 @@ class Stats:
             label = "unattributed" if name == "?" else f"node {name}"
             lines.append(f"   {label}: {n['frames']} frames, {e}{reply}")
         return "\n".join(lines)
+
+
+__all__ = ["Stats"]
