@@ -2,6 +2,7 @@
 reply times (end of a request to the start of its answer) per node."""
 from __future__ import annotations
 
+import random
 from collections import defaultdict
 from typing import Any, Dict, List, Optional
 
@@ -24,13 +25,31 @@ def _percentile(sorted_values: List[float], q: float) -> float:
     return sorted_values[k]
 
 
+#: reply times kept per node for the percentiles: beyond, a uniform sample
+#: (reservoir) of this many, so a long live run stays bounded in memory
+REPLY_SAMPLES = 65536
+
+
 class NodeStats:
-    __slots__ = ("frames", "errors", "replies")
+    __slots__ = ("frames", "errors", "replies", "n_replies", "reply_max", "_rng")
 
     def __init__(self) -> None:
         self.frames = 0
         self.errors: Dict[str, int] = defaultdict(int)
-        self.replies: List[float] = []
+        self.replies: List[float] = []    # all reply times, or a sample of REPLY_SAMPLES
+        self.n_replies = 0
+        self.reply_max = 0.0
+        self._rng = random.Random(0)      # deterministic: the same input, the same summary
+
+    def add_reply(self, seconds: float) -> None:
+        self.n_replies += 1
+        self.reply_max = max(self.reply_max, seconds)
+        if len(self.replies) < REPLY_SAMPLES:
+            self.replies.append(seconds)
+            return
+        k = self._rng.randrange(self.n_replies)
+        if k < REPLY_SAMPLES:
+            self.replies[k] = seconds
 
 
 class Stats:
@@ -96,7 +115,7 @@ class Stats:
             pend = self._pending
             if pend and (key is None or pend[1] == key) and pend[2] is not None \
                     and rec.t is not None:
-                ns.replies.append(max(0.0, rec.t - pend[2]))
+                ns.add_reply(max(0.0, rec.t - pend[2]))
             self._pending = None
 
     def utilisation(self) -> Optional[float]:
@@ -115,10 +134,10 @@ class Stats:
             r = sorted(ns.replies)
             nodes[name] = {
                 "frames": ns.frames, "errors": dict(ns.errors),
-                "replies": len(r),
+                "replies": ns.n_replies,
                 "reply_p50_ms": round(_percentile(r, 50) * 1e3, 3) if r else None,
                 "reply_p99_ms": round(_percentile(r, 99) * 1e3, 3) if r else None,
-                "reply_max_ms": round(r[-1] * 1e3, 3) if r else None,
+                "reply_max_ms": round(ns.reply_max * 1e3, 3) if r else None,
             }
         util = self.utilisation()
         return {"frames": self.frames, "errors": dict(self.errors), "bytes": self.bytes,
