@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 from pathlib import Path
 from typing import List
 
@@ -27,19 +28,15 @@ from fap_py.monitor.decoders import GARBAGE_MAX, HOLD_MAX, PROTOCOLS
 from fap_py.monitor.sources import capture_file
 from fap_py.vbus import CaptureFormatError
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "python" / "monitor"))
+from monitor_helpers import VECTOR_FILES  # the monitor tests' vector list
+
 EXAMPLES = int(os.environ.get("MONITOR_FUZZ_EXAMPLES", "150"))
-ROOT = Path(__file__).resolve().parents[2]
-VECTORS = {
-    "fap": ROOT / "tests" / "c" / "fap" / "vectors" / "fap.json",
-    "exec": ROOT / "tests" / "vectors" / "exec_async.json",
-    "mikroc": ROOT / "tests" / "vectors" / "mikroc_rs485.json",
-    "g485": ROOT / "tests" / "vectors" / "g485.json",
-}
 
 
 def _frames() -> List[bytes]:
     out = []
-    for path in VECTORS.values():
+    for path in VECTOR_FILES.values():
         doc = json.loads(path.read_text(encoding="utf-8"))
         out += [bytes.fromhex(v["frame"]) for v in doc.get("valid", []) + doc.get("invalid", [])]
     return out
@@ -58,7 +55,7 @@ SETTINGS = settings(max_examples=EXAMPLES, deadline=None,
 def decode(protocol: str, data: bytes, cuts: List[int], t0: float, char_s: float) -> list:
     mon = Monitor(protocol, 9600)
     recs, pos, t = [], 0, t0
-    for cut in sorted(set(c % (len(data) + 1) for c in cuts)) + [len(data)]:
+    for cut in sorted({c % (len(data) + 1) for c in cuts}) + [len(data)]:
         if cut > pos:
             recs += mon.feed(data[pos:cut], t, char_s, 1, 0)
             t += (cut - pos) * char_s * 0.5      # reads that overlap on the wire clock
