@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import logging
 import os
+import stat
 import threading
 from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any, Dict, Iterable, List, Optional, Union
+from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
 
 from ._handle import NativeHandle
 from ._native import ffi, lib
@@ -266,11 +266,19 @@ def _fields(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
     return out
 
 
-def parse_capture(lines: Iterable[str]) -> Capture:
-    """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+#: the longest capture line a reader takes (fap bus writes at most ~230 characters)
+CAPTURE_LINE_MAX = 65536
+#: the largest capture :func:`read_capture` holds in memory (``fap monitor`` streams any size)
+CAPTURE_SIZE_MAX = 1 << 30
+
+CaptureItem = Union[Dict[str, str], CaptureRecord, CaptureEvent]
+
+
+def iter_capture(lines: Iterable[str]) -> Iterator[CaptureItem]:
+    """Parse capture lines one by one (sans I/O): yields the header (a dict),
+    each :class:`CaptureRecord` and :class:`CaptureEvent` in file order."""
     if isinstance(lines, (str, bytes)) or not isinstance(lines, Iterable):
         raise InvalidTypeError(f"lines must be an iterable of str, not {type(lines).__name__}")
-    cap = Capture()
     for lineno, raw in enumerate(lines, 1):
         if not isinstance(raw, str):
             raise InvalidTypeError(f"line {lineno}: expected str, not {type(raw).__name__}")
@@ -285,35 +293,90 @@ def parse_capture(lines: Iterable[str]) -> Capture:
             if kind == "fap-vbus-capture":
                 if len(tokens) < 2 or tokens[1] != "1":
                     raise CaptureFormatError(f"line {lineno}: unsupported capture version")
-                cap.header = _fields(tokens[2:], lineno)
+                yield _fields(tokens[2:], lineno)
                 continue
             f = _fields(tokens[1:], lineno)
             try:
                 t_us = int(f.pop("t"))
             except (KeyError, ValueError) as exc:
                 raise CaptureFormatError(f"line {lineno}: event without t=<us>") from exc
-            cap.events.append(CaptureEvent(kind, t_us, f))
+            yield CaptureEvent(kind, t_us, f)
             continue
         parts = line.split()
         try:
             t_us, port = int(parts[0]), int(parts[1])
             data = bytes(int(h, 16) for h in parts[2:])
         except (IndexError, ValueError) as exc:
-            raise CaptureFormatError(f"line {lineno}: bad data line {line!r}") from exc
-        if not parts[2:] or any(len(h) != 2 for h in parts[2:]):
-            raise CaptureFormatError(f"line {lineno}: bad data line {line!r}")
-        cap.records.append(CaptureRecord(t_us, port, data))
+            raise CaptureFormatError(f"line {lineno}: bad data line {line[:80]!r}") from exc
+        if not parts[2:] or any(len(h) != 2 for h in parts[2:]) or t_us < 0 or port < 0:
+            raise CaptureFormatError(f"line {lineno}: bad data line {line[:80]!r}")
+        yield CaptureRecord(t_us, port, data)
+
+
+def parse_capture(lines: Iterable[str]) -> Capture:
+    """Parse capture lines (sans I/O; see :func:`read_capture`)."""
+    return _collect(iter_capture(lines))
+
+
+def _collect(items: Iterable[CaptureItem]) -> Capture:
+    cap = Capture()
+    for item in items:
+        if isinstance(item, CaptureRecord):
+            cap.records.append(item)
+        elif isinstance(item, CaptureEvent):
+            cap.events.append(item)
+        else:
+            cap.header = item
     return cap
 
 
-def read_capture(path: PathLike) -> Capture:
-    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``."""
-    p = Path(check_path(path, "path"))
+def capture_lines(path: PathLike, max_size: Optional[int] = None) -> Iterator[str]:
+    """The lines of a capture file, streamed with bounds: a regular file only (of at
+    most ``max_size`` bytes if given), ASCII lines of at most CAPTURE_LINE_MAX
+    characters. Errors name the file: PortError (cannot open or read it),
+    CaptureFormatError (not a capture)."""
+    p = check_path(path, "path")
     try:
-        with open(p, encoding="ascii") as fh:
-            return parse_capture(fh)
+        fh = open(p, "rb")
     except OSError as exc:
-        raise PortError(exc.errno or 0, exc.strerror, str(p)) from exc
-    except UnicodeDecodeError as exc:
-        raise CaptureFormatError(f"{p}: not an ASCII capture file ({exc.reason})") from exc
+        raise PortError(exc.errno or 0, exc.strerror, p) from exc
+    with fh:
+        st = os.fstat(fh.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise CaptureFormatError(f"{p}: not a regular file")
+        if max_size is not None and st.st_size > max_size:
+            raise CaptureFormatError(f"{p}: {st.st_size} bytes, more than {max_size}")
+        lineno = 0
+        while True:
+            lineno += 1
+            try:
+                line = fh.readline(CAPTURE_LINE_MAX + 1)
+            except OSError as exc:
+                raise PortError(exc.errno or 0, exc.strerror, p) from exc
+            if not line:
+                return
+            if len(line) > CAPTURE_LINE_MAX:
+                raise CaptureFormatError(
+                    f"{p}: line {lineno}: longer than {CAPTURE_LINE_MAX} characters")
+            try:
+                yield line.decode("ascii")
+            except UnicodeDecodeError:
+                raise CaptureFormatError(f"{p}: line {lineno}: not an ASCII capture file") from None
+
+
+def iter_capture_file(path: PathLike, max_size: Optional[int] = None) -> Iterator[CaptureItem]:
+    """:func:`iter_capture` over :func:`capture_lines`; format errors name the file."""
+    lines = capture_lines(path, max_size)
+    try:
+        yield from iter_capture(lines)
+    except CaptureFormatError as exc:
+        text = str(exc)
+        p = os.fsdecode(path) if isinstance(path, (str, bytes, os.PathLike)) else str(path)
+        raise CaptureFormatError(text if text.startswith(f"{p}: ") else f"{p}: {text}") from None
+
+
+def read_capture(path: PathLike) -> Capture:
+    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``
+    (a regular file of at most CAPTURE_SIZE_MAX bytes; see :func:`capture_lines`)."""
+    return _collect(iter_capture_file(path, CAPTURE_SIZE_MAX))
 

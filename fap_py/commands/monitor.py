@@ -119,7 +119,30 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def monitor(args: argparse.Namespace, out=None) -> int:
-    """Run the monitor over the input named in ``args``; the records go to ``out``."""
+    """Run the monitor over the input named in ``args``; the records go to ``out``.
+
+    SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
+    POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary: exit 0
+    and 130. The handler only sets a flag, so no KeyboardInterrupt lands
+    inside a cffi callback; it is installed before the input opens.
+    """
+    stopped: List[int] = []           # the signals received
+
+    def on_signal(signum, frame) -> None:
+        stopped.append(signum)
+
+    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return _monitor(args, out, stopped)
+    finally:
+        for sig, handler in old.items():
+            signal.signal(sig, handler)
+
+
+def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
+    def stop() -> bool:
+        return bool(stopped)
+
     from fap_py.monitor.core import Monitor
     from fap_py.monitor.output import human_line, json_line
     from fap_py.monitor.pcap import PcapWriter
@@ -142,7 +165,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         elif args.raw:
             fh = open(args.raw, "rb")
         elif args.capture:
-            cap_baud, cap_chunks = capture_file(args.capture)
+            cap_baud, cap_chunks = capture_file(args.capture, stop)
             baud = baud or cap_baud
         # after the input: an extcap fifo's reader sees the header once the port is open
         pcap = PcapWriter(open(args.pcap, "wb")) if args.pcap else None
@@ -154,69 +177,75 @@ def monitor(args: argparse.Namespace, out=None) -> int:
         raise
     mon = Monitor(args.protocol, baud)
     stats = Stats(baud)
-    flush = bool(live)
+    # a live port or a pipe: each read's records are on stdout before the next read
+    flush = bool(live) or not (args.raw or args.capture)
+    # wall-clock times (live port, stdin) are shown from the first record on
+    relative = args.capture is None and args.raw is None
     t0: List[Optional[float]] = [None]
     announced = [mon.locked is not None]
 
+    def announce() -> None:
+        if announced[0] or not mon.locked:
+            return
+        announced[0] = True
+        if args.quiet:
+            return
+        if mon.lock_frames:
+            print(f"fap monitor: auto: locked on {mon.locked} ({mon.lock_frames} good frames)",
+                  file=sys.stderr)
+        else:
+            print(f"fap monitor: auto: no protocol recognised (no good frame in "
+                  f"{mon.bytes} bytes); showing the bytes as {mon.locked}", file=sys.stderr)
+
     def emit(recs) -> None:
-        if not announced[0] and mon.locked and not args.quiet:
-            announced[0] = True
-            print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+        announce()
         for rec in recs:
             stats.add(rec)
             if pcap:
-                pcap.write(rec, flush)
+                pcap.write(rec)
             if args.stats:
                 continue
             if args.json:
                 out.write(json_line(rec) + "\n")
             else:
-                if t0[0] is None and rec.t is not None and live is not None:
+                if t0[0] is None and rec.t is not None and relative:
                     t0[0] = rec.t
                 out.write(human_line(rec, t0[0]) + "\n")
-            if flush:
-                out.flush()
+        if flush and recs:
+            out.flush()
+            if pcap:
+                pcap.flush()
 
-    stopping = [False]
-
-    def on_term(signum, frame) -> None:  # SIGTERM (extcap's stop): end cleanly
-        stopping[0] = True
-
-    old = signal.signal(signal.SIGTERM, on_term)
-    interrupted = False
     try:
         if live is not None:
             with live:
-                try:
-                    for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.idle,
-                                             lambda: stopping[0]):
-                        if chunk is None:
-                            emit(mon.idle(live_now()))
-                        else:
-                            emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port,
-                                          chunk.now_ns))
-                except KeyboardInterrupt:
-                    interrupted = True
+                for chunk in live.chunks(mon.idle_deadline, None if args.follow else args.idle,
+                                         stop):
+                    if chunk is None:
+                        emit(mon.idle(live_now()))
+                    else:
+                        emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port,
+                                      chunk.now_ns))
         else:
             if fh is not None:
-                chunks = raw_file(fh)
+                chunks = raw_file(fh, stop)
             elif args.capture:
                 chunks = cap_chunks
             else:
-                chunks = stream(sys.stdin.fileno(), baud)
+                chunks = stream(sys.stdin.fileno(), baud, stop)
             for chunk in chunks:
                 emit(mon.feed(chunk.data, chunk.t, chunk.char_s, chunk.port, chunk.now_ns))
+                if stopped:
+                    break
         emit(mon.finish())
     finally:
-        signal.signal(signal.SIGTERM, old)
         if fh is not None:
             fh.close()
         if pcap:
             pcap.close()
             pcap._fh.close()
     stats.bytes = mon.bytes
-    if not announced[0] and mon.locked and not args.quiet:
-        print(f"fap monitor: auto: locked on {mon.locked}", file=sys.stderr)
+    announce()
     if args.json and args.stats:
         summary = stats.summary()
         summary["protocol"] = mon.locked
@@ -224,7 +253,7 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     elif not args.json:
         out.write(stats.footer() + "\n")
     out.flush()
-    return EXIT_INTERRUPTED if interrupted else 0
+    return EXIT_INTERRUPTED if signal.SIGINT in stopped else 0
 
 
 def live_now() -> int:

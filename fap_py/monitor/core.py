@@ -9,9 +9,12 @@ from __future__ import annotations
 
 import bisect
 import logging
-from typing import Dict, List, Optional
+import math
+from typing import Any, Dict, List, Optional
 
-from .decoders import PROTOCOLS, Decoder, Event, EventFilter, make_decoder
+from .._validate import U32, check_bytes, check_int
+from ..errors import InvalidTypeError, InvalidValueError
+from .decoders import NS_MAX, PROTOCOLS, Decoder, Event, EventFilter, make_decoder
 
 log = logging.getLogger(__name__)
 
@@ -19,6 +22,20 @@ log = logging.getLogger(__name__)
 AUTO_LOCK_FRAMES = 2
 #: bytes after which ``auto`` picks the best decoder even without a clear lead
 AUTO_GIVE_UP_BYTES = 4096
+#: the largest wire time a record may carry, seconds (what a pcap record holds)
+T_MAX = float(U32)
+
+
+def _check_time(value: Any, what: str, lo: float, hi: float) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise InvalidTypeError(f"{what} must be a number of seconds, not {type(value).__name__}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise InvalidValueError(f"{what} must be in {lo}..{hi}, not {value}") from None
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise InvalidValueError(f"{what} must be a finite number in {lo}..{hi}, not {value}")
+    return v
 
 
 class Record:
@@ -28,6 +45,13 @@ class Record:
 
     def __init__(self, event: Event, t: Optional[float], t_end: Optional[float],
                  port: Optional[int]) -> None:
+        if not isinstance(event, Event):
+            raise InvalidTypeError(f"event must be an Event, not {type(event).__name__}")
+        for name, value in (("t", t), ("t_end", t_end)):
+            if value is not None:
+                _check_time(value, name, 0.0, 2.0 * T_MAX)
+        if port is not None:
+            check_int(port, "port", 0, 255)
         self.event = event
         self.t = t
         self.t_end = t_end
@@ -57,17 +81,24 @@ class Record:
 class Timeline:
     """Time and sender of every stream offset: one segment per chunk."""
 
-    __slots__ = ("_offsets", "_segs", "_pos")
+    __slots__ = ("_offsets", "_segs", "_pos", "_end")
 
     def __init__(self) -> None:
         self._offsets: List[int] = []
         self._segs: List[tuple] = []
         self._pos = 0
+        self._end: Optional[float] = None   # wire end of the last timed chunk
 
     def add(self, n: int, t: Optional[float], char_s: float, port: Optional[int]) -> None:
         if t is None and port is None:
             self._pos += n
             return
+        if t is not None:
+            # a read's bytes are dated back from its arrival: never before the previous
+            # chunk's end, so the times of the records never go backwards
+            if self._end is not None and t < self._end:
+                t = self._end
+            self._end = t + n * char_s
         self._offsets.append(self._pos)
         self._segs.append((t, char_s, port))
         self._pos += n
@@ -100,10 +131,18 @@ class Monitor:
     def __init__(self, protocol: str = "auto", baud: int = 0) -> None:
         """``protocol``: one of PROTOCOLS or "auto"; ``baud``: the line rate (0 unknown).
 
-        Raises InvalidValueError for an unknown protocol.
+        Raises InvalidTypeError / InvalidValueError for an unknown protocol or a
+        baud outside 0..2**32-1.
         """
+        if not isinstance(protocol, str):
+            raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+        if protocol != "auto" and protocol not in PROTOCOLS:
+            raise InvalidValueError(
+                f"protocol must be auto or one of {', '.join(PROTOCOLS)}, not {protocol!r}")
         self.protocol = protocol
-        self.baud = baud
+        self.baud = check_int(baud, "baud", 0, U32)
+        #: good frames seen by the decoder ``auto`` locked on when it locked
+        self.lock_frames = 0
         self.timeline = Timeline()
         self.filter = EventFilter()
         self.bytes = 0
@@ -127,6 +166,7 @@ class Monitor:
             return []
         self.locked = best
         self.decoder = self._trials[best]
+        self.lock_frames = scores[best]
         log.info("auto: locked on %s (%d good frames; others at most %d)",
                  best, scores[best], others)
         events = self._trial_events[best]
@@ -141,17 +181,36 @@ class Monitor:
         return self._try_lock(force or self.bytes >= AUTO_GIVE_UP_BYTES)
 
     # -- input ---------------------------------------------------------
+    def _refine(self, events: List[Event], final: bool = False) -> List[Event]:
+        return self.decoder._refine(events, final) if self.decoder is not None else events
+
     def _records(self, events: List[Event]) -> List[Record]:
-        return self._place(self.filter.push(events))
+        return self._place(self._refine(self.filter.push(events)))
+
+    def _flush(self) -> List[Record]:
+        return self._place(self._refine(self.filter.finish(), True))
 
     def feed(self, data: bytes, t: Optional[float] = None, char_s: float = 0.0,
              port: Optional[int] = None, now_ns: int = 0) -> List[Record]:
-        """Bytes whose first one was on the wire at ``t`` (seconds), ``char_s`` apart."""
+        """Bytes whose first one was on the wire at ``t`` (seconds), ``char_s`` apart.
+
+        ``data`` is any bytes-like object (bytes, bytearray, memoryview, also
+        non-contiguous); ``t`` None or 0..2**32 s; ``char_s`` 0..1 s; ``port``
+        None or 0..255; ``now_ns`` the CLOCK_MONOTONIC arrival (0 unknown).
+        Bad values raise InvalidTypeError / InvalidValueError.
+        """
+        data = check_bytes(data, "data", 0, 2**62)
+        if t is not None:
+            t = _check_time(t, "t", 0.0, T_MAX)
+        char_s = _check_time(char_s, "char_s", 0.0, 1.0)
+        if port is not None:
+            check_int(port, "port", 0, 255)
+        check_int(now_ns, "now_ns", 0, NS_MAX)
         if not data:
             return []
         self.timeline.add(len(data), t, char_s, port)
         self.bytes += len(data)
-        return self._records(self._decode("feed", data, now_ns))
+        return self._records(self._decode("_feed", data, now_ns))
 
     def idle_deadline(self) -> Optional[int]:
         if self.decoder is not None:
@@ -161,8 +220,9 @@ class Monitor:
 
     def idle(self, now_ns: int) -> List[Record]:
         """The line is quiet: apply the receiver's gap, and show a held garbage run now."""
-        recs = self._records(self._decode("idle", now_ns))
-        return recs + self._place(self.filter.finish())
+        check_int(now_ns, "now_ns", 0, NS_MAX)
+        recs = self._records(self._decode("_idle", now_ns))
+        return recs + self._flush()
 
     def _place(self, events: List[Event]) -> List[Record]:
         tl = self.timeline
@@ -175,4 +235,7 @@ class Monitor:
     def finish(self) -> List[Record]:
         """End of input: flush the decoder (truncated frames, trailing garbage)."""
         events = self._decode("finish", force=True)
-        return self._records(events) + self._place(self.filter.finish())
+        return self._records(events) + self._flush()
+
+
+__all__ = ["AUTO_GIVE_UP_BYTES", "AUTO_LOCK_FRAMES", "Monitor", "Record"]

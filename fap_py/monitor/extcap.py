@@ -14,6 +14,7 @@ import argparse
 import sys
 from typing import List, Optional
 
+from ..errors import InvalidTypeError
 from .decoders import PROTOCOLS
 from .pcap import LINKTYPE
 
@@ -45,6 +46,10 @@ def config() -> str:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
+    """Wireshark's calls (``argv`` None: sys.argv); the capture runs ``fap monitor``."""
+    if argv is not None and (not isinstance(argv, list) or
+                             not all(isinstance(a, str) for a in argv)):
+        raise InvalidTypeError(f"argv must be None or a list of str, not {type(argv).__name__}")
     ap = argparse.ArgumentParser(prog="fap-monitor-extcap")
     ap.add_argument("--extcap-interfaces", action="store_true")
     ap.add_argument("--extcap-interface")
@@ -80,6 +85,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     print("fap: error: nothing to do (see extcap(4))", file=sys.stderr)
     return 2
 
+
+__all__ = ["config", "dlts", "interfaces", "main"]
 
 if __name__ == "__main__":
     sys.exit(main())

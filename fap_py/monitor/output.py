@@ -4,8 +4,11 @@ from __future__ import annotations
 import json
 from typing import Dict, Optional, cast
 
-from .core import Record
-from .decoders import FIELDS
+from .._validate import check_bytes
+from ..errors import InvalidTypeError
+from ..g485.codec import MASTER_ADDRESS
+from .core import T_MAX, Record, _check_time
+from .decoders import FIELDS, G485_PREAMBLE
 
 
 def to_json(rec: Record) -> Dict[str, object]:
@@ -14,6 +17,8 @@ def to_json(rec: Record) -> Dict[str, object]:
     Common keys: protocol, t, port, ok, error, frame; then the protocol's
     fields (null for a bad frame or garbage). Bytes are lower-case hex.
     """
+    if not isinstance(rec, Record):
+        raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
     ev = rec.event
     out: Dict[str, object] = {
         "protocol": ev.protocol,
@@ -35,6 +40,8 @@ def json_line(rec: Record) -> str:
 
 
 def printable(data: bytes) -> str:
+    """The bytes as ASCII, a dot for each byte that does not print."""
+    data = check_bytes(data, "data", 0, 2**62)
     return "".join(chr(b) if 32 <= b < 127 else "." for b in data)
 
 
@@ -47,12 +54,23 @@ def _who(rec: Record) -> str:
         return f"node {f['node']:>3} seq {f['seq']:>3}"
     if p == "mikroc":
         return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
+    if f["packet"] == G485_PREAMBLE:
+        return f"{f['packet']} master"
     rw = "R" if f["rw"] else "W"
-    return f"{f['packet']} addr {f['address']} {rw} pid 0x{f['pid']:02x}"
+    if f["address"] == MASTER_ADDRESS:      # a reply: from the device the last request asked
+        device = "?" if f.get("device") is None else f["device"]
+        who = f"{device} -> master"
+    else:
+        who = f"master -> {f['address']}"
+    return f"{f['packet']} {who} {rw} pid 0x{f['pid']:02x}"
 
 
 def human_line(rec: Record, t0: Optional[float] = None) -> str:
     """timestamp, sender port, protocol, addresses and message, payload hex |printable|."""
+    if not isinstance(rec, Record):
+        raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
+    if t0 is not None:
+        _check_time(t0, "t0", 0.0, 2.0 * T_MAX)
     t = "         -" if rec.t is None else f"{rec.t - (t0 or 0.0):10.6f}"
     port = "  " if rec.port is None else f"p{rec.port}"
     if rec.ok:
@@ -61,3 +79,6 @@ def human_line(rec: Record, t0: Optional[float] = None) -> str:
             else f"{_who(rec)}  [0]"
         return f"{t} {port} {rec.protocol:<6} {body}"
     return f"{t} {port} {rec.protocol:<6} !! {rec.error:<9} [{len(rec.raw)}] {rec.raw.hex(' ')}"
+
+
+__all__ = ["human_line", "json_line", "printable", "to_json"]

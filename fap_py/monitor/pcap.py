@@ -21,6 +21,8 @@ from __future__ import annotations
 import struct
 from typing import BinaryIO, Optional, cast
 
+from .._validate import check_bool
+from ..errors import InvalidTypeError, InvalidValueError
 from .core import Record
 
 LINKTYPE = 147           # LINKTYPE_USER0 / DLT_USER0
@@ -34,6 +36,8 @@ _RECORD = struct.Struct("<IIII")
 
 def header(rec: Record) -> bytes:
     """The per-packet header described above."""
+    if not isinstance(rec, Record):
+        raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
     flags = (FLAG_OK if rec.ok else 0) | (FLAG_PORT if rec.port is not None else 0) \
         | (FLAG_TIME if rec.t is not None else 0)
     text = rec.error
@@ -48,15 +52,26 @@ class PcapWriter:
     """Writes records to a pcap file (a context manager)."""
 
     def __init__(self, fh: BinaryIO, epoch: Optional[float] = None) -> None:
+        """``fh``: a binary file open for writing; ``epoch``: the time of untimed records."""
+        if not callable(getattr(fh, "write", None)) or not callable(getattr(fh, "flush", None)):
+            raise InvalidTypeError(f"fh must be a binary file, not {type(fh).__name__}")
+        if epoch is not None and (isinstance(epoch, bool) or not isinstance(epoch, (int, float))
+                                  or not 0.0 <= epoch < 2.0**32):
+            raise InvalidValueError(f"epoch must be None or 0..2**32 s, not {epoch!r}")
         self._fh = fh
         self._last = 0.0 if epoch is None else epoch
         fh.write(_GLOBAL.pack(0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE))
         fh.flush()
 
     def write(self, rec: Record, flush: bool = False) -> None:
-        if rec.t is not None:
-            self._last = rec.t
-        t = self._last
+        """Append one record; its time must fit a pcap record (0 <= t < 2**32 s)."""
+        check_bool(flush, "flush")
+        if not isinstance(rec, Record):
+            raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
+        t = self._last if rec.t is None else rec.t
+        if not 0.0 <= t < 2.0**32:
+            raise InvalidValueError(f"record time {t} s does not fit a pcap record (0..2**32 s)")
+        self._last = t
         sec = int(t)
         usec = int(round((t - sec) * 1e6))
         if usec >= 1_000_000:
@@ -67,6 +82,9 @@ class PcapWriter:
         if flush:
             self._fh.flush()
 
+    def flush(self) -> None:
+        self._fh.flush()
+
     def close(self) -> None:
         self._fh.flush()
 
@@ -76,3 +94,5 @@ class PcapWriter:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+
+__all__ = ["LINKTYPE", "PcapWriter", "header"]

@@ -8,15 +8,23 @@ receiver's inter-byte gap can be applied.
 from __future__ import annotations
 
 import os
+import select
 import time
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
 from .._native import ffi, lib
-from ..errors import error_from_code
+from .._validate import U32, check_baud, check_int, check_path, check_seconds
+from ..errors import ClosedError, InvalidTypeError, error_from_code
 from ..rs485 import RS485, RS485Mode, port_options
-from ..vbus import read_capture
+from ..vbus import CaptureFormatError, CaptureRecord, iter_capture_file
 
-READ_SIZE = 65536
+#: bytes read at once: small enough that decoding one read takes well under
+#: the 0.5 s within which a signal must end the monitor
+READ_SIZE = 16384
+#: how often a blocked stdin read looks at the stop request, seconds
+POLL_S = 0.1
+#: the latest capture time a record may carry (a pcap record's u32 seconds)
+T_MAX_US = U32 * 1_000_000
 
 
 class Chunk(NamedTuple):
@@ -28,41 +36,103 @@ class Chunk(NamedTuple):
 
 
 def char_seconds(baud: int) -> float:
-    """Wire time of one byte: 10 bits (start, 8 data, stop)."""
+    """Wire time of one byte: 10 bits (start, 8 data, stop); 0 for baud 0 (unknown)."""
+    check_int(baud, "baud", 0, U32)
     return 10.0 / baud if baud else 0.0
 
 
-def raw_file(fh: BinaryIO) -> Iterator[Chunk]:
-    """Bytes as recorded from a port: no times, no senders."""
-    while True:
-        data = fh.read(READ_SIZE)
+def _check_stop(stop: object, what: str = "stop") -> None:
+    if not callable(stop):
+        raise InvalidTypeError(f"{what} must be callable, not {type(stop).__name__}")
+
+
+def _never() -> bool:
+    return False
+
+
+def _reads(fd: int, stop: Callable[[], bool]) -> Iterator[bytes]:
+    """What ``fd`` delivers, READ_SIZE at most at once, until its end or ``stop()``.
+
+    Waits for bytes at most POLL_S at a time, so ``stop()`` ends even a pipe
+    or fifo that never delivers (a regular file is always ready)."""
+    while not stop():
+        ready, _, _ = select.select([fd], [], [], POLL_S)
+        if not ready:
+            continue
+        data = os.read(fd, READ_SIZE)
         if not data:
             return
+        yield data
+
+
+def raw_file(fh: BinaryIO, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
+    """Bytes as recorded from a port: no times, no senders (until ``stop()``)."""
+    if not callable(getattr(fh, "fileno", None)):
+        raise InvalidTypeError(f"fh must be an open file, not {type(fh).__name__}")
+    _check_stop(stop)
+    try:
+        fd = fh.fileno()
+    except (OSError, ValueError) as exc:     # io.BytesIO, a closed file
+        raise InvalidTypeError(f"fh must be an open file with a descriptor ({exc})") from None
+    return _raw_chunks(fd, stop)
+
+
+def _raw_chunks(fd: int, stop: Callable[[], bool]) -> Iterator[Chunk]:
+    for data in _reads(fd, stop):
         yield Chunk(data, None, 0.0, None, 0)
 
 
-def capture_file(path: str) -> "tuple[int, Iterator[Chunk]]":
-    """(baud of the capture, its data lines as chunks with times and senders)."""
-    cap = read_capture(path)
-    try:
-        baud = int(cap.header.get("baud", "0"))
-    except ValueError:
-        baud = 0
+def capture_file(path: str, stop: Callable[[], bool] = _never) -> "tuple[int, Iterator[Chunk]]":
+    """(baud of the capture, its data lines as chunks with times and senders).
+
+    The file is streamed (a regular file, bounded lines: vbus.capture_lines);
+    a bad header rate, a time beyond 2**32 s or a sender beyond 255 is a
+    CaptureFormatError naming the file.
+    """
+    _check_stop(stop)
+    items = iter_capture_file(path)
+    first = next(items, None)
+    baud = 0
+    if isinstance(first, dict):
+        text = first.get("baud", "0")
+        try:
+            baud = int(text)
+        except ValueError:
+            baud = -1
+        if not 0 <= baud <= U32:
+            raise CaptureFormatError(f"{path}: header baud={text} is not a rate (0..{U32})")
     char_s = char_seconds(baud)
 
     def chunks() -> Iterator[Chunk]:
-        for r in cap.records:
+        for r in _records(first, items):
+            if stop():
+                return
+            if r.t_us >= T_MAX_US or r.port > 255:
+                raise CaptureFormatError(
+                    f"{path}: data line t={r.t_us} port={r.port}: time beyond 2**32 s "
+                    "or sender beyond 255")
             yield Chunk(r.data, r.t_us / 1e6, char_s, r.port, 0)
     return baud, chunks()
 
 
-def stream(fd: int, baud: int = 0) -> Iterator[Chunk]:
-    """A pipe or file descriptor (stdin): arrival times, no senders."""
-    char_s = char_seconds(baud)
-    while True:
-        data = os.read(fd, READ_SIZE)
-        if not data:
-            return
+def _records(first: object, rest: Iterator[object]) -> Iterator[CaptureRecord]:
+    """The data lines of a capture (the first item already read), events skipped."""
+    if isinstance(first, CaptureRecord):
+        yield first
+    for item in rest:
+        if isinstance(item, CaptureRecord):
+            yield item
+
+
+def stream(fd: int, baud: int = 0, stop: Callable[[], bool] = _never) -> Iterator[Chunk]:
+    """A pipe or file descriptor (stdin): arrival times, no senders (until ``stop()``)."""
+    check_int(fd, "fd", 0, 2**31 - 1)
+    _check_stop(stop)
+    return _stream_chunks(fd, char_seconds(baud), stop)
+
+
+def _stream_chunks(fd: int, char_s: float, stop: Callable[[], bool]) -> Iterator[Chunk]:
+    for data in _reads(fd, stop):
         now = time.time()
         yield Chunk(data, now - len(data) * char_s, char_s, None, time.monotonic_ns())
 
@@ -77,6 +147,11 @@ class LivePort:
     """
 
     def __init__(self, path: str, baud: int, rs485: Optional[RS485] = None) -> None:
+        self._port = ffi.NULL
+        path = check_path(path, "path")
+        baud = check_baud(baud, "baud")
+        if rs485 is not None and not isinstance(rs485, RS485):
+            raise InvalidTypeError(f"rs485 must be None or an RS485, not {type(rs485).__name__}")
         self.path = path
         self.baud = baud
         # mode NONE by default; an explicit RS-485 mode (kernel, soft RTS)
@@ -109,6 +184,16 @@ class LivePort:
         A read that times out (the gap deadline, or a quiet 200 ms) yields
         None: the line is idle.
         """
+        _check_stop(deadline, "deadline")
+        _check_stop(stop)
+        if idle_s is not None:
+            idle_s = check_seconds(idle_s, "idle_s")
+        if self._port == ffi.NULL:
+            raise ClosedError(f"{self.path}: closed")
+        return self._chunks(deadline, idle_s, stop)
+
+    def _chunks(self, deadline: Callable[[], Optional[int]], idle_s: Optional[float],
+                stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
         char_s = char_seconds(self.baud)
         last = lib.fap_port_now_ns()
         while not stop():
@@ -133,4 +218,4 @@ class LivePort:
             yield Chunk(bytes(ffi.buffer(self._buf, n)), t - n * char_s, char_s, None, now)
 
 
-__all__ = ["Chunk", "LivePort", "capture_file", "char_seconds", "raw_file", "stream"]
+__all__ = ["LivePort", "capture_file", "char_seconds", "raw_file", "stream"]

@@ -2,10 +2,14 @@
 reply times (end of a request to the start of its answer) per node."""
 from __future__ import annotations
 
+import random
 from collections import defaultdict
 from typing import Any, Dict, List, Optional
 
+from .._validate import U32, check_int
+from ..errors import InvalidTypeError
 from .core import Record
+from .decoders import G485_PREAMBLE
 
 #: G485 packet types that answer a request
 _G485_REPLIES = frozenset({"User-Register-Read-Response", "Handshake-Response",
@@ -21,20 +25,39 @@ def _percentile(sorted_values: List[float], q: float) -> float:
     return sorted_values[k]
 
 
+#: reply times kept per node for the percentiles: beyond, a uniform sample
+#: (reservoir) of this many, so a long live run stays bounded in memory
+REPLY_SAMPLES = 65536
+
+
 class NodeStats:
-    __slots__ = ("frames", "errors", "replies")
+    __slots__ = ("frames", "errors", "replies", "n_replies", "reply_max", "_rng")
 
     def __init__(self) -> None:
         self.frames = 0
         self.errors: Dict[str, int] = defaultdict(int)
-        self.replies: List[float] = []
+        self.replies: List[float] = []    # all reply times, or a sample of REPLY_SAMPLES
+        self.n_replies = 0
+        self.reply_max = 0.0
+        self._rng = random.Random(0)      # deterministic: the same input, the same summary
+
+    def add_reply(self, seconds: float) -> None:
+        self.n_replies += 1
+        self.reply_max = max(self.reply_max, seconds)
+        if len(self.replies) < REPLY_SAMPLES:
+            self.replies.append(seconds)
+            return
+        k = self._rng.randrange(self.n_replies)
+        if k < REPLY_SAMPLES:
+            self.replies[k] = seconds
 
 
 class Stats:
     """Accumulates records; :meth:`summary` gives the footer's numbers."""
 
     def __init__(self, baud: int = 0) -> None:
-        self.baud = baud
+        """``baud``: the line rate, 0..2**32-1 (0 unknown: no utilisation)."""
+        self.baud = check_int(baud, "baud", 0, U32)
         self.nodes: Dict[str, NodeStats] = defaultdict(NodeStats)
         self.frames = 0
         self.errors: Dict[str, int] = defaultdict(int)
@@ -62,11 +85,14 @@ class Stats:
         if p == "mikroc":
             return f["address"], "req" if f["from_master"] else "ans", f["address"]
         if f["packet"] in _G485_REPLIES:
-            pend = self._pending
-            return (pend[0] if pend else f["address"]), "ans", None
+            device = f.get("device")
+            return (f["address"] if device is None else device), "ans", None
         return f["address"], ("req" if f["address"] else None), None
 
     def add(self, rec: Record) -> None:
+        """Count one record (InvalidTypeError for anything but a :class:`Record`)."""
+        if not isinstance(rec, Record):
+            raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
         if rec.t is not None:
             if self.t_first is None:
                 self.t_first = rec.t
@@ -76,6 +102,8 @@ class Stats:
             self.errors[reason] += 1
             self.nodes["?"].errors[reason] += 1
             return
+        if rec.fields and rec.fields.get("packet") == G485_PREAMBLE:
+            return                        # wakes the devices: neither a frame nor an error
         self.frames += 1
         self.frame_bytes += len(rec.raw)
         node, role, key = self._node_and_role(rec)
@@ -87,7 +115,7 @@ class Stats:
             pend = self._pending
             if pend and (key is None or pend[1] == key) and pend[2] is not None \
                     and rec.t is not None:
-                ns.replies.append(max(0.0, rec.t - pend[2]))
+                ns.add_reply(max(0.0, rec.t - pend[2]))
             self._pending = None
 
     def utilisation(self) -> Optional[float]:
@@ -106,10 +134,10 @@ class Stats:
             r = sorted(ns.replies)
             nodes[name] = {
                 "frames": ns.frames, "errors": dict(ns.errors),
-                "replies": len(r),
+                "replies": ns.n_replies,
                 "reply_p50_ms": round(_percentile(r, 50) * 1e3, 3) if r else None,
                 "reply_p99_ms": round(_percentile(r, 99) * 1e3, 3) if r else None,
-                "reply_max_ms": round(r[-1] * 1e3, 3) if r else None,
+                "reply_max_ms": round(ns.reply_max * 1e3, 3) if r else None,
             }
         util = self.utilisation()
         return {"frames": self.frames, "errors": dict(self.errors), "bytes": self.bytes,
@@ -130,3 +158,6 @@ class Stats:
             label = "unattributed" if name == "?" else f"node {name}"
             lines.append(f"   {label}: {n['frames']} frames, {e}{reply}")
         return "\n".join(lines)
+
+
+__all__ = ["Stats"]

@@ -13,7 +13,10 @@
 --
 -- Display filters: fapmon.ok, fapmon.error, fapmon.port, fap.src, fap.dst,
 -- fap.msg, execasync.node, execasync.seq, mikroc.address, g485.address,
--- g485.pid ... ("exec" is taken by Wireshark's rexec dissector).
+-- g485.pid, g485.device ... ("exec" is taken by Wireshark's rexec dissector).
+-- The Source and Destination columns show who sent a frame and to whom
+-- (node numbers, "master"); a G485 reply carries the master's address, its
+-- device is the one the last request asked (as the monitor's JSON "device").
 
 local PROTOCOL_NAMES = { [1] = "fap", [2] = "exec", [3] = "mikroc", [4] = "g485" }
 
@@ -38,7 +41,9 @@ local fap_data = ProtoField.bytes("fap.data", "Data", base.NONE)
 local fap_crc = ProtoField.uint16("fap.crc", "CRC", base.HEX)
 fap.fields = { fap_size, fap_msg, fap_msg_name, fap_dst, fap_src, fap_data, fap_crc }
 
-local function dissect_fap(tvb, tree, text)
+local function dissect_fap(tvb, tree, text, pinfo)
+    pinfo.cols.src = tostring(tvb(12, 1):uint())
+    pinfo.cols.dst = tostring(tvb(11, 1):uint())
     local t = tree:add(fap, tvb())
     local size = tvb(8, 2):le_uint()
     t:add_le(fap_size, tvb(8, 2))
@@ -62,8 +67,10 @@ ex.fields = { ex_node, ex_seq, ex_data, ex_crc }
 
 local DLE = 0x10
 
-local function dissect_exec(tvb, tree)
+local function dissect_exec(tvb, tree, text, pinfo)
     local t = tree:add(ex, tvb())
+    -- a request and its answer carry the same node: the frame says who it concerns
+    pinfo.cols.dst = "node " .. tvb(2, 1):uint()
     local n = tvb:len()
     t:add(ex_node, tvb(2, 1))
     t:add(ex_seq, tvb(3, 1))
@@ -92,11 +99,16 @@ local mk_datalen = ProtoField.uint8("mikroc.datalen", "DATALEN", base.HEX)
 local mk_data = ProtoField.bytes("mikroc.data", "Data", base.NONE)
 mk.fields = { mk_address, mk_master, mk_datalen, mk_data }
 
-local function dissect_mikroc(tvb, tree)
+local function dissect_mikroc(tvb, tree, text, pinfo)
     local t = tree:add(mk, tvb())
     local dl = tvb(2, 1):uint()
     local addr = tvb(1, 1):uint()
     if bit.band(dl, 0x40) ~= 0 then addr = bit.bxor(addr, 1) end
+    if bit.band(dl, 0x80) ~= 0 then
+        pinfo.cols.src, pinfo.cols.dst = "master", tostring(addr)
+    else
+        pinfo.cols.src, pinfo.cols.dst = tostring(addr), "master"
+    end
     t:add(mk_address, tvb(1, 1), addr)
     t:add(mk_master, tvb(2, 1), bit.band(dl, 0x80) ~= 0)
     t:add(mk_datalen, tvb(2, 1))
@@ -123,12 +135,35 @@ local g4_pid = ProtoField.uint8("g485.pid", "PID", base.HEX)
 local g4_data = ProtoField.bytes("g485.data", "Data", base.NONE)
 local g4_packet = ProtoField.string("g485.packet", "Packet")
 local g4_check = ProtoField.uint8("g485.check", "Check", base.HEX)
-g4.fields = { g4_address, g4_rw, g4_length, g4_pid, g4_data, g4_packet, g4_check }
+local g4_device = ProtoField.uint8("g485.device", "Device (asked, or answering)", base.DEC)
+g4.fields = { g4_address, g4_rw, g4_length, g4_pid, g4_data, g4_packet, g4_check, g4_device }
 
-local function dissect_g485(tvb, tree, text)
+local G485_PREAMBLE = "Wake-up-Preamble"
+local G485_REPLY = 0xFF          -- the address byte of every reply: master 127, read
+local g485_asked = nil           -- first pass: the address the last request asked
+local g485_device = {}           -- frame number -> device
+
+local function dissect_g485(tvb, tree, text, pinfo)
     local t = tree:add(g4, tvb())
     local n = tvb:len()
+    if text == G485_PREAMBLE then
+        t:add(g4_data, tvb())
+        t:add(g4_packet, text)
+        pinfo.cols.src, pinfo.cols.dst = "master", "all"
+        return string.format("%s, %d bytes", text, n)
+    end
     local a = tvb(2, 1):uint()
+    if not pinfo.visited then
+        if a ~= G485_REPLY then g485_asked = bit.rshift(a, 1) end
+        g485_device[pinfo.number] = g485_asked
+    end
+    local device = g485_device[pinfo.number]
+    if a == G485_REPLY then
+        pinfo.cols.src = device ~= nil and tostring(device) or "?"
+        pinfo.cols.dst = "master"
+    else
+        pinfo.cols.src, pinfo.cols.dst = "master", tostring(bit.rshift(a, 1))
+    end
     t:add(g4_address, tvb(2, 1), bit.rshift(a, 1))
     t:add(g4_rw, tvb(2, 1), bit.band(a, 1))
     t:add(g4_length, tvb(3, 1))
@@ -136,12 +171,21 @@ local function dissect_g485(tvb, tree, text)
     if n > 6 then t:add(g4_data, tvb(5, n - 6)) end
     t:add(g4_packet, text)
     t:add(g4_check, tvb(n - 1, 1))
+    if device ~= nil then t:add(g4_device, device) end
+    if a == G485_REPLY then
+        return string.format("%s from %s", text, device ~= nil and tostring(device) or "?")
+    end
     return string.format("%s address %d", text, bit.rshift(a, 1))
 end
 
 local DISSECT = { fap = dissect_fap, exec = dissect_exec, mikroc = dissect_mikroc,
                   g485 = dissect_g485 }
 local COLUMN = { fap = "FAP", exec = "EXEC", mikroc = "MIKROC", g485 = "G485" }
+
+function mon.init()
+    g485_asked = nil
+    g485_device = {}
+end
 
 function mon.dissector(tvb, pinfo, tree)
     if tvb:len() < 5 then return 0 end
@@ -165,7 +209,7 @@ function mon.dissector(tvb, pinfo, tree)
     local frame = tvb(hlen):tvb()
     tree:add(h_frame, frame())
     if ok and DISSECT[name] then
-        pinfo.cols.info = DISSECT[name](frame, tree, text)
+        pinfo.cols.info = DISSECT[name](frame, tree, text, pinfo)
     else
         pinfo.cols.info = string.format("[%s] %d bytes", text, frame:len())
         tree:add_expert_info(PI_MALFORMED, PI_ERROR, "bad frame: " .. text)

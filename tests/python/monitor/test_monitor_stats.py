@@ -61,3 +61,24 @@ def test_unknown_protocol_is_a_fap_error():
 
     with pytest.raises(InvalidValueError):
         Monitor("modbus")
+
+
+def test_reply_times_are_kept_bounded_on_a_long_run(monkeypatch):
+    """A long live run: reply samples stop growing; counts and max stay exact."""
+    from fap_py.monitor import Event, Record
+    from fap_py.monitor import stats as stats_mod
+
+    monkeypatch.setattr(stats_mod, "REPLY_SAMPLES", 100)
+    st = stats_mod.Stats(115200)
+    t = 1.0
+    for i in range(1000):
+        for master in (True, False):
+            ev = Event("mikroc", 0, b"\x96\x05\x80\x00\xa9", None,
+                       {"address": 5, "from_master": master, "data": b""})
+            st.add(Record(ev, t, t + 0.0001, None))
+            t += 0.001 + (0.01 if i == 500 and master else 0.0)
+    node = st.nodes["5"]
+    assert len(node.replies) == 100 and node.n_replies == 1000
+    summary = st.summary()["nodes"]["5"]
+    assert summary["replies"] == 1000
+    assert summary["reply_max_ms"] == round(node.reply_max * 1e3, 3) and node.reply_max > 0.01

@@ -18,7 +18,7 @@ FIELDS = {
     "fap": ("msg", "msg_name", "dst", "src", "data"),
     "exec": ("node", "seq", "data"),
     "mikroc": ("address", "from_master", "data"),
-    "g485": ("address", "rw", "pid", "data", "packet"),
+    "g485": ("address", "rw", "pid", "data", "packet", "device"),
 }
 TSHARK_TIMEOUT = 120.0
 
