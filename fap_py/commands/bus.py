@@ -6,10 +6,15 @@ flushed, so a script can wait for the paths; on exit prints the counters.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import threading
+from typing import TYPE_CHECKING
 
 from ._options import add_command, add_output_options, baud, emit
+
+if TYPE_CHECKING:  # pragma: no cover
+    from ..vbus import VirtualBus
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,8 +39,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
+def _open(args: argparse.Namespace) -> "VirtualBus":
+    """The bus, with an error that names the file or directory at fault
+    (the C layer reports one code for both)."""
     from ..vbus import VirtualBus
+
+    if args.capture:
+        try:
+            with open(args.capture, "ab"):
+                pass
+        except OSError as exc:
+            raise OSError(exc.errno, f"cannot write the --capture file ({exc.strerror})",
+                          args.capture) from None
+    try:
+        return VirtualBus(ports=args.ports, baud=args.baud or None, echo=args.echo,
+                          link_dir=args.link_dir, capture=args.capture, seed=args.seed)
+    except OSError as exc:
+        if not args.link_dir or exc.errno is None:
+            raise
+        raise OSError(exc.errno, f"cannot use --link-dir ({os.strerror(exc.errno)})",
+                      args.link_dir) from None
+
+
+def run(args: argparse.Namespace) -> int:
 
     stop = threading.Event()
 
@@ -44,8 +70,7 @@ def run(args: argparse.Namespace) -> int:
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
-        with VirtualBus(ports=args.ports, baud=args.baud or None, echo=args.echo,
-                        link_dir=args.link_dir, capture=args.capture, seed=args.seed) as bus:
+        with _open(args) as bus:
             if args.ber or args.drop_rate:
                 bus.set_fault(None, bit_error_rate=args.ber, drop_rate=args.drop_rate)
             for i, path in enumerate(bus.paths):

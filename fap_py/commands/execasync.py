@@ -128,11 +128,11 @@ def run_decode(args: argparse.Namespace) -> int:
     tail = _unfinished(args.data, frames)
     if tail:
         emit(args, {"status": "truncated", "bytes": tail},
-             f"truncated frame: {len(tail)} bytes after the last complete frame "
+             f"truncated frame: {plural(len(tail), 'byte')} after the last complete frame "
              f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
     if not frames and not tail:
         emit(args, {"status": "no_frame", "bytes": args.data},
-             f"no exec async frame in {len(args.data)} bytes")
+             f"no exec async frame in {plural(len(args.data), 'byte')}")
     return 0 if frames and not tail and all(f.ok for f in frames) else 1
 
 

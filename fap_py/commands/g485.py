@@ -134,8 +134,8 @@ def run_sim(args: argparse.Namespace) -> int:
         replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
     emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
                 "packets": events, "replies": replies, "reopened": reopened},
-         f"summary: {events} packets handled, {replies} replies sent, port reopened "
-         f"{reopened} times, {time.monotonic() - t0:.1f} s")
+         f"summary: {plural(events, 'packet')} handled, {plural(replies, 'reply', 'replies')} "
+         f"sent, port reopened {plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
     return 0
 
 
