@@ -31,7 +31,10 @@ class RS485Mode(enum.IntEnum):
         """The name (``print(node.rs485_mode)`` shows ``NONE``, not ``3``)."""
         return self.name
 
-    __format__ = object.__format__      # f"{mode}" is the name too
+    def __format__(self, spec: str) -> str:
+        """``f"{mode}"`` is the name too; ``f"{mode:d}"`` the number."""
+        return format(int(self) if spec[-1:] in ("d", "x", "X", "o", "b", "n") else self.name,
+                      spec)
 
     @classmethod
     def _missing_(cls, value: object) -> "Optional[RS485Mode]":

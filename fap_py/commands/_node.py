@@ -187,11 +187,11 @@ def stop_on_sigterm() -> Iterator[Stop]:
 
 
 class Progress:
-    """A progress bar on stderr (rich) when stderr is a terminal and not
-    ``--json``; silent otherwise. Found devices are printed by the caller as
-    they answer (rich's live display keeps plain prints above the bar)."""
+    """A progress bar on stderr (rich) when ``enabled`` and stderr is a
+    terminal; silent otherwise. Lines printed on a terminal stdout go above
+    the bar (rich's live display); a redirected stdout keeps them."""
 
-    def __init__(self, total: int, label: str, enabled: bool) -> None:
+    def __init__(self, total: float, label: str, enabled: bool) -> None:
         self._bar: Any = None
         self._task: Any = None
         if enabled and sys.stderr.isatty():
@@ -202,8 +202,6 @@ class Progress:
             self._bar = RichProgress(TextColumn("{task.description}"), BarColumn(),
                                      MofNCompleteColumn(), TimeRemainingColumn(),
                                      console=Console(stderr=True), transient=True,
-                                     # lines printed on a terminal stdout go above the bar;
-                                     # a redirected stdout keeps them (never into stderr)
                                      redirect_stdout=sys.stdout.isatty(), redirect_stderr=False)
             self._task = self._bar.add_task(label, total=total)
 
@@ -217,9 +215,39 @@ class Progress:
             self._bar.stop()
 
     def advance(self, description: Optional[str] = None) -> None:
+        """One more step done (``description``: what runs now)."""
         if self._bar is not None:
             self._bar.update(self._task, advance=1,
                              **({"description": description} if description else {}))
+
+    def set(self, completed: float) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, completed=completed)
+
+
+@contextlib.contextmanager
+def timed_progress(label: str, seconds: float, enabled: bool = True) -> Iterator[None]:
+    """A bar that fills with the wall clock over ``seconds`` (a soak runs
+    for a set time) while the block runs; nothing without a terminal."""
+    bar = Progress(round(seconds), label, enabled)
+    if bar._bar is None:
+        yield
+        return
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def tick() -> None:
+        while not stop.wait(0.25):
+            bar.set(min(seconds, time.monotonic() - t0))
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    with bar:
+        ticker.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            ticker.join()
 
 
 @dataclass
