@@ -216,10 +216,10 @@ def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[
     return g
 
 
-def add_echo_option(parser: argparse.ArgumentParser) -> None:
-    """``--echo-suppression`` on every command that sends (the port layer's
-    ``echo_suppression``, which every protocol's engine uses)."""
-    parser.add_argument("--echo-suppression", action="store_true",
+def add_echo_option(group: argparse._ArgumentGroup) -> None:
+    """``--echo-suppression`` in the serial port group of every command that
+    sends (the port layer's ``echo_suppression``, which every engine uses)."""
+    group.add_argument("--echo-suppression", action="store_true",
                         help="read back and drop our own bytes (2-wire adapters that hear "
                         "themselves)")
 

@@ -61,8 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_decode)
 
     def line(q: argparse.ArgumentParser) -> None:
-        add_port_options(q)
-        add_echo_option(q)
+        add_echo_option(add_port_options(q))
         add_output_options(q)
 
     m = add_command(cmds, "master", aliases=["poll"],

@@ -48,8 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cmds = add_actions(p, "fap_command")
 
     def common(q: argparse.ArgumentParser) -> None:
-        add_port_options(q)
-        add_echo_option(q)
+        add_echo_option(add_port_options(q))
         add_output_options(q)
         add_repeat_options(q)
         q.add_argument("--wait", metavar="S", type=seconds, default=5.0,

@@ -42,8 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True,
                check: bool = False) -> None:
-        add_port_options(q)
-        add_echo_option(q)
+        add_echo_option(add_port_options(q))
         add_link_options(q, timeout_default=0.1, retries_default=2)
         add_output_options(q)
         if address:
@@ -57,8 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = add_command(cmds, "sim", help="simulate devices on a port until interrupted",
                     example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
-    add_port_options(s)
-    add_echo_option(s)
+    add_echo_option(add_port_options(s))
     add_output_options(s)
     s.add_argument("--address", type=integer, action="append", required=True,
                    help="a device ID to simulate (repeat for several devices)")

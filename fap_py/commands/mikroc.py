@@ -41,8 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
                     "--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address 50 01   "
                     "# broadcast, no reply")
-    add_port_options(m, baud_default=BAUD_DEFAULT)
-    add_echo_option(m)
+    add_echo_option(add_port_options(m, baud_default=BAUD_DEFAULT))
     add_link_options(m, timeout_default=0.2, retries_default=0)
     add_output_options(m)
     m.add_argument("--address", type=integer, required=True, help="slave address (50 = broadcast)")
@@ -52,8 +51,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = add_command(cmds, "slave", help="answer as a slave until interrupted",
                     example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
-    add_port_options(s, baud_default=BAUD_DEFAULT)
-    add_echo_option(s)
+    add_echo_option(add_port_options(s, baud_default=BAUD_DEFAULT))
     add_output_options(s)
     s.add_argument("--address", type=integer, required=True, help="this slave's address")
     s.add_argument("--reply", type=reply_option(3), default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
