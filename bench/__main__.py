@@ -690,7 +690,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         "machine": f"{os.cpu_count()} CPUs, {os.uname().sysname} {os.uname().release} {os.uname().machine}",
         "bauds": bauds, "missing": missing, "paced": {}, "unpaced": {}, "scale": {}}
     # one step per measured cell; a rich bar on a terminal (stderr), nothing otherwise
-    from fap_py.commands._node import Progress   # the installed fap_py (sys.path above)
+    from fap_py.commands._node import Progress  # the installed fap_py (sys.path above)
 
     steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 2
     with Progress(steps, "bench", enabled=True) as bar:

@@ -13,7 +13,7 @@ import argparse
 import time
 from typing import Any, List
 
-from ._node import Payloads, add_payload_options, show, stop_on_sigterm
+from ._node import Payloads, Stop, add_payload_options, show, stop_on_sigterm
 from ._options import (
     EXIT_INTERRUPTED,
     BusError,
@@ -93,46 +93,47 @@ def _print_events(args: argparse.Namespace, node: Any) -> None:
              f"event: slave {ev.id} {ev.kind.name.lower().replace('slave_', '')}")
 
 
-def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_master: bool) -> int:
-    """Send, then collect for --interval; --count times (0 = until a signal).
-    Returns the exit code: 130 when Ctrl-C ended it, else 0."""
+def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_master: bool,
+          done: Stop) -> int:
+    """Send, then collect for --interval; --count times (0 = until ``done``,
+    set by a signal). Returns the exit code: 130 when Ctrl-C ended a master,
+    else 0."""
     from fap_py.errors import FapTimeoutError
 
     sent = 0
-    with stop_on_sigterm() as done:
-        i = 0
-        while not done.is_set() and (args.count == 0 or i < args.count):
-            for d in data:
-                node.send(d, to, timeout=args.wait)
-                sent += 1
-                dst = "master" if to == 0 else f"slave {to}"
-                emit(args, {"event": "tx", "to": to, "data": d}, f"-> {dst}: {show(d)}")
-                if done.is_set():
-                    break
-            end = time.monotonic() + args.interval
-            while not done.is_set():
-                left = end - time.monotonic()
-                if left <= 0:
-                    break
-                try:
-                    _print_message(args, node.recv(timeout=min(left, 0.2)))
-                except FapTimeoutError:
-                    pass
-                if is_master:
-                    _print_events(args, node)
-            i += 1
-        if sent and not done.is_set():
+    i = 0
+    while not done.is_set() and (args.count == 0 or i < args.count):
+        for d in data:
+            node.send(d, to, timeout=args.wait)
+            sent += 1
+            dst = "master" if to == 0 else f"slave {to}"
+            emit(args, {"event": "tx", "to": to, "data": d}, f"-> {dst}: {show(d)}")
+            if done.is_set():
+                break
+        end = time.monotonic() + args.interval
+        while not done.is_set():
+            left = end - time.monotonic()
+            if left <= 0:
+                break
             try:
-                node.flush(timeout=args.wait)
+                _print_message(args, node.recv(timeout=min(left, 0.2)))
             except FapTimeoutError:
-                left = node.tx_pending
-                emit(args, {"event": "unsent", "frames": left},
-                     f"{plural(left, 'message')} still queued (not polled within {args.wait} s)")
-        st = node.stats()
-        emit(args, {"event": "stats", **st.as_dict(),
-                    **({"interrupted": True} if done.interrupted else {})},
-             f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
-             f"CRC errors {st.crc_errors}" + (" (interrupted)" if done.interrupted else ""))
+                pass
+            if is_master:
+                _print_events(args, node)
+        i += 1
+    if sent and not done.is_set():
+        try:
+            node.flush(timeout=args.wait)
+        except FapTimeoutError:
+            left = node.tx_pending
+            emit(args, {"event": "unsent", "frames": left},
+                 f"{plural(left, 'message')} still queued (not polled within {args.wait} s)")
+    st = node.stats()
+    emit(args, {"event": "stats", **st.as_dict(),
+                **({"interrupted": True} if done.interrupted else {})},
+         f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
+         f"CRC errors {st.crc_errors}" + (" (interrupted)" if done.interrupted else ""))
     data.finish()
     # a master polling is a client: Ctrl-C is an interruption (130); a slave
     # with --count 0 is a server, whose normal end is a signal (docs/cli.md)
@@ -148,7 +149,8 @@ def run_master(args: argparse.Namespace) -> int:
         raise UsageError(f"--to {to} is not one of --slaves {args.slaves}")
     data = Payloads(args, empty=False)
     with Master(args.port, args.baud, slaves=args.slaves, id_cycle=args.id_cycle,
-                id_answer_timeout=args.id_answer_timeout, rs485=rs485_from_args(args)) as master:
+                id_answer_timeout=args.id_answer_timeout, rs485=rs485_from_args(args)) as master, \
+            stop_on_sigterm() as done:
         emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "slaves": args.slaves,
                     "rs485": master.rs485_mode},
              f"ready: FAP master on {args.port} at {args.baud} baud, slaves "
@@ -160,16 +162,17 @@ def run_master(args: argparse.Namespace) -> int:
                 raise BusError(f"slave {to} did not answer the ID query within {args.wait} s") \
                     from None
         _print_events(args, master)
-        return _loop(args, master, to, data, True)
+        return _loop(args, master, to, data, True, done)
 
 
 def run_slave(args: argparse.Namespace) -> int:
     from fap_py import Slave
 
     data = Payloads(args, empty=False)
-    with Slave(args.port, args.baud, id=args.id, rs485=rs485_from_args(args)) as slave:
+    with Slave(args.port, args.baud, id=args.id, rs485=rs485_from_args(args)) as slave, \
+            stop_on_sigterm() as done:
         emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "id": args.id,
                     "rs485": slave.rs485_mode},
              f"ready: FAP slave {args.id} on {args.port} at {args.baud} baud "
              f"(RS-485 {slave.rs485_mode.name})")
-        return _loop(args, slave, args.to, data, False)
+        return _loop(args, slave, args.to, data, False, done)
