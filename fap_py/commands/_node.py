@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
+import select
 import signal
 import sys
 import threading
@@ -63,6 +65,7 @@ class Payloads:
 
     def __init__(self, args: argparse.Namespace, *, empty: bool = True) -> None:
         self.args = args
+        self.stop: Optional[threading.Event] = None   #: ends a stdin wait when set
         self.bad = 0                      #: stdin lines that were not payloads
         self.lines = 0                    #: stdin lines read (blank ones not counted)
         self._stdin: List[bytes] = []
@@ -85,10 +88,35 @@ class Payloads:
         except argparse.ArgumentTypeError as exc:
             raise UsageError(f"{exc} (use --text for text payloads)") from None
 
+    def _raw_lines(self) -> Iterator[Union[str, bytes]]:
+        """stdin line by line as each arrives (``os.read`` of what is there,
+        no read-ahead); with :attr:`stop` set, also ends when it is set
+        (a command whose SIGINT only sets a flag)."""
+        try:
+            fd = sys.stdin.fileno()
+        except (AttributeError, OSError, ValueError):      # not a file (tests: StringIO)
+            yield from iter(sys.stdin.readline, "")
+            return
+        buf = b""
+        while True:
+            if self.stop is not None:
+                ready, _, _ = select.select([fd], [], [], 0.2)
+                if self.stop.is_set():
+                    return
+                if not ready:
+                    continue
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            *lines, buf = (buf + chunk).split(b"\n")
+            yield from lines
+        if buf:
+            yield buf
+
     def _stdin_lines(self) -> Iterator[bytes]:
-        stream: Any = getattr(sys.stdin, "buffer", sys.stdin)   # bytes: any encoding
-        for raw in iter(stream.readline, b"" if stream is not sys.stdin else ""):
-            line = raw.rstrip(b"\r\n" if isinstance(raw, bytes) else "\r\n")
+        for raw in self._raw_lines():
+            line: Union[str, bytes] = raw.rstrip(b"\r\n") if isinstance(raw, bytes) \
+                else raw.rstrip("\r\n")
             if not line.strip():
                 continue
             self.lines += 1

@@ -102,6 +102,7 @@ def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_maste
 
     sent = 0
     i = 0
+    data.stop = done          # Ctrl-C only sets `done`: a stdin wait must see it
     while not done.is_set() and (args.count == 0 or i < args.count):
         for d in data:
             node.send(d, to, timeout=args.wait)

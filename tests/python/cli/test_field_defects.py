@@ -171,6 +171,26 @@ def test_fap_master_forever_ctrl_c_is_130(bus) -> None:
     assert last["event"] == "stats" and last["interrupted"] is True
 
 
+def test_fap_master_reading_stdin_ends_on_ctrl_c(bus) -> None:
+    with FapSlave(bus.paths[1], id=3, rs485=LINE) as slave:
+        p = subprocess.Popen(fap_cmd("fap", "master", "--port", bus.paths[0], *NONE, "--slaves",
+                                     "3", "--json", "-"), stdin=subprocess.PIPE,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert p.stdin is not None
+            assert json.loads(_line(p))["event"] == "ready"
+            p.stdin.write("0102\n")
+            p.stdin.flush()
+            while json.loads(_line(p))["event"] != "tx":    # sent as it arrived
+                pass
+            assert slave.recv(timeout=10).data == b"\x01\x02"
+            code, out, err = _interrupt(p)     # waiting for the next stdin line
+        finally:
+            p.kill()
+    assert code == 130, err
+    assert _objs(out)[-1]["event"] == "stats"
+
+
 def test_g485_read_forever_keeps_polling_after_a_missed_reply(fap, bus) -> None:
     r = fap("g485", "read", "--port", bus.paths[0], "--address", "9", "--register", "1",
             "--count", "3", "--interval", "0", "--timeout", "0.05", "--retries", "0", "--json")
