@@ -52,6 +52,11 @@ def note(args: argparse.Namespace, obj: Dict[str, Any], text: str) -> None:
         sys.stderr.flush()
 
 
+#: longest stdin line kept (bytes): far over any payload of the four
+#: protocols in hex; a longer one is a bad line, not a growing buffer
+MAX_LINE = 1 << 16
+
+
 class Payloads:
     """The DATA of a node command, one pass per ``--count`` repetition.
 
@@ -88,16 +93,18 @@ class Payloads:
         except argparse.ArgumentTypeError as exc:
             raise UsageError(f"{exc} (use --text for text payloads)") from None
 
-    def _raw_lines(self) -> Iterator[Union[str, bytes]]:
+    def _raw_lines(self) -> Iterator[Union[str, bytes, None]]:
         """stdin line by line as each arrives (``os.read`` of what is there,
-        no read-ahead); with :attr:`stop` set, also ends when it is set
-        (a command whose SIGINT only sets a flag)."""
+        no read-ahead); None for a line over :data:`MAX_LINE`; with
+        :attr:`stop` set, also ends when it is set (a command whose SIGINT
+        only sets a flag)."""
         try:
             fd = sys.stdin.fileno()
         except (AttributeError, OSError, ValueError):      # not a file (tests: StringIO)
             yield from iter(sys.stdin.readline, "")
             return
         buf = b""
+        skipping = False           # inside a line over MAX_LINE: dropped up to its newline
         while True:
             if self.stop is not None:
                 ready, _, _ = select.select([fd], [], [], 0.2)
@@ -109,18 +116,28 @@ class Payloads:
             if not chunk:
                 break
             *lines, buf = (buf + chunk).split(b"\n")
-            yield from lines
-        if buf:
+            for line in lines:
+                if skipping:
+                    skipping = False
+                else:
+                    yield line
+            if len(buf) > MAX_LINE:
+                if not skipping:
+                    yield None         # reported as a line that is not a payload
+                buf, skipping = b"", True
+        if buf and not skipping:
             yield buf
 
     def _stdin_lines(self) -> Iterator[bytes]:
         for raw in self._raw_lines():
-            line: Union[str, bytes] = raw.rstrip(b"\r\n") if isinstance(raw, bytes) \
-                else raw.rstrip("\r\n")
-            if not line.strip():
+            line: Union[str, bytes, None] = raw.rstrip(b"\r\n") if isinstance(raw, bytes) \
+                else raw if raw is None else raw.rstrip("\r\n")
+            if line is not None and not line.strip():
                 continue
             self.lines += 1
             try:
+                if line is None:
+                    raise UsageError(f"longer than {MAX_LINE} bytes")
                 data = self._parse(line)
             except UsageError as exc:
                 self.bad += 1

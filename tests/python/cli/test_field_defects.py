@@ -106,6 +106,16 @@ def test_stdin_payloads_are_sent_as_they_arrive(bus) -> None:
     assert err.splitlines() == ["fap: error: 1 of 3 stdin lines were not payloads (skipped)"]
 
 
+def test_an_endless_stdin_line_is_bounded(bus) -> None:
+    with execasync.Slave(bus.paths[1], node=5, handler=lambda q: q.data, rs485=LINE).start():
+        p = subprocess.run(fap_cmd("exec", "master", "--port", bus.paths[0], *NONE, "--node", "5",
+                                   "--timeout", "1", "-"),
+                           input=b"a" * 300_000 + b"\n0102\n", capture_output=True, timeout=60)
+    assert p.returncode == 2
+    assert p.stdout.decode().splitlines()[0] == "node 5 seq 0: 01 02"
+    assert p.stderr.decode().splitlines()[0] == "fap: stdin line 1: longer than 65536 bytes; skipped"
+
+
 def test_bad_stdin_line_in_human_mode(fap, bus, monkeypatch) -> None:
     import io
 
