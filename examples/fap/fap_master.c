@@ -7,6 +7,7 @@
 /*               default /dev/ttyS1, slave 7, 10 messages                 */
 /* Build       : cc fap_master.c -o fap_master -lfap -lpthread -lrt       */
 /*------------------------------------------------------------------------*/
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -27,7 +28,7 @@ static long number (const char *s)
 {
     char *end ;
     long  v = strtol (s, &end, 10) ;
-    return (*s && !*end && v >= 0) ? v : -1 ;
+    return (*s && !*end && v >= 0 && v <= INT_MAX) ? v : -1 ;
 }
 
 int main (int argc, char **argv)

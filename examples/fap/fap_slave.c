@@ -7,6 +7,7 @@
 /*               default /dev/ttyS1, id 7, run forever (count 0)          */
 /* Build       : cc fap_slave.c -o fap_slave -lfap -lpthread -lrt         */
 /*------------------------------------------------------------------------*/
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -25,7 +26,7 @@ static long number (const char *s)
 {
     char *end ;
     long  v = strtol (s, &end, 10) ;
-    return (*s && !*end && v >= 0) ? v : -1 ;
+    return (*s && !*end && v >= 0 && v <= INT_MAX) ? v : -1 ;
 }
 
 int main (int argc, char **argv)
