@@ -511,6 +511,15 @@ def markdown(res: Dict[str, Any]) -> str:
     return "\n".join(L)
 
 
+def have_matplotlib() -> bool:
+    """Plots need matplotlib (``pip install '.[bench]'``); the measurements do not."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def plots(res: Dict[str, Any], out: Path) -> List[str]:
     import matplotlib
     matplotlib.use("Agg")
@@ -663,6 +672,9 @@ def main(argv: Optional[List[str]] = None) -> int:
         kinds = [k for k in kinds if k in args.only.split(",")]
     for k, how in missing.items():
         print(f"bench: peer {k} missing, skipped ({how})", file=sys.stderr)
+    plotting = have_matplotlib()
+    if not plotting:       # said before the measuring starts, as for a missing peer
+        print("bench: matplotlib missing, plots skipped (pip install '.[bench]')", file=sys.stderr)
     if quick:
         kinds = [k for k in kinds if k in ("bare", "fap-poll", "fap-data", "exec", "mikroc", "modbus",
                                            "py-bare", "g485")]
@@ -671,40 +683,53 @@ def main(argv: Optional[List[str]] = None) -> int:
         at = kinds.index("mikroc") + 1 if "mikroc" in kinds else len(kinds)
         kinds[at:at] = [BASE + k for k in ("fap-poll", "fap-data", "exec", "mikroc") if k in kinds]
     bauds = [115200] if quick else [9600, 115200, 1000000]
+    scale_bauds = [115200] if quick else [115200, 1000000]
     t_start = time.monotonic()
     res: Dict[str, Any] = {
         "date": date, "host": host, "loadavg_before": loadavg(), "rounds": rounds, "seconds": seconds,
         "machine": f"{os.cpu_count()} CPUs, {os.uname().sysname} {os.uname().release} {os.uname().machine}",
         "bauds": bauds, "missing": missing, "paced": {}, "unpaced": {}, "scale": {}}
-    for baud in bauds:
-        res["paced"][str(baud)] = {}
+    # one step per measured cell; a rich bar on a terminal (stderr), nothing otherwise
+    from fap_py.commands._node import Progress  # the installed fap_py (sys.path above)
+
+    steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 2
+    with Progress(steps, "bench", enabled=True) as bar:
+        for baud in bauds:
+            res["paced"][str(baud)] = {}
+            for kind in kinds:
+                log.info("paced %d: %s", baud, kind)
+                bar.advance(f"paced {baud}: {kind}")
+                res["paced"][str(baud)][kind] = measure_series(runner, kind, baud, rounds,
+                                                               seconds if baud > 9600 else seconds * 2)
         for kind in kinds:
-            log.info("paced %d: %s", baud, kind)
-            res["paced"][str(baud)][kind] = measure_series(runner, kind, baud, rounds,
-                                                           seconds if baud > 9600 else seconds * 2)
-    for kind in kinds:
-        log.info("unpaced: %s", kind)
-        res["unpaced"][kind] = measure_series(runner, kind, 0, rounds, seconds)
-    for baud in ([115200] if quick else [115200, 1000000]):
-        log.info("scale at %d", baud)
-        res["scale"][str(baud)] = scale_series(runner, baud, 1 if quick else 2, seconds, quick)
-    try:
-        res["python"] = python_overhead(args, quick)
-    except Exception as e:
-        log.warning("python overhead: %s", e)
-    try:
-        res["codec"] = codec_throughput(runner)
-    except Exception as e:
-        log.warning("codec throughput: %s", e)
+            log.info("unpaced: %s", kind)
+            bar.advance(f"unpaced: {kind}")
+            res["unpaced"][kind] = measure_series(runner, kind, 0, rounds, seconds)
+        for baud in scale_bauds:
+            log.info("scale at %d", baud)
+            bar.advance(f"scale at {baud}")
+            res["scale"][str(baud)] = scale_series(runner, baud, 1 if quick else 2, seconds, quick)
+        bar.advance("Python overhead")
+        try:
+            res["python"] = python_overhead(args, quick)
+        except Exception as e:
+            log.warning("python overhead: %s", e)
+        bar.advance("codec throughput")
+        try:
+            res["codec"] = codec_throughput(runner)
+        except Exception as e:
+            log.warning("codec throughput: %s", e)
     res["loadavg_after"] = loadavg()
     res["wall_s"] = time.monotonic() - t_start
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(res, indent=1))
     table = markdown(res)
     (out / "table.md").write_text(table + "\n")
-    made = plots(res, out)
+    made = plots(res, out) if plotting else []
     print(table)
-    print(f"\nbench: wrote {out}/results.json, table.md, {', '.join(made)} in {res['wall_s']:.0f} s")
+    print(f"\nbench: wrote {out}/results.json, table.md"
+          + (f", {', '.join(made)}" if made else " (no plots: matplotlib missing)")
+          + f" in {res['wall_s']:.0f} s")
     return 0
 
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import errno as _errno
 import functools
 import os
+import re
 from typing import Dict
 
 
@@ -22,6 +23,19 @@ class FapError(Exception):
 
 class InvalidValueError(FapError, ValueError):
     """An argument is out of range or of the wrong kind (C: E_VALUE/E_PARAM)."""
+
+    def __init__(self, *args: object) -> None:
+        if len(args) == 1 and isinstance(args[0], str):
+            args = (_undouble(args[0]),)
+        super().__init__(*args)
+
+
+def _undouble(text: str) -> str:
+    """``open: invalid argument (invalid argument (ID ...))`` -> ``open:
+    invalid argument (ID ...)``: a C ``*_strerror()`` text appended after
+    the same words (issue 25: the message said it twice)."""
+    m = re.search(r"(\w[\w ]*) \(\1 \((.*)\)\)$", text)
+    return f"{text[:m.start()]}{m.group(1)} ({m.group(2)})" if m else text
 
 
 class InvalidTypeError(InvalidValueError, TypeError):

@@ -27,6 +27,23 @@ class RS485Mode(enum.IntEnum):
     SOFT_RTS = lib.FAP_RS485_SOFT_RTS  #: assert RTS, write, tcdrain(), release RTS
     NONE = lib.FAP_RS485_NONE          #: auto-direction transceiver, USB adapter, pty
 
+    def __str__(self) -> str:
+        """The name (``print(node.rs485_mode)`` shows ``NONE``, not ``3``)."""
+        return self.name
+
+    def __format__(self, spec: str) -> str:
+        """``f"{mode}"`` is the name too; ``f"{mode:d}"`` the number."""
+        return format(int(self) if spec[-1:] in ("d", "x", "X", "o", "b", "n") else self.name,
+                      spec)
+
+    @classmethod
+    def _missing_(cls, value: object) -> "Optional[RS485Mode]":
+        """A name, any case (``"none"``, ``"SOFT_RTS"``; ``"soft"`` as the CLI says)."""
+        if isinstance(value, str):
+            key = value.strip().upper().replace("-", "_")
+            return cls.__members__.get("SOFT_RTS" if key == "SOFT" else key)
+        return None
+
 
 _INT_FIELDS = ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
                "turnaround_us", "write_timeout_us")
@@ -78,12 +95,15 @@ class RS485:
 
     def __post_init__(self) -> None:
         if self.mode is not None:
-            if isinstance(self.mode, bool) or not isinstance(self.mode, int):
-                raise InvalidTypeError(f"RS485.mode must be an RS485Mode, not {self.mode!r}")
+            if isinstance(self.mode, bool) or not isinstance(self.mode, (int, str)):
+                raise InvalidTypeError(f"RS485.mode must be an RS485Mode or its name, "
+                                       f"not {self.mode!r}")
             try:
                 object.__setattr__(self, "mode", RS485Mode(self.mode))
             except ValueError as exc:
-                raise InvalidValueError(f"RS485.mode must be an RS485Mode, not {self.mode!r}") from exc
+                raise InvalidValueError(f"RS485.mode must be an RS485Mode or its name "
+                                        f"({', '.join(m.name.lower() for m in RS485Mode)}), "
+                                        f"not {self.mode!r}") from exc
         for name in _INT_FIELDS:
             if getattr(self, name) is not None:
                 check_int(getattr(self, name), f"RS485.{name}", 0, U32)

@@ -7,6 +7,7 @@
 /*               default /dev/ttyS1, slave 7, 10 messages                 */
 /* Build       : cc fap_master.c -o fap_master -lfap -lpthread -lrt       */
 /*------------------------------------------------------------------------*/
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -16,15 +17,39 @@
 
 #define REPLY_WAIT_MS  20000
 
+static const char usage[] =
+    "usage: fap_master [device [slaveId [count]]]\n"
+    "  device  serial port (default /dev/ttyS1)\n"
+    "  slaveId slave ID 1..31 (default 7)\n"
+    "  count   messages to send (>= 1) (default 10)\n" ;
+
+/* a decimal argument, -1 when it is not one */
+static long number (const char *s)
+{
+    char *end ;
+    long  v = strtol (s, &end, 10) ;
+    return (*s && !*end && v >= 0 && v <= INT_MAX) ? v : -1 ;
+}
+
 int main (int argc, char **argv)
 {
     usys   status ;
     fapT   config ;
     char  *devName = argc > 1 ? argv[1] : "/dev/ttyS1" ;
-    usys   slaveId = argc > 2 ? (usys) atoi (argv[2]) : 7 ;
-    int    count   = argc > 3 ? atoi (argv[3]) : 10 ;
+    long   id      = argc > 2 ? number (argv[2]) : 7 ;
+    long   count   = argc > 3 ? number (argv[3]) : 10 ;
+    usys   slaveId ;
     int    replies = 0 ;
     int    i, waited ;
+
+    if (argc > 4 || (argc > 1 && argv[1][0] == '-') || id < 1 || id > 31 || count < 1)
+    {
+       fputs (usage, stderr) ;
+       return 2 ;
+    }
+    if (argc == 1)   /* no arguments: say what runs */
+       fprintf (stderr, "%s(no arguments: /dev/ttyS1, slaveId 7, count 10)\n", usage) ;
+    slaveId = (usys) id ;
 
     /* Configure the RS-485 Port (closed at every return below: the port
        gets its original RS-485 configuration back) */
@@ -88,7 +113,7 @@ int main (int argc, char **argv)
           replies++ ;
     }
 
-    printf ("master: %d of %d replies\n", replies, count) ;
+    printf ("master: %d of %ld replies\n", replies, count) ;
     fapClassicClose () ;
     return replies == count ? GOOD : BAD ;
 }

@@ -7,6 +7,7 @@
 /*               default /dev/ttyS1, id 7, run forever (count 0)          */
 /* Build       : cc fap_slave.c -o fap_slave -lfap -lpthread -lrt         */
 /*------------------------------------------------------------------------*/
+#include <limits.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -14,14 +15,38 @@
 #include <fap.h>
 #include <fapx.h>   /* fapClassicClose: libfap's addition, the vendor API has no close */
 
+static const char usage[] =
+    "usage: fap_slave [device [id [count]]]\n"
+    "  device  serial port (default /dev/ttyS1)\n"
+    "  id      slave ID 1..31 (default 7)\n"
+    "  count   messages to answer (0 = forever) (default 0)\n" ;
+
+/* a decimal argument, -1 when it is not one */
+static long number (const char *s)
+{
+    char *end ;
+    long  v = strtol (s, &end, 10) ;
+    return (*s && !*end && v >= 0 && v <= INT_MAX) ? v : -1 ;
+}
+
 int main (int argc, char **argv)
 {
     usys   status ;
     fapT   config ;
     char  *devName = argc > 1 ? argv[1] : "/dev/ttyS1" ;
-    usys   myId    = argc > 2 ? (usys) atoi (argv[2]) : 7 ;
-    int    count   = argc > 3 ? atoi (argv[3]) : 0 ;
+    long   id      = argc > 2 ? number (argv[2]) : 7 ;
+    long   count   = argc > 3 ? number (argv[3]) : 0 ;
+    usys   myId ;
     int    handled = 0 ;
+
+    if (argc > 4 || (argc > 1 && argv[1][0] == '-') || id < 1 || id > 31 || count < 0)
+    {
+       fputs (usage, stderr) ;
+       return 2 ;
+    }
+    if (argc == 1)   /* no arguments: say what runs */
+       fprintf (stderr, "%s(no arguments: /dev/ttyS1, id 7, count 0)\n", usage) ;
+    myId = (usys) id ;
 
     status = fapInit (devName, 115200) ;
     if (status != GOOD)

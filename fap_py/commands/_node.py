@@ -5,45 +5,172 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
+import select
 import signal
 import sys
 import threading
 import time
-from typing import Any, Callable, Iterator, List, Optional
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, Iterator, List, Optional, Union
 
-from ._options import UsageError, hexbytes
+from ._options import EXIT_INTERRUPTED, BusError, UsageError, emit, hexbytes
 
 
-def add_payload_options(parser: argparse.ArgumentParser, *, what: str = "payload") -> None:
+def add_payload_options(parser: argparse.ArgumentParser, *, what: str = "payload",
+                        size: str = "") -> None:
     """``DATA...`` (hex, or text with ``--text``); ``-`` reads one payload
-    per stdin line."""
+    per stdin line, each sent as it arrives."""
     parser.add_argument("data", nargs="*", metavar="DATA",
-                        help=f"{what}s to send, hex (e.g. 0102 or '01 02'); '-' reads one "
-                        "per line from stdin")
+                        help=f"{what}s{size} to send, hex (e.g. 0102 or '01 02'); '-' reads one "
+                        "per line from stdin, each sent as it arrives")
     parser.add_argument("--text", action="store_true",
                         help="DATA and stdin lines are text (UTF-8), not hex")
 
 
-def payloads(args: argparse.Namespace, *, allow_empty: bool = True) -> List[bytes]:
-    """The payloads of the command line, or of stdin."""
-    items: List[str] = []
-    for item in args.data:
-        if item == "-":
-            items.extend(line.rstrip("\r\n") for line in sys.stdin if line.strip())
-        else:
-            items.append(item)
-    out: List[bytes] = []
-    for item in items:
-        if args.text:
-            out.append(item.encode())
-        else:
+def reply_option(max_len: Optional[int] = None) -> Callable[[str], str]:
+    """argparse type of a slave's ``--reply``: ``echo``, ``none`` or hex bytes
+    (at most ``max_len``), checked at parse time so a bad value is a usage
+    error naming ``--reply``."""
+    def check(text: str) -> str:
+        if text not in ("echo", "none"):
+            data = hexbytes(text)          # ArgumentTypeError: "not hex bytes: 'zz'"
+            if max_len is not None and len(data) > max_len:
+                raise argparse.ArgumentTypeError(
+                    f"a reply is 0..{max_len} bytes, not {len(data)}: {text!r}")
+        return text
+    return check
+
+
+def note(args: argparse.Namespace, obj: Dict[str, Any], text: str) -> None:
+    """A problem that does not end the command: a JSON line on stdout with
+    ``--json``, else ``fap: TEXT`` on stderr."""
+    if getattr(args, "json", False):
+        emit(args, obj, None)
+    else:
+        sys.stderr.write(f"fap: {text}\n")
+        sys.stderr.flush()
+
+
+#: longest stdin line kept (bytes): far over any payload of the four
+#: protocols in hex; a longer one is a bad line, not a growing buffer
+MAX_LINE = 1 << 16
+
+
+class Payloads:
+    """The DATA of a node command, one pass per ``--count`` repetition.
+
+    Arguments are checked at once (a bad one is a usage error). A ``-`` is
+    stdin, read line by line in the first pass, each payload yielded as its
+    line arrives (so ``tail -f | fap ... -`` works); a line that is not a
+    payload is reported by :func:`note`, counted in :attr:`bad`, and
+    skipped. Later passes replay the stdin payloads read. No DATA at all is
+    one empty payload per pass (``empty``).
+    """
+
+    def __init__(self, args: argparse.Namespace, *, empty: bool = True) -> None:
+        self.args = args
+        self.stop: Optional[threading.Event] = None   #: ends a stdin wait when set
+        self.bad = 0                      #: stdin lines that were not payloads
+        self.lines = 0                    #: stdin lines read (blank ones not counted)
+        self._stdin: List[bytes] = []
+        self._read = False
+        self._items: List[Optional[bytes]] = []   # None: where stdin goes
+        for item in args.data:
+            self._items.append(None if item == "-" else self._parse(item))
+        if not self._items and empty:
+            self._items.append(b"")
+
+    def _parse(self, item: Union[str, bytes]) -> bytes:
+        if isinstance(item, bytes):
+            if self.args.text:
+                return item
+            item = item.decode("ascii", errors="backslashreplace")
+        if self.args.text:
+            return item.encode()
+        try:
+            return hexbytes(item)
+        except argparse.ArgumentTypeError as exc:
+            raise UsageError(f"{exc} (use --text for text payloads)") from None
+
+    def _raw_lines(self) -> Iterator[Union[str, bytes, None]]:
+        """stdin line by line as each arrives (``os.read`` of what is there,
+        no read-ahead); None for a line over :data:`MAX_LINE`; with
+        :attr:`stop` set, also ends when it is set (a command whose SIGINT
+        only sets a flag)."""
+        try:
+            fd = sys.stdin.fileno()
+        except (AttributeError, OSError, ValueError):      # not a file (tests: StringIO)
+            yield from iter(sys.stdin.readline, "")
+            return
+        buf = b""
+        skipping = False           # inside a line over MAX_LINE: dropped up to its newline
+        while True:
+            if self.stop is not None:
+                ready, _, _ = select.select([fd], [], [], 0.2)
+                if self.stop.is_set():
+                    return
+                if not ready:
+                    continue
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                break
+            *lines, buf = (buf + chunk).split(b"\n")
+            for line in lines:
+                if skipping:
+                    skipping = False
+                else:
+                    yield line
+            if len(buf) > MAX_LINE:
+                if not skipping:
+                    yield None         # reported as a line that is not a payload
+                buf, skipping = b"", True
+        if buf and not skipping:
+            yield buf
+
+    def _stdin_lines(self) -> Iterator[bytes]:
+        for raw in self._raw_lines():
+            line: Union[str, bytes, None] = raw.rstrip(b"\r\n") if isinstance(raw, bytes) \
+                else raw if raw is None else raw.rstrip("\r\n")
+            if line is not None and not line.strip():
+                continue
+            self.lines += 1
             try:
-                out.append(hexbytes(item))
-            except argparse.ArgumentTypeError as exc:
-                raise UsageError(f"{exc} (use --text for text payloads)") from None
-    if not out and not allow_empty:
-        raise UsageError("nothing to send: give DATA, or '-' and payloads on stdin")
-    return out
+                if line is None:
+                    raise UsageError(f"longer than {MAX_LINE} bytes")
+                data = self._parse(line)
+            except UsageError as exc:
+                self.bad += 1
+                note(self.args, {"event": "bad_input", "line": self.lines, "error": str(exc)},
+                     f"stdin line {self.lines}: {exc}; skipped")
+                continue
+            self._stdin.append(data)
+            yield data
+        self._read = True
+
+    def __iter__(self) -> Iterator[bytes]:
+        for item in self._items:
+            if item is not None:
+                yield item
+            elif self._read:
+                yield from self._stdin
+            else:
+                yield from self._stdin_lines()
+
+    def passes(self) -> Iterator["Payloads"]:
+        """This object once per ``--count`` repetition (0 = forever),
+        ``--interval`` apart."""
+        for _ in repetitions(self.args):
+            yield self
+
+    def finish(self, failed: str = "") -> None:
+        """End of the command: :class:`UsageError` (exit 2) when stdin lines
+        were skipped, else :class:`BusError` (exit 1) with ``failed`` if given."""
+        if self.bad:
+            raise UsageError(f"{self.bad} of {self.lines} stdin lines were not payloads "
+                             f"(skipped){'; ' + failed if failed else ''}")
+        if failed:
+            raise BusError(failed)
 
 
 def show(data: bytes) -> str:
@@ -70,17 +197,33 @@ def repetitions(args: argparse.Namespace) -> Iterator[int]:
         i += 1
 
 
+class Stop(threading.Event):
+    """Set by SIGTERM or SIGINT; :attr:`signum` says which."""
+
+    signum: Optional[int] = None
+
+    @property
+    def interrupted(self) -> bool:
+        """True when Ctrl-C (SIGINT) ended the block: exit 130."""
+        return self.signum == signal.SIGINT
+
+
 @contextlib.contextmanager
-def stop_on_sigterm() -> Iterator[threading.Event]:
+def stop_on_sigterm() -> Iterator[Stop]:
     """An event set by SIGTERM (and SIGINT) while the block runs, so a
     served loop can end cleanly and print its summary."""
-    done = threading.Event()
+    done = Stop()
     if threading.current_thread() is not threading.main_thread():
         yield done
         return
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        done.signum = signum
+        done.set()
+
     old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
     for s in old:
-        signal.signal(s, lambda *_: done.set())
+        signal.signal(s, on_signal)
     try:
         yield done
     finally:
@@ -89,11 +232,11 @@ def stop_on_sigterm() -> Iterator[threading.Event]:
 
 
 class Progress:
-    """A progress bar on stderr (rich) when stderr is a terminal and not
-    ``--json``; silent otherwise. Found devices are printed by the caller as
-    they answer (rich's live display keeps plain prints above the bar)."""
+    """A progress bar on stderr (rich) when ``enabled`` and stderr is a
+    terminal; silent otherwise. Lines printed on a terminal stdout go above
+    the bar (rich's live display); a redirected stdout keeps them."""
 
-    def __init__(self, total: int, label: str, enabled: bool) -> None:
+    def __init__(self, total: float, label: str, enabled: bool) -> None:
         self._bar: Any = None
         self._task: Any = None
         if enabled and sys.stderr.isatty():
@@ -104,8 +247,6 @@ class Progress:
             self._bar = RichProgress(TextColumn("{task.description}"), BarColumn(),
                                      MofNCompleteColumn(), TimeRemainingColumn(),
                                      console=Console(stderr=True), transient=True,
-                                     # lines printed on a terminal stdout go above the bar;
-                                     # a redirected stdout keeps them (never into stderr)
                                      redirect_stdout=sys.stdout.isatty(), redirect_stderr=False)
             self._task = self._bar.add_task(label, total=total)
 
@@ -119,20 +260,78 @@ class Progress:
             self._bar.stop()
 
     def advance(self, description: Optional[str] = None) -> None:
+        """One more step done (``description``: what runs now)."""
         if self._bar is not None:
             self._bar.update(self._task, advance=1,
                              **({"description": description} if description else {}))
 
+    def set(self, completed: float) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, completed=completed)
+
+
+@contextlib.contextmanager
+def timed_progress(label: str, seconds: float, enabled: bool = True) -> Iterator[None]:
+    """A bar that fills with the wall clock over ``seconds`` (a soak runs
+    for a set time) while the block runs; nothing without a terminal."""
+    bar = Progress(round(seconds), label, enabled)
+    if bar._bar is None:
+        yield
+        return
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def tick() -> None:
+        while not stop.wait(0.25):
+            bar.set(min(seconds, time.monotonic() - t0))
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    with bar:
+        ticker.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            ticker.join()
+
+
+@dataclass
+class ScanResult:
+    """What a scan found, how many ids it tried, and whether Ctrl-C cut it short."""
+
+    found: List[int]
+    tried: int
+    interrupted: bool = False
+
 
 def scan(ids: List[int], probe: Callable[[int], Optional[Any]], *, label: str,
-         progress: bool, found: Callable[[int, Any], None]) -> List[int]:
-    """Probe every id in turn; ``found`` is called for each that answers."""
-    answered: List[int] = []
+         progress: bool, found: Callable[[int, Any], None]) -> ScanResult:
+    """Probe every id in turn; ``found`` is called for each that answers.
+    Ctrl-C ends the scan early (``interrupted``): the caller still prints
+    its summary."""
+    result = ScanResult([], 0)
     with Progress(len(ids), label, progress) as bar:
-        for i in ids:
-            bar.advance(f"{label} {i}")
-            result = probe(i)
-            if result is not None:
-                answered.append(i)
-                found(i, result)
-    return answered
+        try:
+            for i in ids:
+                bar.advance(f"{label} {i}")
+                answer = probe(i)
+                result.tried += 1
+                if answer is not None:
+                    result.found.append(i)
+                    found(i, answer)
+        except KeyboardInterrupt:
+            result.interrupted = True
+    return result
+
+
+def scan_summary(args: argparse.Namespace, result: ScanResult, total: int, what: str) -> int:
+    """The summary line of a scan and its exit code (0 found, 1 none, 130 Ctrl-C)."""
+    found, tried = result.found, result.tried
+    emit(args, {"event": "summary", "found": found, "tried": tried,
+                **({"interrupted": True, "of": total} if result.interrupted else {})},
+         f"{len(found)} of {tried} {what} answered" + (f": {', '.join(map(str, found))}"
+                                                        if found else "")
+         + (f" (interrupted after {tried} of {total})" if result.interrupted else ""))
+    if result.interrupted:
+        return EXIT_INTERRUPTED
+    return 0 if found else 1

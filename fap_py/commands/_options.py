@@ -216,6 +216,14 @@ def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[
     return g
 
 
+def add_echo_option(group: argparse._ArgumentGroup) -> None:
+    """``--echo-suppression`` in the serial port group of every command that
+    sends (the port layer's ``echo_suppression``, which every engine uses)."""
+    group.add_argument("--echo-suppression", action="store_true",
+                        help="read back and drop our own bytes (2-wire adapters that hear "
+                        "themselves)")
+
+
 def add_link_options(parser: argparse.ArgumentParser, *, timeout_default: float = 0.1,
                      retries_default: int = 3) -> argparse._ArgumentGroup:
     """``--timeout S --retries N``."""
@@ -244,8 +252,12 @@ def add_repeat_options(parser: argparse.ArgumentParser, *, count_default: int = 
 def rs485_from_args(args: argparse.Namespace, **extra: Any) -> Any:
     """The :class:`fap_py.RS485` line options (the library's
     ``fap_port_options``) from the port option group; ``extra`` sets other
-    fields (``turnaround_us``, ``echo_suppression`` ...)."""
+    fields (``turnaround_us`` ...); ``--echo-suppression``, where the command
+    has it, sets ``echo_suppression``."""
     from ..fap import RS485, RS485Mode
+
+    if getattr(args, "echo_suppression", False):
+        extra.setdefault("echo_suppression", True)
 
     mode = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
             "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE}[args.rs485]
@@ -287,6 +299,18 @@ def emit(args: argparse.Namespace, obj: Dict[str, Any], human_text: Optional[str
         text = human_text
     if text is not None:
         print(text, flush=True)
+
+
+def plural(n: int, word: str, words: Optional[str] = None) -> str:
+    """``1 frame``, ``2 frames`` (``words`` for an irregular plural)."""
+    return f"{n} {word if n == 1 else words or word + 's'}"
+
+
+def detail(exc: BaseException, subject: str) -> str:
+    """The error text without a leading ``subject: `` the caller already
+    prints (``node 6 seq 0: no reply``, not ``node 6 seq 0: node 6: no reply``)."""
+    text = str(exc)
+    return text[len(subject) + 2:] if text.startswith(subject + ": ") else text
 
 
 def hexbytes(text: str) -> bytes:
@@ -348,6 +372,25 @@ def error_line(exc: BaseException) -> str:
     return f"fap: error: {text.splitlines()[0] if text else type(exc).__name__}"
 
 
+_RS485_HINT = {
+    "kernel": "the device has no kernel RS-485 (TIOCSRS485 refused: a pty or most USB "
+              "adapters); use --rs485 soft (RTS toggled by the library) or none "
+              "(auto-direction transceiver)",
+    "soft": "the device has no RTS modem line (TIOCMBIS refused: a pty, say); use "
+            "--rs485 none (auto-direction transceiver)",
+}
+
+
+def rs485_unsupported(exc: BaseException, args: argparse.Namespace) -> Optional[str]:
+    """The one line for an ``--rs485 kernel|soft`` the device cannot do
+    (ENOTTY from the port layer), or None for any other error."""
+    mode = getattr(args, "rs485", None)
+    if mode not in _RS485_HINT or not isinstance(exc, OSError) or exc.errno != errno.ENOTTY:
+        return None
+    port = getattr(args, "port", None) or getattr(exc, "filename", None) or "the port"
+    return f"fap: error: {port}: --rs485 {mode}: {_RS485_HINT[mode]}"
+
+
 def run_command(func: Callable[[argparse.Namespace], Optional[int]],
                 args: argparse.Namespace) -> int:
     """Run a subcommand with the one error path of ``fap``."""
@@ -370,6 +413,10 @@ def run_command(func: Callable[[argparse.Namespace], Optional[int]],
         code = exit_code_for(exc)
         if debug:
             traceback.print_exc()
+        hint = rs485_unsupported(exc, args)
+        if hint is not None:               # exit 3: a port error
+            sys.stderr.write(hint + "\n")
+            return EXIT_PORT
         elif code == EXIT_BUS and not _known(exc):
             # not one of ours: a bug, say so rather than hide it
             sys.stderr.write(f"fap: error: internal error {type(exc).__name__}: {exc} "

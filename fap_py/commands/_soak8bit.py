@@ -29,7 +29,7 @@ import threading
 import time
 from typing import Any, Dict, List, Tuple
 
-from .soak import FaultPlan, Sampler, _child, _teardown, _watch
+from .soak import FaultPlan, Sampler, _child, _teardown, _watch, running
 
 _KEY = b"fap-soak"
 G485_FIRST = 8          # first user register
@@ -129,7 +129,7 @@ def soak_mikroc(a: argparse.Namespace) -> Dict[str, Any]:
     seq = 0
     t0 = time.monotonic()
     plan = FaultPlan(a.seconds, t0)
-    while time.monotonic() - t0 < a.seconds:
+    while running(a, t0):
         plan.step(children, start_slave, bus)
         node, s = 1 + seq % n, seq & 0xFFFF
         if master is None:              # the port vanished: open it again when it is back
@@ -294,7 +294,7 @@ def soak_g485(a: argparse.Namespace) -> Dict[str, Any]:
     written: Dict[int, Dict[bytes, int]] = {i: {} for i in range(1, n + 1)}   # node -> block -> seq
     t0 = time.monotonic()
     plan = FaultPlan(a.seconds, t0)
-    while time.monotonic() - t0 < a.seconds:
+    while running(a, t0):
         plan.step(children, start_slave, bus)
         node = 1 + cycles % n
         block = g485_block(cycles, node, rnd)

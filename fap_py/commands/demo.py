@@ -178,13 +178,16 @@ def _traffic(args: argparse.Namespace, bus: Any, master: "Master", slaves: List[
         if now >= end:
             break
         if silenced and view.fault and now - view.t0 >= silence_at + silence_for:
-            out.event(f"{_stamp(view)} fault over: slave {victim.id} talks again")
+            out.event({"event": "fault_over", "slave": victim.id},
+                      f"{_stamp(view)} fault over: slave {victim.id} talks again")
             view.fault = ""
         if args.faults and not silenced and now - view.t0 >= silence_at:
             bus.silence(1 + slaves.index(victim), silence_for)
             silenced = True
             view.fault = f"slave {victim.id} silenced for {silence_for:.1f} s"
-            out.event(f"{_stamp(view)} fault: {view.fault} (bus bit error rate {BER:.2%} per byte)")
+            out.event({"event": "fault", "slave": victim.id, "silenced_s": silence_for,
+                       "bit_error_rate": BER},
+                      f"{_stamp(view)} fault: {view.fault} (bus bit error rate {BER:.2%} per byte)")
         n += 1
         for s in slaves:
             if rng.random() < 0.5:
@@ -206,7 +209,8 @@ def _traffic(args: argparse.Namespace, bus: Any, master: "Master", slaves: List[
                     EventKind.SLAVE_INACTIVE: "inactive (missed DATA_DONE)",
                     EventKind.ID_TIMEOUT: "did not answer QUERY_ID"}.get(
                         ev.kind, ev.kind.name.lower())
-            out.event(f"{_stamp(view)} slave {ev.id} {text}")
+            out.event({"event": ev.kind.name.lower(), "slave": ev.id},
+                      f"{_stamp(view)} slave {ev.id} {text}")
         if now >= next_draw:
             view.refresh(master)
             out.update()
@@ -242,8 +246,8 @@ class _Plain:
     def __exit__(self, *exc: object) -> None:
         pass
 
-    def event(self, text: str) -> None:
-        emit(self.args, {"event": "bus", "text": text}, text)
+    def event(self, obj: Dict[str, Any], text: str) -> None:
+        emit(self.args, {**obj, "t": round(self.view.elapsed(), 3)}, text)
 
     def update(self) -> None:
         t = self.view.totals()
@@ -275,7 +279,7 @@ class _Live:
         self._live.update(self._render())
         self._live.__exit__(None, None, None)
 
-    def event(self, text: str) -> None:
+    def event(self, obj: Dict[str, Any], text: str) -> None:
         self.view.events.append(text)
 
     def update(self) -> None:

@@ -12,18 +12,29 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict
 
-from ._node import add_payload_options, payloads, repetitions, scan, show, stop_on_sigterm
+from ._node import (
+    Payloads,
+    add_payload_options,
+    reply_option,
+    scan,
+    scan_summary,
+    show,
+    stop_on_sigterm,
+)
 from ._options import (
-    BusError,
+    EXIT_INTERRUPTED,
     add_actions,
     add_command,
+    add_echo_option,
     add_link_options,
     add_output_options,
     add_port_options,
     add_repeat_options,
+    detail,
     emit,
     hexbytes,
     integer,
+    plural,
     rs485_from_args,
 )
 
@@ -50,9 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_decode)
 
     def line(q: argparse.ArgumentParser) -> None:
-        add_port_options(q)
-        q.add_argument("--echo-suppression", action="store_true",
-                       help="read back and drop our own bytes (2-wire adapters that hear themselves)")
+        add_echo_option(add_port_options(q))
         add_output_options(q)
 
     m = add_command(cmds, "master", aliases=["poll"],
@@ -76,7 +85,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
     line(s)
     s.add_argument("--node", type=integer, required=True, help="1..254")
-    s.add_argument("--reply", default="echo",
+    s.add_argument("--reply", type=reply_option(), default="echo",
                    help="'echo', 'none' or a fixed reply in hex")
     s.add_argument("--turnaround-us", type=integer, default=0,
                    help="quiet time before each reply, microseconds")
@@ -95,8 +104,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _rs485(args: argparse.Namespace, turnaround_us: int = 0):
-    return rs485_from_args(args, echo_suppression=bool(args.echo_suppression),
-                           turnaround_us=turnaround_us)
+    return rs485_from_args(args, turnaround_us=turnaround_us)
 
 
 def run_encode(args: argparse.Namespace) -> int:
@@ -119,11 +127,11 @@ def run_decode(args: argparse.Namespace) -> int:
     tail = _unfinished(args.data, frames)
     if tail:
         emit(args, {"status": "truncated", "bytes": tail},
-             f"truncated frame: {len(tail)} bytes after the last complete frame "
+             f"truncated frame: {plural(len(tail), 'byte')} after the last complete frame "
              f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
     if not frames and not tail:
         emit(args, {"status": "no_frame", "bytes": args.data},
-             f"no exec async frame in {len(args.data)} bytes")
+             f"no exec async frame in {plural(len(args.data), 'byte')}")
     return 0 if frames and not tail and all(f.ok for f in frames) else 1
 
 
@@ -154,41 +162,52 @@ def _unfinished(data: bytes, frames: list) -> bytes:
 def run_master(args: argparse.Namespace) -> int:
     from fap_py.execasync import BROADCAST, ExecAsyncError, Master
 
-    data = payloads(args) or [b""]
-    failed = 0
+    data = Payloads(args)
+    failed = sent = 0
+    interrupted = False
     with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
                 rs485=_rs485(args)) as master:
-        for _ in repetitions(args):
-            for req in data:
-                if args.node == BROADCAST:
-                    master.broadcast(req)
-                    emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
-                    continue
-                seq = master.next_seq(args.node)
-                try:
-                    reply = master.transact(args.node, req)
-                    emit(args, {"event": "reply", "node": args.node, "seq": seq, "data": reply},
-                         f"node {args.node} seq {seq}: {show(reply)}")
-                except ExecAsyncError as exc:
-                    failed += 1
-                    emit(args, {"event": "error", "node": args.node, "seq": seq,
-                                "error": str(exc)}, f"node {args.node} seq {seq}: {exc}")
+        try:
+            for batch in data.passes():
+                for req in batch:
+                    if args.node == BROADCAST:
+                        master.broadcast(req)
+                        emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+                        continue
+                    seq = master.next_seq(args.node)
+                    sent += 1
+                    try:
+                        reply = master.transact(args.node, req)
+                        emit(args, {"event": "reply", "node": args.node, "seq": seq,
+                                    "data": reply}, f"node {args.node} seq {seq}: {show(reply)}")
+                    except ExecAsyncError as exc:
+                        failed += 1
+                        why = detail(exc, f"node {args.node}")
+                        emit(args, {"event": "error", "node": args.node, "seq": seq,
+                                    "error": why}, f"node {args.node} seq {seq}: {why}")
+        except KeyboardInterrupt:       # Ctrl-C: the summary, then exit 130
+            interrupted = True
         st = master.stats
-        emit(args, {"event": "stats", **asdict(st)},
-             f"{st.transactions} transactions, {st.retries} retries, {st.failures} failed, "
-             f"{st.corrupt} corrupt frames")
-    if failed:
-        raise BusError(f"{failed} of the requests to node {args.node} failed")
+        emit(args, {"event": "stats", **asdict(st), "interrupted": interrupted},
+             f"{plural(st.transactions, 'transaction')}, {plural(st.retries, 'retry', 'retries')}"
+             f", {st.failures} failed, {plural(st.corrupt, 'corrupt frame')}"
+             + (" (interrupted)" if interrupted else ""))
+    if interrupted:
+        return EXIT_INTERRUPTED
+    data.finish(f"{failed} of {plural(sent, 'request')} to node {args.node} failed"
+                if failed else "")
     return 0
 
 
 def run_broadcast(args: argparse.Namespace) -> int:
     from fap_py.execasync import Master
 
+    data = Payloads(args)
     with Master(args.port, args.baud, rs485=_rs485(args)) as master:
-        for req in payloads(args) or [b""]:
+        for req in data:
             master.broadcast(req)
             emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+    data.finish()
     return 0
 
 
@@ -239,11 +258,8 @@ def run_scan(args: argparse.Namespace) -> int:
             except ExecAsyncError:
                 return None
 
-        found = scan(list(range(args.first, args.last + 1)), probe, label="exec node",
-                     progress=not args.json,
-                     found=lambda n, r: emit(args, {"event": "found", "node": n, "reply": r},
-                                             f"node {n} answers: {show(r)}"))
-    emit(args, {"event": "summary", "found": found, "tried": args.last - args.first + 1},
-         f"{len(found)} of {args.last - args.first + 1} nodes answered"
-         + (f": {', '.join(map(str, found))}" if found else ""))
-    return 0 if found else 1
+        result = scan(list(range(args.first, args.last + 1)), probe, label="exec node",
+                      progress=not args.json,
+                      found=lambda n, r: emit(args, {"event": "found", "node": n, "reply": r},
+                                              f"node {n} answers: {show(r)}"))
+    return scan_summary(args, result, args.last - args.first + 1, "nodes")

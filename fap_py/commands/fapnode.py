@@ -13,17 +13,20 @@ import argparse
 import time
 from typing import Any, List
 
-from ._node import add_payload_options, payloads, show, stop_on_sigterm
+from ._node import Payloads, Stop, add_payload_options, show, stop_on_sigterm
 from ._options import (
+    EXIT_INTERRUPTED,
     BusError,
     UsageError,
     add_actions,
     add_command,
+    add_echo_option,
     add_output_options,
     add_port_options,
     add_repeat_options,
     emit,
     integer,
+    plural,
     rs485_from_args,
     seconds,
 )
@@ -45,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cmds = add_actions(p, "fap_command")
 
     def common(q: argparse.ArgumentParser) -> None:
-        add_port_options(q)
+        add_echo_option(add_port_options(q))
         add_output_options(q)
         add_repeat_options(q)
         q.add_argument("--wait", metavar="S", type=seconds, default=5.0,
@@ -60,8 +63,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--slaves", type=_ids, required=True, metavar="IDS",
                    help="slave IDs to poll, e.g. 3,7,12")
     m.add_argument("--to", type=integer, help="destination slave of DATA (default: the first of --slaves)")
-    m.add_argument("--id-cycle", metavar="S", type=seconds, default=1.0,
-                   help="seconds between ID cycles while a slave is inactive (vendor: 15)")
+    # None: the C engine's defaults (fapx_options, as the vendor's fapInit)
+    m.add_argument("--id-cycle", metavar="S", type=seconds, default=None,
+                   help="seconds between ID cycles while a slave is inactive (default: the "
+                   "API's and vendor's, 15)")
+    m.add_argument("--id-answer-timeout", metavar="S", type=seconds, default=None,
+                   help="how long the master waits for a slave's ID after QUERY_ID (default: "
+                   "the API's, 1); shorter makes an absent slave cost less polling time")
     m.set_defaults(func=run_master)
 
     s = add_command(cmds, "slave", help="run a slave: send when polled, print what arrives",
@@ -85,40 +93,52 @@ def _print_events(args: argparse.Namespace, node: Any) -> None:
              f"event: slave {ev.id} {ev.kind.name.lower().replace('slave_', '')}")
 
 
-def _loop(args: argparse.Namespace, node: Any, to: int, data: List[bytes], is_master: bool) -> None:
-    """Send, then collect for --interval; --count times (0 = until a signal)."""
+def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_master: bool,
+          done: Stop) -> int:
+    """Send, then collect for --interval; --count times (0 = until ``done``,
+    set by a signal). Returns the exit code: 130 when Ctrl-C ended a master,
+    else 0."""
     from fap_py.errors import FapTimeoutError
 
-    with stop_on_sigterm() as done:
-        i = 0
-        while not done.is_set() and (args.count == 0 or i < args.count):
-            for d in data:
-                node.send(d, to, timeout=args.wait)
-                dst = "master" if to == 0 else f"slave {to}"
-                emit(args, {"event": "tx", "to": to, "data": d}, f"-> {dst}: {show(d)}")
-            end = time.monotonic() + args.interval
-            while not done.is_set():
-                left = end - time.monotonic()
-                if left <= 0:
-                    break
-                try:
-                    _print_message(args, node.recv(timeout=min(left, 0.2)))
-                except FapTimeoutError:
-                    pass
-                if is_master:
-                    _print_events(args, node)
-            i += 1
-        if data and not done.is_set():
+    sent = 0
+    i = 0
+    data.stop = done          # Ctrl-C only sets `done`: a stdin wait must see it
+    while not done.is_set() and (args.count == 0 or i < args.count):
+        for d in data:
+            node.send(d, to, timeout=args.wait)
+            sent += 1
+            dst = "master" if to == 0 else f"slave {to}"
+            emit(args, {"event": "tx", "to": to, "data": d}, f"-> {dst}: {show(d)}")
+            if done.is_set():
+                break
+        end = time.monotonic() + args.interval
+        while not done.is_set():
+            left = end - time.monotonic()
+            if left <= 0:
+                break
             try:
-                node.flush(timeout=args.wait)
+                _print_message(args, node.recv(timeout=min(left, 0.2)))
             except FapTimeoutError:
-                left = node.tx_pending
-                emit(args, {"event": "unsent", "frames": left},
-                     f"{left} messages still queued (not polled within {args.wait} s)")
-        st = node.stats()
-        emit(args, {"event": "stats", **st.as_dict()},
-             f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
-             f"CRC errors {st.crc_errors}")
+                pass
+            if is_master:
+                _print_events(args, node)
+        i += 1
+    if sent and not done.is_set():
+        try:
+            node.flush(timeout=args.wait)
+        except FapTimeoutError:
+            left = node.tx_pending
+            emit(args, {"event": "unsent", "frames": left},
+                 f"{plural(left, 'message')} still queued (not polled within {args.wait} s)")
+    st = node.stats()
+    emit(args, {"event": "stats", **st.as_dict(),
+                **({"interrupted": True} if done.interrupted else {})},
+         f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
+         f"CRC errors {st.crc_errors}" + (" (interrupted)" if done.interrupted else ""))
+    data.finish()
+    # a master polling is a client: Ctrl-C is an interruption (130); a slave
+    # with --count 0 is a server, whose normal end is a signal (docs/cli.md)
+    return EXIT_INTERRUPTED if done.interrupted and is_master else 0
 
 
 def run_master(args: argparse.Namespace) -> int:
@@ -128,32 +148,32 @@ def run_master(args: argparse.Namespace) -> int:
     to = args.to if args.to is not None else args.slaves[0]
     if to not in args.slaves:
         raise UsageError(f"--to {to} is not one of --slaves {args.slaves}")
-    data = payloads(args)
+    data = Payloads(args, empty=False)
     with Master(args.port, args.baud, slaves=args.slaves, id_cycle=args.id_cycle,
-                id_answer_timeout=min(1.0, args.id_cycle), rs485=rs485_from_args(args)) as master:
+                id_answer_timeout=args.id_answer_timeout, rs485=rs485_from_args(args)) as master, \
+            stop_on_sigterm() as done:
         emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "slaves": args.slaves,
                     "rs485": master.rs485_mode},
              f"ready: FAP master on {args.port} at {args.baud} baud, slaves "
              f"{', '.join(map(str, args.slaves))} (RS-485 {master.rs485_mode.name})")
-        if data:
+        if args.data:
             try:
                 master.wait_active([to], timeout=args.wait)
             except FapTimeoutError:
                 raise BusError(f"slave {to} did not answer the ID query within {args.wait} s") \
                     from None
         _print_events(args, master)
-        _loop(args, master, to, data, True)
-    return 0
+        return _loop(args, master, to, data, True, done)
 
 
 def run_slave(args: argparse.Namespace) -> int:
     from fap_py import Slave
 
-    data = payloads(args)
-    with Slave(args.port, args.baud, id=args.id, rs485=rs485_from_args(args)) as slave:
+    data = Payloads(args, empty=False)
+    with Slave(args.port, args.baud, id=args.id, rs485=rs485_from_args(args)) as slave, \
+            stop_on_sigterm() as done:
         emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "id": args.id,
                     "rs485": slave.rs485_mode},
              f"ready: FAP slave {args.id} on {args.port} at {args.baud} baud "
              f"(RS-485 {slave.rs485_mode.name})")
-        _loop(args, slave, args.to, data, False)
-    return 0
+        return _loop(args, slave, args.to, data, False, done)

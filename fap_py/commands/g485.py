@@ -14,19 +14,23 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from typing import Any
+from typing import Any, Callable, Dict, Tuple
 
-from ._node import repetitions, scan, stop_on_sigterm
+from ._node import repetitions, scan, scan_summary, stop_on_sigterm
 from ._options import (
+    EXIT_INTERRUPTED,
+    BusError,
     UsageError,
     add_actions,
     add_command,
+    add_echo_option,
     add_link_options,
     add_output_options,
     add_port_options,
     add_repeat_options,
     emit,
     integer,
+    plural,
     rs485_from_args,
 )
 
@@ -36,21 +40,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     cmds = add_actions(p, "g485_command")
 
-    def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True) -> None:
-        add_port_options(q)
+    def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True,
+               check: bool = False) -> None:
+        add_echo_option(add_port_options(q))
         add_link_options(q, timeout_default=0.1, retries_default=2)
         add_output_options(q)
         if address:
             q.add_argument("--address", type=integer, required=True,
                            help="device ID 1..126 (0 = broadcast)")
-        q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake",
-                       help="how a write or set is confirmed")
+        if check:      # only writes and sets are confirmed
+            q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake",
+                           help="how the write or set is confirmed")
         if repeat:
             add_repeat_options(q)
 
     s = add_command(cmds, "sim", help="simulate devices on a port until interrupted",
                     example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
-    add_port_options(s)
+    add_echo_option(add_port_options(s))
     add_output_options(s)
     s.add_argument("--address", type=integer, action="append", required=True,
                    help="a device ID to simulate (repeat for several devices)")
@@ -69,14 +75,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     w = add_command(cmds, "write", help="write registers",
                     example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
-    master(w, repeat=False)
+    master(w, repeat=False, check=True)
     w.add_argument("--register", type=integer, required=True, help="first register")
     w.add_argument("values", type=integer, nargs="+", help="register values 0..255")
     w.set_defaults(func=run_write)
 
     t = add_command(cmds, "set", help="send a Set command (factory_reset, save_eeprom, reset, ...)",
                     example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
-    master(t, repeat=False)
+    master(t, repeat=False, check=True)
     t.add_argument("command", help="SetCommand name or value")
     t.set_defaults(func=run_set)
 
@@ -128,33 +134,76 @@ def run_sim(args: argparse.Namespace) -> int:
         replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
     emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
                 "packets": events, "replies": replies, "reopened": reopened},
-         f"summary: {events} packets handled, {replies} replies sent, port reopened "
-         f"{reopened} times, {time.monotonic() - t0:.1f} s")
+         f"summary: {plural(events, 'packet')} handled, {plural(replies, 'reply', 'replies')} "
+         f"sent, port reopened {plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
     return 0
 
 
 def _master(args: argparse.Namespace):
     from fap_py.g485 import G485Master
 
+    rs485 = _rs485(args)
     return G485Master(args.port, args.baud, timeout=args.timeout or 0.001, retries=args.retries,
-                      check=args.check, rs485=_rs485(args))
+                      check=getattr(args, "check", "handshake"), rs485=rs485,
+                      echo=bool(args.echo_suppression) and rs485 is None)
+
+
+def _poll(args: argparse.Namespace, what: str, ask: Callable[[Any], Any],
+          show: Callable[[Any], Tuple[Dict[str, Any], str]]) -> int:
+    """``--count`` transactions ``ask(master)``, each printed by ``show``; a
+    failed one is printed and polling goes on (as exec and mikroC do); Ctrl-C
+    ends with the summary (exit 130); exit 1 if any failed."""
+    from fap_py.g485 import G485Error
+    from fap_py.g485.errors import G485ValueError
+
+    done = failed = 0
+    interrupted = False
+    with _master(args) as m:
+        try:
+            for _ in repetitions(args):
+                done += 1
+                try:
+                    obj, text = show(ask(m))
+                except G485ValueError:
+                    raise                       # a usage error (a broadcast read): exit 2
+                except G485Error as exc:
+                    if args.count == 1:
+                        raise                   # one request: its error is the one line
+                    failed += 1
+                    emit(args, {"event": "error", "address": args.address, "error": str(exc)},
+                         f"device {args.address}: {exc}")
+                    continue
+                emit(args, {"event": "reply", "address": args.address, **obj}, text)
+        except KeyboardInterrupt:
+            interrupted = True
+    if interrupted or args.count != 1:
+        emit(args, {"event": "summary", "address": args.address, "requests": done,
+                    "failed": failed, **({"interrupted": True} if interrupted else {})},
+             f"{plural(done, what)} to device {args.address}, {failed} failed"
+             + (" (interrupted)" if interrupted else ""))
+    if interrupted:
+        return EXIT_INTERRUPTED
+    if failed:
+        raise BusError(f"{failed} of {plural(done, what)} to device {args.address} failed")
+    return 0
 
 
 def run_read(args: argparse.Namespace) -> int:
-    with _master(args) as m:
-        for _ in repetitions(args):
-            data = m.read(args.address, args.register, args.registers)
-            emit(args, {"address": args.address, "register": args.register, "values": list(data)},
-                 "\n".join(f"register {args.register + i}: {v} (0x{v:02x})"
-                           for i, v in enumerate(data)))
-    return 0
+    def show(data: Any) -> Tuple[Dict[str, Any], str]:
+        return ({"register": args.register, "values": list(data)},
+                "\n".join(f"register {args.register + i}: {v} (0x{v:02x})"
+                          for i, v in enumerate(data)))
+
+    return _poll(args, "read", lambda m: m.read(args.address, args.register, args.registers),
+                 show)
 
 
 def run_write(args: argparse.Namespace) -> int:
     with _master(args) as m:
         m.write(args.address, args.register, args.values)
-    emit(args, {"address": args.address, "register": args.register, "written": args.values},
-         f"wrote {len(args.values)} registers from {args.register}")
+    emit(args, {"event": "written", "address": args.address, "register": args.register,
+                "written": args.values},
+         f"wrote {plural(len(args.values), 'register')} from {args.register}")
     return 0
 
 
@@ -166,28 +215,24 @@ def run_set(args: argparse.Namespace) -> int:
         pass
     with _master(args) as m:
         m.set(args.address, command)  # type: ignore[arg-type]
-    emit(args, {"address": args.address, "set": args.command}, f"set {args.command}: done")
+    emit(args, {"event": "set", "address": args.address, "set": args.command},
+         f"set {args.command}: done")
     return 0
 
 
 def run_error_word(args: argparse.Namespace) -> int:
     from fap_py.g485 import describe_error_word
 
-    with _master(args) as m:
-        for _ in repetitions(args):
-            word = m.error_word(args.address)
-            emit(args, {"address": args.address, "error_word": word,
-                        "text": describe_error_word(word)},
-                 f"0x{word:04x} ({describe_error_word(word)})")
-    return 0
+    def show(word: int) -> Tuple[Dict[str, Any], str]:
+        return ({"error_word": word, "text": describe_error_word(word)},
+                f"0x{word:04x} ({describe_error_word(word)})")
+
+    return _poll(args, "read", lambda m: m.error_word(args.address), show)
 
 
 def run_handshake(args: argparse.Namespace) -> int:
-    with _master(args) as m:
-        for _ in repetitions(args):
-            check = m.handshake(args.address)
-            emit(args, {"address": args.address, "check": check}, f"0x{check:02x}")
-    return 0
+    return _poll(args, "handshake", lambda m: m.handshake(args.address),
+                 lambda check: ({"check": check}, f"0x{check:02x}"))
 
 
 def run_scan(args: argparse.Namespace) -> int:
@@ -205,11 +250,8 @@ def run_scan(args: argparse.Namespace) -> int:
             except G485Error:
                 return None
 
-        found = scan(list(range(args.first, args.last + 1)), probe, label="G485 ID",
-                     progress=not args.json,
-                     found=lambda a, _: emit(args, {"event": "found", "address": a},
-                                             f"device {a} answers (ID register confirms)"))
-    tried = args.last - args.first + 1
-    emit(args, {"event": "summary", "found": found, "tried": tried},
-         f"{len(found)} of {tried} IDs answered" + (f": {', '.join(map(str, found))}" if found else ""))
-    return 0 if found else 1
+        result = scan(list(range(args.first, args.last + 1)), probe, label="G485 ID",
+                      progress=not args.json,
+                      found=lambda a, _: emit(args, {"event": "found", "address": a},
+                                              f"device {a} answers (ID register confirms)"))
+    return scan_summary(args, result, args.last - args.first + 1, "IDs")

@@ -7,12 +7,14 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import asdict
+from typing import TYPE_CHECKING
 
-from ._node import add_payload_options, payloads, repetitions, show, stop_on_sigterm
+from ._node import Payloads, add_payload_options, reply_option, show, stop_on_sigterm
 from ._options import (
-    BusError,
+    EXIT_INTERRUPTED,
     add_actions,
     add_command,
+    add_echo_option,
     add_link_options,
     add_output_options,
     add_port_options,
@@ -20,8 +22,12 @@ from ._options import (
     emit,
     hexbytes,
     integer,
+    plural,
     rs485_from_args,
 )
+
+if TYPE_CHECKING:  # pragma: no cover
+    from fap_py.mikroc import NodeStats
 
 BAUD_DEFAULT = 19200   # the mikroC library's usual rate
 
@@ -35,20 +41,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
                     "--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address 50 01   "
                     "# broadcast, no reply")
-    add_port_options(m, baud_default=BAUD_DEFAULT)
+    add_echo_option(add_port_options(m, baud_default=BAUD_DEFAULT))
     add_link_options(m, timeout_default=0.2, retries_default=0)
     add_output_options(m)
     m.add_argument("--address", type=integer, required=True, help="slave address (50 = broadcast)")
     add_repeat_options(m)
-    add_payload_options(m, what="message (0..3 bytes)")
+    add_payload_options(m, what="message", size=" (0..3 bytes each)")
     m.set_defaults(func=run_master)
 
     s = add_command(cmds, "slave", help="answer as a slave until interrupted",
                     example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
-    add_port_options(s, baud_default=BAUD_DEFAULT)
+    add_echo_option(add_port_options(s, baud_default=BAUD_DEFAULT))
     add_output_options(s)
     s.add_argument("--address", type=integer, required=True, help="this slave's address")
-    s.add_argument("--reply", default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
+    s.add_argument("--reply", type=reply_option(3), default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
     s.add_argument("--max-requests", type=integer, default=0, help="stop after N (0 = never)")
     s.set_defaults(func=run_slave)
 
@@ -57,34 +63,46 @@ def run_master(args: argparse.Namespace) -> int:
     from fap_py.errors import FapTimeoutError, FrameError
     from fap_py.mikroc import BROADCAST, Master
 
-    data = payloads(args) or [b""]
-    failed = 0
+    data = Payloads(args)
+    failed = sent = 0
+    interrupted = False
     with Master(args.port, args.baud, rs485=rs485_from_args(args)) as master:
-        for _ in repetitions(args):
-            for req in data:
-                if args.address == BROADCAST:
-                    master.send(args.address, req)
-                    emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
-                    continue
-                for attempt in range(args.retries + 1):
-                    try:
-                        reply = master.request(args.address, req, timeout=args.timeout)
-                    except (FapTimeoutError, FrameError) as exc:
-                        if attempt < args.retries:
-                            continue
-                        failed += 1
-                        emit(args, {"event": "error", "address": args.address, "error": str(exc)},
-                             f"slave {args.address}: {exc}")
-                    else:
-                        emit(args, {"event": "reply", "address": reply.address, "data": reply.data},
-                             f"slave {reply.address}: {show(reply.data)}")
-                    break
-        st = master.stats
-        emit(args, {"event": "stats", **asdict(st)},
-             f"{st.frames} frames, {st.errors} errors, {st.damaged} damaged, {st.ignored} ignored")
-    if failed:
-        raise BusError(f"{failed} requests to slave {args.address} got no valid reply")
+        try:
+            for batch in data.passes():
+                for req in batch:
+                    if args.address == BROADCAST:
+                        master.send(args.address, req)
+                        emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+                        continue
+                    sent += 1
+                    for attempt in range(args.retries + 1):
+                        try:
+                            reply = master.request(args.address, req, timeout=args.timeout)
+                        except (FapTimeoutError, FrameError) as exc:
+                            if attempt < args.retries:
+                                continue
+                            failed += 1
+                            emit(args, {"event": "error", "address": args.address,
+                                        "error": str(exc)}, f"slave {args.address}: {exc}")
+                        else:
+                            emit(args, {"event": "reply", "address": reply.address,
+                                        "data": reply.data},
+                                 f"slave {reply.address}: {show(reply.data)}")
+                        break
+        except KeyboardInterrupt:       # Ctrl-C: the summary, then exit 130
+            interrupted = True
+        _stats(args, master.stats, interrupted)
+    if interrupted:
+        return EXIT_INTERRUPTED
+    data.finish(f"{failed} of {plural(sent, 'request')} to slave {args.address} got no valid "
+                "reply" if failed else "")
     return 0
+
+
+def _stats(args: argparse.Namespace, st: "NodeStats", interrupted: bool = False) -> None:
+    emit(args, {"event": "stats", **asdict(st), **({"interrupted": True} if interrupted else {})},
+         f"{plural(st.frames, 'frame')}, {plural(st.errors, 'error')}, {st.damaged} damaged, "
+         f"{st.ignored} ignored" + (" (interrupted)" if interrupted else ""))
 
 
 def run_slave(args: argparse.Namespace) -> int:
@@ -114,7 +132,5 @@ def run_slave(args: argparse.Namespace) -> int:
                  f"{'broadcast' if msg.address == BROADCAST else 'request'}: {show(msg.data)}")
             if args.reply != "none" and msg.address != BROADCAST:
                 slave.send(msg.data if fixed is None else fixed)
-        st = slave.stats
-        emit(args, {"event": "stats", **asdict(st)},
-             f"{st.frames} frames, {st.errors} errors, {st.damaged} damaged, {st.ignored} ignored")
+        _stats(args, slave.stats)
     return 0

@@ -89,6 +89,14 @@ class FaultPlan:
             self.rec_port = t - self.disc_end
 
 
+def running(a: argparse.Namespace, t0: float, seconds: Optional[float] = None) -> bool:
+    """True while one protocol's soak goes on: its time (``seconds``, default
+    ``--seconds``) is not up and no SIGINT/SIGTERM came (``a.stop``)."""
+    stop = getattr(a, "stop", None)
+    return (time.monotonic() - t0 < (a.seconds if seconds is None else seconds)
+            and not (stop is not None and stop.is_set()))
+
+
 def _watch(p: Any, i: int, children: Dict[str, Any], threads: List[Any], reader: Any,
            key: Any) -> threading.Event:
     """Register ``p`` as slave ``i``'s process and start the thread reading its
@@ -375,8 +383,7 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     # faults: kill slave 1 at 1/3 (back after 2 s), master port gone at 2/3 for 1 s
     plan = FaultPlan(a.seconds, t0)
     seq = 0
-    deadline = t0 + a.seconds
-    while time.monotonic() < deadline:
+    while running(a, t0):
         plan.step(children, lambda i: start_slave(i).wait(10), bus,
                   on_kill=lambda: setattr(incs[1][-1], "killed", True))
         dst = 1 + seq % n
@@ -395,8 +402,8 @@ def soak_fap(a: argparse.Namespace) -> Dict[str, Any]:
     # drain: the slaves stopped queueing at the end; wait (bounded) until
     # what the live ones queued has arrived or nothing moves any more
     last, still = -1, 0
-    drain_end = time.monotonic() + 10.0
-    while time.monotonic() < drain_end and still < 10:
+    drain_start = time.monotonic()
+    while running(a, drain_start, 10.0) and still < 10:
         with lock:
             now_got = sum(got.values())
         still = still + 1 if now_got == last else 0
@@ -503,7 +510,7 @@ def soak_exec(a: argparse.Namespace) -> Dict[str, Any]:
     ok = corrupted = stale = failures = port_errors = 0
     sent_ids: Dict[int, int] = {}
     plan = FaultPlan(a.seconds, t0)
-    while time.monotonic() - t0 < a.seconds:
+    while running(a, t0):
         plan.step(children, start_slave, bus)
         node = 1 + mid % n
         body = mid.to_bytes(8, "big") + rnd.randbytes(rnd.randint(8, 180))
@@ -577,10 +584,10 @@ def soak_check8(a: argparse.Namespace, proto: str) -> Dict[str, Any]:
     rnd = random.Random(a.seed)
     ber = a.check8_ber
     sent = intact = detected = undetected = damaged = lost = 0
-    t_end = time.monotonic() + a.check8_seconds
+    t0 = time.monotonic()
     if proto == "mikroc":
         from fap_py import mikroc
-        while time.monotonic() < t_end:
+        while running(a, t0, a.check8_seconds):
             addr, data, fm = rnd.randrange(256), rnd.randbytes(rnd.randint(0, 3)), rnd.random() < 0.5
             frame = mikroc.encode(addr, data, from_master=fm)
             wire = _channel(rnd, frame, ber)
@@ -597,7 +604,7 @@ def soak_check8(a: argparse.Namespace, proto: str) -> Dict[str, Any]:
                 undetected += 1
     else:
         from fap_py.g485 import codec
-        while time.monotonic() < t_end:
+        while running(a, t0, a.check8_seconds):
             data = rnd.randbytes(rnd.randint(1, 12))
             frame = codec.encode_write(rnd.randint(1, 126), rnd.randint(1, 100 - len(data) + 1), data)
             wire = _channel(rnd, frame, ber)
@@ -668,7 +675,8 @@ def run(a: argparse.Namespace) -> int:
     """The command: one result per protocol (JSON line or text); exit 1 if FAP or exec
     async delivered anything corrupted or twice, or mikroC delivered a frame twice
     (mikroC / G485 corruption is measured, not failed on). Errors reach ``run_command``."""
-    from ._options import UsageError, emit
+    from ._node import stop_on_sigterm, timed_progress
+    from ._options import EXIT_INTERRUPTED, UsageError, emit
 
     if not 1 <= a.slaves <= 31 or a.seconds <= 0 or a.sample <= 0:
         raise UsageError(f"need --slaves 1..31, --seconds > 0, --sample > 0 (not {a.slaves}, "
@@ -678,19 +686,33 @@ def run(a: argparse.Namespace) -> int:
                          "are probabilities (0..1)")
     protos = ["fap", "exec", "mikroc", "g485"] if a.protocol == "all" else [a.protocol]
     failed = False
-    for proto in protos:
-        if proto == "fap":
-            res = soak_fap(a)
-        elif proto == "exec":
-            res = soak_exec(a)
-        else:
-            from . import _soak8bit
-            res = (_soak8bit.soak_mikroc if proto == "mikroc" else _soak8bit.soak_g485)(a)
-            # the 8-bit check alone on a simulated channel: a second figure
-            res["channel"] = soak_check8(a, proto)
-        emit(a, res, _human(res))
-        failed |= not res.get("ok", True)
+    with stop_on_sigterm() as stop:
+        a.stop = stop         # the soak loops end early when it is set (running())
+        for proto in protos:
+            total = a.seconds + (a.check8_seconds if proto in ("mikroc", "g485") else 0)
+            with timed_progress(f"soak {proto}", total):
+                res = _soak_one(a, proto)
+            if stop.is_set():
+                res["interrupted"] = True
+            emit(a, res, _human(res))
+            failed |= not res.get("ok", True)
+            if stop.is_set():
+                break
+    if stop.is_set():     # Ctrl-C / SIGTERM: the results so far, then exit 130
+        return EXIT_INTERRUPTED
     return 1 if failed else 0
+
+
+def _soak_one(a: argparse.Namespace, proto: str) -> Dict[str, Any]:
+    if proto == "fap":
+        return soak_fap(a)
+    if proto == "exec":
+        return soak_exec(a)
+    from . import _soak8bit
+    res = (_soak8bit.soak_mikroc if proto == "mikroc" else _soak8bit.soak_g485)(a)
+    # the 8-bit check alone on a simulated channel: a second figure
+    res["channel"] = soak_check8(a, proto)
+    return res
 
 
 def _die_with_parent() -> None:

@@ -61,13 +61,15 @@ def test_demo_faults_show_inactive_and_recovery() -> None:
     r = run_proc("demo", "--json", "--faults", "--duration", "6", "--slaves", "2")
     assert r.code == 0, r.err
     objs = [json.loads(line) for line in r.out.splitlines()]
-    texts = [o["text"] for o in objs if o["event"] == "bus"]
-    silenced = [t for t in texts if "fault: slave 7 silenced" in t]
-    assert silenced, texts
-    after = texts[texts.index(silenced[0]):]
-    assert any("slave 7 inactive" in t for t in after), texts
-    assert any("slave 7 active" in t for t in after[1:]), texts      # recovered
-    assert 7 in objs[-1]["active"] or any("slave 7 active" in t for t in after[-2:])
+    # structured events, no pre-formatted text (issue 25 defect 11)
+    assert all("text" not in o for o in objs)
+    events = [(o["event"], o.get("slave")) for o in objs if o["event"] not in ("status", "start")]
+    silenced = events.index(("fault", 7))
+    after = events[silenced:]
+    assert ("slave_inactive", 7) in after, events
+    assert ("slave_active", 7) in after[after.index(("slave_inactive", 7)):], events  # recovered
+    assert ("fault_over", 7) in after, events
+    assert all(isinstance(o["t"], float) for o in objs if o["event"].startswith("slave_"))
 
 
 def _read_pty(fd: int, proc: subprocess.Popen, timeout: float) -> bytes:

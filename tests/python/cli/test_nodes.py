@@ -175,8 +175,11 @@ def test_g485_scan_and_read(fap, bus) -> None:
         r = fap("g485", "read", "--port", bus.paths[0], "--address", "5", "--register", "1",
                 "--registers", "2", "--count", "2", "--interval", "0", "--timeout", "2",
                 "--json")
-        assert r.code == 0 and len(r.lines()) == 2, r.err
-        assert json.loads(r.lines()[0])["values"] == json.loads(r.lines()[1])["values"]
+        assert r.code == 0 and len(r.lines()) == 3, r.err
+        replies = _json(r.lines())
+        assert [o["event"] for o in replies] == ["reply", "reply", "summary"]   # issue 25: event keys
+        assert replies[0]["values"] == replies[1]["values"]
+        assert replies[2] == {"event": "summary", "address": 5, "requests": 2, "failed": 0}
         r = fap("g485", "scan", "--port", bus.paths[0], "--last", "6", "--timeout", "1",
                 "--json")
         assert r.code == 0, r.err

@@ -125,7 +125,7 @@ def hostile_values(name: str) -> List[Any]:
     if any(w in last for w in ("timeout", "cycle", "budget", "gap", "interval")):
         return BAD_TIMES
     if last == "mode":
-        return [True, 99, -1, "AUTO", NAN]
+        return [True, 99, -1, "sideways", NAN]   # a mode name ("auto") is accepted
     if last == "exclusive":
         return [1, 0, "x", 1.0]
     if last in ("rx_queue", "retries", "baud", "turnaround_us"):       # None = the C default
