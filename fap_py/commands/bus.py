@@ -11,7 +11,7 @@ import signal
 import sys
 import threading
 import time
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, List, Optional
 
 from ._options import add_command, add_output_options, baud, emit
 
@@ -63,40 +63,105 @@ def _open(args: argparse.Namespace) -> "VirtualBus":
                       args.link_dir) from None
 
 
+class _CaptureTail:
+    """Per-port counts read from the bus's own ``--capture`` file as it grows
+    (docs/vbus.md: one data line per transmission, paced, or per chunk the
+    relay read, unpaced; ``collision``/``fault``/``overflow`` event lines),
+    at most :attr:`CHUNK` bytes a call so a fast bus cannot stall the view."""
+
+    CHUNK = 1 << 20
+
+    def __init__(self, path: str, ports: int) -> None:
+        self.file = open(path, "rb")
+        self.rest = b""
+        self.tx = [0] * ports          #: data lines (transmissions) sent by each port
+        self.bytes = [0] * ports       #: bytes sent by each port
+        self.errors = [0] * ports      #: collision, fault and overflow events of each port
+
+    def close(self) -> None:
+        self.file.close()
+
+    def poll(self) -> None:
+        data = self.file.read(self.CHUNK)
+        if not data:
+            return
+        *lines, self.rest = (self.rest + data).split(b"\n")
+        for line in lines:
+            if line.startswith(b"# "):
+                self._event(line.split()[1:])
+                continue
+            parts = line.split(b" ", 2)
+            if len(parts) == 3 and parts[1].isdigit() and int(parts[1]) < len(self.tx):
+                self.tx[int(parts[1])] += 1
+                self.bytes[int(parts[1])] += (len(parts[2]) + 1) // 3
+
+    def _event(self, words: List[bytes]) -> None:
+        if not words or words[0] not in (b"collision", b"fault", b"overflow"):
+            return
+        fields = dict(w.split(b"=", 1) for w in words[1:] if b"=" in w)
+        for port in (fields.get(b"ports") or fields.get(b"port") or b"").split(b","):
+            if port.isdigit() and int(port) < len(self.errors):
+                self.errors[int(port)] += 1
+
+
 class _Status:
-    """On a terminal: one status line on stderr, rewritten in place twice a
-    second: bytes/s written by the nodes and delivered, totals, and every
-    error counter of the bus (``fap_vbus_stats``, bus-wide: the C API has
-    no per-port counters and the bus knows bytes, not frames)."""
+    """On a terminal: a status view on stderr, redrawn in place twice a
+    second (rich): bytes/s written by the nodes and delivered, totals and
+    every error counter of the bus (``fap_vbus_stats``); with ``--capture``
+    also one row per port (transmissions/s, bytes/s, bytes, errors) read
+    from the capture, since the bus counts bytes, not frames or ports."""
 
     PERIOD = 0.5
 
-    def __init__(self, bus: "VirtualBus") -> None:
+    def __init__(self, bus: "VirtualBus", capture: Optional[str]) -> None:
+        from rich.console import Console
+        from rich.live import Live
+
         self.bus = bus
         self.last = bus.stats()
         self.t = time.monotonic()
-        self.width = 0
+        self.tail = _CaptureTail(capture, len(bus.paths)) if capture else None
+        self.prev = ([0] * len(bus.paths), [0] * len(bus.paths))
+        self.live = Live(console=Console(stderr=True, highlight=False), auto_refresh=False,
+                         transient=True)
+        self.live.start()
 
     def show(self) -> None:
         now = time.monotonic()
         if now - self.t < self.PERIOD:
             return
+        from rich.console import Group
+        from rich.table import Table
+
         st, dt = self.bus.stats(), now - self.t
         rate_in = (st.bytes_in - self.last.bytes_in) / dt
         rate_out = (st.bytes_out - self.last.bytes_out) / dt
         self.last, self.t = st, now
-        line = (f"bus: in {rate_in:,.0f} B/s, out {rate_out:,.0f} B/s; total in "
-                f"{st.bytes_in:,} B, out {st.bytes_out:,} B; errors: collisions "
-                f"{st.collisions}, bit errors {st.bit_errors}, dropped {st.dropped}, "
-                f"overflow {st.overflow}, disconnects {st.disconnects}")
-        sys.stderr.write("\r" + line.ljust(self.width))
-        sys.stderr.flush()
-        self.width = len(line)
+        parts: List[Any] = [
+            f"bus: in {rate_in:,.0f} B/s, out {rate_out:,.0f} B/s; total in {st.bytes_in:,} B, "
+            f"out {st.bytes_out:,} B; errors: collisions {st.collisions}, bit errors "
+            f"{st.bit_errors}, dropped {st.dropped}, overflow {st.overflow}, disconnects "
+            f"{st.disconnects}"]
+        if self.tail is None:
+            parts.append("(per-port rows with --capture)")
+        else:
+            self.tail.poll()
+            table = Table(box=None, padding=(0, 1))
+            for col in ("port", "tx/s", "B/s", "bytes", "errors"):
+                table.add_column(col, justify="left" if col == "port" else "right")
+            tx0, b0 = self.prev
+            for i in range(len(self.tail.tx)):
+                table.add_row(f"port{i}", f"{(self.tail.tx[i] - tx0[i]) / dt:,.0f}",
+                              f"{(self.tail.bytes[i] - b0[i]) / dt:,.0f}",
+                              f"{self.tail.bytes[i]:,}", str(self.tail.errors[i]))
+            self.prev = (list(self.tail.tx), list(self.tail.bytes))
+            parts.append(table)
+        self.live.update(Group(*parts), refresh=True)
 
     def end(self) -> None:
-        if self.width:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
+        self.live.stop()
+        if self.tail is not None:
+            self.tail.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -117,12 +182,15 @@ def run(args: argparse.Namespace) -> int:
             emit(args, {"event": "ready", "ports": len(bus.paths), "baud": args.baud,
                         "echo": args.echo},
                  f"ready ({len(bus.paths)} ports, {mode}{', echo' if args.echo else ''})")
-            status = _Status(bus) if sys.stderr.isatty() and not args.json else None
-            while not stop.wait(0.2):   # signal handlers run between waits
+            status = _Status(bus, args.capture) if sys.stderr.isatty() and not args.json \
+                else None
+            try:
+                while not stop.wait(0.2):   # signal handlers run between waits
+                    if status is not None:
+                        status.show()
+            finally:
                 if status is not None:
-                    status.show()
-            if status is not None:
-                status.end()
+                    status.end()
             st = bus.stats()
     finally:
         for s, handler in old.items():

@@ -56,12 +56,34 @@ def _with_tty_stderr(argv: List[str], *, until: Optional[Callable[[bytes], bool]
         os.close(master)
 
 
-def test_bus_status_line_on_a_terminal(tmp_path: Path) -> None:
+def test_bus_status_on_a_terminal(tmp_path: Path) -> None:
     p, out, seen = _with_tty_stderr(fap_cmd("bus", "--ports", "2", "--link-dir", str(tmp_path)),
                                     until=lambda s: s.count(b"bus: in ") >= 2, timeout=30)
-    assert seen.count(b"bus: in ") >= 2, seen    # rewritten in place (\r) twice a second
-    assert b"\r" in seen and b"errors: collisions 0" in seen
+    assert seen.count(b"bus: in ") >= 2, seen    # redrawn twice a second
+    assert b"errors: collisions 0" in seen and b"(per-port rows with --capture)" in seen
     assert p.returncode == 0 and b"stats bytes_in=" in out
+
+
+def test_bus_status_per_port_from_the_capture(tmp_path: Path) -> None:
+    links, cap = tmp_path / "bus", tmp_path / "bus.cap"
+    sent = []
+
+    def until(seen: bytes) -> bool:
+        if b"bus: in " in seen and not sent:       # the bus is up: one node writes 1000 bytes
+            fd = os.open(links / "port0", os.O_RDWR | os.O_NOCTTY)
+            os.write(fd, bytes(1000))
+            sent.append(fd)
+        return b"1,000" in seen                    # port0's byte total, from the capture
+
+    argv = fap_cmd("bus", "--ports", "2", "--link-dir", str(links), "--capture", str(cap))
+    try:
+        p, out, seen = _with_tty_stderr(argv, until=until, timeout=30)
+    finally:
+        for fd in sent:
+            os.close(fd)
+    assert b"1,000" in seen, seen
+    assert b"tx/s" in seen and b"port0" in seen and b"port1" in seen
+    assert p.returncode == 0 and b"bytes_in=1000 " in out
 
 
 def test_soak_progress_on_a_terminal_only() -> None:
