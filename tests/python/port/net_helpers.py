@@ -18,25 +18,18 @@ import select
 import shutil
 import socket
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-import pytest
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bridge"))
+from bridge_helpers import need
 
 SER2NET = shutil.which("ser2net") or (
     "/usr/sbin/ser2net" if os.access("/usr/sbin/ser2net", os.X_OK) else None)
 WAIT = 10.0   #: upper bound of every wait (never a sleep used as synchronisation)
-
-
-def need(what: str, ok: bool) -> None:
-    """Skip when ``what`` is missing, but fail under ``CI`` (CI installs it)."""
-    if ok:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"{what} is missing (CI installs it)")
-    pytest.skip(f"{what} is not installed")
 
 
 def free_port() -> int:

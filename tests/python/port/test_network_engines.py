@@ -13,7 +13,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Callable, Iterator, List, Tuple
+from typing import Callable, List, Tuple
 
 import pytest
 
@@ -30,14 +30,6 @@ from fap_py.vbus import VirtualBus
 FAST = {"id_cycle": 0.05, "id_answer_timeout": 0.05, "data_done_timeout": 0.5}
 ROLES = [(0, 1), (1, 0)]          # (master's URL, slave's URL): raw/rfc2217 and back
 ROLE_IDS = ["master-raw-slave-rfc2217", "master-rfc2217-slave-raw"]
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Tuple[VirtualBus, Ser2net]]:
-    with VirtualBus(ports=2) as bus, \
-            Ser2net(tmp_path, [("raw", bus.paths[0], 115200),
-                               ("rfc2217", bus.paths[1], 115200)]) as s:
-        yield bus, s
 
 
 @pytest.mark.parametrize("roles", ROLES, ids=ROLE_IDS)
