@@ -67,9 +67,11 @@ def listening(port: int) -> bool:
 
 class Ser2net:
     """ser2net serving devices: ``entries`` is a list of (mode, device, baud),
-    mode ``"raw"`` or ``"rfc2217"``; :attr:`urls` the matching client URLs."""
+    mode ``"raw"`` or ``"rfc2217"``; :attr:`urls` the matching client URLs.
+    ``options``: more ser2net connection options (``{"chardelay-min": 100}``)."""
 
-    def __init__(self, workdir: Path, entries: List[Tuple[str, str, int]]) -> None:
+    def __init__(self, workdir: Path, entries: List[Tuple[str, str, int]],
+                 options: Optional[Dict[str, Any]] = None) -> None:
         need("ser2net", SER2NET is not None)
         self.workdir = Path(workdir)
         self.entries = entries
@@ -84,7 +86,8 @@ class Ser2net:
                 else f"telnet(rfc2217),tcp,127.0.0.1,{port}"
             lines += [f"connection: &c{i}", f"  accepter: {acc}",
                       f"  connector: serialdev,{dev},{baud}n81,local",
-                      "  options:", "    kickolduser: true", ""]
+                      "  options:", "    kickolduser: true"]
+            lines += [f"    {k}: {v}" for k, v in (options or {}).items()] + [""]
         self.config.write_text("\n".join(lines))
         self.proc: Optional[subprocess.Popen[bytes]] = None
         self.start()
