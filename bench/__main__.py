@@ -508,6 +508,8 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {name} | {g(c, cname + '_encode')} | {g(c, cname + '_decode')} | "
                      f"{g(p, cname + '_encode')} | {g(p, cname + '_decode')} |")
         L += ["", "FAP has no Python codec (fap_py drives the C engine); G485 is pure Python.", ""]
+    from bench import net
+    L += net.markdown_lines(res)   # ser2net rows and the mismatched-baud case
     return "\n".join(L)
 
 
@@ -692,7 +694,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     # one step per measured cell; a rich bar on a terminal (stderr), nothing otherwise
     from fap_py.commands._node import Progress  # the installed fap_py (sys.path above)
 
-    steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 2
+    steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 4
     with Progress(steps, "bench", enabled=True) as bar:
         for baud in bauds:
             res["paced"][str(baud)] = {}
@@ -709,6 +711,18 @@ def main(argv: Optional[List[str]] = None) -> int:
             log.info("scale at %d", baud)
             bar.advance(f"scale at {baud}")
             res["scale"][str(baud)] = scale_series(runner, baud, 1 if quick else 2, seconds, quick)
+        from bench import net  # network transports and mismatched baud (bench/net.py)
+        bar.advance("network transports")
+        if net.have_ser2net():
+            log.info("through ser2net")
+            res["network"] = {"baud": 115200,
+                              "rows": net.network_series(runner, 115200, rounds, seconds, quick)}
+        else:
+            print("bench: ser2net missing, network rows skipped (apt-get install ser2net)",
+                  file=sys.stderr)
+        log.info("mismatched baud")
+        bar.advance("mismatched baud")
+        res["mismatch"] = net.mismatch_series(runner, rounds, seconds, quick)
         bar.advance("Python overhead")
         try:
             res["python"] = python_overhead(args, quick)

@@ -213,6 +213,8 @@ static void try_reopen(fapx *h, lf_ns now)
         h->port_down = 0;
         h->ec.port_reopened++;
         lf_fap_decoder_reset(&h->dec);
+        if (h->mode == FAPX_MASTER)   /* a network server's restart: no 15 s wait */
+            lf_fap_master_link_reset(&h->m, now);
         push_event(h, FAPX_EV_PORT_REOPENED, h->id, now);
     } else {
         h->reopen_at = now + us_ns(h->o.reopen_us);

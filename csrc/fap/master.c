@@ -257,6 +257,18 @@ void lf_fap_master_on_timer(lf_fap_master *m, lf_ns now)
     }
 }
 
+void lf_fap_master_link_reset(lf_fap_master *m, lf_ns now)
+{
+    if (m->out.len)
+        return;                          /* not sent yet: it goes out on the new link */
+    if (m->state == LF_M_POLL_WAIT && m->wait_deadline > now)
+        m->wait_deadline = now;          /* timeout path: loss counted, ID cycle next */
+    else if (m->state == LF_M_ID_WAIT)
+        start_id_cycle(m, now);          /* ask again, from the first inactive slave */
+    else if (m->state == LF_M_IDLE && (m->listed & ~m->active))
+        m->next_idc = now;               /* slaves lost during the outage: query now */
+}
+
 lf_ns lf_fap_master_deadline(const lf_fap_master *m)
 {
     if (m->out.len)

@@ -39,6 +39,12 @@ void lf_fap_master_tx_queued(lf_fap_master *m, lf_ns now);
 void lf_fap_master_on_frame(lf_fap_master *m, const lf_fap_frame *f, lf_ns now);
 /* Call at (or after) lf_fap_master_deadline(). */
 void lf_fap_master_on_timer(lf_fap_master *m, lf_ns now);
+/* The port went and came back (a reopen): an answer awaited now died with
+ * the link, so stop waiting for it (a DATA_DONE: the usual timeout path
+ * at the next lf_fap_master_on_timer(), the loss counted; an ID: the ID
+ * cycle starts again), and slaves marked inactive during the outage are
+ * queried at once, not after the ID cycle time. */
+void lf_fap_master_link_reset(lf_fap_master *m, lf_ns now);
 /* The outbox frame has been transmitted at `now`. */
 void lf_fap_master_sent(lf_fap_master *m, lf_ns now);
 lf_ns lf_fap_master_deadline(const lf_fap_master *m);

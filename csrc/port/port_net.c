@@ -127,39 +127,37 @@ static void send_cmd(lf_net *c, uint8_t verb, uint8_t opt)
 static int we_may(uint8_t opt) { return opt == LF_TN_OPT_BINARY || opt == LF_TN_OPT_COMPORT; }
 static int he_may(uint8_t opt) { return opt == LF_TN_OPT_BINARY || opt == LF_TN_OPT_SGA; }
 
+/* One side of an option: ours (the server sent DO/DONT) or the server's
+ * (WILL/WONT). Only a change is answered, so two peers never loop. */
+static void negotiate(lf_net *c, uint8_t *state, int allowed, int asked_on, uint8_t yes,
+                      uint8_t no, uint8_t opt)
+{
+    if (asked_on && allowed) {
+        if (*state != OPT_ASKED && *state != OPT_ON)
+            send_cmd(c, yes, opt);
+        *state = OPT_ON;
+    } else if (asked_on) {
+        if (*state != OPT_REFUSED)
+            send_cmd(c, no, opt);
+        *state = OPT_REFUSED;
+    } else {
+        if (*state == OPT_ON)
+            send_cmd(c, no, opt);
+        *state = OPT_REFUSED;
+    }
+}
+
 static void on_cmd(void *ctx, uint8_t verb, uint8_t opt, const uint8_t *sb, size_t len)
 {
     lf_net *c = ctx;
     switch (verb) {
     case LF_TN_DO:
-        if (we_may(opt)) {
-            if (c->us[opt] != OPT_ASKED && c->us[opt] != OPT_ON)
-                send_cmd(c, LF_TN_WILL, opt);
-            c->us[opt] = OPT_ON;
-        } else if (c->us[opt] != OPT_REFUSED) {
-            c->us[opt] = OPT_REFUSED;
-            send_cmd(c, LF_TN_WONT, opt);
-        }
-        break;
     case LF_TN_DONT:
-        if (c->us[opt] == OPT_ON)
-            send_cmd(c, LF_TN_WONT, opt);
-        c->us[opt] = OPT_REFUSED;
+        negotiate(c, &c->us[opt], we_may(opt), verb == LF_TN_DO, LF_TN_WILL, LF_TN_WONT, opt);
         break;
     case LF_TN_WILL:
-        if (he_may(opt)) {
-            if (c->him[opt] != OPT_ASKED && c->him[opt] != OPT_ON)
-                send_cmd(c, LF_TN_DO, opt);
-            c->him[opt] = OPT_ON;
-        } else if (c->him[opt] != OPT_REFUSED) {
-            c->him[opt] = OPT_REFUSED;
-            send_cmd(c, LF_TN_DONT, opt);
-        }
-        break;
     case LF_TN_WONT:
-        if (c->him[opt] == OPT_ON)
-            send_cmd(c, LF_TN_DONT, opt);
-        c->him[opt] = OPT_REFUSED;
+        negotiate(c, &c->him[opt], he_may(opt), verb == LF_TN_WILL, LF_TN_DO, LF_TN_DONT, opt);
         break;
     case LF_TN_SB:
         /* COM-PORT answers: cmd + 100, then the value (1 or 4 bytes) */

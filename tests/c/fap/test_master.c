@@ -280,7 +280,40 @@ static void test_add_during_id_cycle_below_cursor(void)
     EXPECT_TX(IDA + 2 + IDA, LF_FAP_SEND_DATA, 2);
 }
 
-UNIT_MAIN(UNIT(test_idle_without_slaves), UNIT(test_id_cycle_then_data_cycle),
+/* The port came back after a network server's restart: no answer awaited
+ * then will come. A DATA_DONE wait ends at once (the slave is marked
+ * inactive, counted, and queried again), an ID wait starts the ID cycle
+ * over, an idle master with inactive slaves queries them now, and a frame
+ * not sent yet is left alone. */
+static void test_link_reset(void)
+{
+    setup(0);
+    CHECK_EQ(lf_fap_master_add(&M, 1, 0), 0);
+    EXPECT_TX(1, LF_FAP_QUERY_ID, 1);
+    rx(LF_FAP_ID, 0, 1, NULL, 2);
+    EXPECT_TX(3, LF_FAP_SEND_DATA, 1);
+    CHECK_EQ(lf_fap_master_deadline(&M), 3 + DDONE);
+    lf_fap_master_link_reset(&M, 5);              /* DATA_DONE will not come */
+    CHECK_EQ(lf_fap_master_deadline(&M), 5);
+    lf_fap_master_on_timer(&M, 5);
+    CHECK_EQ(M.c.data_done_timeouts, 1);
+    CHECK(!lf_fap_master_is_active(&M, 1));
+    lf_fap_master_link_reset(&M, 5);              /* QUERY_ID in the outbox: left alone */
+    EXPECT_TX(6, LF_FAP_QUERY_ID, 1);
+    lf_fap_master_link_reset(&M, 7);              /* its answer died: ask again */
+    EXPECT_TX(7, LF_FAP_QUERY_ID, 1);
+    CHECK_EQ(M.c.id_timeouts, 0);
+    lf_fap_master_on_timer(&M, 7 + IDA);          /* no answer now either */
+    CHECK_EQ(M.c.id_timeouts, 1);
+    CHECK(tx(7 + IDA) == NULL);                   /* idle until the next ID cycle ... */
+    CHECK_EQ(lf_fap_master_deadline(&M), 7 + IDC);
+    lf_fap_master_link_reset(&M, 30);             /* ... unless the link came back */
+    CHECK_EQ(lf_fap_master_deadline(&M), 30);
+    lf_fap_master_on_timer(&M, 30);
+    EXPECT_TX(31, LF_FAP_QUERY_ID, 1);
+}
+
+UNIT_MAIN(UNIT(test_link_reset), UNIT(test_idle_without_slaves), UNIT(test_id_cycle_then_data_cycle),
           UNIT(test_id_timeout_and_idc_requery), UNIT(test_data_done_timeout_marks_inactive),
           UNIT(test_master_slot_first_and_budget), UNIT(test_idle_master_sends_queued_data),
           UNIT(test_idle_until_idc), UNIT(test_add_remove_while_running),

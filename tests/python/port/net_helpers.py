@@ -18,25 +18,18 @@ import select
 import shutil
 import socket
 import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-import pytest
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bridge"))
+from bridge_helpers import need
 
 SER2NET = shutil.which("ser2net") or (
     "/usr/sbin/ser2net" if os.access("/usr/sbin/ser2net", os.X_OK) else None)
 WAIT = 10.0   #: upper bound of every wait (never a sleep used as synchronisation)
-
-
-def need(what: str, ok: bool) -> None:
-    """Skip when ``what`` is missing, but fail under ``CI`` (CI installs it)."""
-    if ok:
-        return
-    if os.environ.get("CI"):
-        pytest.fail(f"{what} is missing (CI installs it)")
-    pytest.skip(f"{what} is not installed")
 
 
 def free_port() -> int:
@@ -74,9 +67,11 @@ def listening(port: int) -> bool:
 
 class Ser2net:
     """ser2net serving devices: ``entries`` is a list of (mode, device, baud),
-    mode ``"raw"`` or ``"rfc2217"``; :attr:`urls` the matching client URLs."""
+    mode ``"raw"`` or ``"rfc2217"``; :attr:`urls` the matching client URLs.
+    ``options``: more ser2net connection options (``{"chardelay-min": 100}``)."""
 
-    def __init__(self, workdir: Path, entries: List[Tuple[str, str, int]]) -> None:
+    def __init__(self, workdir: Path, entries: List[Tuple[str, str, int]],
+                 options: Optional[Dict[str, Any]] = None) -> None:
         need("ser2net", SER2NET is not None)
         self.workdir = Path(workdir)
         self.entries = entries
@@ -91,7 +86,8 @@ class Ser2net:
                 else f"telnet(rfc2217),tcp,127.0.0.1,{port}"
             lines += [f"connection: &c{i}", f"  accepter: {acc}",
                       f"  connector: serialdev,{dev},{baud}n81,local",
-                      "  options:", "    kickolduser: true", ""]
+                      "  options:", "    kickolduser: true"]
+            lines += [f"    {k}: {v}" for k, v in (options or {}).items()] + [""]
         self.config.write_text("\n".join(lines))
         self.proc: Optional[subprocess.Popen[bytes]] = None
         self.start()

@@ -11,8 +11,7 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
-from typing import Iterator, List, Tuple
+from typing import List, Tuple
 
 import pytest
 
@@ -83,15 +82,6 @@ def test_refused_baud_is_a_port_error() -> None:
                            "--node", "5", "01")
     assert code == EXIT_PORT
     one_error_line(err, "refused a line setting")
-
-
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[Tuple[VirtualBus, Ser2net]]:
-    """Port 0 raw, port 1 RFC 2217; port 2 of the bus is the test's own."""
-    with VirtualBus(ports=3) as bus, \
-            Ser2net(tmp_path, [("raw", bus.paths[0], 115200),
-                               ("rfc2217", bus.paths[1], 115200)]) as s:
-        yield bus, s
 
 
 def _json(text: str) -> List[dict]:
