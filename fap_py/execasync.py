@@ -420,6 +420,13 @@ class Master(NativeHandle):
     def _release(self, h: Any) -> None:
         lib.execMasterClose(h)
 
+    def _interrupt(self) -> None:
+        # a transact in another thread returns -ECANCELED (ClosedError) at once
+        # instead of waiting out its timeout and retries
+        h = self._h
+        if h is not None:
+            lib.execMasterStop(h)
+
     def _fd(self, h: Any) -> int:
         return int(lib.fap_port_fd(lib.execMasterPort(h)))
 

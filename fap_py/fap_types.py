@@ -91,6 +91,7 @@ class Stats:
     ev_dropped: int          #: events lost to a full event queue
     tx_to_inactive: int      #: master: DATA sent to a slave not active at the time
     tx_unconfirmed: int      #: master: DATA sent to a slave then marked inactive
+    tx_abandoned: int        #: frames a close dropped because the line would not take them
 
     def as_dict(self) -> Dict[str, int]:
         """The counters as a plain dict."""

@@ -52,7 +52,7 @@ from .errors import (
     UnexpectedReplyError,
     WriteRefusedError,
 )
-from .transport import IO, PortSpec, open_io
+from .transport import IO, PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")
 
@@ -267,6 +267,7 @@ class G485Master:
                  set_guard: bool = True, set_repeats: int = 3, factory_address: int = 1,
                  echo: bool = False, rs485: Optional[RS485] = None, **serial_kwargs: Any) -> None:
         self._io: Optional[IO] = None
+        self._close_hooks: List[Callable[[], None]] = []   # AsyncG485Master: fail its waiter
         self.timeout = seconds(timeout)
         self.retries = whole(retries, "retries", 0, MAX_RETRIES)
         self.check = _as_check(check, Check.HANDSHAKE)
@@ -299,10 +300,21 @@ class G485Master:
     # -- context management ----------------------------------------------------
 
     def close(self) -> None:
-        """Close the port (if the master opened it)."""
-        if self._io is not None:
+        """Close the port. Thread-safe: a transaction in flight in another thread
+        (or an :class:`~fap_py.g485.aio.AsyncG485Master` exchange) ends within
+        0.5 s with :class:`~fap_py.errors.ClosedError` instead of waiting out its
+        timeout and retries. (A pyserial port, which cannot be closed under a
+        reader, is closed between transactions.)"""
+        io = self._io
+        if io is None:
+            return
+        if isinstance(io, PortIO):
+            io.close()      # Port.close: ends the waits in C and the sliced polls
+        else:
             with self._lock:
-                self._io.close()
+                io.close()
+        for hook in list(self._close_hooks):
+            hook()
 
     def __enter__(self) -> "G485Master":
         return self

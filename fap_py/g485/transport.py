@@ -26,12 +26,15 @@ from typing import Any, Optional, Union
 
 import serial
 
+from .._handle import WAIT_SLICE
 from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
 from ..port import Port
 from ..rs485 import RS485
 from .errors import EchoMismatchError, G485ValueError
 
 PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
+#: longest poll of a reply wait: a close() from another thread is noticed within it
+_SLICE_MS = int(WAIT_SLICE * 1000)
 
 
 def _is_url(name: str) -> bool:
@@ -78,8 +81,15 @@ class PortIO:
         nothing came; the caller goes on with :meth:`read_some` if the chunk is short)."""
         poller = self._poller
         if poller is not None:
-            if not poller.poll(math.ceil(timeout * 1000.0)):
-                return b""
+            ms = math.ceil(timeout * 1000.0)
+            deadline = time.monotonic() + timeout
+            # in slices: a close() from another thread ends the wait (ClosedError below)
+            while not poller.poll(min(ms, _SLICE_MS)):
+                if self.port.closed:
+                    break
+                ms = math.ceil((deadline - time.monotonic()) * 1000.0)
+                if ms <= 0:
+                    return b""
             return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
