@@ -83,6 +83,13 @@ class PortGoneError(PortError):
     """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
 
 
+class FileError(PortError):
+    """A file named by the user cannot be used: missing, unreadable, not a
+    regular file (a directory, ``/dev/zero``, a FIFO) or larger than its bound
+    (``fap_py._files``). Also a :class:`PortError` (and an ``OSError``): the
+    command line's "bad file" exit status 3."""
+
+
 #: errno values that mean the device is no longer there
 _GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
 

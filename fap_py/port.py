@@ -25,7 +25,7 @@ from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
-from ._validate import check_seconds
+from ._validate import check_bytes, check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
     FapError,
     InvalidTypeError,
@@ -172,11 +172,15 @@ class Port(NativeHandle):
         """
         if type(data) is bytes:  # cffi passes bytes to a const void * as they are
             buf: Any = data
+            n = len(data)
         elif isinstance(data, (bytearray, memoryview)):
+            if isinstance(data, memoryview) and not data.c_contiguous:
+                data = data.tobytes()        # a strided view: from_buffer refuses it
             buf = self._ffi.from_buffer(data)
+            n = len(buf)                     # bytes, also for a view of wider items
         else:
             raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-        rc = self._call(self._lib.fap_port_write, buf, len(data))
+        rc = self._call(self._lib.fap_port_write, buf, n)
         if rc < 0:
             raise port_error(rc, "write", self.path)
         return int(rc)
@@ -184,9 +188,8 @@ class Port(NativeHandle):
     def send(self, data: bytes) -> int:
         """:meth:`write` without ``tcdrain`` unless soft RTS or echo suppression needs it
         (``fap_port_send``): it returns once the bytes are queued, for a reply or a
-        broadcast that nobody times from the write's return. ``data`` must be bytes."""
-        if type(data) is not bytes:
-            raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
+        broadcast that nobody times from the write's return. ``data``: bytes-like."""
+        data = check_bytes(data, "data", 0, 1 << 62)   # bytes-like, strided views too
         rc = self._call(self._lib.fap_port_send, data, len(data))
         if rc < 0:
             raise port_error(rc, "write", self.path)
@@ -202,11 +205,13 @@ class Port(NativeHandle):
                 time.monotonic_ns() + math.ceil(check_timeout(timeout) * 1e9))
         elif isinstance(deadline_ns, bool) or not isinstance(deadline_ns, int):
             raise InvalidTypeError(f"deadline_ns must be an int, not {type(deadline_ns).__name__}")
-        if type(n) is not int or not 0 < n <= MAX_READ:
+        elif not 0 <= deadline_ns <= _FOREVER_NS:
+            raise InvalidValueError(f"deadline_ns must be 0..{_FOREVER_NS}, not {deadline_ns}")
+        if type(n) is not int or not 0 < n <= MAX_READ:   # the bounds read_until has
             if isinstance(n, bool) or not isinstance(n, int):
                 raise InvalidTypeError(f"n must be an int, not {type(n).__name__}")
-            n = max(1, min(n, MAX_READ))
-        return self.read_until(n, max(0, min(deadline_ns, _FOREVER_NS)))
+            raise InvalidValueError(f"n must be 1..{MAX_READ}, not {n}")
+        return self.read_until(n, min(deadline_ns, _FOREVER_NS))
 
     def read_until(self, n: int, deadline_ns: int) -> bytes:
         """Up to ``n`` bytes (1..MAX_READ), waiting for the first until the absolute

@@ -22,16 +22,17 @@ import logging
 import os
 import threading
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Dict, Iterable, List, Optional, Union
 
+from ._files import read_user_file
 from ._handle import NativeHandle
 from ._native import ffi, lib
 from ._stats import stats_from_c
 from ._validate import check_bool, check_int, check_path, check_seconds
-from .errors import InvalidTypeError, InvalidValueError, PortError, error_from_code
+from .errors import InvalidTypeError, InvalidValueError, error_from_code
 
 __all__ = [
+    "MAX_CAPTURE_BYTES",
     "MAX_PORTS",
     "Capture",
     "CaptureEvent",
@@ -114,9 +115,9 @@ class VirtualBus(NativeHandle):
         baud = 0 if baud is None else check_int(baud, "baud", 0, 10_000_000)
         check_bool(echo, "echo")
         check_int(seed, "seed", -(1 << 63), (1 << 64) - 1)
-        for name, value in (("link_dir", link_dir), ("capture", capture)):
-            if value is not None and not isinstance(value, (str, bytes, os.PathLike)):
-                raise InvalidTypeError(f"{name} must be a path, not {type(value).__name__}")
+        # one check for both (C takes NUL-terminated strings: "a\0b" would be "a")
+        link_dir = None if link_dir is None else check_path(link_dir, "link_dir")
+        capture = None if capture is None else check_path(capture, "capture")
         opts = ffi.new("fap_vbus_options *")
         lib.fap_vbus_options_init(opts)
         opts.n_ports = ports
@@ -306,14 +307,23 @@ def parse_capture(lines: Iterable[str]) -> Capture:
     return cap
 
 
+#: the largest capture file :func:`read_capture` reads (a capture is text: ~3 bytes per
+#: wire byte, so this is an hour of a saturated 115200-baud bus)
+MAX_CAPTURE_BYTES = 256 << 20
+
+
 def read_capture(path: PathLike) -> Capture:
-    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``."""
-    p = Path(check_path(path, "path"))
+    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``.
+
+    Raises :class:`~fap_py.errors.FileError` for a missing or unreadable file, one
+    that is not a regular file (``/dev/zero``, a directory) or one larger than
+    :data:`MAX_CAPTURE_BYTES`; :class:`CaptureFormatError` for bad content.
+    """
+    data = read_user_file(path, limit=MAX_CAPTURE_BYTES, what="capture file")
     try:
-        with open(p, encoding="ascii") as fh:
-            return parse_capture(fh)
-    except OSError as exc:
-        raise PortError(exc.errno or 0, exc.strerror, str(p)) from exc
+        text = data.decode("ascii")
     except UnicodeDecodeError as exc:
-        raise CaptureFormatError(f"{p}: not an ASCII capture file ({exc.reason})") from exc
+        raise CaptureFormatError(f"{os.fsdecode(path)}: not an ASCII capture file "
+                                 f"({exc.reason})") from exc
+    return parse_capture(text.splitlines())
 

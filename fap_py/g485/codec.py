@@ -74,7 +74,9 @@ class ErrorBit(enum.IntFlag):
 
 
 def describe_error_word(word: int) -> str:
-    """Names of the bits set in ``word`` (``"none"`` for 0)."""
+    """Names of the bits set in ``word`` (a 16-bit error word; ``"none"`` for 0)."""
+    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
+        raise G485ValueError(f"an error word is an int 0..0xffff, not {word!r}")
     if not word:
         return "none"
     names = [b.name for b in ErrorBit if word & b and b.name]

@@ -873,6 +873,7 @@ class G485Master:
 
     def believed_check_byte(self, address: int) -> Optional[int]:
         """The check byte the master thinks device ``address`` holds (None: unknown)."""
+        whole(address, "address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
         return self._device_check.get(address)
 
 

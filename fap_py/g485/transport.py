@@ -177,6 +177,10 @@ class SerialIO:
         if isinstance(port, int) and not isinstance(port, bool):
             if port < 0:
                 raise G485ValueError(f"fd must be >= 0, not {port}")
+            try:
+                os.fstat(port)
+            except (OSError, OverflowError):
+                raise G485ValueError(f"fd {port} is not an open file descriptor") from None
             self.fd = port
             self.name = f"fd {port}"
             self._poll = select.poll()
