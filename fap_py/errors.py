@@ -114,6 +114,8 @@ def __getattr__(name: str) -> int:
 
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
     """Map a negative libfap port-layer return code to an exception instance."""
+    if type(code) is not int:
+        raise InvalidTypeError(f"code must be an int (a negative libfap code), not {code!r}")
     prefix = f"{what}: " if what else ""
     codes = _port_codes()
     if code == codes["FAP_PORT_ECOLLISION"]:

@@ -171,6 +171,8 @@ class Node(NativeHandle):
                  event_queue: Optional[int] = None,
                  rs485: Optional[RS485] = None) -> None:
         super().__init__()
+        if self._mode < 0:
+            raise InvalidTypeError("Node is the base of Master and Slave: open one of those")
         self._lock = self._hlock             # one lock: handle users, stash, pump
         self._pump: Optional[AsyncPump] = None
         self._stash: List[SlaveEvent] = []   # events taken by wait_active, not yet read

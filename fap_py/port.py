@@ -248,6 +248,8 @@ class Port(NativeHandle):
         RTS or echo suppression needs it, so ``deadline_ns`` must allow for the
         request's own wire time. Raises like :meth:`write` and :meth:`read`.
         """
+        if type(data) is not bytes and isinstance(data, (bytearray, memoryview)):
+            data = bytes(data)               # bytes-like, strided views too
         if type(data) is not bytes or type(n) is not int or type(deadline_ns) is not int \
                 or not 0 <= n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"transact({type(data).__name__}, {n}, {deadline_ns}) out of range")

@@ -171,6 +171,10 @@ class ReplyWaiter:
     __slots__ = ("_m", "_prefix", "_pid", "_length", "size", "_junk", "_problem", "settle")
 
     def __init__(self, master: "G485Master", prefix: bytes) -> None:
+        if not isinstance(master, G485Master):
+            raise G485ValueError(f"master must be a G485Master, not {type(master).__name__}")
+        if type(prefix) is not bytes or len(prefix) != 5 or not prefix.startswith(codec.START):
+            raise G485ValueError(f"prefix must come from codec.reply_prefix(), not {prefix!r}")
         self._m = master
         self._prefix = prefix
         self._length = prefix[3]
