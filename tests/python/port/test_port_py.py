@@ -111,7 +111,9 @@ def test_bad_arguments_and_closed(pty: tuple[int, str]) -> None:
         port.read("4")  # type: ignore[arg-type]
     with pytest.raises(InvalidValueError):
         port.read_until(MAX_READ + 1, 0)
-    assert port.read(10**9, timeout=0.001) == b""  # n is clamped to MAX_READ
+    for n in (10**9, 0, -5):                    # bounds like read_until (issue 26)
+        with pytest.raises(InvalidValueError):
+            port.read(n, timeout=0.001)
     with pytest.raises(InvalidValueError):
         Port(name, rs485="soft")  # type: ignore[arg-type]
     with pytest.raises(InvalidValueError):
