@@ -97,6 +97,8 @@ static void close_with_undrained_output(int slow)
     CHECK_EQ(f.rc, -ESHUTDOWN);
     CHECK(fin.tx_abandoned >= 1);
     CHECK(fin.data_tx + fin.tx_abandoned >= 40);   /* every frame sent or counted */
+    fapx_close_stats(NULL, &fin);                  /* NULL handle: nothing to do */
+    fapx_close_stats(NULL, NULL);
     if (slow) {
         __atomic_store_n(&rd.stop, 1, __ATOMIC_RELEASE);
         pthread_join(rt, NULL);
