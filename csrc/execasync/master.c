@@ -16,6 +16,7 @@
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
+#include "execasync/stop_signal.h"
 #include "execasync/stats_atomic.h"
 #include "port/port_cancel.h"
 #include "port/rx_pacing.h"
@@ -357,10 +358,7 @@ void execMasterStop(execMaster *m)
 {
     if (!m)
         return;
-    __atomic_store_n(&m->stopped, 1, __ATOMIC_RELEASE);
-    uint64_t one = 1;
-    ssize_t w = write(m->stop_fd, &one, sizeof one);
-    (void)w;                        /* counter saturated: already readable */
+    lf_exec_signal_stop(&m->stopped, m->stop_fd);
 }
 
 void execMasterClose(execMaster *m)

@@ -24,6 +24,7 @@
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
+#include "execasync/stop_signal.h"
 #include "execasync/stats_atomic.h"
 #include "port/rx_pacing.h"
 
@@ -289,10 +290,7 @@ void execSlaveStop(execSlave *s)
 {
     if (!s)
         return;
-    __atomic_store_n(&s->stopped, 1, __ATOMIC_RELEASE);
-    uint64_t one = 1;
-    ssize_t w = write(s->stop_fd, &one, sizeof one);
-    (void)w;   /* EAGAIN: already signalled */
+    lf_exec_signal_stop(&s->stopped, s->stop_fd);
 }
 
 void execSlaveGetStats(execSlave *s, execSlaveStats *out)

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import array
 import os
-import pty
 import subprocess
 import sys
 from pathlib import Path
-from typing import Any, Callable, Iterator, Tuple
+from typing import Any, Callable, Tuple
 
 import pytest
 
@@ -34,15 +33,6 @@ def raises(exc: type, fn: Callable[[], Any]) -> BaseException:
     with pytest.raises(exc) as info:
         fn()
     return info.value
-
-
-@pytest.fixture
-def pty_pair() -> Iterator[Tuple[int, str]]:
-    far, near = pty.openpty()
-    name = os.ttyname(near)
-    os.close(near)
-    yield far, name
-    os.close(far)
 
 
 # -- files named by the user (item 5) ------------------------------------------------
@@ -126,7 +116,10 @@ def test_port_write_takes_every_bytes_like(pty_pair: Tuple[int, str]) -> None:
         assert port.send(bytearray(b"j")) == 1
         got = b""
         while len(got) < 10:
-            got += os.read(far, 64)
+            try:
+                got += os.read(far, 64)
+            except BlockingIOError:
+                pass
         assert got == b"aceg" + b"hi" + b"ace" + b"j"
 
 

@@ -10,10 +10,9 @@ from __future__ import annotations
 
 import asyncio
 import os
-import pty
 import threading
 import time
-from typing import Any, Callable, Iterator, List, Tuple
+from typing import Any, Callable, List, Tuple
 
 import pytest
 
@@ -26,17 +25,6 @@ from fap_py.rs485 import RS485, RS485Mode
 pytestmark = pytest.mark.timeout(60)
 LINE = RS485(mode=RS485Mode.NONE)
 BOUND = 0.5          # the documented bound (docs/reliability.md)
-
-
-@pytest.fixture
-def pty_path() -> Iterator[Tuple[int, str]]:
-    """A pty pair: the test holds the far end (and reads it, or not)."""
-    far, near = pty.openpty()
-    name = os.ttyname(near)
-    os.close(near)
-    os.set_blocking(far, False)
-    yield far, name
-    os.close(far)
 
 
 def wait_for(cond: Callable[[], bool], what: str, timeout: float = 10.0) -> None:
@@ -67,8 +55,8 @@ def timed_close(obj: Any) -> float:
 
 
 @pytest.mark.parametrize("reader", ["none", "200 B/s"])
-def test_fap_close_with_undrained_output(pty_path: Tuple[int, str], reader: str) -> None:
-    far, name = pty_path
+def test_fap_close_with_undrained_output(pty_pair: Tuple[int, str], reader: str) -> None:
+    far, name = pty_pair
     stop = threading.Event()
     if reader != "none":
         def slow() -> None:          # the far end at ~200 B/s (load, not synchronisation)
@@ -93,8 +81,8 @@ def test_fap_close_with_undrained_output(pty_path: Tuple[int, str], reader: str)
     assert fin.data_tx + fin.tx_abandoned >= 40       # every frame sent or counted
 
 
-def test_exec_master_close_from_another_thread(pty_path: Tuple[int, str]) -> None:
-    _, name = pty_path
+def test_exec_master_close_from_another_thread(pty_pair: Tuple[int, str]) -> None:
+    _, name = pty_pair
     m = execasync.Master(name, timeout=10.0, retries=0, rs485=LINE)
     t, got = in_thread(lambda: m.transact(3, b"x"))
     wait_for(lambda: m.stats.tx_frames >= 1, "the request went out")
@@ -104,8 +92,8 @@ def test_exec_master_close_from_another_thread(pty_path: Tuple[int, str]) -> Non
     assert not t.is_alive() and len(got) == 1 and isinstance(got[0], ClosedError), got
 
 
-def test_g485_master_close_from_another_thread(pty_path: Tuple[int, str]) -> None:
-    far, name = pty_path
+def test_g485_master_close_from_another_thread(pty_pair: Tuple[int, str]) -> None:
+    far, name = pty_pair
     m = G485Master(name, timeout=10.0, retries=0, rs485=LINE)
     t, got = in_thread(lambda: m.read(5, 8))
 
@@ -122,8 +110,8 @@ def test_g485_master_close_from_another_thread(pty_path: Tuple[int, str]) -> Non
 
 
 @pytest.mark.parametrize("closer", ["task", "thread"])
-def test_async_g485_master_close(pty_path: Tuple[int, str], closer: str) -> None:
-    far, name = pty_path
+def test_async_g485_master_close(pty_pair: Tuple[int, str], closer: str) -> None:
+    far, name = pty_pair
 
     async def main() -> Tuple[float, BaseException]:
         am = AsyncG485Master(name, timeout=10.0, retries=0, rs485=LINE)
