@@ -25,6 +25,7 @@
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "execasync/stop_signal.h"
+#include "port/port_cancel.h"
 #include "execasync/stats_atomic.h"
 #include "port/rx_pacing.h"
 
@@ -81,7 +82,8 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
         free(s);
         return err;
     }
-    int err = fap_port_open(&s->port, path, port);
+    /* a reply the line does not take ends at execSlaveStop too */
+    int err = lf_port_open_cancellable(&s->port, path, port, &s->stop_fd);
     if (err) {
         close(s->stop_fd);
         free(s);

@@ -142,3 +142,22 @@ def test_async_g485_master_close(pty_pair: Tuple[int, str], closer: str) -> None
     took, exc = asyncio.run(main())
     assert took < BOUND, took
     assert isinstance(exc, ClosedError), exc
+
+
+def test_exec_master_close_while_a_write_cannot_drain(pty_pair: Tuple[int, str]) -> None:
+    """Broadcasts to a pty nobody reads fill it; the write that then waits for
+    room (up to its write timeout, > 1 s) ends at the close."""
+    _, name = pty_pair
+    m = execasync.Master(name, rs485=LINE)
+    last = [time.monotonic()]
+
+    def flood() -> None:
+        while True:
+            m.broadcast(bytes(255))
+            last[0] = time.monotonic()
+    t, got = in_thread(flood)
+    wait_for(lambda: time.monotonic() - last[0] > 0.2, "a broadcast waits for room")
+    took = timed_close(m)
+    t.join(5)
+    assert took < BOUND, took
+    assert not t.is_alive() and len(got) == 1 and isinstance(got[0], ClosedError), got
