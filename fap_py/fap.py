@@ -232,11 +232,9 @@ class Node(NativeHandle):
         st = self._ffi.new("fapx_stats *")
         self._lib.fapx_close_stats(h, st)   # joins the engine thread (GIL released)
         self.final_stats = stats_from_c(Stats, st)
-        if st.tx_abandoned:
-            log.warning("%s on %s closed: %d frame(s) the line did not take were dropped",
-                        self._label(), self.path, st.tx_abandoned)
-        else:
-            log.info("%s on %s closed", self._label(), self.path)
+        # INFO, not a warning: closing with data still queued is an ordinary choice
+        log.info("%s on %s closed (%d queued frame(s) dropped: tx_abandoned)", self._label(),
+                 self.path, st.tx_abandoned)
 
     def _fd(self, h: Any) -> int:
         return int(self._lib.fapx_notify_fd(h))
