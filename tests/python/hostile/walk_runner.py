@@ -38,7 +38,7 @@ from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
 import fap_py
 from fap_py.errors import FapError
 
-CALL_TIMEOUT = 3.0
+CALL_TIMEOUT = 5.0
 NAN, INF = float("nan"), float("inf")
 
 #: modules not walked, and why
