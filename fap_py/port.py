@@ -27,6 +27,7 @@ from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
 from ._validate import check_bytes, check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
+    ClosedError,
     FapError,
     InvalidTypeError,
     InvalidValueError,
@@ -61,7 +62,10 @@ def _is_tty(path: bytes) -> bool:
 
 def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     """The exception for a negative ``fap_port_*`` return code (busy and gone
-    included: :func:`fap_py.errors.error_from_code`)."""
+    included: :func:`fap_py.errors.error_from_code`; -ECANCELED, a wait ended
+    by close(): ClosedError)."""
+    if code == -_errno.ECANCELED:
+        return ClosedError(f"{path or 'port'}: {what}: port closed")
     return error_from_code(code, what, path)
 
 
@@ -114,9 +118,15 @@ class Port(NativeHandle):
         from ._native import ffi, lib
 
         self._ffi, self._lib = ffi, lib
+        # a close() from another thread writes here: a write the line does not
+        # take, or any wait in C, ends at once (fap_port_open_cancellable)
+        self._cancel_fd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
+        self._cancel_ref = ffi.new("int *", self._cancel_fd)
         out = ffi.new("fap_port **")
-        rc = lib.fap_port_open(out, raw, po)
+        rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
         if rc:
+            os.close(self._cancel_fd)
+            self._cancel_fd = -1
             if rc == -_errno.ENOTTY and self.rs485.mode == RS485Mode.KERNEL and _is_tty(raw):
                 # a terminal that refuses TIOCSRS485: say so, not "Inappropriate ioctl"
                 raise PortError(_errno.ENOTTY, "open: the device has no kernel RS-485 "
@@ -130,8 +140,16 @@ class Port(NativeHandle):
 
     # -- NativeHandle ----------------------------------------------------------
 
+    def _interrupt(self) -> None:
+        fd = getattr(self, "_cancel_fd", -1)
+        if fd >= 0:
+            os.eventfd_write(fd, 1)
+
     def _release(self, h: Any) -> None:
         self._lib.fap_port_close(h)
+        fd, self._cancel_fd = self._cancel_fd, -1
+        if fd >= 0:
+            os.close(fd)
 
     def _fd(self, h: Any) -> int:
         return int(self._lib.fap_port_fd(h))

@@ -55,3 +55,9 @@ int lf_port_open_cancellable(fap_port **out, const char *path, const fap_port_op
         return -EINVAL;
     return lf_port_open_with_backend(out, path, o, &cancellable, (void *)cancel_fd);
 }
+
+int fap_port_open_cancellable(fap_port **out, const char *path, const fap_port_options *o,
+                              const int *cancel_fd)
+{
+    return lf_port_open_cancellable(out, path, o, cancel_fd);
+}

@@ -161,3 +161,26 @@ def test_exec_master_close_while_a_write_cannot_drain(pty_pair: Tuple[int, str])
     t.join(5)
     assert took < BOUND, took
     assert not t.is_alive() and len(got) == 1 and isinstance(got[0], ClosedError), got
+
+
+@pytest.mark.parametrize("kind", ["port", "g485"])
+def test_close_while_a_port_write_cannot_drain(pty_pair: Tuple[int, str], kind: str) -> None:
+    """The same through fap_py.port.Port (G485 writes through it): the close
+    ends a write waiting for room instead of its write timeout."""
+    from fap_py.port import Port
+    _, name = pty_pair
+    obj: Any = Port(name, rs485=LINE) if kind == "port" else G485Master(name, rs485=LINE)
+    write: Callable[[], Any] = ((lambda: obj.write(bytes(255))) if kind == "port"
+                                else (lambda: obj.broadcast_write(8, bytes(90))))
+    last = [time.monotonic()]
+
+    def flood() -> None:
+        while True:
+            write()
+            last[0] = time.monotonic()
+    t, got = in_thread(flood)
+    wait_for(lambda: time.monotonic() - last[0] > 0.2, "a write waits for room")
+    took = timed_close(obj)
+    t.join(5)
+    assert took < BOUND, took
+    assert not t.is_alive() and len(got) == 1 and isinstance(got[0], ClosedError), got
