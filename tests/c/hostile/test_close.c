@@ -5,6 +5,7 @@
 #include <fcntl.h>
 #include <pthread.h>
 #include <stdlib.h>
+#include <sys/eventfd.h>
 #include <time.h>
 #include <unistd.h>
 
@@ -161,5 +162,38 @@ static void test_exec_master_stop_ends_transaction(void)
     close(peer);
 }
 
+/* The public form of the cancellable port: NULL cancel fd refused; a write
+ * that waits for room on a pty nobody reads ends once the fd is readable. */
+static void test_port_cancellable_write(void)
+{
+    int peer;
+    char name[128];
+    REQUIRE(open_pty(&peer, name, sizeof name) == 0);
+    fap_port *p = NULL;
+    CHECK_EQ(fap_port_open_cancellable(&p, name, NULL, NULL), -EINVAL);
+    int efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    REQUIRE(efd >= 0);
+    fap_port_options po;
+    fap_port_options_init(&po);
+    po.rs485_mode = FAP_RS485_NONE;
+    po.write_timeout_us = 100000;
+    REQUIRE(fap_port_open_cancellable(&p, name, &po, &efd) == 0);
+    static uint8_t big[256];
+    ssize_t r;
+    int n = 0;
+    do                           /* fill the pty until a write times out */
+        r = fap_port_send(p, big, sizeof big);
+    while (r == (ssize_t)sizeof big && ++n < 100000);
+    CHECK_EQ(r, -ETIMEDOUT);
+    uint64_t one = 1;
+    REQUIRE(write(efd, &one, sizeof one) == sizeof one);
+    int64_t t0 = fap_port_now_ns();      /* the same wait for room, now cancelled */
+    CHECK_EQ(fap_port_send(p, big, sizeof big), -ECANCELED);
+    CHECK(fap_port_now_ns() - t0 < CLOSE_BOUND_NS);
+    fap_port_close(p);
+    close(efd);
+    close(peer);
+}
+
 UNIT_MAIN(UNIT(test_fapx_close_nobody_reading), UNIT(test_fapx_close_reader_200_bps),
-          UNIT(test_exec_master_stop_ends_transaction))
+          UNIT(test_exec_master_stop_ends_transaction), UNIT(test_port_cancellable_write))
