@@ -91,7 +91,8 @@ class NativeHandle:
 
     def _fd(self, h: Any) -> int:
         """The fd that turns readable when the handle has input."""
-        raise NotImplementedError(f"{self._kind} has no pollable fd")
+        from .errors import InvalidTypeError
+        raise InvalidTypeError(f"{self._kind} has no pollable fd")
 
     def _label(self) -> str:
         return self._kind
@@ -213,8 +214,8 @@ class NativeHandle:
 
     def wait_readable(self, timeout: Optional[float] = None) -> bool:
         """Wait (GIL released, in slices) until :meth:`fileno` is readable;
-        False after ``timeout`` seconds (an already checked number or None)."""
-        deadline = deadline_of(timeout)
+        False after ``timeout`` seconds (None: no limit)."""
+        deadline = deadline_of(_timeout(timeout))
         while True:
             fd = self.fileno()               # raises ClosedError once closed
             p = select.poll()
@@ -228,6 +229,7 @@ class NativeHandle:
         """The asyncio form of :meth:`wait_readable`: ``loop.add_reader`` on
         the fd, no thread. False after ``timeout`` seconds; ClosedError when
         the handle is closed meanwhile (from any thread)."""
+        timeout = _timeout(timeout)
         loop = asyncio.get_running_loop()
         fd = self.fileno()
         fut: "asyncio.Future[bool]" = loop.create_future()
@@ -282,6 +284,12 @@ class NativeHandle:
                 continue
             if not done.wait(2.0):  # pragma: no cover - that loop's thread is stuck
                 log.warning("%s: event loop did not detach within 2 s", self._label())
+
+
+def _timeout(timeout: Optional[float]) -> Optional[float]:
+    """None, or a finite number of seconds >= 0 (the package's one rule)."""
+    from ._validate import check_seconds
+    return None if timeout is None else check_seconds(timeout, "timeout")
 
 
 def _expire(fut: "asyncio.Future[bool]") -> None:

@@ -16,10 +16,23 @@ fields ``wire_dir``, ``wire_status``, ``wire_t_ns`` (CLOCK_MONOTONIC),
 The hook runs on the thread that moved the bytes (for FAP the engine's C
 thread, which takes the GIL for the call); logging is thread-safe. Keep
 handlers on these loggers quick: a slow one slows the engine.
+
+Ctrl-C: for exec async and mikroC the hook runs on the main thread, inside a
+C call. A ``KeyboardInterrupt`` raised there could not cross into C (cffi
+prints it and drops it, and the program went on). So while a hook is
+installed, SIGINT's Python handler is wrapped (:func:`_guard_sigint`, main
+thread only): a Ctrl-C that lands inside the hook is put back as pending once
+the hook has returned, and raised in the Python code that made the C call.
 """
 from __future__ import annotations
 
+import _thread
 import logging
+import signal
+import sys
+import threading
+import time
+from types import FrameType
 from typing import Any, Callable, Optional
 
 from ._native import ffi, lib
@@ -54,6 +67,9 @@ class Tap:
                                  "wire_t_ns": int(f.t_ns), "wire_bytes": data})
 
 
+_MAIN: int = threading.main_thread().ident or 0
+
+
 @ffi.def_extern()
 def fap_py_trace(ctx: Any, f: Any) -> None:
     """The C trace hook: log the frame on its handle's logger."""
@@ -63,10 +79,70 @@ def fap_py_trace(ctx: Any, f: Any) -> None:
         logging.getLogger("fap_py.wire").exception("trace hook failed")
 
 
+def _inside_hook(frame: Optional[FrameType]) -> bool:
+    """Whether ``frame`` is the hook or called from it."""
+    code = fap_py_trace.__code__
+    for _ in range(256):                 # handlers nest a few logging frames deep
+        if frame is None:
+            return False
+        if frame.f_code is code:
+            return True
+        frame = frame.f_back
+    return False
+
+
+class _Redelivery:
+    """At most one helper thread putting a deferred Ctrl-C back."""
+
+    running = False
+
+
+def _redeliver() -> None:
+    """Put a deferred Ctrl-C back once the main thread has left the hook (it
+    is then in C, or in the Python code that called into C)."""
+    while _inside_hook(sys._current_frames().get(_MAIN)):
+        time.sleep(0.001)
+    _Redelivery.running = False
+    _thread.interrupt_main()
+
+
+class _SigintGuard:
+    """SIGINT's Python handler, deferring a Ctrl-C that lands inside the hook."""
+
+    def __init__(self, previous: Any) -> None:
+        self.previous = previous
+
+    def __call__(self, signum: int, frame: Optional[FrameType]) -> None:
+        if _inside_hook(frame):
+            # raised here it would end in cffi; a helper thread makes it pending
+            # again once the hook has returned, and this handler raises it there
+            if not _Redelivery.running:
+                _Redelivery.running = True
+                threading.Thread(target=_redeliver, name="fap-sigint", daemon=True).start()
+            return
+        prev = self.previous
+        if callable(prev):
+            prev(signum, frame)
+        elif prev != signal.SIG_IGN:
+            raise KeyboardInterrupt
+
+
+def _guard_sigint() -> None:
+    """Wrap SIGINT's handler once (main thread only: signal.signal's rule)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    current = signal.getsignal(signal.SIGINT)
+    if not isinstance(current, _SigintGuard) and current is not None:
+        signal.signal(signal.SIGINT, _SigintGuard(current))
+
+
 def tap_for(protocol: str, label: str) -> Optional[Tap]:
     """A :class:`Tap` when ``fap_py.wire.<protocol>`` logs DEBUG, else None."""
     logger = wire_logger(protocol)
-    return Tap(logger, label) if logger.isEnabledFor(logging.DEBUG) else None
+    if not logger.isEnabledFor(logging.DEBUG):
+        return None
+    _guard_sigint()
+    return Tap(logger, label)
 
 
 def attach(setter: Callable[..., Any], handle: Any, protocol: str, label: str) -> Optional[Tap]:

@@ -97,6 +97,13 @@ class PortGoneError(PortError):
     """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
 
 
+class FileError(PortError):
+    """A file named by the user cannot be used: missing, unreadable, not a
+    regular file (a directory, ``/dev/zero``, a FIFO) or larger than its bound
+    (``fap_py._files``). Also a :class:`PortError` (and an ``OSError``): the
+    command line's "bad file" exit status 3."""
+
+
 #: errno values that mean the device is no longer there
 _GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
 
@@ -143,6 +150,8 @@ def __getattr__(name: str) -> int:
 
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
     """Map a negative libfap port-layer return code to an exception instance."""
+    if type(code) is not int:
+        raise InvalidTypeError(f"code must be an int (a negative libfap code), not {code!r}")
     prefix = f"{what}: " if what else ""
     codes = _port_codes()
     if code == codes["FAP_PORT_ECOLLISION"]:

@@ -407,7 +407,7 @@ class Master(NativeHandle):
             mopts.retries = self._retries_checked(retries)
         self._retries = int(mopts.retries)
         out = ffi.new("execMaster **")
-        _raise_for(lib.execMasterOpen(out, self.path.encode(), popts, mopts), "open", self.path)
+        _raise_for(lib.execMasterOpen(out, os.fsencode(self.path), popts, mopts), "open", self.path)
         self._adopt(out[0])
         self._tap = _trace.attach(lib.execMasterSetTrace, self._h, "exec", self.path)
         self._reply = ffi.new("byte[]", MAX_DATA)
@@ -419,6 +419,13 @@ class Master(NativeHandle):
 
     def _release(self, h: Any) -> None:
         lib.execMasterClose(h)
+
+    def _interrupt(self) -> None:
+        # a transact in another thread returns -ECANCELED (ClosedError) at once
+        # instead of waiting out its timeout and retries
+        h = self._h
+        if h is not None:
+            lib.execMasterStop(h)
 
     def _fd(self, h: Any) -> int:
         return int(lib.fap_port_fd(lib.execMasterPort(h)))
@@ -644,7 +651,7 @@ class Slave(NativeHandle):
         sopts.node = node
         self._self_handle = ffi.new_handle(self)
         out = ffi.new("execSlave **")
-        _raise_for(lib.execSlaveOpen(out, self.path.encode(), popts, sopts,
+        _raise_for(lib.execSlaveOpen(out, os.fsencode(self.path), popts, sopts,
                                      lib.fap_py_exec_slave_handler, self._self_handle),
                    "open", self.path)
         self._adopt(out[0])

@@ -171,10 +171,14 @@ class Node(NativeHandle):
                  event_queue: Optional[int] = None,
                  rs485: Optional[RS485] = None) -> None:
         super().__init__()
+        if self._mode < 0:
+            raise InvalidTypeError("Node is the base of Master and Slave: open one of those")
         self._lock = self._hlock             # one lock: handle users, stash, pump
         self._pump: Optional[AsyncPump] = None
         self._stash: List[SlaveEvent] = []   # events taken by wait_active, not yet read
         self._tls = threading.local()        # per-thread receive buffers
+        #: the counters at close (``tx_abandoned``: output the close dropped); None while open
+        self.final_stats: Optional[Stats] = None
         self.path: str = check_path(port)      #: the serial device
         self.baudrate: int = check_baud(baudrate)
         self.id: int = node_id                 #: this node's FAP ID (master 0)
@@ -225,18 +229,26 @@ class Node(NativeHandle):
             pump.stop()
 
     def _release(self, h: Any) -> None:
-        self._lib.fapx_close(h)           # joins the engine thread (GIL released)
-        log.info("%s on %s closed", self._label(), self.path)
+        st = self._ffi.new("fapx_stats *")
+        self._lib.fapx_close_stats(h, st)   # joins the engine thread (GIL released)
+        self.final_stats = stats_from_c(Stats, st)
+        # INFO, not a warning: closing with data still queued is an ordinary choice
+        log.info("%s on %s closed (%d queued frame(s) dropped: tx_abandoned)", self._label(),
+                 self.path, st.tx_abandoned)
 
     def _fd(self, h: Any) -> int:
         return int(self._lib.fapx_notify_fd(h))
 
     def close(self) -> None:
-        """Stop the engine and close the port. Idempotent.
+        """Stop the engine and close the port. Idempotent; ends within 0.5 s
+        whatever the line does.
 
-        Threads blocked in :meth:`recv` / :meth:`wait_event` raise
-        :class:`ClosedError` (within :data:`WAIT_SLICE`); pending asyncio
-        waiters get :class:`ClosedError` too.
+        Threads blocked in :meth:`recv` / :meth:`wait_event` / :meth:`flush` /
+        :meth:`send` raise :class:`ClosedError` (within :data:`WAIT_SLICE`);
+        pending asyncio waiters get :class:`ClosedError` too. A write the line
+        does not take within 0.1 s is abandoned; :attr:`final_stats` (the
+        counters at close) counts it and the DATA still queued in
+        ``tx_abandoned``.
         """
         super().close()
 

@@ -27,7 +27,7 @@ from collections import deque
 from typing import Any, Deque, Optional
 
 from ._handle import WAIT_SLICE
-from .errors import ClosedError, FapError, FapTimeoutError
+from .errors import ClosedError, FapError, FapTimeoutError, InvalidTypeError
 from .fap_types import Message, SlaveEvent
 
 try:
@@ -57,6 +57,10 @@ class AsyncPump:
     """Moves one node's C queues into an asyncio event loop (see the module doc)."""
 
     def __init__(self, node: "PumpedNode", loop: asyncio.AbstractEventLoop) -> None:
+        if not isinstance(loop, asyncio.AbstractEventLoop):
+            raise InvalidTypeError(f"loop must be an asyncio event loop, not {type(loop).__name__}")
+        if not all(callable(getattr(node, m, None)) for m in ("fileno", "_rx_c", "_ev_c")):
+            raise InvalidTypeError(f"node must be a fap_py.fap node, not {type(node).__name__}")
         self.node = node
         self.loop = loop
         self.thread_id = threading.get_ident()    # the loop's thread

@@ -91,6 +91,7 @@ class Stats:
     ev_dropped: int          #: events lost to a full event queue
     tx_to_inactive: int      #: master: DATA sent to a slave not active at the time
     tx_unconfirmed: int      #: master: DATA sent to a slave then marked inactive
+    tx_abandoned: int        #: frames a close dropped because the line would not take them
 
     def as_dict(self) -> Dict[str, int]:
         """The counters as a plain dict."""
@@ -99,4 +100,7 @@ class Stats:
 
 def mask_ids(mask: int) -> List[int]:
     """The slave IDs whose bits are set in a ``fapx_*_mask`` value, ascending."""
+    if type(mask) is not int or not 0 <= mask <= 0xFFFFFFFF:
+        from .errors import InvalidValueError
+        raise InvalidValueError(f"mask must be a 32-bit slave mask, not {mask!r}")
     return [i for i in range(1, MAX_ID + 1) if mask >> i & 1]

@@ -206,7 +206,11 @@ def decode(frame: bytes) -> Message:
     frame = check_bytes(frame, "frame", 0, 1 << 62)
     events = Decoder().feed(frame)
     if len(events) == 1 and isinstance(events[0], Message):
-        return events[0]
+        msg = events[0]
+        # the decoder skips noise around a frame: exactly one frame means the
+        # input is that frame's bytes and nothing else
+        if encode(msg.address, msg.data, from_master=msg.from_master) == frame:
+            return msg
     for e in events:
         if isinstance(e, MikrocFrameError):
             raise e
@@ -247,7 +251,7 @@ class _Node(NativeHandle):
         self._init_ctx()
         opts = port_options(baudrate, rs485)
         out = ffi.new("fap_port **")
-        r = lib.fap_port_open(out, self.path.encode(), opts)
+        r = lib.fap_port_open(out, os.fsencode(self.path), opts)
         if r < 0:
             raise error_from_code(r, "open", self.path)
         r = lib.mikrocRS485_CtxBind(self._ctx, out[0])

@@ -26,8 +26,9 @@ from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
 from ._stats import stats_from_c
-from ._validate import check_seconds
+from ._validate import check_bytes, check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
+    ClosedError,
     FapError,
     InvalidTypeError,
     InvalidValueError,
@@ -64,7 +65,10 @@ def _is_tty(path: bytes) -> bool:
 
 def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     """The exception for a negative ``fap_port_*`` return code (busy and gone
-    included: :func:`fap_py.errors.error_from_code`)."""
+    included: :func:`fap_py.errors.error_from_code`; -ECANCELED, a wait ended
+    by close(): ClosedError)."""
+    if code == -_errno.ECANCELED:
+        return ClosedError(f"{path or 'port'}: {what}: port closed")
     return error_from_code(code, what, path)
 
 
@@ -117,9 +121,15 @@ class Port(NativeHandle):
         from ._native import ffi, lib
 
         self._ffi, self._lib = ffi, lib
+        # a close() from another thread writes here: a write the line does not
+        # take, or any wait in C, ends at once (fap_port_open_cancellable)
+        self._cancel_fd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
+        self._cancel_ref = ffi.new("int *", self._cancel_fd)
         out = ffi.new("fap_port **")
-        rc = lib.fap_port_open(out, raw, po)
+        rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
         if rc:
+            os.close(self._cancel_fd)
+            self._cancel_fd = -1
             if rc == -_errno.ENOTTY and self.rs485.mode == RS485Mode.KERNEL and _is_tty(raw):
                 # a terminal that refuses TIOCSRS485: say so, not "Inappropriate ioctl"
                 raise PortError(_errno.ENOTTY, "open: the device has no kernel RS-485 "
@@ -136,8 +146,16 @@ class Port(NativeHandle):
 
     # -- NativeHandle ----------------------------------------------------------
 
+    def _interrupt(self) -> None:
+        fd = getattr(self, "_cancel_fd", -1)
+        if fd >= 0:
+            os.eventfd_write(fd, 1)
+
     def _release(self, h: Any) -> None:
         self._lib.fap_port_close(h)
+        fd, self._cancel_fd = self._cancel_fd, -1
+        if fd >= 0:
+            os.close(fd)
 
     def _fd(self, h: Any) -> int:
         return int(self._lib.fap_port_fd(h))
@@ -178,11 +196,15 @@ class Port(NativeHandle):
         """
         if type(data) is bytes:  # cffi passes bytes to a const void * as they are
             buf: Any = data
+            n = len(data)
         elif isinstance(data, (bytearray, memoryview)):
+            if isinstance(data, memoryview) and not data.c_contiguous:
+                data = data.tobytes()        # a strided view: from_buffer refuses it
             buf = self._ffi.from_buffer(data)
+            n = len(buf)                     # bytes, also for a view of wider items
         else:
             raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
-        rc = self._call(self._lib.fap_port_write, buf, len(data))
+        rc = self._call(self._lib.fap_port_write, buf, n)
         if rc < 0:
             raise port_error(rc, "write", self.path)
         return int(rc)
@@ -190,9 +212,8 @@ class Port(NativeHandle):
     def send(self, data: bytes) -> int:
         """:meth:`write` without ``tcdrain`` unless soft RTS or echo suppression needs it
         (``fap_port_send``): it returns once the bytes are queued, for a reply or a
-        broadcast that nobody times from the write's return. ``data`` must be bytes."""
-        if type(data) is not bytes:
-            raise InvalidTypeError(f"data must be bytes, not {type(data).__name__}")
+        broadcast that nobody times from the write's return. ``data``: bytes-like."""
+        data = check_bytes(data, "data", 0, 1 << 62)   # bytes-like, strided views too
         rc = self._call(self._lib.fap_port_send, data, len(data))
         if rc < 0:
             raise port_error(rc, "write", self.path)
@@ -208,11 +229,13 @@ class Port(NativeHandle):
                 time.monotonic_ns() + math.ceil(check_timeout(timeout) * 1e9))
         elif isinstance(deadline_ns, bool) or not isinstance(deadline_ns, int):
             raise InvalidTypeError(f"deadline_ns must be an int, not {type(deadline_ns).__name__}")
-        if type(n) is not int or not 0 < n <= MAX_READ:
+        elif not 0 <= deadline_ns <= _FOREVER_NS:
+            raise InvalidValueError(f"deadline_ns must be 0..{_FOREVER_NS}, not {deadline_ns}")
+        if type(n) is not int or not 0 < n <= MAX_READ:   # the bounds read_until has
             if isinstance(n, bool) or not isinstance(n, int):
                 raise InvalidTypeError(f"n must be an int, not {type(n).__name__}")
-            n = max(1, min(n, MAX_READ))
-        return self.read_until(n, max(0, min(deadline_ns, _FOREVER_NS)))
+            raise InvalidValueError(f"n must be 1..{MAX_READ}, not {n}")
+        return self.read_until(n, min(deadline_ns, _FOREVER_NS))
 
     def read_until(self, n: int, deadline_ns: int) -> bytes:
         """Up to ``n`` bytes (1..MAX_READ), waiting for the first until the absolute
@@ -249,6 +272,8 @@ class Port(NativeHandle):
         RTS or echo suppression needs it, so ``deadline_ns`` must allow for the
         request's own wire time. Raises like :meth:`write` and :meth:`read`.
         """
+        if type(data) is not bytes and isinstance(data, (bytearray, memoryview)):
+            data = bytes(data)               # bytes-like, strided views too
         if type(data) is not bytes or type(n) is not int or type(deadline_ns) is not int \
                 or not 0 <= n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"transact({type(data).__name__}, {n}, {deadline_ns}) out of range")

@@ -18,20 +18,22 @@ Example::
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
-import stat
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
 
+from ._files import open_user_file
 from ._handle import NativeHandle
 from ._native import ffi, lib
 from ._stats import stats_from_c
 from ._validate import check_bool, check_int, check_path, check_seconds
-from .errors import InvalidTypeError, InvalidValueError, PortError, error_from_code
+from .errors import FileError, InvalidTypeError, InvalidValueError, error_from_code
 
 __all__ = [
+    "MAX_CAPTURE_BYTES",
     "MAX_PORTS",
     "Capture",
     "CaptureEvent",
@@ -114,9 +116,9 @@ class VirtualBus(NativeHandle):
         baud = 0 if baud is None else check_int(baud, "baud", 0, 10_000_000)
         check_bool(echo, "echo")
         check_int(seed, "seed", -(1 << 63), (1 << 64) - 1)
-        for name, value in (("link_dir", link_dir), ("capture", capture)):
-            if value is not None and not isinstance(value, (str, bytes, os.PathLike)):
-                raise InvalidTypeError(f"{name} must be a path, not {type(value).__name__}")
+        # one check for both (C takes NUL-terminated strings: "a\0b" would be "a")
+        link_dir = None if link_dir is None else check_path(link_dir, "link_dir")
+        capture = None if capture is None else check_path(capture, "capture")
         opts = ffi.new("fap_vbus_options *")
         lib.fap_vbus_options_init(opts)
         opts.n_ports = ports
@@ -268,8 +270,6 @@ def _fields(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
 
 #: the longest capture line a reader takes (fap bus writes at most ~230 characters)
 CAPTURE_LINE_MAX = 65536
-#: the largest capture :func:`read_capture` holds in memory (``fap monitor`` streams any size)
-CAPTURE_SIZE_MAX = 1 << 30
 
 CaptureItem = Union[Dict[str, str], CaptureRecord, CaptureEvent]
 
@@ -330,29 +330,26 @@ def _collect(items: Iterable[CaptureItem]) -> Capture:
     return cap
 
 
+#: the largest capture file :func:`read_capture` reads (a capture is text: ~3 bytes per
+#: wire byte, so this is an hour of a saturated 115200-baud bus)
+MAX_CAPTURE_BYTES = 256 << 20
+
+
 def capture_lines(path: PathLike, max_size: Optional[int] = None) -> Iterator[str]:
     """The lines of a capture file, streamed with bounds: a regular file only (of at
     most ``max_size`` bytes if given), ASCII lines of at most CAPTURE_LINE_MAX
-    characters. Errors name the file: PortError (cannot open or read it),
-    CaptureFormatError (not a capture)."""
-    p = check_path(path, "path")
-    try:
-        fh = open(p, "rb")
-    except OSError as exc:
-        raise PortError(exc.errno or 0, exc.strerror, p) from exc
+    characters. Errors name the file: FileError (missing, unreadable, not a regular
+    file, too large), CaptureFormatError (not a capture)."""
+    limit = max_size if max_size is not None else (1 << 62)
+    p, fh = open_user_file(path, limit=limit, what="capture file")
     with fh:
-        st = os.fstat(fh.fileno())
-        if not stat.S_ISREG(st.st_mode):
-            raise CaptureFormatError(f"{p}: not a regular file")
-        if max_size is not None and st.st_size > max_size:
-            raise CaptureFormatError(f"{p}: {st.st_size} bytes, more than {max_size}")
         lineno = 0
         while True:
             lineno += 1
             try:
                 line = fh.readline(CAPTURE_LINE_MAX + 1)
             except OSError as exc:
-                raise PortError(exc.errno or 0, exc.strerror, p) from exc
+                raise FileError(exc.errno or errno.EIO, f"capture file: {exc.strerror}", p) from None
             if not line:
                 return
             if len(line) > CAPTURE_LINE_MAX:
@@ -376,7 +373,11 @@ def iter_capture_file(path: PathLike, max_size: Optional[int] = None) -> Iterato
 
 
 def read_capture(path: PathLike) -> Capture:
-    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``
-    (a regular file of at most CAPTURE_SIZE_MAX bytes; see :func:`capture_lines`)."""
-    return _collect(iter_capture_file(path, CAPTURE_SIZE_MAX))
+    """Read a capture file written by ``VirtualBus(capture=...)`` / ``fap bus --capture``.
+
+    Raises :class:`~fap_py.errors.FileError` for a missing or unreadable file, one
+    that is not a regular file (``/dev/zero``, a directory) or one larger than
+    :data:`MAX_CAPTURE_BYTES`; :class:`CaptureFormatError` for bad content.
+    """
+    return _collect(iter_capture_file(path, MAX_CAPTURE_BYTES))
 

@@ -30,7 +30,7 @@
  *   -EBADMSG     no reply after every attempt (last attempt got a corrupt frame)
  *   -ENOBUFS     the reply is longer than the caller's buffer: the first
  *                reply_cap bytes are copied and *reply_len is the full length
- *   -ECANCELED   execSlaveStop() was called
+ *   -ECANCELED   execSlaveStop() / execMasterStop() was called
  *   -EIO, -ENXIO ... the port failed (see fap_port_strerror)
  * Every function that sends returns the port's error unchanged.
  */
@@ -128,6 +128,11 @@ void execMasterGetStats(execMaster *m, execMasterStats *out);
 /* The underlying port (for fap_port_get_stats); owned by the master. */
 fap_port *execMasterPort(execMaster *m);
 void execMasterClose(execMaster *m);   /* NULL accepted */
+/* Make the transaction in flight (its write or its wait for the reply) and
+ * every later transaction and broadcast return -ECANCELED at once, so a
+ * closer in another thread never waits out a timeout. Safe from any thread
+ * and from a signal handler (one write to an eventfd). NULL accepted. */
+void execMasterStop(execMaster *m);
 /* Install (or with NULL remove) the wire trace hook (fap_trace.h): every
  * request sent and every frame received (replies, bad frames, partial
  * replies abandoned at a retry or at the end of the transaction), called

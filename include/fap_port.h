@@ -194,6 +194,15 @@ int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
 int fap_port_rts_settings(const fap_port *p, int *active_high,
                           unsigned *delay_before_us, unsigned *delay_after_us);
 
+/* fap_port_open whose waits (room to write when the line does not drain,
+ * the echo, a read's deadline) also end once *cancel_fd turns readable: the
+ * call in progress and every later one that waits return -ECANCELED. The
+ * caller owns cancel_fd (an eventfd, say) and keeps it (and the int) alive
+ * while the port is open; writing to it from another thread is how a close
+ * ends a blocked call at once. -EINVAL for a NULL cancel_fd. */
+int fap_port_open_cancellable(fap_port **out, const char *path, const fap_port_options *o,
+                              const int *cancel_fd);
+
 #ifdef __cplusplus
 }
 #endif

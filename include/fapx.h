@@ -112,6 +112,11 @@ typedef struct fapx_stats {
                                           active (unlisted, or inactive) at the time */
     uint64_t tx_unconfirmed;           /* master: DATA sent to a slave that was then
                                           marked inactive (no DATA_DONE after it) */
+    /* Appended: frames a stop (fapx_close, fapConfig) dropped because the
+     * line did not take them within FAPX_STOP_GRACE_MS: the write in
+     * progress, the rest of the turn and, at close, DATA still queued
+     * (read with fapx_close_stats). */
+    uint64_t tx_abandoned;
 } fapx_stats;
 
 void fapx_options_init(fapx_options *o);
@@ -122,9 +127,17 @@ fap_port_options *fapx_options_port(fapx_options *o);
  * Errors: -EINVAL (bad mode/id/depth), -ENOMEM, or fap_port_open's error. */
 int  fapx_open(fapx **out, const char *path, const fapx_options *o);
 /* Stop the engine, close the port, free everything. NULL accepted.
- * Threads blocked in fapx_rx_wait / fapx_event_wait return -ESHUTDOWN
- * before it frees the handle. */
+ * Threads blocked in fapx_rx_wait / fapx_event_wait / fapx_tx_wait /
+ * fapx_flush return -ESHUTDOWN before it frees the handle. Bounded
+ * whatever the line does: a write still waiting for room FAPX_STOP_GRACE_MS
+ * after the stop request is abandoned, so close returns within ~0.1 s
+ * (documented bound 0.5 s); what was dropped is counted in tx_abandoned. */
 void fapx_close(fapx *h);
+/* fapx_close, and the final counters (tx_abandoned included) into *out
+ * (may be NULL). */
+void fapx_close_stats(fapx *h, fapx_stats *out);
+/* How long a stop lets a write in progress finish before abandoning it. */
+#define FAPX_STOP_GRACE_MS 100
 
 /* Master only (-EPERM on a slave). A new slave starts inactive and is
  * queried at the end of the current data cycle. */

@@ -10,11 +10,15 @@
 #include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
+#include "execasync/stop_signal.h"
 #include "execasync/stats_atomic.h"
+#include "port/port_cancel.h"
 #include "port/port_net.h"
 #include "port/rx_pacing.h"
 
@@ -37,6 +41,8 @@ struct execMaster {
     int busy;                        /* a transaction is in flight (t, txlen valid) */
     lf_exec_mtx t;
     word txlen;
+    int stop_fd;                     /* eventfd: execMasterStop ends the port's waits */
+    int stopped;                     /* atomic: execMasterStop was called */
 };
 
 void execMasterOptionsInit(execMasterOptions *o)
@@ -60,8 +66,15 @@ int execMasterOpen(execMaster **out, const char *path, const fap_port_options *p
     execMaster *m = calloc(1, sizeof *m);
     if (!m)
         return -ENOMEM;
-    int err = fap_port_open(&m->port, path, port);
+    m->stop_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (m->stop_fd < 0) {
+        int e = -errno;
+        free(m);
+        return e;
+    }
+    int err = lf_port_open_cancellable(&m->port, path, port, &m->stop_fd);
     if (err) {
+        close(m->stop_fd);
         free(m);
         return err;
     }
@@ -209,6 +222,8 @@ static int check_transact_args(const execMaster *m, byte node, const byte *req, 
         return -EINVAL;
     if (req_len > EXEC_ASYNC_MAX_DATA)
         return -EMSGSIZE;
+    if (__atomic_load_n(&m->stopped, __ATOMIC_ACQUIRE))
+        return -ECANCELED;
     return 0;
 }
 
@@ -292,6 +307,8 @@ int execMasterBroadcast(execMaster *m, const byte *data, word len)
         return -EINVAL;
     if (len > EXEC_ASYNC_MAX_DATA)
         return -EMSGSIZE;
+    if (__atomic_load_n(&m->stopped, __ATOMIC_ACQUIRE))
+        return -ECANCELED;
     pthread_mutex_lock(&m->lock);
     while (m->busy)                 /* txbuf holds a request that may be resent */
         pthread_cond_wait(&m->idle, &m->lock);
@@ -340,11 +357,19 @@ fap_port *execMasterPort(execMaster *m)
     return m ? m->port : NULL;
 }
 
+void execMasterStop(execMaster *m)
+{
+    if (!m)
+        return;
+    lf_exec_signal_stop(&m->stopped, m->stop_fd);
+}
+
 void execMasterClose(execMaster *m)
 {
     if (!m)
         return;
     fap_port_close(m->port);
+    close(m->stop_fd);
     pthread_mutex_destroy(&m->lock);
     pthread_cond_destroy(&m->idle);
     lf_trace_destroy(&m->trace);

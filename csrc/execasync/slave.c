@@ -24,6 +24,8 @@
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
+#include "execasync/stop_signal.h"
+#include "port/port_cancel.h"
 #include "execasync/stats_atomic.h"
 #include "port/rx_pacing.h"
 
@@ -80,7 +82,8 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
         free(s);
         return err;
     }
-    int err = fap_port_open(&s->port, path, port);
+    /* a reply the line does not take ends at execSlaveStop too */
+    int err = lf_port_open_cancellable(&s->port, path, port, &s->stop_fd);
     if (err) {
         close(s->stop_fd);
         free(s);
@@ -289,10 +292,7 @@ void execSlaveStop(execSlave *s)
 {
     if (!s)
         return;
-    __atomic_store_n(&s->stopped, 1, __ATOMIC_RELEASE);
-    uint64_t one = 1;
-    ssize_t w = write(s->stop_fd, &one, sizeof one);
-    (void)w;   /* EAGAIN: already signalled */
+    lf_exec_signal_stop(&s->stopped, s->stop_fd);
 }
 
 void execSlaveGetStats(execSlave *s, execSlaveStats *out)

@@ -66,6 +66,7 @@ static void publish_locked(fapx *h)
     st->ev_dropped = h->ec.ev_dropped;
     st->tx_to_inactive = c->tx_to_inactive;
     st->tx_unconfirmed = c->tx_unconfirmed;
+    st->tx_abandoned = h->ec.tx_abandoned;
     if (h->mode == FAPX_MASTER)
         h->active_pub = h->m.active & consistent_ids_locked(h);
 }
@@ -228,7 +229,9 @@ static void refresh_port_counts(fapx *h)
     h->ec.collisions = ps.collisions;
 }
 
-/* Transmit the outbox until the state machine stops producing frames. */
+/* Transmit the outbox until the state machine stops producing frames, or
+ * a stop is requested: a turn can be a second of frames, and a stop must
+ * not wait for them (the frames left are counted in tx_abandoned). */
 static void drain_outbox(fapx *h)
 {
     int wrote_data = 0;
@@ -236,8 +239,24 @@ static void drain_outbox(fapx *h)
         const lf_fap_outbox *o = h->mode == FAPX_MASTER ? &h->m.out : &h->s.out;
         if (o->len == 0)
             break;
+        if (lf_fapx_stopping(h)) {
+            h->ec.tx_abandoned++;
+            pthread_mutex_lock(&h->lock);
+            h->tx_abandoned_now = 1;
+            pthread_mutex_unlock(&h->lock);
+            break;
+        }
         if (!h->port_down) {
             ssize_t r = fap_port_write(h->port, o->buf, o->len);
+            if (r == -ECANCELED) {        /* the stop's grace period ran out */
+                lf_trace_emit(&h->trace, FAP_TRACE_TX, FAP_TRACE_TX_FAILED, lf_now_ns(),
+                              o->buf, o->len);
+                h->ec.tx_abandoned++;
+                pthread_mutex_lock(&h->lock);
+                h->tx_abandoned_now = 1;
+                pthread_mutex_unlock(&h->lock);
+                break;
+            }
             lf_trace_emit(&h->trace, FAP_TRACE_TX,
                           r == (ssize_t)o->len ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
                           lf_now_ns(), o->buf, o->len);
@@ -478,5 +497,10 @@ void *lf_fapx_engine_main(void *arg)
     }
     if (reg_port >= 0)                /* a restarted engine registers it again */
         epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);
+    pthread_mutex_lock(&h->lock);
+    publish_locked(h);
+    h->exited = 1;                    /* lf_fapx_stop's grace wait ends */
+    pthread_cond_broadcast(&h->cond);
+    pthread_mutex_unlock(&h->lock);
     return NULL;
 }

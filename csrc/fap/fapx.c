@@ -2,6 +2,7 @@
  * thread under one mutex, waits on a CLOCK_MONOTONIC condition variable,
  * an eventfd for wake-ups and a level-style eventfd for notification. */
 #include "fap/fapx_internal.h"
+#include "port/port_cancel.h"
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
@@ -42,6 +43,14 @@ void lf_fapx_wake(fapx *h)
     if (write(h->wake_fd, &one, sizeof one) < 0) { /* counter saturated: already awake */ }
 }
 
+int lf_fapx_stopping(fapx *h)
+{
+    pthread_mutex_lock(&h->lock);
+    int stop = h->stop;
+    pthread_mutex_unlock(&h->lock);
+    return stop;
+}
+
 int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
 {
     if (!out || !path || !opts)
@@ -55,7 +64,7 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
         return -ENOMEM;
     h->o = o;
     h->mode = -1;
-    h->wake_fd = h->notify_fd = h->timer_fd = h->epoll_fd = -1;
+    h->wake_fd = h->notify_fd = h->timer_fd = h->epoll_fd = h->cancel_fd = -1;
     int err = -ENOMEM;
     if (lf_ring_init(&h->rx, o.rx_depth, sizeof(lf_fapx_item)) ||
         lf_ring_init(&h->tx, o.tx_depth, sizeof(lf_fapx_item)) ||
@@ -65,7 +74,9 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     h->notify_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     h->timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
     h->epoll_fd = epoll_create1(EPOLL_CLOEXEC);
-    if (h->wake_fd < 0 || h->notify_fd < 0 || h->timer_fd < 0 || h->epoll_fd < 0) {
+    h->cancel_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (h->wake_fd < 0 || h->notify_fd < 0 || h->timer_fd < 0 || h->epoll_fd < 0 ||
+        h->cancel_fd < 0) {
         err = -errno;
         goto fail;
     }
@@ -88,7 +99,8 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     lf_trace_init(&h->trace);
     if (o.trace)   /* before the engine starts: it sees the first frame */
         lf_trace_set(&h->trace, o.trace, o.trace_ctx);
-    err = fap_port_open(&h->port, path, &o.port);
+    /* a stop's grace period over, cancel_fd ends the write in progress */
+    err = lf_port_open_cancellable(&h->port, path, &o.port, &h->cancel_fd);
     if (err < 0) {
         pthread_cond_destroy(&h->cond);
         pthread_mutex_destroy(&h->lock);
@@ -102,6 +114,7 @@ fail:
     if (h->notify_fd >= 0) close(h->notify_fd);
     if (h->timer_fd >= 0) close(h->timer_fd);
     if (h->epoll_fd >= 0) close(h->epoll_fd);
+    if (h->cancel_fd >= 0) close(h->cancel_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);
     lf_ring_free(&h->ev);
@@ -126,11 +139,15 @@ int lf_fapx_start(fapx *h, unsigned mode, unsigned id)
     h->o.mode = mode;
     h->o.id = id;
     h->stop = 0;
+    h->exited = 0;
+    h->tx_abandoned_now = 0;
     h->tx_kick = 1;
     h->active_pub = 0;
     if (mode == FAPX_SLAVE)
         h->want_listed = 0;           /* a slave keeps no list */
     pthread_mutex_unlock(&h->lock);
+    uint64_t v;
+    if (read(h->cancel_fd, &v, sizeof v) < 0) { /* not set: nothing to clear */ }
     /* Bytes that piled up since fapInit (or the last fapConfig) are stale
      * frames nobody was listening for: drop them. */
     fap_port_flush(h->port);
@@ -153,6 +170,18 @@ void lf_fapx_stop(fapx *h)
     if (!started)
         return;
     lf_fapx_wake(h);
+    /* The engine leaves between two frames; a write the line does not
+     * take within the grace period is abandoned (cancel_fd, port_cancel.h). */
+    struct timespec ts = lf_ns_to_timespec(lf_now_ns() + FAPX_STOP_GRACE_MS * LF_NS_PER_MS);
+    pthread_mutex_lock(&h->lock);
+    while (!h->exited && pthread_cond_timedwait(&h->cond, &h->lock, &ts) != ETIMEDOUT)
+        ;
+    int exited = h->exited;
+    pthread_mutex_unlock(&h->lock);
+    if (!exited) {
+        uint64_t one = 1;
+        if (write(h->cancel_fd, &one, sizeof one) < 0) { /* already set */ }
+    }
     pthread_join(h->thread, NULL);
     pthread_mutex_lock(&h->lock);
     h->tx_inflight = 0;
@@ -163,10 +192,18 @@ void lf_fapx_stop(fapx *h)
 
 void lf_fapx_destroy(fapx *h)
 {
+    lf_fapx_destroy_stats(h, NULL);
+}
+
+void lf_fapx_destroy_stats(fapx *h, fapx_stats *final)
+{
     if (!h)
         return;
     lf_fapx_stop(h);
     pthread_mutex_lock(&h->lock);
+    h->stats.tx_abandoned += h->tx.count;   /* queued DATA nobody will send */
+    if (final)
+        *final = h->stats;
     h->closing = 1;
     pthread_cond_broadcast(&h->cond);
     while (h->waiters)                 /* let blocked readers leave first */
@@ -177,6 +214,7 @@ void lf_fapx_destroy(fapx *h)
     close(h->notify_fd);
     close(h->timer_fd);
     close(h->epoll_fd);
+    close(h->cancel_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);
     lf_ring_free(&h->ev);
@@ -208,6 +246,11 @@ int fapx_open(fapx **out, const char *path, const fapx_options *o)
 void fapx_close(fapx *h)
 {
     lf_fapx_destroy(h);
+}
+
+void fapx_close_stats(fapx *h, fapx_stats *out)
+{
+    lf_fapx_destroy_stats(h, out);
 }
 
 /* ---- slave list ---- */
@@ -367,8 +410,8 @@ int fapx_flush(fapx *h, int timeout_ms)
     pthread_mutex_lock(&h->lock);
     int rc = 0;
     WAIT_UNTIL(h, (h->tx.count == 0 && !h->tx_inflight) || !h->started, timeout_ms, rc);
-    if (rc == 0 && h->tx.count)
-        rc = -ESHUTDOWN;               /* no engine running to send it */
+    if (rc == 0 && (h->tx.count || h->tx_abandoned_now))
+        rc = -ESHUTDOWN;               /* no engine running to send it, or a stop dropped it */
     pthread_mutex_unlock(&h->lock);
     return rc;
 }

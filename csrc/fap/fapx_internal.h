@@ -24,6 +24,7 @@ typedef struct lf_engine_counts {
     uint64_t frames_tx, bytes_tx, write_errors, collisions;
     uint64_t port_lost, port_reopened, rx_dropped;
     uint64_t ev_dropped;          /* events lost to a full event queue */
+    uint64_t tx_abandoned;        /* frames a stop dropped (fapx_stats.tx_abandoned) */
 } lf_engine_counts;
 
 struct fapx {
@@ -36,6 +37,8 @@ struct fapx {
     int mode;                     /* -1 until started */
     unsigned id;
     int started, stop, closing;
+    int exited;                   /* the engine thread has left its loop */
+    int tx_abandoned_now;         /* the last stop dropped output: flush fails */
     unsigned waiters;             /* threads inside a *_wait call */
     lf_ring rx, tx, ev;
     int tx_inflight;              /* a popped frame is being transmitted */
@@ -54,6 +57,8 @@ struct fapx {
     int notify_fd;                /* eventfd: readable while rx/ev pending */
     int timer_fd;                 /* timerfd, CLOCK_MONOTONIC absolute */
     int epoll_fd;                 /* the engine waits here (wake, timer, port) */
+    int cancel_fd;                /* eventfd: readable = abandon the write in
+                                     progress (stop grace period over) */
     pthread_t thread;
 
     /* ---- engine thread only ---- */
@@ -81,8 +86,12 @@ int  lf_fapx_start(fapx *h, unsigned mode, unsigned id);
 void lf_fapx_stop(fapx *h);
 /* Stop, wake waiters, close the port, free. */
 void lf_fapx_destroy(fapx *h);
+/* The same, copying the final counters to *final first (NULL: not). */
+void lf_fapx_destroy_stats(fapx *h, fapx_stats *final);
 /* Engine thread body (engine.c). */
 void *lf_fapx_engine_main(void *arg);
 /* Wake the engine (eventfd). */
 void lf_fapx_wake(fapx *h);
+/* Whether a stop was requested (the engine between frames of a turn). */
+int lf_fapx_stopping(fapx *h);
 #endif

@@ -57,6 +57,8 @@ struct fap_port {
     int busy;                     /* read/write calls currently using conn.fd */
     int64_t last_rx_ns;           /* CLOCK_MONOTONIC of the last received byte */
     fap_port_stats stats;
+    const int *cancel_fd;         /* readable: every wait ends with -ECANCELED
+                                     (lf_port_open_cancellable); NULL: none */
 };
 
 /* port_config.c */

@@ -38,14 +38,19 @@ static int poll_until(fap_port *p, int fd, short events, int64_t deadline, short
     int64_t now = lf_now_ns();
     if (now >= deadline)
         return -ETIMEDOUT;
-    struct pollfd pf = {.fd = fd, .events = events};
-    int r = p->be->poll(p->ctx, &pf, 1, lf_poll_timeout_ms(deadline, now));
+    /* pf[1]: the owner's cancel fd (lf_port_open_cancellable), if any */
+    struct pollfd pf[2] = {{.fd = fd, .events = events},
+                           {.fd = p->cancel_fd ? *p->cancel_fd : -1, .events = POLLIN}};
+    nfds_t n = p->cancel_fd ? 2 : 1;
+    int r = p->be->poll(p->ctx, pf, n, lf_poll_timeout_ms(deadline, now));
     if (r < 0)
         return errno == EINTR ? 0 : -errno;
-    if (r > 0 && (pf.revents & POLLNVAL))
+    if (r > 0 && n == 2 && pf[1].revents)
+        return -ECANCELED;
+    if (r > 0 && (pf[0].revents & POLLNVAL))
         return -EBADF;
     if (r > 0)
-        *revents = pf.revents;
+        *revents = pf[0].revents;
     return 0;
 }
 

@@ -60,6 +60,30 @@ class AsyncG485Master:
         self._deadline = 0.0
         self._timer: Optional[asyncio.TimerHandle] = None
         self._closed = False
+        master._close_hooks.append(self._on_master_closed)
+
+    def _on_master_closed(self) -> None:
+        """The master was closed (here or from another thread): the exchange in
+        flight ends with ClosedError now, not at its timeout."""
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        exc = ClosedError(f"{self.master.name}: master closed")
+        try:
+            running: Optional[asyncio.AbstractEventLoop] = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop:
+            self._fail_closed(exc)
+        else:
+            try:
+                loop.call_soon_threadsafe(self._fail_closed, exc)
+            except RuntimeError:  # its loop closed meanwhile
+                pass
+
+    def _fail_closed(self, exc: ClosedError) -> None:
+        self._unwatch()
+        self._finish(exc=exc)
 
     # -- the reader: every chunk from the port -----------------------------------
 

@@ -74,7 +74,9 @@ class ErrorBit(enum.IntFlag):
 
 
 def describe_error_word(word: int) -> str:
-    """Names of the bits set in ``word`` (``"none"`` for 0)."""
+    """Names of the bits set in ``word`` (a 16-bit error word; ``"none"`` for 0)."""
+    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
+        raise G485ValueError(f"an error word is an int 0..0xffff, not {word!r}")
     if not word:
         return "none"
     names = [b.name for b in ErrorBit if word & b and b.name]
@@ -172,13 +174,32 @@ Event = Union[Packet, Discarded]
 Data = Union[bytes, bytearray, memoryview, Sequence[int], int]
 
 
+def _raw(data: bytes, what: str) -> bytes:
+    """``data`` as bytes when it is bytes-like (the hot paths pass bytes: one type test)."""
+    if type(data) is bytes:
+        return data
+    if isinstance(data, (bytearray, memoryview)):
+        return bytes(data)
+    raise G485ValueError(f"{what} must be bytes-like, not {type(data).__name__}")
+
+
+def _u8s(*values: int) -> None:
+    """Raw header fields: ints 0..255 (not bools)."""
+    for v in values:
+        if type(v) is not int or not 0 <= v <= 0xFF:
+            raise G485ValueError(f"a header field is a byte value 0..255, not {v!r}")
+
+
 def check_byte(body: bytes) -> int:
     """CHECK of ADDRESS..DATA (the frame without FF FF and without CHECK)."""
-    return ~sum(body) & 0xFF
+    return ~sum(_raw(body, "body")) & 0xFF
 
 
 def frame(address_byte: int, pid: int, data: bytes = b"") -> bytes:
-    """A frame from its raw fields, unchecked (the encoders below validate first)."""
+    """A frame from its raw fields, not checked against the protocol (the encoders
+    below validate first); only their types and byte ranges are."""
+    data = _raw(data, "data")
+    _u8s(address_byte, pid, len(data) + 2)
     body = bytes((address_byte, len(data) + 2, pid)) + data
     return START + body + bytes((check_byte(body),))
 
@@ -200,6 +221,7 @@ def reply_prefix(pid: int, length: int) -> bytes:
     length`` bytes long and sums to :data:`FRAME_SUM` is exactly the reply
     the :class:`Parser` would return (see :func:`is_exact_reply`).
     """
+    _u8s(pid, length)
     return START + bytes((SMA_R, length, pid))
 
 
@@ -209,6 +231,10 @@ def is_exact_reply(chunk: bytes, prefix: bytes) -> bool:
     ``prefix`` must come from a valid request (its PID and LENGTH fit a reply
     type), so no further classification is needed.
     """
+    if type(chunk) is not bytes or type(prefix) is not bytes:
+        chunk, prefix = _raw(chunk, "chunk"), _raw(prefix, "prefix")
+    if len(prefix) != len(START) + 3:
+        raise G485ValueError(f"prefix must be the 5 bytes of reply_prefix(), not {prefix!r}")
     return (len(chunk) == HEADER_SIZE + prefix[3] and chunk.startswith(prefix)
             and sum(chunk) & 0xFF == FRAME_SUM)
 
@@ -220,6 +246,8 @@ def exact_packet(chunk: bytes) -> Optional[Packet]:
     for such a chunk the :class:`Parser` would return this one Packet and
     keep nothing; for anything else (None) the Parser decides.
     """
+    if type(chunk) is not bytes:
+        chunk = _raw(chunk, "chunk")
     n = len(chunk)
     if n < HEADER_SIZE + MIN_LENGTH or n > HEADER_SIZE + MAX_LENGTH or not chunk.startswith(START):
         return None
@@ -348,6 +376,7 @@ def set_command(command: Union[SetCommand, int, str]) -> SetCommand:
 
 def classify(address_byte: int, length: int, pid: int) -> Optional[PacketKind]:
     """The packet type a well-checked frame header denotes, or None."""
+    _u8s(address_byte, length, pid)
     if address_byte == SMA_R:
         if MIN_REGISTER <= pid <= MAX_REGISTER:
             if length >= 3 and pid + length - 3 <= MAX_REGISTER:

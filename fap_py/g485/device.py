@@ -13,9 +13,13 @@ import json
 import logging
 import os
 import random
+import stat
 import threading
-from typing import Callable, Dict, Iterable, List, NamedTuple, Optional, Tuple, Union
+from typing import Any, Callable, Dict, Iterable, List, NamedTuple, Optional, Tuple, Union
 
+from .._files import read_user_file
+from .._validate import check_path
+from ..errors import InvalidValueError
 from . import codec
 from .codec import BROADCAST, Discarded, ErrorBit, Packet, PacketKind, ParseIssue, SetCommand
 from .errors import G485ValueError
@@ -38,6 +42,32 @@ _DISCARD_ERRORS = {ParseIssue.BAD_CHECK: ErrorBit.BAD_CHECK, ParseIssue.UNKNOWN_
 
 #: seed V11: ProtocolVer, DeviceMainClass, DeviceSubClass, HardwareVer, SoftwareVer
 DEFAULT_IDENTITY = (11, 1, 1, 1, 1)
+
+
+#: the largest EEPROM file a device loads (the image is ~2 kB of JSON)
+MAX_EEPROM_FILE = 1 << 20
+
+
+def _eeprom_path(value: Any) -> str:
+    """An EEPROM file path: a path without NUL, and a regular file if it exists
+    (it is created at the first save). Refused up front, not at power-on:
+    '', a directory, ``/dev/null``, ``/dev/zero``."""
+    try:
+        path = check_path(value, "eeprom_path")
+    except InvalidValueError as exc:
+        raise G485ValueError(str(exc)) from None
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return path
+    except OSError as exc:
+        raise G485ValueError(f"eeprom_path {path!r}: {exc.strerror}") from None
+    if not stat.S_ISREG(st.st_mode):
+        raise G485ValueError(f"eeprom_path {path!r} is not a regular file")
+    if st.st_size > MAX_EEPROM_FILE:
+        raise G485ValueError(f"eeprom_path {path!r}: {st.st_size} bytes, more than "
+                             f"the {MAX_EEPROM_FILE} an EEPROM image may have")
+    return path
 
 
 class SimDevice:
@@ -76,8 +106,8 @@ class SimDevice:
             raise G485ValueError(f"wake_up_loss must be a bool, not {type(wake_up_loss).__name__}")
         if on_apply is not None and not callable(on_apply):
             raise G485ValueError("on_apply must be callable or None")
-        if eeprom_path is not None and not isinstance(eeprom_path, (str, os.PathLike)):
-            raise G485ValueError(f"eeprom_path must be a path, not {type(eeprom_path).__name__}")
+        if eeprom_path is not None:
+            eeprom_path = _eeprom_path(eeprom_path)
         if private is not None and not isinstance(private, dict):
             raise G485ValueError(f"private must be a dict of register specs, not {type(private).__name__}")
         self.specs: List[RegisterSpec] = [RegisterSpec("", 0, False)] * 101
@@ -97,7 +127,7 @@ class SimDevice:
                     or not 0 <= spec.initial <= 255 or not isinstance(spec.saved, bool)):
                 raise G485ValueError(f"bad spec for register {reg}: {spec}")
             self.specs[reg] = spec
-        self.eeprom_path = os.fspath(eeprom_path) if eeprom_path is not None else None
+        self.eeprom_path: Optional[str] = eeprom_path
         self.bulk_discard_rate = bulk_discard_rate
         self.wake_up_loss = wake_up_loss
         self.on_apply = on_apply
@@ -141,8 +171,8 @@ class SimDevice:
         if not self.eeprom_path or not os.path.exists(self.eeprom_path):
             return True
         try:
-            with open(self.eeprom_path, encoding="utf-8") as f:
-                doc = json.load(f)
+            doc = json.loads(read_user_file(self.eeprom_path, limit=MAX_EEPROM_FILE,
+                                            what="EEPROM file").decode("utf-8"))
             if doc.get("format") != EEPROM_FORMAT:
                 raise ValueError(f"format {doc.get('format')!r}")
             image = bytearray(self.factory_image)

@@ -52,7 +52,7 @@ from .errors import (
     UnexpectedReplyError,
     WriteRefusedError,
 )
-from .transport import IO, PortSpec, open_io
+from .transport import IO, PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")
 
@@ -171,6 +171,10 @@ class ReplyWaiter:
     __slots__ = ("_m", "_prefix", "_pid", "_length", "size", "_junk", "_problem", "settle")
 
     def __init__(self, master: "G485Master", prefix: bytes) -> None:
+        if not isinstance(master, G485Master):
+            raise G485ValueError(f"master must be a G485Master, not {type(master).__name__}")
+        if type(prefix) is not bytes or len(prefix) != 5 or not prefix.startswith(codec.START):
+            raise G485ValueError(f"prefix must come from codec.reply_prefix(), not {prefix!r}")
         self._m = master
         self._prefix = prefix
         self._length = prefix[3]
@@ -268,6 +272,7 @@ class G485Master:
                  set_guard: bool = True, set_repeats: int = 3, factory_address: int = 1,
                  echo: bool = False, rs485: Optional[RS485] = None, **serial_kwargs: Any) -> None:
         self._io: Optional[IO] = None
+        self._close_hooks: List[Callable[[], None]] = []   # AsyncG485Master: fail its waiter
         self.timeout = seconds(timeout)
         self.retries = whole(retries, "retries", 0, MAX_RETRIES)
         self.check = _as_check(check, Check.HANDSHAKE)
@@ -300,10 +305,21 @@ class G485Master:
     # -- context management ----------------------------------------------------
 
     def close(self) -> None:
-        """Close the port (if the master opened it)."""
-        if self._io is not None:
+        """Close the port. Thread-safe: a transaction in flight in another thread
+        (or an :class:`~fap_py.g485.aio.AsyncG485Master` exchange) ends within
+        0.5 s with :class:`~fap_py.errors.ClosedError` instead of waiting out its
+        timeout and retries. (A pyserial port, which cannot be closed under a
+        reader, is closed between transactions.)"""
+        io = self._io
+        if io is None:
+            return
+        if isinstance(io, PortIO):
+            io.close()      # Port.close: ends the waits in C and the sliced polls
+        else:
             with self._lock:
-                self._io.close()
+                io.close()
+        for hook in list(self._close_hooks):
+            hook()
 
     def __enter__(self) -> "G485Master":
         return self
@@ -862,6 +878,7 @@ class G485Master:
 
     def believed_check_byte(self, address: int) -> Optional[int]:
         """The check byte the master thinks device ``address`` holds (None: unknown)."""
+        whole(address, "address", codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS)
         return self._device_check.get(address)
 
 

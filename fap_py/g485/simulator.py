@@ -20,12 +20,12 @@ import threading
 import time
 from typing import Any, Iterable, List, Optional, Sequence, Union
 
-from ..errors import PortError
+from ..errors import ClosedError, PortError
 from ..rs485 import RS485
-from .codec import Discarded, Packet, Parser, exact_packet
+from .codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS, Discarded, Packet, Parser, exact_packet
 from .device import SimDevice
 from .errors import G485ValueError
-from .master import seconds
+from .master import seconds, whole
 from .transport import PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485.sim")
@@ -75,16 +75,20 @@ class Simulator:
         return device
 
     def device(self, address: int) -> SimDevice:
-        """The device currently answering at ``address``."""
+        """The device currently answering at ``address`` (G485ValueError if none)."""
+        whole(address, "address", MIN_SLAVE_ADDRESS, MAX_SLAVE_ADDRESS)
         for d in self.devices:
             if d.address == address:
                 return d
-        raise KeyError(address)
+        raise G485ValueError(f"no device answers at ID {address} on {self.name}")
 
     # -- thread -------------------------------------------------------------
 
     def start(self) -> "Simulator":
-        """Start the port thread."""
+        """Start the port thread. A stopped simulator has closed its port: make a
+        new one (ClosedError here rather than a simulator that never answers)."""
+        if self._stopping:
+            raise ClosedError(f"{getattr(self, 'name', 'simulator')}: simulator stopped")
         if self._thread is None:
             self._thread = threading.Thread(target=self._serve, name=f"g485-sim {self.name}", daemon=True)
             self._thread.start()

@@ -27,12 +27,40 @@ from typing import Any, Optional, Union
 
 import serial
 
+from .._handle import WAIT_SLICE
 from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
 from ..port import Port
 from ..rs485 import RS485
 from .errors import EchoMismatchError, G485ValueError
 
 PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
+#: longest poll of a reply wait: a close() from another thread is noticed within it
+_SLICE_MS = int(WAIT_SLICE * 1000)
+#: the most one read asks for (the C port layer's bound)
+_MAX_N = 4096
+
+
+def _n(n: int) -> int:
+    """A read size: an int 1.._MAX_N (one type test on the hot path)."""
+    if type(n) is not int or not 0 < n <= _MAX_N:
+        raise G485ValueError(f"n must be an int 1..{_MAX_N}, not {n!r}")
+    return n
+
+
+def _secs(t: float, what: str, hi: float = 1e6) -> float:
+    """A finite number of seconds 0..hi (NaN fails the comparison)."""
+    if (type(t) is not float and type(t) is not int) or not 0 <= t <= hi:
+        raise G485ValueError(f"{what} must be a number of seconds 0..{hi:g}, not {t!r}")
+    return t
+
+
+def _data(data: bytes) -> bytes:
+    """Bytes to send: bytes-like (a bytearray, any memoryview) as bytes."""
+    if type(data) is bytes:
+        return data
+    if isinstance(data, (bytearray, memoryview)):
+        return bytes(data)
+    raise G485ValueError(f"data must be bytes-like, not {type(data).__name__}")
 
 
 #: URL schemes the C port layer opens itself (docs/port.md, "Network transports")
@@ -78,15 +106,24 @@ class PortIO:
 
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (``time.monotonic()``) for the first."""
-        return self._read(n, max(1, math.ceil(deadline * 1e9)))
+        return self._read(_n(n), max(1, math.ceil(_secs(deadline, "deadline", 1e12) * 1e9)))
 
     def read_within(self, n: int, timeout: float) -> bytes:
         """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first (b"" if
         nothing came; the caller goes on with :meth:`read_some` if the chunk is short)."""
+        _n(n)
+        _secs(timeout, "timeout")
         poller = self._poller
         if poller is not None:
-            if not poller.poll(math.ceil(timeout * 1000.0)):
-                return b""
+            ms = math.ceil(timeout * 1000.0)
+            deadline = time.monotonic() + timeout
+            # in slices: a close() from another thread ends the wait (ClosedError below)
+            while not poller.poll(min(ms, _SLICE_MS)):
+                if self.port.closed:
+                    break
+                ms = math.ceil((deadline - time.monotonic()) * 1000.0)
+                if ms <= 0:
+                    return b""
             return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
@@ -95,7 +132,8 @@ class PortIO:
         most ``timeout`` seconds for the first (b"" if nothing came): one call into C
         (``fap_port_transact``). ``timeout`` must include the request's wire time."""
         try:
-            return self._transact(data, n, time.monotonic_ns() + math.ceil(timeout * 1e9))
+            return self._transact(_data(data), n,
+                                  time.monotonic_ns() + math.ceil(_secs(timeout, "timeout") * 1e9))
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 
@@ -103,7 +141,7 @@ class PortIO:
         """:meth:`flush_input` then :meth:`write` in one call into C (the reply is
         awaited elsewhere, e.g. by an event loop's reader)."""
         try:
-            self._transact(data, 0, 0)
+            self._transact(_data(data), 0, 0)
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 
@@ -118,13 +156,13 @@ class PortIO:
 
     def read_nowait(self, n: int) -> bytes:
         """What is there now, up to ``n`` bytes (b"" if nothing)."""
-        return self._read(n, 0)
+        return self._read(_n(n), 0)
 
     def write(self, data: bytes) -> None:
         """Write all of ``data`` (direction switching, echo check in C; ``tcdrain`` only
         where soft RTS or echo suppression needs it: ``fap_port_send``)."""
         try:
-            self._write(bytes(data))
+            self._write(_data(data))
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 
@@ -174,6 +212,10 @@ class SerialIO:
         if isinstance(port, int) and not isinstance(port, bool):
             if port < 0:
                 raise G485ValueError(f"fd must be >= 0, not {port}")
+            try:
+                os.fstat(port)
+            except (OSError, OverflowError):
+                raise G485ValueError(f"fd {port} is not an open file descriptor") from None
             self.fd = port
             self.name = f"fd {port}"
             self._poll = select.poll()
@@ -200,6 +242,8 @@ class SerialIO:
 
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (monotonic) for the first; b"" on timeout."""
+        _n(n)
+        _secs(deadline, "deadline", 1e12)
         self._check()
         while True:
             remaining = deadline - time.monotonic()
@@ -215,10 +259,11 @@ class SerialIO:
 
     def read_within(self, n: int, timeout: float) -> bytes:
         """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first."""
-        return self.read_some(n, time.monotonic() + timeout)
+        return self.read_some(n, time.monotonic() + _secs(timeout, "timeout"))
 
     def read_nowait(self, n: int) -> bytes:
         """What is there now, up to ``n`` bytes."""
+        _n(n)
         self._check()
         if self.fd is not None:
             return self._read_fd(n) if self._poll.poll(0) else b""
@@ -255,6 +300,7 @@ class SerialIO:
 
     def write(self, data: bytes) -> None:
         """Write all of ``data`` (and read its echo back when ``echo`` is on)."""
+        data = _data(data)
         self._check()
         if self.fd is None:
             try:

@@ -211,8 +211,8 @@ def test_bad_capture_one_line_naming_the_file_exit_3(content, why, pcap, tmp_pat
 
 @pytest.mark.parametrize("path,why", [
     ("/etc/passwd", "/etc/passwd: line 1: bad data line"),
-    ("/dev/zero", "/dev/zero: not a regular file"),
-    ("/", "/: Is a directory"),
+    ("/dev/zero", "/dev/zero: capture file: not a regular file"),
+    ("/", "/: capture file: a directory"),
 ])
 def test_system_files_as_capture(path, why):
     res = run_fap("monitor", "--capture", path, timeout=WAIT_S)

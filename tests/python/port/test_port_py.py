@@ -111,7 +111,9 @@ def test_bad_arguments_and_closed(pty: tuple[int, str]) -> None:
         port.read("4")  # type: ignore[arg-type]
     with pytest.raises(InvalidValueError):
         port.read_until(MAX_READ + 1, 0)
-    assert port.read(10**9, timeout=0.001) == b""  # n is clamped to MAX_READ
+    for n in (10**9, 0, -5):                    # bounds like read_until (issue 26)
+        with pytest.raises(InvalidValueError):
+            port.read(n, timeout=0.001)
     with pytest.raises(InvalidValueError):
         Port(name, rs485="soft")  # type: ignore[arg-type]
     with pytest.raises(InvalidValueError):
@@ -250,7 +252,12 @@ def test_transact_discards_stale_input_and_returns_the_reply(pty: tuple[int, str
         t0 = time.monotonic()
         assert port.transact(b"y", 4, time.monotonic_ns() + 50_000_000) == b""  # nobody answers
         assert time.monotonic() - t0 >= 0.04
-        for bad in ((bytearray(b"x"), 1, 0), (b"x", -1, 0), (b"x", MAX_READ + 1, 0), (b"x", 1, -1),
+        assert port.transact(memoryview(b"zXz")[::2], 0, 0) == b""  # bytes-like (issue 26)
+        got = b""
+        while len(got) < 3:
+            got += os.read(far, 3 - len(got))
+        assert got == b"yzz"                    # the unanswered request, then ours
+        for bad in (("x", 1, 0), (b"x", -1, 0), (b"x", MAX_READ + 1, 0), (b"x", 1, -1),
                     (b"x", 1.0, 0)):
             with pytest.raises(InvalidValueError):
                 port.transact(*bad)  # type: ignore[arg-type]
@@ -296,5 +303,6 @@ def test_send_writes_and_checks_its_argument(pty: tuple[int, str]) -> None:
         while len(got) < 3:
             got += os.read(far, 3)
         assert got == b"abc"
+        assert port.send(bytearray(b"x")) == 1      # bytes-like taken (issue 26)
         with pytest.raises(FapError):
-            port.send(bytearray(b"x"))  # type: ignore[arg-type]
+            port.send("x")  # type: ignore[arg-type]

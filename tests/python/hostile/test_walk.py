@@ -1,0 +1,125 @@
+"""Issue 26: the hostile walk over every public callable of every fap_py module.
+
+``walk_runner.py`` (run here in a child process, with its own cwd, HOME and
+an empty stdin) walks ``pkgutil.walk_packages(fap_py)``: every public
+function, class and method, each parameter with the bad values its
+annotation calls for, each call bounded by a timeout. A new module, class or
+function is walked without being listed anywhere.
+
+It must find 0 generic exceptions, 0 hangs, 0 accepted bad values and 0
+bytes-like mismatches, except in :data:`EXPECTED_FAILURES`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Dict
+
+import pytest
+
+pytestmark = pytest.mark.timeout(600)
+
+RUNNER = Path(__file__).with_name("walk_runner.py")
+
+# fap_py.monitor and fap_py.bridge are being fixed in parallel (issue 26 items
+# 1, 3, 5-7, 10 belong to their helpers): what the walk still finds there,
+# per callable, as counts of findings by kind. ONLY these two packages may be
+# listed. The test fails when a listed callable no longer fails (remove the
+# entry when merging its fix) and when an unlisted one does.
+EXPECTED_FAILURES: Dict[str, str] = {
+    "fap_py.bridge.bridge.Bridge": "1 generic, 1 no_instance",
+    "fap_py.bridge.buses.BusAdapter.execute": "9 generic",
+    "fap_py.bridge.buses.BusAdapter.submit": "6 accepted, 6 generic",
+    "fap_py.bridge.buses.ExecAsyncAdapter.execute": "9 generic",
+    "fap_py.bridge.buses.ExecAsyncAdapter.submit": "6 accepted, 6 generic",
+    "fap_py.bridge.buses.FapAdapter.execute": "9 generic",
+    "fap_py.bridge.buses.FapAdapter.submit": "6 accepted, 6 generic",
+    "fap_py.bridge.buses.G485Adapter.execute": "9 generic",
+    "fap_py.bridge.buses.G485Adapter.submit": "6 accepted, 6 generic",
+    "fap_py.bridge.buses.MikrocAdapter.execute": "9 generic",
+    "fap_py.bridge.buses.MikrocAdapter.submit": "6 accepted, 6 generic",
+    "fap_py.bridge.buses.Sink": "1 no_instance",
+    "fap_py.bridge.buses.make_adapter": "2 generic",
+    "fap_py.bridge.config.from_dict": "5 generic",
+    "fap_py.bridge.config.load": "6 generic",
+    "fap_py.bridge.config.parse_url": "3 generic",
+    "fap_py.bridge.mqtt.MqttLink": "5 generic, 1 no_instance",
+    "fap_py.bridge.store.Store": "1 accepted, 5 generic, 1 no_instance",
+    "fap_py.bridge.store.now_iso": "2 accepted, 7 generic",
+    "fap_py.monitor.core.Monitor": "2 accepted, 7 generic",
+    "fap_py.monitor.core.Monitor.feed": "28 accepted, 1 bytes_like, 14 generic",
+    "fap_py.monitor.core.Monitor.idle": "1 accepted, 7 generic",
+    "fap_py.monitor.core.Record": "21 accepted",
+    "fap_py.monitor.core.Timeline.add": "29 accepted, 5 generic",
+    "fap_py.monitor.core.Timeline.at": "3 accepted, 5 generic",
+    "fap_py.monitor.core.Timeline.end": "3 accepted, 5 generic",
+    "fap_py.monitor.decoders.Decoder.feed": "17 generic",
+    "fap_py.monitor.decoders.Decoder.idle": "8 accepted",
+    "fap_py.monitor.decoders.Event": "21 accepted",
+    "fap_py.monitor.decoders.EventFilter.push": "1 generic",
+    "fap_py.monitor.decoders.ExecDecoder.feed": "8 accepted, 6 generic",
+    "fap_py.monitor.decoders.ExecDecoder.idle": "8 accepted",
+    "fap_py.monitor.decoders.FapDecoder": "2 accepted, 14 generic",
+    "fap_py.monitor.decoders.FapDecoder.feed": "1 accepted, 1 bytes_like, 15 generic",
+    "fap_py.monitor.decoders.FapDecoder.idle": "1 accepted, 7 generic",
+    "fap_py.monitor.decoders.G485Decoder": "16 accepted",
+    "fap_py.monitor.decoders.G485Decoder.feed": "8 accepted, 6 generic",
+    "fap_py.monitor.decoders.G485Decoder.idle": "8 accepted",
+    "fap_py.monitor.decoders.MikrocDecoder.feed": "8 accepted, 6 generic",
+    "fap_py.monitor.decoders.MikrocDecoder.idle": "8 accepted",
+    "fap_py.monitor.extcap.main": "1 generic",
+    "fap_py.monitor.install.write_dissectors": "4 generic",
+    "fap_py.monitor.install.write_extcap": "4 generic",
+    "fap_py.monitor.output.human_line": "6 generic",
+    "fap_py.monitor.output.json_line": "1 generic",
+    "fap_py.monitor.output.printable": "1 accepted, 5 generic",
+    "fap_py.monitor.output.to_json": "1 generic",
+    "fap_py.monitor.pcap.PcapWriter": "6 generic, 1 no_instance",
+    "fap_py.monitor.pcap.header": "1 generic",
+    "fap_py.monitor.sources.LivePort": "4 generic, 1 no_instance",
+    "fap_py.monitor.sources.char_seconds": "4 accepted, 4 generic",
+    "fap_py.monitor.sources.raw_file": "1 generic",
+    "fap_py.monitor.sources.stream": "16 generic",
+    "fap_py.monitor.stats.Stats": "8 accepted",
+    "fap_py.monitor.stats.Stats.add": "1 generic",
+}
+
+
+@pytest.fixture(scope="module")
+def report(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    home = tmp_path_factory.mktemp("walk")
+    env = dict(os.environ, HOME=str(home), PYTHONDONTWRITEBYTECODE="1")
+    r = subprocess.run([sys.executable, str(RUNNER)], cwd=home, env=env, stdin=subprocess.DEVNULL,
+                       capture_output=True, text=True, timeout=540)
+    assert r.returncode == 0, r.stderr[-3000:]
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def test_expected_failures_name_only_monitor_and_bridge() -> None:
+    for name in EXPECTED_FAILURES:
+        assert name.startswith(("fap_py.monitor.", "fap_py.bridge.")), name
+
+
+def test_walk_covers_every_package(report: dict) -> None:
+    mods = set(report["modules"])
+    for pkg in ("fap_py.port", "fap_py.g485.codec", "fap_py.g485.simulator", "fap_py.g485.master",
+                "fap_py.monitor.core", "fap_py.bridge.config", "fap_py.vbus", "fap_py.execasync",
+                "fap_py.mikroc", "fap_py.fap"):
+        assert pkg in mods, pkg
+    assert report["callables"] > 200 and report["calls"] > 2000, report
+
+
+def test_no_generic_exception_hang_or_accepted_bad_value(report: dict) -> None:
+    unexpected = [f for f in report["findings"] if f["callable"] not in EXPECTED_FAILURES]
+    lines = [f"{f['kind']}: {f['callable']}({f['param']}={f['value']}): {f['detail']}"
+             for f in unexpected]
+    assert not lines, "\n".join(lines)
+
+
+def test_expected_failures_still_fail(report: dict) -> None:
+    failing = {f["callable"] for f in report["findings"]}
+    fixed = sorted(set(EXPECTED_FAILURES) - failing)
+    assert not fixed, f"fixed: remove from EXPECTED_FAILURES: {fixed}"
