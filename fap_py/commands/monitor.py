@@ -14,6 +14,7 @@ import json
 import logging
 import signal
 import sys
+import threading
 from typing import List, Optional
 
 from ._options import (
@@ -131,7 +132,9 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     def on_signal(signum, frame) -> None:
         stopped.append(signum)
 
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    old = {}
+    if threading.current_thread() is threading.main_thread():   # Python's rule for handlers
+        old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
     try:
         return _monitor(args, out, stopped)
     finally:
