@@ -41,8 +41,8 @@ A protocol analyser for FAP, exec async, mikroC and G485: reads a live port
 (receive-only), a raw byte file, a virtual-bus capture or stdin; prints
 frames, JSON, statistics, pcap. See docs/monitor.md.
 
-exit: 0 input read to its end (bad frames are reported, not failures),
-      2 usage error, 3 file or port error, 130 interrupted"""
+exit: 0 input read to its end or SIGTERM (bad frames are reported, not
+      failures), 2 usage error, 3 file or port error, 130 interrupted (SIGINT)"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
