@@ -240,3 +240,16 @@ def test_vector_streams_unchanged_by_the_bounds():
         single = [(r.error, r.raw) for r in records(protocol, data, 1)]
         assert [e for e in whole if e[0] != "garbage"] == \
             [e for e in single if e[0] != "garbage"], protocol
+
+
+def test_read_capture_refuses_devices_and_huge_files(tmp_path):
+    """vbus.read_capture (which holds the file) checks type and size first."""
+    from fap_py.vbus import CAPTURE_SIZE_MAX, CaptureFormatError, read_capture
+
+    with pytest.raises(CaptureFormatError, match="/dev/zero: not a regular file"):
+        read_capture("/dev/zero")
+    huge = tmp_path / "huge.cap"
+    with open(huge, "wb") as fh:               # sparse: no disk used
+        fh.truncate(CAPTURE_SIZE_MAX + 1)
+    with pytest.raises(CaptureFormatError, match="more than"):
+        read_capture(huge)
