@@ -22,6 +22,8 @@ log = logging.getLogger(__name__)
 AUTO_LOCK_FRAMES = 2
 #: bytes after which ``auto`` picks the best decoder even without a clear lead
 AUTO_GIVE_UP_BYTES = 4096
+#: timeline segments (chunks) kept for events still to be placed
+TIMELINE_KEEP = 16384
 #: the largest wire time a record may carry, seconds (what a pcap record holds)
 T_MAX = float(U32)
 
@@ -102,9 +104,11 @@ class Timeline:
         self._offsets.append(self._pos)
         self._segs.append((t, char_s, port))
         self._pos += n
-        if len(self._offsets) > 4096:            # events are never that far behind
-            del self._offsets[:2048]
-            del self._segs[:2048]
+        # an event is never more than auto's trial bytes plus a held bad-frame chain
+        # behind (< 16 KiB): keep that many segments, even with one byte per chunk
+        if len(self._offsets) > 2 * TIMELINE_KEEP:
+            del self._offsets[:TIMELINE_KEEP]
+            del self._segs[:TIMELINE_KEEP]
 
     def at(self, offset: int) -> tuple:
         """(wire start of the byte at offset or None, sender port or None)."""
