@@ -120,6 +120,10 @@ def _run(args: argparse.Namespace) -> int:
     return monitor(args)
 
 
+#: how long a write may still block after a signal before the output is abandoned, s
+STUCK_S = 0.2
+
+
 class _OutputStuck(Exception):
     """A signal came while a write to stdout or the pcap blocked (nobody reads)."""
 
@@ -130,15 +134,19 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
     POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary: exit 0
     and 130. The handler only sets a flag, so no KeyboardInterrupt lands
-    inside a cffi callback; it is installed before the input opens. A signal
-    that comes while a write blocks (a reader that stopped reading) ends the
-    write too: the rest of the output is dropped and the summary goes to stderr.
+    inside a cffi callback; it is installed before the input opens. A write
+    still blocked STUCK_S after a signal (a reader that stopped reading) is
+    abandoned: the rest of the output is dropped and the summary goes to stderr.
     """
     stopped: List[int] = []           # the signals received
     writing = [False]                 # an output write is under way (it may block)
 
     def on_signal(signum, frame) -> None:
         stopped.append(signum)
+        if writing[0]:                # a write still blocked STUCK_S later is abandoned
+            signal.setitimer(signal.ITIMER_REAL, STUCK_S)
+
+    def on_alarm(signum, frame) -> None:
         if writing[0]:
             writing[0] = False
             raise _OutputStuck()
@@ -146,9 +154,12 @@ def monitor(args: argparse.Namespace, out=None) -> int:
     old = {}
     if threading.current_thread() is threading.main_thread():   # Python's rule for handlers
         old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+        old[signal.SIGALRM] = signal.signal(signal.SIGALRM, on_alarm)
     try:
         return _monitor(args, out, stopped, writing)
     finally:
+        if old:
+            signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, handler in old.items():
             signal.signal(sig, handler)
 
@@ -269,6 +280,8 @@ def _monitor(args: argparse.Namespace, out, stopped: List[int], writing: List[bo
             pcap.close()
             pcap._fh.close()
     if stuck:
+        if args.quiet:           # Wireshark's extcap takes any stderr text for an error
+            return EXIT_INTERRUPTED if signal.SIGINT in stopped else 0
         out = sys.stderr
     stats.bytes = mon.bytes
     announce()

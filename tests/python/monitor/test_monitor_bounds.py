@@ -281,10 +281,12 @@ def test_signal_ends_a_monitor_whose_reader_stopped_reading(sig, rc):
         select.select([], [], [], 0.01)
     proc.send_signal(sig)
     try:
-        _out, err = proc.communicate(timeout=WAIT_S)
+        proc.wait(timeout=WAIT_S)           # stdout stays unread: the write stays blocked
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
         pytest.fail("the monitor blocked in a write did not end on the signal")
+    err = proc.stderr.read()
+    proc.stdout.close()
     assert proc.returncode == rc
     assert b"-- 0 frames, errors: garbage" in err
