@@ -12,8 +12,10 @@ import argparse
 import errno
 import json
 import logging
+import os
 import signal
 import sys
+import threading
 from typing import List, Optional
 
 from ._options import (
@@ -40,8 +42,8 @@ A protocol analyser for FAP, exec async, mikroC and G485: reads a live port
 (receive-only), a raw byte file, a virtual-bus capture or stdin; prints
 frames, JSON, statistics, pcap. See docs/monitor.md.
 
-exit: 0 input read to its end (bad frames are reported, not failures),
-      2 usage error, 3 file or port error, 130 interrupted"""
+exit: 0 input read to its end or SIGTERM (bad frames are reported, not
+      failures), 2 usage error, 3 file or port error, 130 interrupted (SIGINT)"""
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -118,28 +120,51 @@ def _run(args: argparse.Namespace) -> int:
     return monitor(args)
 
 
+#: how long a write may still block after a signal before the output is abandoned, s
+STUCK_S = 0.2
+
+
+class _OutputStuck(Exception):
+    """A signal came while a write to stdout or the pcap blocked (nobody reads)."""
+
+
 def monitor(args: argparse.Namespace, out=None) -> int:
     """Run the monitor over the input named in ``args``; the records go to ``out``.
 
     SIGTERM (extcap's stop) and SIGINT end every input within a read (at most
     POLL_S on a quiet pipe, 200 ms on a quiet port) with the summary: exit 0
     and 130. The handler only sets a flag, so no KeyboardInterrupt lands
-    inside a cffi callback; it is installed before the input opens.
+    inside a cffi callback; it is installed before the input opens. A write
+    still blocked STUCK_S after a signal (a reader that stopped reading) is
+    abandoned: the rest of the output is dropped and the summary goes to stderr.
     """
     stopped: List[int] = []           # the signals received
+    writing = [False]                 # an output write is under way (it may block)
 
     def on_signal(signum, frame) -> None:
         stopped.append(signum)
+        if writing[0]:                # a write still blocked STUCK_S later is abandoned
+            signal.setitimer(signal.ITIMER_REAL, STUCK_S)
 
-    old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+    def on_alarm(signum, frame) -> None:
+        if writing[0]:
+            writing[0] = False
+            raise _OutputStuck()
+
+    old = {}
+    if threading.current_thread() is threading.main_thread():   # Python's rule for handlers
+        old = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
+        old[signal.SIGALRM] = signal.signal(signal.SIGALRM, on_alarm)
     try:
-        return _monitor(args, out, stopped)
+        return _monitor(args, out, stopped, writing)
     finally:
+        if old:
+            signal.setitimer(signal.ITIMER_REAL, 0)
         for sig, handler in old.items():
             signal.signal(sig, handler)
 
 
-def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
+def _monitor(args: argparse.Namespace, out, stopped: List[int], writing: List[bool]) -> int:
     def stop() -> bool:
         return bool(stopped)
 
@@ -199,23 +224,28 @@ def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
 
     def emit(recs) -> None:
         announce()
-        for rec in recs:
-            stats.add(rec)
-            if pcap:
-                pcap.write(rec)
-            if args.stats:
-                continue
-            if args.json:
-                out.write(json_line(rec) + "\n")
-            else:
-                if t0[0] is None and rec.t is not None and relative:
-                    t0[0] = rec.t
-                out.write(human_line(rec, t0[0]) + "\n")
-        if flush and recs:
-            out.flush()
-            if pcap:
-                pcap.flush()
+        writing[0] = not stopped
+        try:
+            for rec in recs:
+                stats.add(rec)
+                if pcap:
+                    pcap.write(rec)
+                if args.stats:
+                    continue
+                if args.json:
+                    out.write(json_line(rec) + "\n")
+                else:
+                    if t0[0] is None and rec.t is not None and relative:
+                        t0[0] = rec.t
+                    out.write(human_line(rec, t0[0]) + "\n")
+            if flush and recs:
+                out.flush()
+                if pcap:
+                    pcap.flush()
+        finally:
+            writing[0] = False
 
+    stuck = False
     try:
         if live is not None:
             with live:
@@ -238,12 +268,21 @@ def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
                 if stopped:
                     break
         emit(mon.finish())
+    except _OutputStuck:
+        # nobody reads stdout (or the pcap fifo): drop what is still buffered there
+        stuck = True
+        _drop_output(out, pcap)
+        pcap = None
     finally:
         if fh is not None:
             fh.close()
         if pcap:
             pcap.close()
             pcap._fh.close()
+    if stuck:
+        if args.quiet:           # Wireshark's extcap takes any stderr text for an error
+            return EXIT_INTERRUPTED if signal.SIGINT in stopped else 0
+        out = sys.stderr
     stats.bytes = mon.bytes
     announce()
     if args.json and args.stats:
@@ -254,6 +293,20 @@ def _monitor(args: argparse.Namespace, out, stopped: List[int]) -> int:
         out.write(stats.footer() + "\n")
     out.flush()
     return EXIT_INTERRUPTED if signal.SIGINT in stopped else 0
+
+
+def _drop_output(out, pcap) -> None:
+    """Point stdout and the pcap at /dev/null: their buffered bytes can never be written."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        for fh in (out, pcap._fh if pcap else None):
+            try:
+                if fh is not None:
+                    os.dup2(devnull, fh.fileno())
+            except (OSError, ValueError, AttributeError):
+                pass
+    finally:
+        os.close(devnull)
 
 
 def live_now() -> int:

@@ -21,7 +21,10 @@ log = logging.getLogger(__name__)
 #: good frames one decoder needs, more than any other, for ``auto`` to lock on
 AUTO_LOCK_FRAMES = 2
 #: bytes after which ``auto`` picks the best decoder even without a clear lead
+#: (if any found a frame; else it shows those bytes and goes on trying)
 AUTO_GIVE_UP_BYTES = 4096
+#: timeline segments (chunks) kept for events still to be placed
+TIMELINE_KEEP = 16384
 #: the largest wire time a record may carry, seconds (what a pcap record holds)
 T_MAX = float(U32)
 
@@ -102,9 +105,11 @@ class Timeline:
         self._offsets.append(self._pos)
         self._segs.append((t, char_s, port))
         self._pos += n
-        if len(self._offsets) > 4096:            # events are never that far behind
-            del self._offsets[:2048]
-            del self._segs[:2048]
+        # an event is never more than auto's trial bytes plus a held bad-frame chain
+        # behind (< 16 KiB): keep that many segments, even with one byte per chunk
+        if len(self._offsets) > 2 * TIMELINE_KEEP:
+            del self._offsets[:TIMELINE_KEEP]
+            del self._segs[:TIMELINE_KEEP]
 
     def at(self, offset: int) -> tuple:
         """(wire start of the byte at offset or None, sender port or None)."""
@@ -146,6 +151,7 @@ class Monitor:
         self.timeline = Timeline()
         self.filter = EventFilter()
         self.bytes = 0
+        self._window = 0          # auto: stream offset where the trials' current stretch began
         self.locked: Optional[str] = None if protocol == "auto" else protocol
         self.decoder: Optional[Decoder] = make_decoder(protocol, baud) if self.locked else None
         self._trials: Dict[str, Decoder] = {}
@@ -158,19 +164,31 @@ class Monitor:
     def _score(self, p: str) -> int:
         return sum(1 for e in self._trial_events[p] if e.error is None)
 
-    def _try_lock(self, force: bool) -> List[Event]:
+    def _try_lock(self, at_end: bool) -> List[Event]:
+        """Lock on a decoder with a clear lead (or the best one at the end, or after
+        AUTO_GIVE_UP_BYTES with some frame). A stretch of AUTO_GIVE_UP_BYTES where
+        no decoder found a frame is handed on as the first protocol's view of it
+        (garbage, rejects) and the trials go on: noise before the traffic does not
+        decide the protocol, and the trials' memory stays bounded."""
         scores = {p: self._score(p) for p in PROTOCOLS}
         best = max(PROTOCOLS, key=lambda p: scores[p])
         others = max(scores[p] for p in PROTOCOLS if p != best)
-        if not force and not (scores[best] >= AUTO_LOCK_FRAMES and scores[best] > others):
+        clear = scores[best] >= AUTO_LOCK_FRAMES and scores[best] > others
+        window_full = self.bytes - self._window >= AUTO_GIVE_UP_BYTES
+        if clear or at_end or (window_full and scores[best] > 0):
+            self.locked = best
+            self.decoder = self._trials[best]
+            self.lock_frames = scores[best]
+            log.info("auto: locked on %s (%d good frames; others at most %d)",
+                     best, scores[best], others)
+            events = self._trial_events[best]
+            self._trials, self._trial_events = {}, {}
+            return events
+        if not window_full:
             return []
-        self.locked = best
-        self.decoder = self._trials[best]
-        self.lock_frames = scores[best]
-        log.info("auto: locked on %s (%d good frames; others at most %d)",
-                 best, scores[best], others)
-        events = self._trial_events[best]
-        self._trials, self._trial_events = {}, {}
+        self._window = self.bytes
+        events = self._trial_events[PROTOCOLS[0]]
+        self._trial_events = {p: [] for p in PROTOCOLS}
         return events
 
     def _decode(self, fn: str, *args: object, force: bool = False) -> List[Event]:
@@ -178,7 +196,7 @@ class Monitor:
             return getattr(self.decoder, fn)(*args)
         for p, d in self._trials.items():
             self._trial_events[p].extend(getattr(d, fn)(*args))
-        return self._try_lock(force or self.bytes >= AUTO_GIVE_UP_BYTES)
+        return self._try_lock(force)
 
     # -- input ---------------------------------------------------------
     def _refine(self, events: List[Event], final: bool = False) -> List[Event]:

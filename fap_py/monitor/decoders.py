@@ -434,7 +434,7 @@ class G485Decoder(Decoder):
         for ev in events:
             held, self._held = self._held, None
             if held is not None:
-                if ev.fields is not None and ev.raw[2] != g485.SMA_R and held.end == ev.offset:
+                if _g485_request(ev) and held.end == ev.offset:
                     n = min(len(held.raw) - len(held.raw.rstrip(b"\xff")),
                             len(g485.WAKE_UP_PREAMBLE))
                     if n < len(held.raw):
@@ -449,17 +449,24 @@ class G485Decoder(Decoder):
                 self._held = ev
                 continue
             f = ev.fields
-            if f is not None:
+            if f is not None and len(ev.raw) > 2:
                 if ev.raw[2] == g485.SMA_R:
                     f["device"] = self._asked
-                else:
-                    self._asked = cast(int, f["address"])
+                elif _g485_request(ev):
+                    self._asked = cast(int, f.get("address"))
                     f["device"] = self._asked
             out.append(ev)
         if final and self._held is not None:
             out.append(self._held)
             self._held = None
         return out
+
+
+def _g485_request(ev: Event) -> bool:
+    """A good G485 frame a device is addressed by (not a reply, not a preamble)."""
+    f = ev.fields
+    return f is not None and ev.error is None and len(ev.raw) > 2 and \
+        ev.raw[2] != g485.SMA_R and isinstance(f.get("address"), int)
 
 
 def _check_events(events: object) -> List[Event]:

@@ -32,6 +32,7 @@ FLAG_OK, FLAG_PORT, FLAG_TIME = 1, 2, 4
 SNAPLEN = 65535
 _GLOBAL = struct.Struct("<IHHiIII")
 _RECORD = struct.Struct("<IIII")
+_T_LAST = 2.0**32 - 1e-6      # the last time a pcap record holds
 
 
 def header(rec: Record) -> bytes:
@@ -64,13 +65,13 @@ class PcapWriter:
         fh.flush()
 
     def write(self, rec: Record, flush: bool = False) -> None:
-        """Append one record; its time must fit a pcap record (0 <= t < 2**32 s)."""
+        """Append one record. A pcap record holds 0 <= t < 2**32 s: a later time
+        (a capture's last second plus its bytes' wire time) is written as the last
+        microsecond it holds."""
         check_bool(flush, "flush")
         if not isinstance(rec, Record):
             raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
-        t = self._last if rec.t is None else rec.t
-        if not 0.0 <= t < 2.0**32:
-            raise InvalidValueError(f"record time {t} s does not fit a pcap record (0..2**32 s)")
+        t = self._last if rec.t is None else min(rec.t, _T_LAST)
         self._last = t
         sec = int(t)
         usec = int(round((t - sec) * 1e6))

@@ -67,10 +67,34 @@ ex.fields = { ex_node, ex_seq, ex_data, ex_crc }
 
 local DLE = 0x10
 
+local EXEC_BROADCAST = 255
+local exec_pending = nil        -- first pass: node/seq of the last request
+local exec_answer = {}          -- frame number -> true for an answer
+
 local function dissect_exec(tvb, tree, text, pinfo)
     local t = tree:add(ex, tvb())
-    -- a request and its answer carry the same node: the frame says who it concerns
-    pinfo.cols.dst = "node " .. tvb(2, 1):uint()
+    -- a request and its answer carry the same node and sequence number: the
+    -- frame after a request with the same pair is the answer (as the statistics pair them)
+    local node = tvb(2, 1):uint()
+    if not pinfo.visited then
+        local key = node * 256 + tvb(3, 1):uint()
+        if node == EXEC_BROADCAST then
+            exec_answer[pinfo.number] = false
+        elseif exec_pending == key then
+            exec_answer[pinfo.number] = true
+            exec_pending = nil
+        else
+            exec_answer[pinfo.number] = false
+            exec_pending = key
+        end
+    end
+    if node == EXEC_BROADCAST then
+        pinfo.cols.src, pinfo.cols.dst = "master", "all"
+    elseif exec_answer[pinfo.number] then
+        pinfo.cols.src, pinfo.cols.dst = "node " .. node, "master"
+    else
+        pinfo.cols.src, pinfo.cols.dst = "master", "node " .. node
+    end
     local n = tvb:len()
     t:add(ex_node, tvb(2, 1))
     t:add(ex_seq, tvb(3, 1))
@@ -185,6 +209,8 @@ local COLUMN = { fap = "FAP", exec = "EXEC", mikroc = "MIKROC", g485 = "G485" }
 function mon.init()
     g485_asked = nil
     g485_device = {}
+    exec_pending = nil
+    exec_answer = {}
 end
 
 function mon.dissector(tvb, pinfo, tree)
@@ -211,6 +237,8 @@ function mon.dissector(tvb, pinfo, tree)
     if ok and DISSECT[name] then
         pinfo.cols.info = DISSECT[name](frame, tree, text, pinfo)
     else
+        -- a bad frame's fields are not trusted: the sender port is all that is known
+        if bit.band(flags, 2) ~= 0 then pinfo.cols.src = "port " .. tvb(3, 1):uint() end
         pinfo.cols.info = string.format("[%s] %d bytes", text, frame:len())
         tree:add_expert_info(PI_MALFORMED, PI_ERROR, "bad frame: " .. text)
     end

@@ -12,6 +12,7 @@ import signal
 import subprocess
 import time
 import tracemalloc
+from pathlib import Path
 from typing import List
 
 import pytest
@@ -240,3 +241,52 @@ def test_vector_streams_unchanged_by_the_bounds():
         single = [(r.error, r.raw) for r in records(protocol, data, 1)]
         assert [e for e in whole if e[0] != "garbage"] == \
             [e for e in single if e[0] != "garbage"], protocol
+
+
+def test_read_capture_refuses_devices_and_huge_files(tmp_path):
+    """vbus.read_capture (which holds the file) checks type and size first."""
+    from fap_py.vbus import CAPTURE_SIZE_MAX, CaptureFormatError, read_capture
+
+    with pytest.raises(CaptureFormatError, match="/dev/zero: not a regular file"):
+        read_capture("/dev/zero")
+    huge = tmp_path / "huge.cap"
+    with open(huge, "wb") as fh:               # sparse: no disk used
+        fh.truncate(CAPTURE_SIZE_MAX + 1)
+    with pytest.raises(CaptureFormatError, match="more than"):
+        read_capture(huge)
+
+
+@pytest.mark.parametrize("sig,rc", [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
+def test_signal_ends_a_monitor_whose_reader_stopped_reading(sig, rc):
+    """stdout is a pipe nobody reads: the write blocks; the signal still ends the
+    monitor, and the summary goes to stderr."""
+    import fcntl
+    import termios
+
+    proc = start(["--protocol", "g485", "--raw", "/dev/zero"])
+    fd = proc.stdout.fileno()
+    size = fcntl.fcntl(fd, 1032)                   # F_GETPIPE_SZ
+    deadline = time.monotonic() + WAIT_S
+    while True:               # wait until the pipe is full and the monitor waits in a write
+        buf = bytearray(4)
+        fcntl.ioctl(fd, termios.FIONREAD, buf)
+        try:
+            wchan = Path(f"/proc/{proc.pid}/wchan").read_text()
+        except OSError:
+            wchan = "0"
+        blocked = "pipe" in wchan or wchan == "0"       # "0": the kernel does not say
+        if int.from_bytes(buf, "little") >= size // 2 and blocked:
+            break
+        assert time.monotonic() < deadline, "the monitor never filled its stdout"
+        select.select([], [], [], 0.01)
+    proc.send_signal(sig)
+    try:
+        proc.wait(timeout=WAIT_S)           # stdout stays unread: the write stays blocked
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        pytest.fail("the monitor blocked in a write did not end on the signal")
+    err = proc.stderr.read()
+    proc.stdout.close()
+    assert proc.returncode == rc
+    assert b"-- 0 frames, errors: garbage" in err

@@ -66,14 +66,17 @@ def test_pcap_agrees_with_json(protocol, lua, tmp_path):
     names = [f"fapmon.{k}" for k in common] + \
         [f"{PREFIX[protocol]}.{k}" for k in FIELDS[protocol]]
     args = ["-X", f"lua_script:{lua}", "-r", str(pcap), "-T", "fields",
-            "-E", "separator=/t", "-e", "frame.time_epoch"]
+            "-E", "separator=/t", "-e", "_ws.col.Source", "-e", "_ws.col.Destination",
+            "-e", "frame.time_epoch"]
     for n in names:
         args += ["-e", n]
     lines = tshark(*args).splitlines()
     assert len(lines) == len(recs)
     keys = common + FIELDS[protocol]
     for line, rec in zip(lines, recs):
-        cols = line.split("\t")
+        src, dst, *cols = line.split("\t")
+        if rec["ok"]:         # who sent a good frame to whom (issue 25: the columns were empty)
+            assert src and dst, f"empty Source/Destination: {line!r}"
         assert abs(float(cols[0]) - rec["t"]) < 2e-6, (cols[0], rec["t"])
         got = {k: as_json_value(k, c) for k, c in zip(keys, cols[1:])}
         if got["error"] is None and not rec["ok"]:

@@ -45,3 +45,19 @@ def test_a_bad_capture_names_the_file():
     res = run_fap("monitor", "--capture", "/etc/passwd")
     assert res.returncode == 3
     assert res.stderr.decode().startswith("fap: error: /etc/passwd: line 1: bad data line")
+
+
+def test_auto_keeps_trying_after_noise(tmp_path):
+    """5000 bytes of noise, then exec traffic: auto still locks on exec."""
+    from monitor_helpers import json_records, vectors
+
+    data = bytes(5000) + stream("exec")
+    f = tmp_path / "late.bin"
+    f.write_bytes(data)
+    res = run_fap("monitor", "--raw", str(f), "--json")
+    assert "locked on exec" in res.stderr.decode(), res.stderr
+    recs = json_records(res.stdout)
+    assert "".join(r["frame"] for r in recs) == data.hex()
+    good = [r for r in recs if r["ok"]]
+    assert len(good) == sum(1 for v in vectors("exec") if v.ok)
+    assert all(r["protocol"] == "exec" for r in good)
