@@ -65,6 +65,7 @@ class BusConfig:
     data_done_timeout: Optional[float] = None
     reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
     homeassistant: bool = False    #: publish Home Assistant MQTT discovery for its nodes
+    sparkplug: bool = False        #: its nodes are Sparkplug B devices (needs [sparkplug])
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,14 @@ class BrokerConfig:
 
 
 @dataclass(frozen=True)
+class SparkplugConfig:
+    """``[sparkplug]``: the bridge as a Sparkplug B edge node."""
+
+    group_id: str
+    edge_node_id: str
+
+
+@dataclass(frozen=True)
 class BridgeConfig:
     """The whole file."""
 
@@ -104,6 +113,7 @@ class BridgeConfig:
     inflight: int = 100
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
     discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
+    sparkplug: Optional[SparkplugConfig] = None         #: [sparkplug]
 
 
 # -- checking helpers -----------------------------------------------------------
@@ -196,6 +206,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
                                  0.001, 86400, f"{where}.poll_interval")
     kw["homeassistant"] = _pop(t, "homeassistant", bool, where, False)
+    kw["sparkplug"] = _pop(t, "sparkplug", bool, where, False)
     kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
                                    0.01, 3600, f"{where}.reopen_interval")
     if protocol == "fap" and role == "master":
@@ -311,6 +322,9 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     metrics = top.pop("metrics", {})
     if not isinstance(metrics, dict):
         raise BridgeConfigError("[metrics] must be a table")
+    sparkplug = top.pop("sparkplug", None)
+    if sparkplug is not None and not isinstance(sparkplug, dict):
+        raise BridgeConfigError("[sparkplug] must be a table")
     _done(top, "top level")
     for i, b in enumerate(bus_tables):   # [[bus]] only: a list of lists is not a table
         if not isinstance(b, dict):
@@ -347,6 +361,17 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     if listen is not None:
         kw["metrics_listen"] = parse_listen(listen)
     _done(metrics, "metrics")
+    if sparkplug is not None:
+        ids = {}
+        for key, default in (("group_id", ...), ("edge_node_id", host)):
+            value = _pop(sparkplug, key, str, "sparkplug", default)
+            if not value or any(c in value for c in "/+#"):
+                raise BridgeConfigError(f"sparkplug.{key} {_show(value)}: empty or holds / or a wildcard")
+            ids[key] = value
+        _done(sparkplug, "sparkplug")
+        kw["sparkplug"] = SparkplugConfig(**ids)
+    elif any(b.sparkplug for b in buses):
+        raise BridgeConfigError("a bus with sparkplug = true needs a [sparkplug] table (group_id)")
     return BridgeConfig(**kw)
 
 
@@ -404,4 +429,4 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
 
 
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
-           "G485Device", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]
+           "G485Device", "SparkplugConfig", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

@@ -268,7 +268,7 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     places = st.sampled_from(["top", "broker", "bridge", "metrics", "bus0", "bus1", "device"])
 
-    @settings(max_examples=500, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @settings(max_examples=250, deadline=None, suppress_health_check=list(HealthCheck), database=None)
     @given(st.lists(st.tuples(places, st.sampled_from(KEYS), _values()), min_size=1, max_size=4))
     def tables(edits):
         data = base()
@@ -283,7 +283,7 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     good = (BASE + GOOD_BUS).encode()
 
-    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), database=None)
     @given(st.lists(st.tuples(st.integers(0, len(good)), st.binary(max_size=6)), max_size=4))
     def files(edits):
         text = good
