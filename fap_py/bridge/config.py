@@ -252,6 +252,8 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
 
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
+    if not isinstance(url, str):
+        raise BridgeConfigTypeError(f"broker.url must be a string, not {type(url).__name__}")
     try:
         parts = urlsplit(url)
         hostname = parts.hostname
@@ -377,6 +379,8 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
 
 def parse_listen(text: str) -> Tuple[str, int]:
     """``host:port`` or ``[v6]:port`` -> (host, port), for ``[metrics] listen``."""
+    if not isinstance(text, str):
+        raise BridgeConfigTypeError(f"metrics.listen must be a string, not {type(text).__name__}")
     host, sep, port = text.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
     if not sep or not host or not port.isascii() or not port.isdigit() or not 0 <= int(port) <= 65535:
@@ -387,6 +391,8 @@ def parse_listen(text: str) -> Tuple[str, int]:
 def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
     """Check every file the configuration names (BridgeFileError, exit 3, at the first bad one):
     the TLS files, the state directory and, with ``ports``, every bus's port. Creates nothing."""
+    if not isinstance(cfg, BridgeConfig):
+        raise BridgeConfigTypeError(f"verify_files needs a BridgeConfig, not {type(cfg).__name__}")
     b = cfg.broker
     for key in ("ca", "cert", "key"):
         path = getattr(b, key)

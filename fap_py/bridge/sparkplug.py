@@ -33,6 +33,7 @@ import threading
 import time
 from typing import Any, Deque, Dict, List, Optional, Tuple
 
+from ..errors import InvalidTypeError, InvalidValueError
 from .config import BridgeConfig
 from .mqtt import MissingDependencyError, describe_connect_error, paho
 
@@ -97,18 +98,29 @@ Metric = Tuple[str, int, Any]   # name, datatype, value (None: is_null)
 def encode(metrics: List[Metric], seq: Optional[int], ts_ms: Optional[int] = None,
            historical: bool = False) -> bytes:
     """A Sparkplug B payload; ``seq`` None for NDEATH (which has none)."""
+    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= 255):
+        raise InvalidValueError(f"seq must be 0..255 or None, not {seq!r:.40}")
+    if not isinstance(metrics, (list, tuple)):
+        raise InvalidTypeError(f"metrics must be a list of (name, datatype, value), not {type(metrics).__name__}")
     p = payload_class()()
-    p.timestamp = int(time.time() * 1000) if ts_ms is None else ts_ms
-    if seq is not None:
-        p.seq = seq
-    for name, datatype, value in metrics:
-        m = p.metrics.add(name=name, datatype=datatype, timestamp=p.timestamp)
-        if historical:
-            m.is_historical = True
-        if value is None:
-            m.is_null = True
-        else:
-            setattr(m, _VALUE_FIELD[datatype], value)
+    try:
+        p.timestamp = int(time.time() * 1000) if ts_ms is None else ts_ms
+        if seq is not None:
+            p.seq = seq
+        for name, datatype, value in metrics:
+            if datatype not in _VALUE_FIELD:
+                raise InvalidValueError(f"metric {name!r:.40}: datatype {datatype!r:.20} is not one the bridge writes")
+            m = p.metrics.add(name=name, datatype=datatype, timestamp=p.timestamp)
+            if historical:
+                m.is_historical = True
+            if value is None:
+                m.is_null = True
+            else:
+                setattr(m, _VALUE_FIELD[datatype], value)
+    except (TypeError, ValueError) as exc:   # protobuf's range and type checks
+        if isinstance(exc, InvalidValueError):
+            raise
+        raise InvalidValueError(f"not a Sparkplug metric list: {str(exc)[:200]}") from None
     return bytes(p.SerializeToString())
 
 
@@ -116,9 +128,10 @@ class SparkplugNode:
     """The edge node: its own MQTT connection, births, deaths, data and rebirth commands."""
 
     def __init__(self, config: BridgeConfig, node_metrics: Any) -> None:
+        if not isinstance(config, BridgeConfig) or config.sparkplug is None or not callable(node_metrics):
+            raise InvalidTypeError("SparkplugNode(config: BridgeConfig with [sparkplug], node_metrics: callable)")
         payload_class()   # MissingDependencyError now, not at the first publication
         sp = config.sparkplug
-        assert sp is not None, "only built with a [sparkplug] table"
         self.config = config
         self.group, self.edge = sp.group_id, sp.edge_node_id
         self.buses = {b.name for b in config.buses if b.sparkplug}
