@@ -42,8 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         sub, "bridge", help="connect buses to an MQTT broker (needs the 'bridge' extra)",
         description="Run the buses of a bridge.toml and publish them to an MQTT broker:\n"
         "  <prefix>/<bus>/<node>/rx, .../tx (subscribed), .../state (retained), .../error,\n"
-        "  <prefix>/<bus>/stats, <prefix>/<bus>/state, <prefix>/bridge/<host>/status and /health;\n"
-        "  optionally Home Assistant discovery, Sparkplug B and Prometheus metrics.\n"
+        "  <prefix>/<bus>/stats, <prefix>/bridge/<host>/status.\n"
         "The ports and their line options are in the file. See docs/bridge.md.",
         example=EXAMPLE)
     p.add_argument("--config", required=True, metavar="PATH", help="the bridge.toml")
