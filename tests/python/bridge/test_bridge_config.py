@@ -298,3 +298,19 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     tables()
     files()
+
+
+@pytest.mark.parametrize("table, module, hint", [
+    ("[metrics]\nlisten = '127.0.0.1:0'\n", "prometheus_client", "[metrics] needs prometheus_client"),
+    ("[sparkplug]\ngroup_id = 'g'\n", "google.protobuf", "[sparkplug] needs protobuf"),
+])
+def test_optional_parts_without_their_dependency(tmp_path, table, module, hint):
+    block = f"import sys; sys.modules[{module!r}] = None"
+    conf = tmp_path / "bridge.toml"
+    conf.write_text(f"[bridge]\nstate_dir = 'st'\n{table}[broker]\nurl = 'mqtt://127.0.0.1:1'\n"
+                    "[[bus]]\nname = 'l'\nport = '/dev/null'\nprotocol = 'fap'\nslaves = [1]\n")
+    res = subprocess.run([sys.executable, "-c", block + "; from fap_py.cli import main; sys.exit(main(sys.argv[1:]))",
+                          "bridge", "--config", str(conf)], capture_output=True, text=True, timeout=60,
+                         cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == f"fap: error: {hint}: pip install 'fap_py[bridge]'"
