@@ -335,3 +335,20 @@ def test_a_really_full_disk(broker, observer_factory, fap_pair, tiny_tmpfs):
         s1.send(b"\xee", timeout=WAIT)
         obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "ee")
         obs.wait_for("fap/bridge/test/health", lambda d: d["store"] == "ok" and d["not_stored"] > 0)
+
+
+def test_tx_sent_while_the_bridge_is_away_wait_in_its_session(broker, observer_factory, fap_pair, tmp_path):
+    """MQTT 5: the session outlives the connection (session expiry): tx published while the
+    bridge is stopped run when it is back. Without the expiry the broker would drop them."""
+    from fap_py.bridge import Bridge
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    cfg = bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))
+    with Bridge(cfg) as bridge:
+        assert bridge.wait_connected(WAIT) and bridge.link.v5
+    obs.wait_raw("fap/bridge/test/status", b"offline")
+    obs.publish("fap/line1/1/tx", {"id": "while-away", "data": "abcd"})
+    with Bridge(cfg) as bridge:
+        assert bridge.wait_connected(WAIT)
+        assert s1.recv(WAIT).data == b"\xab\xcd"
