@@ -50,8 +50,10 @@ class Bridge:
     """Runs the buses of ``config`` and links them to the broker.
 
     A context manager: ``with Bridge(cfg) as b: b.wait_connected(10); ...``.
-    :meth:`start` opens every bus first (a port error raises before anything
-    connects), then the broker link; :meth:`stop` stops the buses, waits up
+    :meth:`start` opens every bus first (a port that fails is published
+    ``unavailable`` and retried in the background), then the broker link
+    (and the metrics endpoint and Sparkplug node when configured);
+    :meth:`stop` stops the buses, waits up
     to ``drain`` seconds for the outbox to reach the broker, publishes
     ``offline`` and disconnects.
     """
@@ -140,15 +142,15 @@ class Bridge:
                 bus.open_error = clip(f"{type(exc).__name__}: {exc}")
                 if first:
                     log.warning("bus %s: cannot open %s: %s (retrying every %g s; the other buses run)",
-                                bus.cfg.name, bus.cfg.port, exc, bus.cfg.reopen_interval)
+                                bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
                     self._bus_state(bus)
                 else:
-                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, bus.cfg.port, exc)
+                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error)
                 return False
             was_down = bus.open_error is not None
             bus.open_error = None
         if was_down:
-            log.warning("bus %s: %s opened", bus.cfg.name, bus.cfg.port)
+            log.warning("bus %s: %s opened", bus.cfg.name, clip(bus.cfg.port, 100))
         self._bus_state(bus)
         return True
 
