@@ -436,3 +436,5 @@ class Bridge:
             for (bus, node), seen in stale:
                 self._publish_state(bus, node, True, seen)
             self._publish_health(force=False)
+            if self.sparkplug is not None:
+                self.sparkplug.node_data()

@@ -5,6 +5,7 @@ Topics (Sparkplug B 3.0, namespace ``spBv1.0``)::
 
     spBv1.0/<group>/NBIRTH/<edge>           seq 0, bdSeq, "Node Control/Rebirth", the bridge's metrics
     spBv1.0/<group>/NDEATH/<edge>           the MQTT will (and sent before a clean stop): bdSeq
+    spBv1.0/<group>/NDATA/<edge>            the bridge's metrics that changed (every stats_interval)
     spBv1.0/<group>/DBIRTH/<edge>/<bus>-<node>   when a node becomes active (and after every NBIRTH)
     spBv1.0/<group>/DDATA/<edge>/<bus>-<node>    each message received, counters, reply time
     spBv1.0/<group>/DDEATH/<edge>/<bus>-<node>   when a node becomes inactive
@@ -141,6 +142,7 @@ class SparkplugNode:
         self.bd_seq = -1                           # incremented at each connect: 0 first
         self._devices: Dict[str, List[Metric]] = {}   # device id -> its latest metrics (alive ones)
         self._queue: Deque[Tuple[str, List[Metric], int]] = collections.deque()
+        self._node_sent: Dict[str, Metric] = {}    # the node metrics as last sent
         self.queue_dropped = 0
         self._connected = False
         self.births = 0
@@ -240,7 +242,9 @@ class SparkplugNode:
         with self._lock:
             self.births += 1
             self._seq = 0
-            metrics = [("bdSeq", INT64, self.bd_seq), (REBIRTH, BOOLEAN, False), *self._node_metrics()]
+            own = self._node_metrics()
+            self._node_sent = {m[0]: m for m in own}
+            metrics = [("bdSeq", INT64, self.bd_seq), (REBIRTH, BOOLEAN, False), *own]
             self.client.publish(self.topic("NBIRTH"), encode(metrics, 0), qos=0)
             for device, dev_metrics in self._devices.items():
                 self._send("DBIRTH", device, dev_metrics)
@@ -275,6 +279,17 @@ class SparkplugNode:
                     self._queue.popleft()
                     self.queue_dropped += 1
                 self._queue.append((device, metrics, int(time.time() * 1000)))
+
+    def node_data(self) -> None:
+        """NDATA with the bridge's own metrics that changed since the last NBIRTH/NDATA."""
+        with self._lock:
+            if not self._connected:
+                return
+            now = {m[0]: m for m in self._node_metrics()}
+            changed = [m for name, m in now.items() if self._node_sent.get(name) != m]
+            if changed:
+                self._node_sent.update((m[0], m) for m in changed)
+                self._send("NDATA", None, changed)
 
     @property
     def connected(self) -> bool:

@@ -50,7 +50,7 @@ def test_sparkplug_edge_node(broker, observer_factory, paho_mqtt, tmp_path):
                 kind = m.topic.split("/")[2]
                 if kind == "NBIRTH":
                     out = [pb.Payload.FromString(m.payload).seq]
-                elif kind in ("DBIRTH", "DDATA", "DDEATH"):
+                elif kind in ("NDATA", "DBIRTH", "DDATA", "DDEATH"):
                     out.append(pb.Payload.FromString(m.payload).seq)
             return out
 
@@ -116,6 +116,8 @@ def test_sparkplug_edge_node(broker, observer_factory, paho_mqtt, tmp_path):
             assert [metric(p, "data").bytes_value for p in replayed] == [b"\x10", b"\x11", b"\x12"]
             kinds = [k for k, _ in after]
             assert kinds.index("DBIRTH") < kinds.index("DDATA")        # births first, then the queue
+            # the bridge's own metrics as they change: NDATA
+            wait(lambda: any(m.name == "Bridge/Outbox rows" for p in msgs("NDATA") for m in p.metrics), "NDATA")
             # a slave that goes away: DDEATH
             s2.close()
             wait(lambda: msgs("DDEATH", "line1-2"), "DDEATH")
