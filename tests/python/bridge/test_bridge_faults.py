@@ -1,6 +1,7 @@
 """What a full disk, a hostile tx, a bad broker and a missing port do to the bridge (issue 23)."""
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
@@ -57,19 +58,27 @@ def _free(store) -> None:
         store._db.execute("DELETE FROM filler")
 
 
-def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_factory, fap_pair, tmp_path):
-    """Issue 23's repro: the broker away, the disk fills mid-burst; then space and broker return."""
+@contextlib.contextmanager
+def _broker_away(broker, obs, bus, s1, state_dir):
+    """A bridge that delivered one message, then lost its broker."""
     from fap_py.bridge import Bridge
 
-    bus, s1 = fap_pair
-    obs = observer_factory(broker.port)
-    with Bridge(bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))) as bridge:
+    with Bridge(bridge_config(broker.port, state_dir, _line1(bus))) as bridge:
         assert bridge.wait_connected(WAIT)
         s1.send(b"\x00")
         obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "00")
         broker.stop()
         with bridge.link._cond:
             assert bridge.link._cond.wait_for(lambda: not bridge.link.connected, WAIT)
+        yield bridge
+
+
+def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_factory, fap_pair, tmp_path):
+    """Issue 23's repro: the broker away, the disk fills mid-burst; then space and broker return."""
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    with _broker_away(broker, obs, bus, s1, str(tmp_path / "state")) as bridge:
         _fill(bridge)
         for i in range(1, 61):               # the first ones fit in the file's last page, then full
             s1.send(bytes([i]), timeout=WAIT)
@@ -301,17 +310,10 @@ def tiny_tmpfs(tmp_path):
 
 
 def test_a_really_full_disk(broker, observer_factory, fap_pair, tiny_tmpfs):
-    from fap_py.bridge import Bridge
 
     bus, s1 = fap_pair
     obs = observer_factory(broker.port)
-    with Bridge(bridge_config(broker.port, str(tiny_tmpfs / "state"), _line1(bus))) as bridge:
-        assert bridge.wait_connected(WAIT)
-        s1.send(b"\x00")
-        obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "00")
-        broker.stop()
-        with bridge.link._cond:
-            assert bridge.link._cond.wait_for(lambda: not bridge.link.connected, WAIT)
+    with _broker_away(broker, obs, bus, s1, str(tiny_tmpfs / "state")) as bridge:
         ballast = tiny_tmpfs / "ballast"
         fd = os.open(ballast, os.O_WRONLY | os.O_CREAT)   # the disk fills up
         try:
