@@ -9,9 +9,20 @@ when it is built (``pip install 'fap_py[bridge]'``).
 """
 from .bridge import Bridge
 from .buses import TxError
-from .config import BridgeConfig, BridgeConfigError, BrokerConfig, BusConfig, G485Device
+from .config import (
+    BridgeConfig,
+    BridgeConfigError,
+    BridgeConfigTypeError,
+    BrokerConfig,
+    BusConfig,
+    G485Device,
+    SparkplugConfig,
+)
 from .config import load as load_config
+from .files import BridgeFileError
 from .mqtt import INSTALL_HINT, BrokerRefusedError, MissingDependencyError
+from .store import StoreError
 
-__all__ = ["Bridge", "BridgeConfig", "BridgeConfigError", "BrokerConfig", "BrokerRefusedError", "BusConfig",
-           "G485Device", "INSTALL_HINT", "MissingDependencyError", "TxError", "load_config"]
+__all__ = ["Bridge", "BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BridgeFileError",
+           "BrokerConfig", "BrokerRefusedError", "BusConfig", "G485Device", "INSTALL_HINT",
+           "MissingDependencyError", "SparkplugConfig", "StoreError", "TxError", "load_config"]

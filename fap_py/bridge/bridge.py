@@ -25,6 +25,7 @@ from .buses import BusAdapter, TxError, make_adapter
 from .config import BridgeConfig, verify_files
 from .homeassistant import Discovery
 from .mqtt import MqttLink
+from .sparkplug import SparkplugNode
 from .store import Store, StoreError, now_iso
 
 log = logging.getLogger(__name__)
@@ -49,8 +50,10 @@ class Bridge:
     """Runs the buses of ``config`` and links them to the broker.
 
     A context manager: ``with Bridge(cfg) as b: b.wait_connected(10); ...``.
-    :meth:`start` opens every bus first (a port error raises before anything
-    connects), then the broker link; :meth:`stop` stops the buses, waits up
+    :meth:`start` opens every bus first (a port that fails is published
+    ``unavailable`` and retried in the background), then the broker link
+    (and the metrics endpoint and Sparkplug node when configured);
+    :meth:`stop` stops the buses, waits up
     to ``drain`` seconds for the outbox to reach the broker, publishes
     ``offline`` and disconnects.
     """
@@ -79,6 +82,13 @@ class Bridge:
             self.discovery.add_configured({n: b.configured_nodes() for n, b in self.buses.items()})
             self.link.extra[self.discovery.status_topic] = self._on_ha_status
         self.link.on_connected = self._on_connected
+        self.sparkplug: Optional[SparkplugNode] = None
+        if config.sparkplug is not None:
+            try:
+                self.sparkplug = SparkplugNode(config, self._sparkplug_node_metrics)
+            except BaseException:
+                self.store.close()
+                raise
         self._stop = threading.Event()
         self._bus_lock = threading.Lock()        # opening a bus vs stopping the bridge
         self._stats_thread: Optional[threading.Thread] = None
@@ -104,6 +114,8 @@ class Bridge:
                 t.start()
                 self._reopeners.append(t)
         self.link.start()
+        if self.sparkplug is not None:
+            self.sparkplug.start()
         self._stats_thread = threading.Thread(target=self._stats_loop, name="fap-bridge-stats", daemon=True)
         self._stats_thread.start()
         log.info("bridge %s: %d bus(es), broker %s:%d", self.config.host, len(self.buses),
@@ -130,15 +142,15 @@ class Bridge:
                 bus.open_error = clip(f"{type(exc).__name__}: {exc}")
                 if first:
                     log.warning("bus %s: cannot open %s: %s (retrying every %g s; the other buses run)",
-                                bus.cfg.name, bus.cfg.port, exc, bus.cfg.reopen_interval)
+                                bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
                     self._bus_state(bus)
                 else:
-                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, bus.cfg.port, exc)
+                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error)
                 return False
             was_down = bus.open_error is not None
             bus.open_error = None
         if was_down:
-            log.warning("bus %s: %s opened", bus.cfg.name, bus.cfg.port)
+            log.warning("bus %s: %s opened", bus.cfg.name, clip(bus.cfg.port, 100))
         self._bus_state(bus)
         return True
 
@@ -193,6 +205,8 @@ class Bridge:
         if self.link.connected and not self.link.drain(drain):
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
+        if self.sparkplug is not None:
+            self.sparkplug.stop()
         self.link.stop()
         if self.metrics is not None:
             self.metrics.close()
@@ -275,6 +289,30 @@ class Bridge:
             self._seen(bus, node, t)
         self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
                             for node, fields in items])
+        if self.sparkplug is not None:
+            for node, fields in items:
+                self.sparkplug.device(bus, node, self._sparkplug_metrics(bus, node, fields))
+
+    def _sparkplug_metrics(self, bus: str, node: int, fields: Optional[Dict[str, Any]] = None) -> List[Any]:
+        """A node's Sparkplug metrics: its last message (if any) and its counters."""
+        from .sparkplug import BYTES, DOUBLE, UINT64
+
+        c = self.buses[bus].node(node)
+        out: List[Any] = []
+        if fields is not None and isinstance(fields.get("data"), str):
+            out.append(("data", BYTES, bytes.fromhex(fields["data"])))
+        out += [("rx", UINT64, c.rx), ("tx", UINT64, c.tx), ("errors", UINT64, c.errors),
+                ("timeouts", UINT64, c.timeouts),
+                ("reply_ms", DOUBLE, None if c.last_reply is None else c.last_reply * 1000)]
+        return out
+
+    def _sparkplug_node_metrics(self) -> List[Any]:
+        from .sparkplug import BOOLEAN, STRING, UINT64
+
+        return [("Bridge/Host", STRING, self.config.host), ("Bridge/Outbox rows", UINT64, self.store.pending),
+                ("Bridge/Not stored", UINT64, self.not_stored),
+                ("Bridge/MQTT refused", UINT64, self.link.refused_total),
+                ("Bridge/MQTT connected", BOOLEAN, self.link.connected)]
 
     def _on_connected(self) -> None:
         self._publish_health()
@@ -310,6 +348,11 @@ class Bridge:
             st[0] = active
             st[2] = st[1]
         self._publish_state(bus, node, active, st[1])
+        if self.sparkplug is not None:
+            from .sparkplug import BOOLEAN
+
+            self.sparkplug.device(bus, node, [("active", BOOLEAN, active), *self._sparkplug_metrics(bus, node)],
+                                  alive=active)
 
     def _publish_state(self, bus: str, node: int, active: bool, last_seen: Optional[float]) -> None:
         self._publish(self._topic(bus, node, "state"),
@@ -393,3 +436,5 @@ class Bridge:
             for (bus, node), seen in stale:
                 self._publish_state(bus, node, True, seen)
             self._publish_health(force=False)
+            if self.sparkplug is not None:
+                self.sparkplug.node_data()

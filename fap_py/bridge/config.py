@@ -65,6 +65,7 @@ class BusConfig:
     data_done_timeout: Optional[float] = None
     reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
     homeassistant: bool = False    #: publish Home Assistant MQTT discovery for its nodes
+    sparkplug: bool = False        #: its nodes are Sparkplug B devices (needs [sparkplug])
 
 
 @dataclass(frozen=True)
@@ -89,6 +90,14 @@ class BrokerConfig:
 
 
 @dataclass(frozen=True)
+class SparkplugConfig:
+    """``[sparkplug]``: the bridge as a Sparkplug B edge node."""
+
+    group_id: str
+    edge_node_id: str
+
+
+@dataclass(frozen=True)
 class BridgeConfig:
     """The whole file."""
 
@@ -104,6 +113,7 @@ class BridgeConfig:
     inflight: int = 100
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
     discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
+    sparkplug: Optional[SparkplugConfig] = None         #: [sparkplug]
 
 
 # -- checking helpers -----------------------------------------------------------
@@ -196,6 +206,7 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
                                  0.001, 86400, f"{where}.poll_interval")
     kw["homeassistant"] = _pop(t, "homeassistant", bool, where, False)
+    kw["sparkplug"] = _pop(t, "sparkplug", bool, where, False)
     kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
                                    0.01, 3600, f"{where}.reopen_interval")
     if protocol == "fap" and role == "master":
@@ -241,6 +252,8 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
 
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
+    if not isinstance(url, str):
+        raise BridgeConfigTypeError(f"broker.url must be a string, not {type(url).__name__}")
     try:
         parts = urlsplit(url)
         hostname = parts.hostname
@@ -311,6 +324,9 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     metrics = top.pop("metrics", {})
     if not isinstance(metrics, dict):
         raise BridgeConfigError("[metrics] must be a table")
+    sparkplug = top.pop("sparkplug", None)
+    if sparkplug is not None and not isinstance(sparkplug, dict):
+        raise BridgeConfigError("[sparkplug] must be a table")
     _done(top, "top level")
     for i, b in enumerate(bus_tables):   # [[bus]] only: a list of lists is not a table
         if not isinstance(b, dict):
@@ -347,11 +363,24 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     if listen is not None:
         kw["metrics_listen"] = parse_listen(listen)
     _done(metrics, "metrics")
+    if sparkplug is not None:
+        ids = {}
+        for key, default in (("group_id", ...), ("edge_node_id", host)):
+            value = _pop(sparkplug, key, str, "sparkplug", default)
+            if not value or any(c in value for c in "/+#"):
+                raise BridgeConfigError(f"sparkplug.{key} {_show(value)}: empty or holds / or a wildcard")
+            ids[key] = value
+        _done(sparkplug, "sparkplug")
+        kw["sparkplug"] = SparkplugConfig(**ids)
+    elif any(b.sparkplug for b in buses):
+        raise BridgeConfigError("a bus with sparkplug = true needs a [sparkplug] table (group_id)")
     return BridgeConfig(**kw)
 
 
 def parse_listen(text: str) -> Tuple[str, int]:
     """``host:port`` or ``[v6]:port`` -> (host, port), for ``[metrics] listen``."""
+    if not isinstance(text, str):
+        raise BridgeConfigTypeError(f"metrics.listen must be a string, not {type(text).__name__}")
     host, sep, port = text.rpartition(":")
     host = host[1:-1] if host.startswith("[") and host.endswith("]") else host
     if not sep or not host or not port.isascii() or not port.isdigit() or not 0 <= int(port) <= 65535:
@@ -362,6 +391,8 @@ def parse_listen(text: str) -> Tuple[str, int]:
 def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
     """Check every file the configuration names (BridgeFileError, exit 3, at the first bad one):
     the TLS files, the state directory and, with ``ports``, every bus's port. Creates nothing."""
+    if not isinstance(cfg, BridgeConfig):
+        raise BridgeConfigTypeError(f"verify_files needs a BridgeConfig, not {type(cfg).__name__}")
     b = cfg.broker
     for key in ("ca", "cert", "key"):
         path = getattr(b, key)
@@ -404,4 +435,4 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
 
 
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
-           "G485Device", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]
+           "G485Device", "SparkplugConfig", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

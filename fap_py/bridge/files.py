@@ -13,7 +13,7 @@ import os
 import stat
 from typing import Optional
 
-from ..errors import PortError
+from ..errors import InvalidTypeError, InvalidValueError, PortError
 
 CONFIG_MAX = 1 << 20        #: bridge.toml
 SECRET_MAX = 64 << 10       #: password_file
@@ -29,8 +29,20 @@ class BridgeFileError(PortError):
         self.field = field
 
 
+def text_path(path: object, field: str = "path") -> str:
+    """``path`` (str or os.PathLike of str) as a str; InvalidTypeError otherwise."""
+    if isinstance(path, os.PathLike):
+        path = os.fspath(path)
+    if not isinstance(path, str):
+        raise InvalidTypeError(f"{field} must be a path (str), not {type(path).__name__}")
+    return path
+
+
 def read_bounded(path: str, limit: int, field: str) -> bytes:
     """The content of the regular file ``path``, at most ``limit`` bytes (else BridgeFileError)."""
+    path = text_path(path, str(field))
+    if isinstance(limit, bool) or not isinstance(limit, int) or not 0 <= limit <= 1 << 30:
+        raise InvalidValueError(f"limit must be an integer in 0..{1 << 30}, not {limit!r:.40}")
     try:
         # O_NONBLOCK: opening a FIFO or a tty must not wait for the other end
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
@@ -64,6 +76,7 @@ def read_bounded(path: str, limit: int, field: str) -> bytes:
 
 def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
     """``path`` is (or can be created as) a writable directory; creates nothing."""
+    path = text_path(path, field)
     probe: Optional[str] = os.path.abspath(path)
     while probe is not None:
         try:
@@ -84,6 +97,7 @@ def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
 
 def check_port(path: str, field: str) -> None:
     """``path`` exists and is a character device (a serial port or a pty); opens nothing."""
+    path = text_path(path, str(field))
     try:
         st = os.stat(path)
     except (OSError, ValueError) as exc:
@@ -94,4 +108,4 @@ def check_port(path: str, field: str) -> None:
 
 
 __all__ = ["BridgeFileError", "CONFIG_MAX", "SECRET_MAX", "TLS_FILE_MAX", "check_port",
-           "check_state_dir", "read_bounded"]
+           "check_state_dir", "read_bounded", "text_path"]

@@ -21,6 +21,7 @@ import re
 import threading
 from typing import Any, Callable, Dict, List, Set, Tuple
 
+from ..errors import InvalidTypeError
 from .config import BridgeConfig, BusConfig
 
 _ORIGIN = {"name": "fap_py bridge", "support_url": "https://github.com/libfap/libfap/blob/main/docs/bridge.md"}
@@ -57,6 +58,8 @@ _ENTITIES: Tuple[Tuple[str, str, str, Dict[str, Any]], ...] = (
 
 def slug(text: str) -> str:
     """``text`` as a discovery topic level / id part: [A-Za-z0-9_-] only."""
+    if not isinstance(text, str):
+        raise InvalidTypeError(f"slug needs a str, not {type(text).__name__}")
     return re.sub(r"[^A-Za-z0-9_-]", "_", text)
 
 
@@ -69,6 +72,8 @@ class Discovery:
     """
 
     def __init__(self, config: BridgeConfig, publish: Callable[[str, bytes], None]) -> None:
+        if not isinstance(config, BridgeConfig) or not callable(publish):
+            raise InvalidTypeError("Discovery(config: BridgeConfig, publish: callable)")
         self.config = config
         self.buses: Dict[str, BusConfig] = {b.name: b for b in config.buses if b.homeassistant}
         self._publish = publish

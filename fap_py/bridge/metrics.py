@@ -12,7 +12,7 @@ import logging
 import threading
 from typing import TYPE_CHECKING, Any, Iterator, List
 
-from ..errors import PortError
+from ..errors import InvalidTypeError, InvalidValueError, PortError
 from .buses import REPLY_BUCKETS
 from .mqtt import MissingDependencyError
 
@@ -118,6 +118,13 @@ class MetricsServer:
     """The HTTP endpoint (prometheus_client's server on its own registry)."""
 
     def __init__(self, bridge: "Bridge", host: str, port: int) -> None:
+        from .bridge import Bridge
+
+        if not isinstance(bridge, Bridge) or not isinstance(host, str) or isinstance(port, bool) \
+                or not isinstance(port, int):
+            raise InvalidTypeError("MetricsServer(bridge: Bridge, host: str, port: int)")
+        if not 0 <= port <= 65535:
+            raise InvalidValueError(f"port must be 0..65535, not {port!r:.40}")
         try:
             from prometheus_client import CollectorRegistry, start_http_server
         except ImportError:

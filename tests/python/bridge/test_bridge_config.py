@@ -268,7 +268,7 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     places = st.sampled_from(["top", "broker", "bridge", "metrics", "bus0", "bus1", "device"])
 
-    @settings(max_examples=500, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @settings(max_examples=250, deadline=None, suppress_health_check=list(HealthCheck), database=None)
     @given(st.lists(st.tuples(places, st.sampled_from(KEYS), _values()), min_size=1, max_size=4))
     def tables(edits):
         data = base()
@@ -283,7 +283,7 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     good = (BASE + GOOD_BUS).encode()
 
-    @settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck), database=None)
+    @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck), database=None)
     @given(st.lists(st.tuples(st.integers(0, len(good)), st.binary(max_size=6)), max_size=4))
     def files(edits):
         text = good
@@ -298,3 +298,19 @@ def test_random_configs_never_end_in_an_internal_error(tmp_path):
 
     tables()
     files()
+
+
+@pytest.mark.parametrize("table, module, hint", [
+    ("[metrics]\nlisten = '127.0.0.1:0'\n", "prometheus_client", "[metrics] needs prometheus_client"),
+    ("[sparkplug]\ngroup_id = 'g'\n", "google.protobuf", "[sparkplug] needs protobuf"),
+])
+def test_optional_parts_without_their_dependency(tmp_path, table, module, hint):
+    block = f"import sys; sys.modules[{module!r}] = None"
+    conf = tmp_path / "bridge.toml"
+    conf.write_text(f"[bridge]\nstate_dir = 'st'\n{table}[broker]\nurl = 'mqtt://127.0.0.1:1'\n"
+                    "[[bus]]\nname = 'l'\nport = '/dev/null'\nprotocol = 'fap'\nslaves = [1]\n")
+    res = subprocess.run([sys.executable, "-c", block + "; from fap_py.cli import main; sys.exit(main(sys.argv[1:]))",
+                          "bridge", "--config", str(conf)], capture_output=True, text=True, timeout=60,
+                         cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.strip().splitlines()[-1] == f"fap: error: {hint}: pip install 'fap_py[bridge]'"
