@@ -163,15 +163,20 @@ int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
 unsigned fap_port_baud_rate(size_t i);
 
 /* What a device is set to now, without changing it (for port listings).
- * Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty open side
- * effect of raising DTR/RTS applies), reads termios and TIOCGRS485, writes
+ * First, without opening it: if another process holds the port (the
+ * flock fap_port_open takes, as /proc/locks lists it, or a UUCP lock file
+ * /var/lock/LCK..name with a live pid), returns -EBUSY and never opens
+ * it (an open would raise RTS under that program). Otherwise opens path
+ * briefly (non-exclusive, O_NONBLOCK; the usual tty open side effect of
+ * raising DTR/RTS applies), reads termios and TIOCGRS485, writes
  * the same RS-485 config back with TIOCSRS485 (a no-op where it works),
  * closes. Fills *baud (0 if not a standard rate) and, when the driver
  * answers TIOCGRS485, the RS-485 flags and delays. Returns 0 if the
  * kernel can switch RS-485 mode on this port, 1 if the driver reports an
  * RS-485 config but refuses to set one (a plain 16550), -ENOTTY if the
- * driver has no RS-485 (pty, most USB adapters), or the -errno of
- * open/tcgetattr. NULL pointers are skipped. */
+ * driver has no RS-485 (pty, most USB adapters), -EBUSY (held, see
+ * above), or the -errno of stat, reading /proc/locks, open or tcgetattr.
+ * NULL pointers are skipped. */
 int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
                    uint32_t *delay_before_ms, uint32_t *delay_after_ms);
 

@@ -70,6 +70,11 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
 /* Soft RTS: drive the RTS pin to c's sending (1) or receive (0) level. */
 int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending);
 
+/* port_probe.c: does another process hold path (a lock on its inode in
+ * locks_file, /proc/locks' format; or a live UUCP LCK..name in uucp_dir,
+ * NULL = skip)? 1 yes, 0 no, negative errno (stat, reading locks_file). */
+int lf_port_held_elsewhere(const char *path, const char *locks_file, const char *uucp_dir);
+
 /* port.c: I/O calls borrow the fd; a vanished device is closed by the
  * last borrower, so an fd number is never reused under a running call. */
 int lf_port_acquire(fap_port *p, int *fd, fap_rs485_mode *mode);
