@@ -218,6 +218,7 @@ void lf_port_release(fap_port *p)
          * node is free for the replug. Stay busy until it is closed, so a
          * reopen cannot race with this close (its flock would see ours). */
         dead = p->conn;
+        dead.tio_restore = 0;   /* gone: no pin or termios to put back */
         p->conn.fd = -1;
     } else {
         p->busy--;

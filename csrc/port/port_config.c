@@ -49,8 +49,10 @@ unsigned fap_port_baud_rate(size_t i)
 
 /* Raw 8N1, no flow control. VMIN=1 VTIME=0 with O_NONBLOCK: an empty queue
  * reads as EAGAIN (with VMIN=0 n_tty returns 0, indistinguishable from a
- * hang-up), and the deadline is ours, via poll. */
-static int configure_termios(const fap_port *p, int fd)
+ * hang-up), and the deadline is ours, via poll. Soft RTS also clears
+ * HUPCL: the hang-up at close drops RTS, the transmit level of an
+ * active-high transceiver (see lf_port_conn_close). */
+static int configure_termios(const fap_port *p, int fd, lf_port_conn *c)
 {
     speed_t speed;
     if (lf_port_baud_to_speed(p->opt.baud, &speed) < 0)
@@ -58,6 +60,11 @@ static int configure_termios(const fap_port *p, int fd)
     struct termios t;
     if (p->be->tcgetattr(p->ctx, fd, &t) < 0)
         return -errno;
+    if (c->mode == FAP_RS485_SOFT_RTS) {
+        c->tio_saved = t;
+        c->tio_restore = 1;
+        t.c_cflag &= ~(tcflag_t)HUPCL;
+    }
     cfmakeraw(&t);
     t.c_cflag &= ~(tcflag_t)(CSIZE | PARENB | CSTOPB | CRTSCTS);
     t.c_cflag |= CS8 | CLOCAL | CREAD;
@@ -250,7 +257,7 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
     err = setup_direction(p, fd, c);
     if (err)
         goto fail;
-    err = configure_termios(p, fd);
+    err = configure_termios(p, fd, c);
     if (err)
         goto fail;
     /* Bytes that piled up before we attached are not for us. */
@@ -269,6 +276,21 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
     if (c->fd < 0)
         return;
     /* Best effort: on a vanished device these fail, and that is fine. */
+    if (c->tio_restore) {
+        /* Soft RTS: the pin to the receive level, then the termios the port
+         * had, except the bits that would move RTS: HUPCL stays cleared (the
+         * close would drop RTS), and no CRTSCTS (the kernel would drive RTS)
+         * or B0 (drops it). TCSANOW is safe: every soft-RTS write drained. */
+        (void)lf_port_rts(p, c->fd, c, 0);
+        struct termios t = c->tio_saved;
+        t.c_cflag &= ~(tcflag_t)(HUPCL | CRTSCTS);
+        if (cfgetospeed(&t) == B0) {
+            speed_t speed;
+            if (lf_port_baud_to_speed(p->opt.baud, &speed) == 0)
+                (void)cfsetospeed(&t, speed);
+        }
+        (void)p->be->tcsetattr(p->ctx, c->fd, TCSANOW, &t);
+    }
     if (c->rs485_restore)
         (void)p->be->ioctl(p->ctx, c->fd, TIOCSRS485, &c->rs485_saved);
     if (c->excl_set)
@@ -276,5 +298,6 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
     (void)p->be->close(p->ctx, c->fd);   /* also drops the flock */
     c->fd = -1;
     c->rs485_restore = 0;
+    c->tio_restore = 0;
     c->excl_set = 0;
 }

@@ -21,6 +21,8 @@ typedef struct lf_port_conn {
     int rs485_restore;            /* we changed the RS-485 config */
     struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
     struct serial_rs485 rs485_active;  /* TIOCGRS485 after our TIOCSRS485 */
+    int tio_restore;              /* soft RTS: restore tio_saved (HUPCL off) at close */
+    struct termios tio_saved;     /* termios before we configured the port */
     /* Resolved line settings (options, else the device's config). */
     int rts_active_high;          /* pin high while sending */
     unsigned delay_before_us, delay_after_us;

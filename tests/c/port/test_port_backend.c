@@ -34,6 +34,11 @@ typedef struct fake {
     size_t write_chunk;    /* >0: accept at most this many bytes per write */
     fake_ev ev[64];
     int nev;
+    /* the close (kept out of ev[], whose counts the tests check): the
+     * c_cflag of the last tcsetattr and the last RTS event before it */
+    int closes;
+    tcflag_t cflag_set;
+    int rts_at_close;   /* EV_RTS_SET / EV_RTS_CLEAR, -1 none */
 } fake;
 
 static void rec(fake *f, enum ev_kind k, int64_t v)
@@ -43,9 +48,22 @@ static void rec(fake *f, enum ev_kind k, int64_t v)
 }
 
 static int f_open(void *c, const char *path, int flags) { (void)c; return open(path, flags); }
-static int f_close(void *c, int fd) { (void)c; return close(fd); }
+static int f_close(void *c, int fd)
+{
+    fake *f = c;
+    f->closes++;
+    f->rts_at_close = -1;
+    for (int i = f->nev - 1; i >= 0 && f->rts_at_close < 0; i--)
+        if (f->ev[i].kind == EV_RTS_SET || f->ev[i].kind == EV_RTS_CLEAR)
+            f->rts_at_close = (int)f->ev[i].kind;
+    return close(fd);
+}
 static int f_tcgetattr(void *c, int fd, struct termios *t) { (void)c; return tcgetattr(fd, t); }
-static int f_tcsetattr(void *c, int fd, int a, const struct termios *t) { (void)c; return tcsetattr(fd, a, t); }
+static int f_tcsetattr(void *c, int fd, int a, const struct termios *t)
+{
+    ((fake *)c)->cflag_set = t->c_cflag;
+    return tcsetattr(fd, a, t);
+}
 static int f_tcflush(void *c, int fd, int q) { (void)c; return tcflush(fd, q); }
 static int f_flock(void *c, int fd, int op) { (void)c; return lf_port_posix_backend.flock(NULL, fd, op); }
 static int f_poll(void *c, struct pollfd *p, nfds_t n, int ms) { (void)c; return poll(p, n, ms); }
@@ -404,6 +422,69 @@ static void check_soft_rts_order(int active_high)
 
 static void test_soft_rts_active_high(void) { check_soft_rts_order(1); }
 static void test_soft_rts_active_low(void) { check_soft_rts_order(0); }
+
+/* Defect: with HUPCL set (the tty default) the kernel's hang-up at close
+ * drops RTS, which is the transmit level of an active-high transceiver.
+ * Soft RTS clears HUPCL while open, puts the pin at the receive level
+ * before the close and gives back the termios the port had, HUPCL
+ * excepted; the other modes leave HUPCL as it was. */
+static void check_soft_rts_close(int active_high)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    struct termios orig;   /* a pty master reads and sets the slave's */
+    MUST(tcgetattr(t.master, &orig) == 0);
+    orig.c_cflag |= HUPCL;   /* a UART's default; a pty slave's lacks it */
+    orig.c_lflag |= ICANON;
+    MUST(tcsetattr(t.master, TCSANOW, &orig) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    o.rts_active_high = active_high;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    struct termios now;
+    MUST(tcgetattr(t.master, &now) == 0);
+    CHECK_EQ(now.c_cflag & HUPCL, 0);   /* while open */
+    CHECK_EQ(now.c_lflag & ICANON, 0);  /* raw */
+    CHECK_EQ(fap_port_write(p, "x", 1), 1);
+    f.nev = 0;   /* RTS at the close must come from the close itself */
+    fap_port_close(p);
+    CHECK_EQ(f.closes, 1);
+    CHECK_EQ(f.rts_at_close, active_high ? EV_RTS_SET : EV_RTS_CLEAR);   /* receive level */
+    CHECK_EQ(f.cflag_set & HUPCL, 0);
+    MUST(tcgetattr(t.master, &now) == 0);
+    CHECK_EQ(now.c_cflag & HUPCL, 0);
+    CHECK(now.c_lflag & ICANON);         /* the rest as it was */
+    CHECK_EQ(cfgetospeed(&now), cfgetospeed(&orig));
+    tp_close(&t);
+}
+
+static void test_soft_rts_close_active_high(void) { check_soft_rts_close(1); }
+static void test_soft_rts_close_active_low(void) { check_soft_rts_close(0); }
+
+static void test_other_modes_keep_hupcl(void)
+{
+    static const fap_rs485_mode modes[] = {FAP_RS485_NONE, FAP_RS485_KERNEL};
+    for (size_t i = 0; i < 2; i++) {
+        test_pty t;
+        MUST(tp_open(&t) == 0);
+        fake f;
+        fake_uart(&f);
+        struct termios tio;
+        MUST(tcgetattr(t.master, &tio) == 0);
+        tio.c_cflag |= HUPCL;
+        MUST(tcsetattr(t.master, TCSANOW, &tio) == 0);
+        fap_port_options o = opts_mode(modes[i]);
+        fap_port *p = NULL;
+        MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+        struct termios now;
+        MUST(tcgetattr(t.master, &now) == 0);
+        CHECK(now.c_cflag & HUPCL);
+        fap_port_close(p);
+        tp_close(&t);
+    }
+}
 
 /* A UART whose kernel RS-485 is on (device tree, an earlier program): the
  * driver would ignore our RTS writes, so soft mode switches it off while
@@ -793,6 +874,10 @@ static void test_transact_modes(void)
         MUST(tp_open(&t) == 0);
         fake f;
         fake_uart(&f);
+        struct termios tio;
+        MUST(tcgetattr(t.master, &tio) == 0);
+        tio.c_cflag |= HUPCL;
+        MUST(tcsetattr(t.master, TCSANOW, &tio) == 0);
         fap_port_options o = opts_mode(modes[i]);
         fap_port *p = NULL;
         MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
@@ -840,6 +925,8 @@ UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_ke
           UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
           UNIT(test_auto_does_not_hide_a_dying_device),
           UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
+          UNIT(test_soft_rts_close_active_high), UNIT(test_soft_rts_close_active_low),
+          UNIT(test_other_modes_keep_hupcl),
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
           UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
