@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from run import build_initramfs  # noqa: E402  (the PL011 suite's initramfs writer)
+from run import build_initramfs  # the PL011 suite's initramfs writer
 
 BOOT_TIMEOUT_S = 100
 STALL_S = 2.0            # the host stops reading ttyS0 this long (tcdrain check)
@@ -322,9 +322,8 @@ def main() -> int:
 
     results: list[tuple[str, bool, str]] = []
     uart_w, ftdi_req, ftdi_out = parse_trace(trace)
-    # Split the 16550 trace per port by the guest's PORT lines (one port at a time).
     port_t = [(t, ln.split()[1]) for t, ln in guest if ln.startswith("PORT ")]
-    for t, ln in guest:
+    for _t, ln in guest:
         m = re.match(r"RESULT (\S+) (PASS|FAIL) ?(.*)", ln)
         if m:
             results.append((m[1], m[2] == "PASS", m[3]))
