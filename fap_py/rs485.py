@@ -9,6 +9,7 @@ there is one set of defaults, C's.
 from __future__ import annotations
 
 import enum
+import os
 from dataclasses import dataclass
 from typing import Any, Dict, Optional
 
@@ -26,10 +27,15 @@ class RS485Mode(enum.IntEnum):
     KERNEL = lib.FAP_RS485_KERNEL      #: TIOCSRS485: the kernel toggles RTS
     SOFT_RTS = lib.FAP_RS485_SOFT_RTS  #: assert RTS, write, tcdrain(), release RTS
     NONE = lib.FAP_RS485_NONE          #: auto-direction transceiver, USB adapter, pty
+    GPIO = lib.FAP_RS485_GPIO          #: a GPIO line (gpio_chip, gpio_line) is the DE/RE pin
 
 
 _INT_FIELDS = ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
-               "turnaround_us", "write_timeout_us")
+               "turnaround_us", "write_timeout_us", "gpio_line")
+# gpio_chip paths handed to C: kept for the life of the process (C copies
+# the path at open, but an options struct may be used long after the RS485
+# that filled it is gone; a machine has a handful of gpiochips)
+_CHIP_PATHS: Dict[bytes, Any] = {}
 _BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive")
 
 
@@ -75,6 +81,8 @@ class RS485:
     turnaround_us: Optional[int] = None          #: quiet time after the last byte received
     exclusive: Optional[bool] = None             #: TIOCEXCL + flock: refuse a second opener
     write_timeout_us: Optional[int] = None       #: longest write (0 = C's rule)
+    gpio_chip: Optional[str] = None              #: GPIO mode: DE/RE line's /dev/gpiochipN
+    gpio_line: Optional[int] = None              #: GPIO mode: line offset on gpio_chip
 
     def __post_init__(self) -> None:
         if self.mode is not None:
@@ -90,6 +98,13 @@ class RS485:
         for name in _BOOL_FIELDS:
             if getattr(self, name) is not None and not isinstance(getattr(self, name), bool):
                 raise InvalidTypeError(f"RS485.{name} must be a bool or None")
+        if self.gpio_chip is not None:
+            if not isinstance(self.gpio_chip, (str, os.PathLike)):
+                raise InvalidTypeError(f"RS485.gpio_chip must be a path, not {self.gpio_chip!r}")
+            if not os.fspath(self.gpio_chip) or "\0" in os.fspath(self.gpio_chip):
+                raise InvalidValueError("RS485.gpio_chip must be a non-empty path")
+        if self.mode == RS485Mode.GPIO and self.gpio_chip is None:
+            raise InvalidValueError("RS485.mode GPIO needs RS485.gpio_chip (e.g. '/dev/gpiochip0')")
 
     def apply_to(self, po: Any, baudrate: int) -> Any:
         """Set ``baudrate`` and the fields given (not None) in a cffi
@@ -109,6 +124,11 @@ class RS485:
         for name in _BOOL_FIELDS:
             if getattr(self, name) is not None:
                 setattr(po, name, int(getattr(self, name)))
+        if self.gpio_chip is not None:
+            path = os.fsencode(self.gpio_chip)
+            if path not in _CHIP_PATHS:
+                _CHIP_PATHS[path] = ffi.new("char[]", path)
+            po.gpio_chip = _CHIP_PATHS[path]
         return po
 
 

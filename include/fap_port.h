@@ -28,7 +28,9 @@ typedef enum fap_rs485_mode {
     FAP_RS485_AUTO = 0,     /* try KERNEL, fall back to NONE; see fap_port_mode() */
     FAP_RS485_KERNEL = 1,   /* TIOCSRS485 with SER_RS485_ENABLED, kernel toggles RTS */
     FAP_RS485_SOFT_RTS = 2, /* assert RTS, write, tcdrain(), release RTS */
-    FAP_RS485_NONE = 3      /* auto-direction transceiver, USB adapter, pty */
+    FAP_RS485_NONE = 3,     /* auto-direction transceiver, USB adapter, pty */
+    FAP_RS485_GPIO = 4      /* a GPIO line (gpio_chip, gpio_line) is the DE/RE
+                               pin: asserted, write, tcdrain(), released */
 } fap_rs485_mode;
 
 /* "Not given": keep what the device's own RS-485 config (TIOCGRS485: the
@@ -40,7 +42,7 @@ typedef enum fap_rs485_mode {
 typedef struct fap_port_options {
     unsigned baud;                 /* any standard termios rate; default 115200 */
     fap_rs485_mode rs485_mode;     /* default FAP_RS485_AUTO */
-    int rts_active_high;           /* RTS pin level while sending, in every mode:
+    int rts_active_high;           /* RTS (GPIO mode: DE) pin level while sending, in every mode:
                                       1 high, 0 low, FAP_PORT_KEEP (default) the
                                       device's config, else high */
     unsigned delay_before_send_us; /* RTS to the sending level -> first bit (kernel:
@@ -57,6 +59,13 @@ typedef struct fap_port_options {
     unsigned write_timeout_us;     /* longest one fap_port_write may take to hand all
                                       bytes to the driver (-ETIMEDOUT after);
                                       0 = twice the frame's wire time + 1 s */
+    /* Added after write_timeout_us (appended: the fields above keep their
+     * offsets). FAP_RS485_GPIO: the GPIO character device and line offset
+     * of the DE/RE pin; its level while sending is rts_active_high (KEEP =
+     * high), its delays delay_before/after_send_us (KEEP = 0), as for soft
+     * RTS. The path is copied at open. Default NULL / 0. */
+    const char *gpio_chip;         /* e.g. "/dev/gpiochip0" */
+    unsigned gpio_line;            /* line offset on that chip */
 } fap_port_options;
 
 typedef struct fap_port_stats {

@@ -20,7 +20,8 @@ typedef struct lf_port_backend {
     int (*open)(void *ctx, const char *path, int flags);
     int (*close)(void *ctx, int fd);
     /* request is one of TIOCEXCL, TIOCNXCL, TIOCGRS485, TIOCSRS485,
-     * TIOCMBIS, TIOCMBIC; arg as for ioctl(2) (NULL for EXCL/NXCL). */
+     * TIOCMBIS, TIOCMBIC, TIOCSERGETLSR; arg as for ioctl(2) (NULL for
+     * EXCL/NXCL). */
     int (*ioctl)(void *ctx, int fd, unsigned long request, void *arg);
     int (*tcgetattr)(void *ctx, int fd, struct termios *t);
     int (*tcsetattr)(void *ctx, int fd, int action, const struct termios *t);
@@ -33,9 +34,19 @@ typedef struct lf_port_backend {
     /* Sleep until an absolute CLOCK_MONOTONIC time in ns (RTS delays and
      * turnaround); a fake may record the call instead of sleeping. */
     void (*sleep_until)(void *ctx, int64_t deadline_ns);
+    /* FAP_RS485_GPIO: request line of the gpiochip device chip as an
+     * output at value (0/1): the line's fd, or a negative errno; set it:
+     * 0 or a negative errno. The line fd is closed with close(). NULL in
+     * a backend without GPIO: that mode then fails with -EOPNOTSUPP. */
+    int (*gpio_open)(void *ctx, const char *chip, unsigned line, int value);
+    int (*gpio_set)(void *ctx, int line_fd, int value);
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
+
+/* The posix backend's GPIO functions (port_gpio.c, uAPI v2 ioctls). */
+int lf_port_gpio_open(void *ctx, const char *chip, unsigned line, int value);
+int lf_port_gpio_set(void *ctx, int line_fd, int value);
 
 /* fap_port_open with an explicit backend (tests). be must outlive the port;
  * ctx is passed back to every backend call. */

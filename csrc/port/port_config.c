@@ -184,8 +184,30 @@ static int soft_rts_enable(const fap_port *p, int fd, lf_port_conn *c)
     return lf_port_rts(p, fd, c, 0);
 }
 
+/* GPIO DE/RE: the line requested as an output already at the receive
+ * level; polarity and delays as soft RTS takes them (no device config to
+ * fall back on: high, 0, 0). */
+static int gpio_enable(const fap_port *p, lf_port_conn *c)
+{
+    if (!p->be->gpio_open || !p->be->gpio_set)
+        return -EOPNOTSUPP;
+    c->rts_active_high = p->opt.rts_active_high != FAP_PORT_KEEP ? p->opt.rts_active_high : 1;
+    c->delay_before_us = p->opt.delay_before_send_us != FAP_PORT_KEEP_DELAY
+                             ? p->opt.delay_before_send_us : 0;
+    c->delay_after_us = p->opt.delay_after_send_us != FAP_PORT_KEEP_DELAY
+                            ? p->opt.delay_after_send_us : 0;
+    int fd = p->be->gpio_open(p->ctx, p->opt.gpio_chip, p->opt.gpio_line, !c->rts_active_high);
+    if (fd < 0)
+        return fd;
+    c->gpio_fd = fd;
+    return 0;
+}
+
 int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending)
 {
+    if (c->gpio_fd >= 0)   /* the DE line is a GPIO: its level is the pin's */
+        return p->be->gpio_set(p->ctx, c->gpio_fd, sending ? c->rts_active_high
+                                                           : !c->rts_active_high);
     int bits = TIOCM_RTS;
     /* The pin level: high while sending for an active-high transceiver.
      * The modem-control RTS bit is the complement of the pin on a UART
@@ -214,6 +236,11 @@ static int setup_direction(const fap_port *p, int fd, lf_port_conn *c)
         if (err == 0)
             c->mode = FAP_RS485_SOFT_RTS;
         return err;
+    case FAP_RS485_GPIO:
+        err = gpio_enable(p, c);
+        if (err == 0)
+            c->mode = FAP_RS485_GPIO;
+        return err;
     case FAP_RS485_AUTO:
         err = kernel_rs485_enable(p, fd, c);
         if (err == 0) {
@@ -233,6 +260,7 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
 {
     memset(c, 0, sizeof *c);
     c->fd = -1;
+    c->gpio_fd = -1;
     int fd = p->be->open(p->ctx, p->path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
         return -errno;
@@ -273,6 +301,11 @@ fail:
 
 void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
 {
+    if (c->gpio_fd >= 0) {   /* the DE line to the receive level, then free it */
+        (void)lf_port_rts(p, c->fd, c, 0);
+        (void)p->be->close(p->ctx, c->gpio_fd);
+        c->gpio_fd = -1;
+    }
     if (c->fd < 0)
         return;
     /* Best effort: on a vanished device these fail, and that is fine. */

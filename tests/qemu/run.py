@@ -27,6 +27,8 @@ from pathlib import Path
 
 CR_RTS = 0x800          # PL011 UARTCR.RTS: the complement of the nUARTRTS pin
 REG_DR, REG_CR = 0x000, 0x030
+GPIO_LINE = 1           # the PL061 line the GPIO checks use as DE (rs485_checks.c)
+GPIO_OUT = 0x10000      # parse_trace's pseudo-offset of a PL061 output: + line
 BOOT_TIMEOUT_S = 80
 
 
@@ -58,13 +60,18 @@ def build_initramfs(root: Path, dest: Path) -> None:
 
 
 def parse_trace(path: Path) -> list[tuple[float, int, int]]:
-    """(host time s, register offset, value) of every pl011_write."""
+    """(host time s, register offset, value) of every pl011_write, and of
+    every PL061 output change as (time, GPIO_OUT + line, level), in order."""
     rx = re.compile(r"@(\d+)\.(\d+):pl011_write addr 0x([0-9a-f]+) value 0x([0-9a-f]+)")
+    gx = re.compile(r"@(\d+)\.(\d+):pl061_set_output \S+ setting output (\d+) to (\d+)")
     out = []
     for line in path.read_text(errors="replace").splitlines():
         m = rx.search(line)
         if m:
             out.append((int(m[1]) + int(m[2]) / 1e6, int(m[3], 16), int(m[4], 16)))
+        m = gx.search(line)
+        if m:
+            out.append((int(m[1]) + int(m[2]) / 1e6, GPIO_OUT + int(m[3]), int(m[4]) != 0))
     return out
 
 
@@ -83,7 +90,10 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
         return [(f"{name}_trace_found", False, "payload not in the pl011_write trace")]
     i_first, t_first = dr[start][0], dr[start][1]
     i_last, t_last = dr[start + len(payload) - 1][0], dr[start + len(payload) - 1][1]
-    crs = [(i, t, not (v & CR_RTS)) for i, (t, a, v) in enumerate(writes) if a == REG_CR]
+    if fields["mode"] == "gpio":   # the DE pin is a PL061 line: its level as traced
+        crs = [(i, t, bool(v)) for i, (t, a, v) in enumerate(writes) if a == GPIO_OUT + GPIO_LINE]
+    else:
+        crs = [(i, t, not (v & CR_RTS)) for i, (t, a, v) in enumerate(writes) if a == REG_CR]
 
     def pin_at(idx: int) -> bool | None:
         level = None
@@ -160,7 +170,8 @@ def main() -> int:
            "-device", "virtio-serial-device", "-chardev", "stdio,id=con,signal=off",
            "-device", "virtconsole,chardev=con",
            "-monitor", f"unix:{mon}",
-           "-trace", "pl011_write", "-D", str(trace), "-msg", "timestamp=on"]
+           "-trace", "pl011_write", "-trace", "pl061_set_output",
+           "-D", str(trace), "-msg", "timestamp=on"]
     # The monitor connects to us (QEMU as the client): no waiting for a socket.
     listener = socket.socket(socket.AF_UNIX)
     listener.bind(str(mon))
@@ -273,7 +284,7 @@ def main() -> int:
                     and slave.returncode == 0,
                     f"{len(replies)} of 3 replies, {m[0] if m else 'no exit line'}, host slave exit "
                     f"{slave.returncode if slave else None}"))
-    results.append(("guest_completed", done, f"{len(writes)} pl011_write trace events"))
+    results.append(("guest_completed", done, f"{len(writes)} pl011_write / pl061_set_output trace events"))
     print()
     width = max(len(n) for n, _, _ in results)
     for n, ok, d in results:

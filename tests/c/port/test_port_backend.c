@@ -6,6 +6,7 @@
  * EINTR and partial writes, and the turnaround wait. */
 #include <linux/serial.h>
 #include <pthread.h>
+#include <sys/eventfd.h>
 #include <sys/ioctl.h>
 
 #include "fap_port.h"
@@ -13,7 +14,8 @@
 #include "pty_util.h"
 #include "unit.h"
 
-enum ev_kind { EV_RTS_SET, EV_RTS_CLEAR, EV_WRITE, EV_DRAIN, EV_SLEEP, EV_GRS485, EV_SRS485 };
+enum ev_kind { EV_RTS_SET, EV_RTS_CLEAR, EV_WRITE, EV_DRAIN, EV_SLEEP, EV_GRS485, EV_SRS485,
+               EV_GPIO_OPEN, EV_GPIO_SET, EV_GPIO_CLOSE };
 
 typedef struct fake_ev {
     enum ev_kind kind;
@@ -39,7 +41,13 @@ typedef struct fake {
     int closes;
     tcflag_t cflag_set;
     int rts_at_close;   /* EV_RTS_SET / EV_RTS_CLEAR, -1 none */
+    /* the GPIO DE line: an eventfd stands for the line fd */
+    int gpio_fd, gpio_value, fail_gpio_open, fail_gpio_set;
+    char gpio_chip[64];
+    unsigned gpio_line;
 } fake;
+
+static int count_ev(const fake *f, enum ev_kind k);
 
 static void rec(fake *f, enum ev_kind k, int64_t v)
 {
@@ -51,6 +59,11 @@ static int f_open(void *c, const char *path, int flags) { (void)c; return open(p
 static int f_close(void *c, int fd)
 {
     fake *f = c;
+    if (f->gpio_fd > 0 && fd == f->gpio_fd) {
+        rec(f, EV_GPIO_CLOSE, f->gpio_value);
+        f->gpio_fd = 0;
+        return close(fd);
+    }
     f->closes++;
     f->rts_at_close = -1;
     for (int i = f->nev - 1; i >= 0 && f->rts_at_close < 0; i--)
@@ -161,11 +174,36 @@ static void f_sleep_until(void *c, int64_t deadline)
     rec(c, EV_SLEEP, deadline);   /* recorded, not slept: the tests stay fast */
 }
 
+static int f_gpio_open(void *c, const char *chip, unsigned line, int value)
+{
+    fake *f = c;
+    rec(f, EV_GPIO_OPEN, value);
+    if (f->fail_gpio_open)
+        return -f->fail_gpio_open;
+    snprintf(f->gpio_chip, sizeof f->gpio_chip, "%s", chip);
+    f->gpio_line = line;
+    f->gpio_value = value;
+    f->gpio_fd = eventfd(0, EFD_CLOEXEC);
+    return f->gpio_fd;
+}
+
+static int f_gpio_set(void *c, int fd, int value)
+{
+    fake *f = c;
+    rec(f, EV_GPIO_SET, value);
+    if (fd != f->gpio_fd)
+        return -EBADF;
+    if (f->fail_gpio_set)
+        return -f->fail_gpio_set;
+    f->gpio_value = value;
+    return 0;
+}
+
 static const lf_port_backend fake_backend = {
     .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcgetattr,
     .tcsetattr = f_tcsetattr, .tcflush = f_tcflush, .tcdrain = f_tcdrain,
     .flock = f_flock, .read = f_read, .write = f_write, .poll = f_poll,
-    .sleep_until = f_sleep_until,
+    .sleep_until = f_sleep_until, .gpio_open = f_gpio_open, .gpio_set = f_gpio_set,
 };
 
 static fap_port_options opts_mode(fap_rs485_mode m)
@@ -484,6 +522,117 @@ static void test_other_modes_keep_hupcl(void)
         fap_port_close(p);
         tp_close(&t);
     }
+}
+
+/* GPIO DE/RE: the line is requested at the receive level, set to the
+ * sending level before the first byte (then the delay), released after
+ * tcdrain (and the delay), put back and freed at close; no RTS ioctl. */
+static void check_gpio(int active_high)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_GPIO);
+    char chip[] = "/dev/gpiochip7";
+    o.gpio_chip = chip;
+    o.gpio_line = 5;
+    o.rts_active_high = active_high;
+    o.delay_before_send_us = 400;
+    o.delay_after_send_us = 600;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    chip[0] = 'X';   /* the port keeps its own copy */
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_GPIO);
+    CHECK(strcmp(fap_rs485_mode_name(FAP_RS485_GPIO), "gpio") == 0);
+    CHECK(strcmp(f.gpio_chip, "/dev/gpiochip7") == 0);
+    CHECK_EQ(f.gpio_line, 5);
+    MUST(f.nev == 1);
+    CHECK_EQ(f.ev[0].kind, EV_GPIO_OPEN);
+    CHECK_EQ(f.ev[0].value, !active_high);   /* requested at the receive level */
+    int hi = -1;
+    unsigned b = 0, a = 0;
+    CHECK_EQ(fap_port_rts_settings(p, &hi, &b, &a), 0);
+    CHECK_EQ(hi, active_high);
+    CHECK_EQ(b, 400);
+    CHECK_EQ(a, 600);
+
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "frame", 5), 5);
+    MUST(f.nev == 6);
+    CHECK_EQ(f.ev[0].kind, EV_GPIO_SET);
+    CHECK_EQ(f.ev[0].value, active_high);
+    CHECK_EQ(f.ev[1].kind, EV_SLEEP);
+    CHECK(f.ev[1].value >= f.ev[0].at_ns + 400000);
+    CHECK_EQ(f.ev[2].kind, EV_WRITE);
+    CHECK_EQ(f.ev[3].kind, EV_DRAIN);
+    CHECK_EQ(f.ev[4].kind, EV_SLEEP);
+    CHECK(f.ev[4].value >= f.ev[3].at_ns + 600000);
+    CHECK_EQ(f.ev[5].kind, EV_GPIO_SET);
+    CHECK_EQ(f.ev[5].value, !active_high);
+    char m[5];
+    CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
+    /* send and transact drain too: the line must not drop early */
+    f.nev = 0;
+    CHECK_EQ(fap_port_send(p, "s", 1), 1);
+    CHECK_EQ(count_ev(&f, EV_DRAIN), 1);
+    CHECK_EQ(count_ev(&f, EV_RTS_SET) + count_ev(&f, EV_RTS_CLEAR), 0);
+    CHECK_EQ(tp_read_exact(t.master, m, 1, 1000), 1);
+
+    /* reopen: the line is freed and requested again */
+    f.nev = 0;
+    CHECK_EQ(fap_port_reopen(p), 0);
+    CHECK_EQ(count_ev(&f, EV_GPIO_CLOSE), 1);
+    CHECK_EQ(count_ev(&f, EV_GPIO_OPEN), 1);
+    f.nev = 0;
+    fap_port_close(p);
+    MUST(f.nev == 2);
+    CHECK_EQ(f.ev[0].kind, EV_GPIO_SET);
+    CHECK_EQ(f.ev[0].value, !active_high);   /* released at close */
+    CHECK_EQ(f.ev[1].kind, EV_GPIO_CLOSE);
+    tp_close(&t);
+}
+
+static void test_gpio_active_high(void) { check_gpio(1); }
+static void test_gpio_active_low(void) { check_gpio(0); }
+
+static void test_gpio_errors(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_GPIO);
+    fap_port *p = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -EINVAL);   /* no chip */
+    o.gpio_chip = "";
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -EINVAL);
+    o.gpio_chip = "/dev/gpiochip0";
+    int fds = tp_count_fds();
+    f.fail_gpio_open = ENOENT;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -ENOENT);
+    CHECK_EQ(tp_count_fds(), fds);   /* nothing stays open */
+    CHECK(p == NULL);
+    f.fail_gpio_open = 0;
+    /* a backend without GPIO */
+    lf_port_backend nogpio = fake_backend;
+    nogpio.gpio_open = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &nogpio, &f), -EOPNOTSUPP);
+    /* a failing set: nothing is written, the error comes back */
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.fail_gpio_set = EIO;
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "x", 1), -EIO);
+    CHECK_EQ(count_ev(&f, EV_WRITE), 0);
+    f.fail_gpio_set = 0;
+    fap_port_close(p);
+    /* the real backend on a path that is no gpiochip */
+    o.gpio_chip = "/dev/null";
+    CHECK(fap_port_open(&p, t.name, &o) < 0);
+    o.gpio_chip = "/nonexistent/gpiochip0";
+    CHECK_EQ(fap_port_open(&p, t.name, &o), -ENOENT);
+    CHECK_EQ(tp_count_fds(), fds);
+    tp_close(&t);
 }
 
 /* A UART whose kernel RS-485 is on (device tree, an earlier program): the
@@ -927,6 +1076,7 @@ UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_ke
           UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
           UNIT(test_soft_rts_close_active_high), UNIT(test_soft_rts_close_active_low),
           UNIT(test_other_modes_keep_hupcl),
+          UNIT(test_gpio_active_high), UNIT(test_gpio_active_low), UNIT(test_gpio_errors),
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
           UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
