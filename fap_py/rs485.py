@@ -36,7 +36,8 @@ _INT_FIELDS = ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
 # the path at open, but an options struct may be used long after the RS485
 # that filled it is gone; a machine has a handful of gpiochips)
 _CHIP_PATHS: Dict[bytes, Any] = {}
-_BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive")
+_BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive",
+                "low_latency")
 
 
 def c_defaults() -> Dict[str, Any]:
@@ -83,6 +84,8 @@ class RS485:
     write_timeout_us: Optional[int] = None       #: longest write (0 = C's rule)
     gpio_chip: Optional[str] = None              #: GPIO mode: DE/RE line's /dev/gpiochipN
     gpio_line: Optional[int] = None              #: GPIO mode: line offset on gpio_chip
+    low_latency: Optional[bool] = None           #: FTDI latency_timer 1 ms while open
+                                                 #: (C default: in soft-RTS and GPIO modes)
 
     def __post_init__(self) -> None:
         if self.mode is not None:

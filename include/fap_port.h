@@ -66,6 +66,10 @@ typedef struct fap_port_options {
      * RTS. The path is copied at open. Default NULL / 0. */
     const char *gpio_chip;         /* e.g. "/dev/gpiochip0" */
     unsigned gpio_line;            /* line offset on that chip */
+    int low_latency;               /* a USB adapter's latency_timer (FTDI, sysfs)
+                                      at 1 ms while open, the old value back at
+                                      close: 1 always, 0 never, FAP_PORT_KEEP
+                                      (default) in soft-RTS and GPIO modes */
 } fap_port_options;
 
 typedef struct fap_port_stats {

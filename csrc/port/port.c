@@ -23,6 +23,7 @@ void fap_port_options_init(fap_port_options *o)
     o->delay_before_send_us = FAP_PORT_KEEP_DELAY;
     o->delay_after_send_us = FAP_PORT_KEEP_DELAY;
     o->exclusive = 1;
+    o->low_latency = FAP_PORT_KEEP;
 }
 
 static int validate_options(const fap_port_options *in, fap_port_options *out)
@@ -53,6 +54,8 @@ static int validate_options(const fap_port_options *in, fap_port_options *out)
         out->rx_during_tx = out->rx_during_tx != 0;
     out->echo_suppression = out->echo_suppression != 0;
     out->exclusive = out->exclusive != 0;
+    if (out->low_latency != FAP_PORT_KEEP)
+        out->low_latency = out->low_latency != 0;
     return 0;
 }
 
@@ -112,7 +115,7 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
         return -ENOMEM;
     p->be = be;
     p->ctx = ctx;
-    p->conn.fd = p->conn.gpio_fd = -1;
+    p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     p->poll_fd = p->pend_efd = -1;
     pthread_mutex_init(&p->tx_mu, NULL);
     pthread_mutex_init(&p->rx_mu, NULL);
@@ -175,7 +178,7 @@ int fap_port_reopen(fap_port *p)
     while (p->busy > 0)
         pthread_cond_wait(&p->idle_cv, &p->st_mu);
     lf_port_conn old = p->conn;
-    p->conn.fd = p->conn.gpio_fd = -1;   /* old owns them now */
+    p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;   /* old owns them now */
     if (!p->gone_err)
         p->gone_err = -ENODEV;   /* between close and open: no device */
     pthread_mutex_unlock(&p->st_mu);
@@ -230,7 +233,7 @@ void lf_port_release(fap_port *p)
          * reopen cannot race with this close (its flock would see ours). */
         dead = p->conn;
         dead.tio_restore = 0;   /* gone: no pin or termios to put back */
-        p->conn.fd = p->conn.gpio_fd = -1;
+        p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     } else {
         p->busy--;
         if (p->busy == 0)

@@ -40,6 +40,9 @@ typedef struct lf_port_backend {
      * a backend without GPIO: that mode then fails with -EOPNOTSUPP. */
     int (*gpio_open)(void *ctx, const char *chip, unsigned line, int value);
     int (*gpio_set)(void *ctx, int line_fd, int value);
+    /* Where sysfs is (USB latency_timer); NULL = "/sys". Tests point it
+     * at a fake tree. */
+    const char *sysfs_root;
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;

@@ -261,6 +261,7 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
     memset(c, 0, sizeof *c);
     c->fd = -1;
     c->gpio_fd = -1;
+    c->latency_saved = -1;
     int fd = p->be->open(p->ctx, p->path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
         return -errno;
@@ -288,6 +289,7 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
     err = configure_termios(p, fd, c);
     if (err)
         goto fail;
+    lf_port_latency_low(p, c);
     /* Bytes that piled up before we attached are not for us. */
     if (p->be->tcflush(p->ctx, fd, TCIOFLUSH) < 0) {
         err = -errno;
@@ -306,6 +308,7 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
         (void)p->be->close(p->ctx, c->gpio_fd);
         c->gpio_fd = -1;
     }
+    lf_port_latency_restore(c);
     if (c->fd < 0)
         return;
     /* Best effort: on a vanished device these fail, and that is fine. */

@@ -22,6 +22,8 @@ typedef struct lf_port_conn {
     struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
     struct serial_rs485 rs485_active;  /* TIOCGRS485 after our TIOCSRS485 */
     int gpio_fd;                  /* GPIO mode: the DE line's fd, else -1 */
+    int latency_saved;            /* USB latency_timer (ms) to restore, -1 none */
+    char latency_file[160];       /* its sysfs file */
     int tio_restore;              /* soft RTS: restore tio_saved (HUPCL off) at close */
     struct termios tio_saved;     /* termios before we configured the port */
     /* Resolved line settings (options, else the device's config). */
@@ -74,6 +76,11 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
 /* Soft RTS / GPIO: drive the RTS pin (GPIO mode: the DE line) to c's
  * sending (1) or receive (0) level. */
 int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending);
+
+/* port_latency.c: set a USB adapter's latency_timer to 1 ms while open
+ * (per p->opt.low_latency and c->mode), and put the old value back. */
+void lf_port_latency_low(const fap_port *p, lf_port_conn *c);
+void lf_port_latency_restore(lf_port_conn *c);
 
 /* port_probe.c: does another process hold path (a lock on its inode in
  * locks_file, /proc/locks' format; or a live UUCP LCK..name in uucp_dir,

@@ -5,6 +5,7 @@
  * restore on close, error paths), soft-RTS ordering and its error paths,
  * EINTR and partial writes, and the turnaround wait. */
 #include <linux/serial.h>
+#include <stdlib.h>
 #include <pthread.h>
 #include <sys/eventfd.h>
 #include <sys/ioctl.h>
@@ -635,6 +636,84 @@ static void test_gpio_errors(void)
     tp_close(&t);
 }
 
+/* FTDI latency_timer through a fake sysfs tree: 1 ms while open in soft
+ * RTS / GPIO (the default), or always / never as asked; the old value
+ * back at close; a timer already at 1 ms, or none, is left alone. */
+static int latency_now(const char *file)
+{
+    char buf[16] = {0};
+    FILE *f = fopen(file, "r");
+    if (!f)
+        return -1;
+    int ok = fgets(buf, sizeof buf, f) != NULL;
+    fclose(f);
+    return ok ? atoi(buf) : -1;
+}
+
+static void set_latency(const char *file, int ms)
+{
+    FILE *f = fopen(file, "w");
+    if (f) {
+        fprintf(f, "%d\n", ms);
+        fclose(f);
+    }
+}
+
+static void test_latency_timer(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    char root[64], dir[256], file[300], real[256];
+    snprintf(root, sizeof root, "/tmp/fap-sysfs-%d", (int)getpid());
+    MUST(realpath(t.name, real) != NULL);
+    const char *name = strrchr(real, '/') + 1;
+    snprintf(dir, sizeof dir, "mkdir -p %s/class/tty/%s/device", root, name);
+    MUST(system(dir) == 0);
+    snprintf(file, sizeof file, "%s/class/tty/%s/device/latency_timer", root, name);
+    set_latency(file, 16);
+    lf_port_backend be = fake_backend;
+    be.sysfs_root = root;
+    static const struct { fap_rs485_mode mode; int opt, expect; } cases[] = {
+        {FAP_RS485_SOFT_RTS, FAP_PORT_KEEP, 1}, {FAP_RS485_GPIO, FAP_PORT_KEEP, 1},
+        {FAP_RS485_NONE, FAP_PORT_KEEP, 16}, {FAP_RS485_NONE, 1, 1},
+        {FAP_RS485_SOFT_RTS, 0, 16}, {FAP_RS485_KERNEL, FAP_PORT_KEEP, 16},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        fake f;
+        fake_uart(&f);
+        fap_port_options o = opts_mode(cases[i].mode);
+        o.low_latency = cases[i].opt;
+        o.gpio_chip = "/dev/gpiochip0";
+        fap_port *p = NULL;
+        MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+        CHECK_EQ(latency_now(file), cases[i].expect);
+        if (i == 0) {   /* a replug: the new device's timer is set again */
+            set_latency(file, 16);
+            CHECK_EQ(fap_port_reopen(p), 0);
+            CHECK_EQ(latency_now(file), 1);
+        }
+        fap_port_close(p);
+        CHECK_EQ(latency_now(file), 16);
+    }
+    /* already at 1 ms: nothing to undo */
+    set_latency(file, 1);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    CHECK_EQ(latency_now(file), 1);
+    /* no such file (not an FTDI): opens all the same */
+    unlink(file);
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    CHECK_EQ(latency_now(file), -1);
+    snprintf(dir, sizeof dir, "rm -rf %s", root);
+    CHECK_EQ(system(dir), 0);
+    tp_close(&t);
+}
+
 /* A UART whose kernel RS-485 is on (device tree, an earlier program): the
  * driver would ignore our RTS writes, so soft mode switches it off while
  * open and gives it back at close; polarity and delays not given come
@@ -1077,6 +1156,7 @@ UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_ke
           UNIT(test_soft_rts_close_active_high), UNIT(test_soft_rts_close_active_low),
           UNIT(test_other_modes_keep_hupcl),
           UNIT(test_gpio_active_high), UNIT(test_gpio_active_low), UNIT(test_gpio_errors),
+          UNIT(test_latency_timer),
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
           UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),

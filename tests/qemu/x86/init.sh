@@ -29,6 +29,7 @@ for port in ttyS0:isa ttyS2:pci ttyUSB0:ftdi; do
   done
   $C busy $dev $l 0
 done
+$C latency /dev/ttyUSB0 ftdi
 # tcdrain waits while the host side of the line is stalled
 $C drain /dev/ttyS0 isa 98304
 # The shipped vendor-style master against a FAP slave on the host end.

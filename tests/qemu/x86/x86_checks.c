@@ -10,6 +10,7 @@
  *                         RTS edges and the level left after close)
  *   busy DEV LABEL HIGH   a child holds the port (soft RTS); the probe on
  *                         it must answer -EBUSY without opening it
+ *   latency DEV LABEL     FTDI latency_timer 1 ms while open, restored
  *   drain DEV LABEL N     soft RTS, one N-byte write while the host stalls
  *                         its side: how long the write (tcdrain) took
  * Lines: RESULT <name> PASS|FAIL <detail>, TRACE <name> k=v ... */
@@ -218,6 +219,40 @@ static void drain(const char *dev, const char *label, size_t n)
            (long long)took);
 }
 
+static int latency_ms(const char *dev, int set)
+{
+    char file[128];
+    snprintf(file, sizeof file, "/sys/class/tty/%s/device/latency_timer", strrchr(dev, '/') + 1);
+    FILE *f = fopen(file, set >= 0 ? "w" : "r");
+    if (f && set >= 0) {
+        fprintf(f, "%d\n", set);
+        fclose(f);
+        return set;
+    }
+    int v = -1;
+    if (f) {
+        if (fscanf(f, "%d", &v) != 1)
+            v = -1;
+        fclose(f);
+    }
+    return v;
+}
+
+/* FTDI: latency_timer at 1 ms while a soft-RTS port is open, the old
+ * value back at close. QEMU's model starts at 0: set a real chip's 16 ms. */
+static void latency(const char *dev, const char *label)
+{
+    int before = latency_ms(dev, 16) == 16 ? latency_ms(dev, -1) : -1;
+    fap_port *p = open_soft(dev, 1, 0, 0);
+    if (!p)
+        return;
+    int during = latency_ms(dev, -1);
+    fap_port_close(p);
+    int after = latency_ms(dev, -1);
+    result(label, "latency_timer_low_while_open", before == 16 && during == 1 && after == before,
+           "latency_timer %d ms, %d while open, %d after close", before, during, after);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3)
@@ -228,6 +263,8 @@ int main(int argc, char **argv)
         info(dev, label, strstr(dev, "ttyS") != NULL);
     else if (strcmp(cmd, "trace") == 0 && argc > 6)
         trace(dev, label, atoi(argv[4]), (unsigned)atoi(argv[5]), (unsigned)atoi(argv[6]));
+    else if (strcmp(cmd, "latency") == 0)
+        latency(dev, label);
     else if (strcmp(cmd, "busy") == 0 && argc > 4) {
         busy(dev, label, atoi(argv[4]));
     } else if (strcmp(cmd, "drain") == 0 && argc > 4)
