@@ -24,6 +24,7 @@ import threading
 import time
 import tty
 from pathlib import Path
+from typing import Callable
 
 CR_RTS = 0x800          # PL011 UARTCR.RTS: the complement of the nUARTRTS pin
 REG_DR, REG_CR = 0x000, 0x030
@@ -149,6 +150,40 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
     return res
 
 
+def start_qemu(cmd: list[str], work: Path, mon: Path
+               ) -> tuple[subprocess.Popen[bytes], Callable[[bytes], str]] | None:
+    """Start QEMU (paused, ``-S``, with ``-monitor unix:mon``) and connect
+    to its monitor: (process, monitor(command) -> answer), or None after
+    printing why. The monitor connects to us (QEMU as the client): no
+    waiting for a socket to appear."""
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(mon))
+    listener.listen(1)
+    listener.settimeout(15)
+    qerr = open(work / "qemu.stderr", "wb")
+    q = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=qerr)
+    assert q.stdin and q.stdout
+    try:
+        ms, _ = listener.accept()
+    except socket.timeout:
+        q.kill()
+        print("FAIL: QEMU's monitor never connected:", (work / "qemu.stderr").read_text(),
+              file=sys.stderr)
+        return None
+    ms.settimeout(15)
+
+    def monitor(command: bytes) -> str:
+        out = b""
+        ms.sendall(command + b"\n")
+        while not out.endswith(b"(qemu) "):   # the prompt ends every answer
+            out += ms.recv(4096)
+        return out.decode(errors="replace")
+    banner = b""
+    while not banner.endswith(b"(qemu) "):
+        banner += ms.recv(4096)
+    return q, monitor
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kernel", required=True, type=Path)
@@ -172,32 +207,11 @@ def main() -> int:
            "-monitor", f"unix:{mon}",
            "-trace", "pl011_write", "-trace", "pl061_set_output",
            "-D", str(trace), "-msg", "timestamp=on"]
-    # The monitor connects to us (QEMU as the client): no waiting for a socket.
-    listener = socket.socket(socket.AF_UNIX)
-    listener.bind(str(mon))
-    listener.listen(1)
-    listener.settimeout(15)
-    qerr = open(a.work / "qemu.stderr", "wb")
-    q = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=qerr)
-    assert q.stdin and q.stdout
-    try:
-        ms, _ = listener.accept()
-    except socket.timeout:
-        q.kill()
-        print("FAIL: QEMU's monitor never connected:", (a.work / "qemu.stderr").read_text(),
-              file=sys.stderr)
+    started = start_qemu(cmd, a.work, mon)
+    if started is None:
         return 1
-    ms.settimeout(15)
-
-    def monitor(command: bytes) -> str:
-        out = b""
-        ms.sendall(command + b"\n")
-        while not out.endswith(b"(qemu) "):   # the prompt ends every answer
-            out += ms.recv(4096)
-        return out.decode(errors="replace")
-    banner = b""
-    while not banner.endswith(b"(qemu) "):
-        banner += ms.recv(4096)
+    q, monitor = started
+    assert q.stdin and q.stdout
     m = re.search(r"serial0: filename=pty:(/dev/pts/\d+)", monitor(b"info chardev"))
     if not m:
         q.kill()

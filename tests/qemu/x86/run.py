@@ -18,7 +18,6 @@ import argparse
 import os
 import re
 import select
-import socket
 import subprocess
 import sys
 import termios
@@ -29,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from run import build_initramfs  # the PL011 suite's initramfs writer
+from run import build_initramfs, start_qemu  # shared with the PL011 suite
 
 BOOT_TIMEOUT_S = 100
 STALL_S = 2.0            # the host stops reading ttyS0 this long (tcdrain check)
@@ -212,31 +211,11 @@ def main() -> int:
            "-trace", "serial_write", "-trace", "usb_serial_handle_control",
            "-trace", "usb_packet_state_change",
            "-D", str(trace), "-msg", "timestamp=on"]
-    listener = socket.socket(socket.AF_UNIX)
-    listener.bind(str(mon))
-    listener.listen(1)
-    listener.settimeout(15)
-    qerr = open(a.work / "qemu.stderr", "wb")
-    q = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=qerr)
-    assert q.stdin and q.stdout
-    try:
-        ms, _ = listener.accept()
-    except socket.timeout:
-        q.kill()
-        print("FAIL: QEMU's monitor never connected:", (a.work / "qemu.stderr").read_text(),
-              file=sys.stderr)
+    started = start_qemu(cmd, a.work, mon)
+    if started is None:
         return 1
-    ms.settimeout(15)
-
-    def monitor(command: bytes) -> str:
-        out = b""
-        ms.sendall(command + b"\n")
-        while not out.endswith(b"(qemu) "):
-            out += ms.recv(4096)
-        return out.decode(errors="replace")
-    banner = b""
-    while not banner.endswith(b"(qemu) "):
-        banner += ms.recv(4096)
+    q, monitor = started
+    assert q.stdin and q.stdout
     info = monitor(b"info chardev")
     readers: dict[str, Reader] = {}
     for cid, dev in CHARDEVS.items():
