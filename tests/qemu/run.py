@@ -184,18 +184,40 @@ def start_qemu(cmd: list[str], work: Path, mon: Path
     return q, monitor
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def suite_setup(description: str, *extra: tuple[str, str]
+                ) -> tuple[argparse.Namespace, Path, Path, Path]:
+    """The runners' common command line (--kernel --root --work --slave,
+    plus (option, default) pairs), a fresh work directory and the
+    initramfs: (args, initrd, trace log, monitor socket)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--kernel", required=True, type=Path)
     ap.add_argument("--root", required=True, type=Path, help="files of the initramfs")
     ap.add_argument("--work", required=True, type=Path)
     ap.add_argument("--slave", required=True, type=Path, help="host fap_slave binary")
+    for opt, default in extra:
+        ap.add_argument(opt, default=default)
     a = ap.parse_args()
     a.work.mkdir(parents=True, exist_ok=True)
     initrd, trace, mon = a.work / "initrd.cpio", a.work / "trace.log", a.work / "monitor.sock"
     for p in (trace, mon):
         p.unlink(missing_ok=True)
     build_initramfs(a.root, initrd)
+    return a, initrd, trace, mon
+
+
+def report(suite: str, results: list[tuple[str, bool, str]], elapsed: float) -> int:
+    """Print one PASS/FAIL line per check and the tally: the exit status."""
+    print()
+    width = max(len(n) for n, _, _ in results)
+    for n, ok, d in results:
+        print(f"{'PASS' if ok else 'FAIL'}  {n:<{width}}  {d}")
+    bad = sum(not ok for _, ok, _ in results)
+    print(f"\n{suite}: {len(results) - bad} passed, {bad} failed; guest run {elapsed:.1f} s")
+    return 1 if bad else 0
+
+
+def main() -> int:
+    a, initrd, trace, mon = suite_setup(__doc__.splitlines()[0])
     t0 = time.monotonic()
     cmd = ["qemu-system-aarch64", "-M", "virt", "-cpu", "cortex-a57", "-smp", "1", "-m", "256",
            "-nodefaults", "-display", "none", "-no-reboot", "-S",
@@ -299,13 +321,7 @@ def main() -> int:
                     f"{len(replies)} of 3 replies, {m[0] if m else 'no exit line'}, host slave exit "
                     f"{slave.returncode if slave else None}"))
     results.append(("guest_completed", done, f"{len(writes)} pl011_write / pl061_set_output trace events"))
-    print()
-    width = max(len(n) for n, _, _ in results)
-    for n, ok, d in results:
-        print(f"{'PASS' if ok else 'FAIL'}  {n:<{width}}  {d}")
-    bad = sum(not ok for _, ok, _ in results)
-    print(f"\nqemu suite: {len(results) - bad} passed, {bad} failed; guest run {elapsed:.1f} s")
-    return 1 if bad else 0
+    return report("qemu suite", results, elapsed)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ Exit status 0 only if every check passed.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import re
 import select
@@ -28,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-from run import build_initramfs, start_qemu  # shared with the PL011 suite
+from run import report, start_qemu, suite_setup  # shared with the PL011 suite
 
 BOOT_TIMEOUT_S = 100
 STALL_S = 2.0            # the host stops reading ttyS0 this long (tcdrain check)
@@ -184,18 +183,7 @@ def judge_trace(name: str, f: dict[str, str], kind: str, span: tuple[float, floa
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kernel", required=True, type=Path)
-    ap.add_argument("--root", required=True, type=Path, help="files of the initramfs")
-    ap.add_argument("--work", required=True, type=Path)
-    ap.add_argument("--slave", required=True, type=Path, help="host fap_slave binary")
-    ap.add_argument("--accel", default="tcg")
-    a = ap.parse_args()
-    a.work.mkdir(parents=True, exist_ok=True)
-    initrd, trace, mon = a.work / "initrd.cpio", a.work / "trace.log", a.work / "monitor.sock"
-    for p in (trace, mon):
-        p.unlink(missing_ok=True)
-    build_initramfs(a.root, initrd)
+    a, initrd, trace, mon = suite_setup(__doc__.splitlines()[0], ("--accel", "tcg"))
     t0 = time.monotonic()
     cmd = ["qemu-system-x86_64", "-M", "q35", "-accel", a.accel, "-smp", "1", "-m", "256",
            "-nodefaults", "-display", "none", "-no-reboot", "-S",
@@ -370,13 +358,7 @@ def main() -> int:
                         f"{s.returncode if s else None}"))
     results.append(("guest_completed", done, f"{len(uart_w)} serial_write, {len(ftdi_req)} "
                     f"usb_serial_handle_control trace events, ports {[p for _, p in port_t]}"))
-    print()
-    width = max(len(n) for n, _, _ in results)
-    for n, ok, d in results:
-        print(f"{'PASS' if ok else 'FAIL'}  {n:<{width}}  {d}")
-    bad = sum(not ok for _, ok, _ in results)
-    print(f"\nqemu x86 suite: {len(results) - bad} passed, {bad} failed; guest run {elapsed:.1f} s")
-    return 1 if bad else 0
+    return report("qemu x86 suite", results, elapsed)
 
 
 if __name__ == "__main__":
