@@ -403,6 +403,28 @@ static void test_auto_does_not_hide_a_dying_device(void)
 
 /* ---- soft RTS ------------------------------------------------------------- */
 
+/* One 5-byte write with the direction switched by us (soft RTS, GPIO):
+ * on, the delay before, write, drain, the delay after, off. */
+static void check_switched_write(const fake *f, enum ev_kind on, int64_t on_value,
+                                 enum ev_kind off, int64_t off_value,
+                                 int64_t before_ns, int64_t after_ns)
+{
+    MUST(f->nev == 6);
+    CHECK_EQ(f->ev[0].kind, on);
+    CHECK_EQ(f->ev[0].value, on_value);
+    CHECK_EQ(f->ev[1].kind, EV_SLEEP);
+    CHECK(f->ev[1].value >= f->ev[0].at_ns + before_ns);
+    CHECK(f->ev[1].value <= f->ev[1].at_ns + before_ns);
+    CHECK_EQ(f->ev[2].kind, EV_WRITE);
+    CHECK_EQ(f->ev[2].value, 5);
+    CHECK_EQ(f->ev[3].kind, EV_DRAIN);
+    CHECK_EQ(f->ev[4].kind, EV_SLEEP);
+    CHECK(f->ev[4].value >= f->ev[3].at_ns + after_ns);
+    CHECK(f->ev[4].value <= f->ev[4].at_ns + after_ns);
+    CHECK_EQ(f->ev[5].kind, off);
+    CHECK_EQ(f->ev[5].value, off_value);
+}
+
 static void check_soft_rts_order(int active_high)
 {
     test_pty t;
@@ -427,19 +449,7 @@ static void check_soft_rts_order(int active_high)
 
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "frame", 5), 5);
-    MUST(f.nev == 6);
-    CHECK_EQ(f.ev[0].kind, on);
-    CHECK_EQ(f.ev[0].value, TIOCM_RTS);
-    CHECK_EQ(f.ev[1].kind, EV_SLEEP);
-    CHECK(f.ev[1].value >= f.ev[0].at_ns + 500000);
-    CHECK(f.ev[1].value <= f.ev[1].at_ns + 500000);
-    CHECK_EQ(f.ev[2].kind, EV_WRITE);
-    CHECK_EQ(f.ev[2].value, 5);
-    CHECK_EQ(f.ev[3].kind, EV_DRAIN);
-    CHECK_EQ(f.ev[4].kind, EV_SLEEP);
-    CHECK(f.ev[4].value >= f.ev[3].at_ns + 700000);
-    CHECK(f.ev[4].value <= f.ev[4].at_ns + 700000);
-    CHECK_EQ(f.ev[5].kind, off);
+    check_switched_write(&f, on, TIOCM_RTS, off, TIOCM_RTS, 500000, 700000);
     char m[5];
     CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
     CHECK_MEM(m, "frame", 5);
@@ -560,17 +570,7 @@ static void check_gpio(int active_high)
 
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "frame", 5), 5);
-    MUST(f.nev == 6);
-    CHECK_EQ(f.ev[0].kind, EV_GPIO_SET);
-    CHECK_EQ(f.ev[0].value, active_high);
-    CHECK_EQ(f.ev[1].kind, EV_SLEEP);
-    CHECK(f.ev[1].value >= f.ev[0].at_ns + 400000);
-    CHECK_EQ(f.ev[2].kind, EV_WRITE);
-    CHECK_EQ(f.ev[3].kind, EV_DRAIN);
-    CHECK_EQ(f.ev[4].kind, EV_SLEEP);
-    CHECK(f.ev[4].value >= f.ev[3].at_ns + 600000);
-    CHECK_EQ(f.ev[5].kind, EV_GPIO_SET);
-    CHECK_EQ(f.ev[5].value, !active_high);
+    check_switched_write(&f, EV_GPIO_SET, active_high, EV_GPIO_SET, !active_high, 400000, 600000);
     char m[5];
     CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
     /* send and transact drain too: the line must not drop early */
@@ -1102,10 +1102,6 @@ static void test_transact_modes(void)
         MUST(tp_open(&t) == 0);
         fake f;
         fake_uart(&f);
-        struct termios tio;
-        MUST(tcgetattr(t.master, &tio) == 0);
-        tio.c_cflag |= HUPCL;
-        MUST(tcsetattr(t.master, TCSANOW, &tio) == 0);
         fap_port_options o = opts_mode(modes[i]);
         fap_port *p = NULL;
         MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
