@@ -20,7 +20,6 @@ need=()
 command -v qemu-system-x86_64 >/dev/null || need+=(qemu-system-x86)
 command -v cc >/dev/null || need+=(gcc)
 [ -e /usr/lib/x86_64-linux-gnu/libc.a ] || need+=(libc6-dev)
-command -v modinfo >/dev/null || [ -x /sbin/modinfo ] || need+=(kmod)
 if [ ${#need[@]} -gt 0 ]; then
   apt-get update -q
   apt-get install -y -q -o DPkg::Lock::Timeout=600 "${need[@]}"
