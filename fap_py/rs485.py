@@ -48,6 +48,7 @@ def c_defaults() -> Dict[str, Any]:
     out: Dict[str, Any] = {"mode": RS485Mode(po.rs485_mode)}
     out.update({name: int(getattr(po, name)) for name in _INT_FIELDS})
     out.update({name: int(getattr(po, name)) for name in _BOOL_FIELDS})
+    out["gpio_chip"] = None if po.gpio_chip == ffi.NULL else ffi.string(po.gpio_chip).decode()
     return out
 
 
