@@ -338,7 +338,7 @@ def main() -> int:
         rel = next((tt for tt, high in uart_rts if last and tt > last and not high), None)
         pin_gap = level_at(uart_rts, g_at + gap / 2) if gap else None
         results.append(("isa_tcdrain_waits_for_stalled_line",
-                        bool(d) and gap > STALL_S / 2 and pin_gap is True and rel is not None
+                        bool(d) and gap > STALL_S / 3 and pin_gap is True and rel is not None
                         and last is not None and last >= stall["resumed"] - 0.05,
                         f"{len(d)} bytes, longest gap {gap * 1e3:.0f} ms with pin "
                         f"{'high' if pin_gap else 'low'}, last byte {((last or 0) - stall['resumed']) * 1e3:+.1f} "
