@@ -91,7 +91,9 @@ void fap_port_options_init(fap_port_options *o);
  * Errors: -errno of open/ioctl/tcsetattr; -EBUSY if another process holds
  * it; -EINVAL for an unsupported baud rate; an explicit KERNEL or SOFT_RTS
  * mode that the device refuses fails with that ioctl's errno (-ENOTTY on a
- * pty) and nothing stays open. */
+ * pty) and nothing stays open. GPIO mode: -EINVAL without gpio_chip, else
+ * the errno of opening the chip or requesting the line (-ENOENT, -EBUSY
+ * when another consumer holds the line). */
 int fap_port_open(fap_port **out, const char *path, const fap_port_options *o);
 
 /* Close the port (restores the RS-485 config the port had before, if we
