@@ -202,6 +202,27 @@ int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
 int fap_port_rts_settings(const fap_port *p, int *active_high,
                           unsigned *delay_before_us, unsigned *delay_after_us);
 
+/* Self-verifying direction control, on a line whose transceiver echoes
+ * (RX during TX). Each of `rounds` rounds drops pending input, writes the
+ * n-byte pattern with fap_port_write (soft RTS / GPIO: it returns after the
+ * line was released; other modes after tcdrain) while a second thread
+ * reads the echo until timeout_ms; the round's margin is the write's return
+ * minus the moment the last echoed byte was read (CLOCK_MONOTONIC ns):
+ * negative = the port let go before its last byte came back (tcdrain does
+ * not cover the adapter). The read side's own latency (FIFO timeout, USB
+ * polling) is in the margin. Needs echo_suppression off. Returns 0, or
+ * -EINVAL (NULL, n 0, rounds > FAP_PORT_CHECK_MAX_ROUNDS, echo
+ * suppression on), or the first error of the discard or the write. */
+#define FAP_PORT_CHECK_MAX_ROUNDS 16
+typedef struct fap_port_check {
+    unsigned rounds;              /* rounds run */
+    unsigned echoed;              /* rounds whose whole pattern came back */
+    uint64_t collisions;          /* echoed bytes that differ from those sent */
+    int64_t margin_ns[FAP_PORT_CHECK_MAX_ROUNDS];   /* per echoed round */
+} fap_port_check;
+int fap_port_check_direction(fap_port *p, const void *pattern, size_t n, unsigned rounds,
+                             unsigned timeout_ms, fap_port_check *out);
+
 #ifdef __cplusplus
 }
 #endif
