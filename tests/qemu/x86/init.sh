@@ -28,6 +28,7 @@ for port in ttyS0:isa ttyS2:pci ttyUSB0:ftdi; do
     $C trace $dev ${l}_low_$1_$2 0 $1 $2
   done
   $C busy $dev $l 0
+  $C check $dev $l
 done
 $C latency /dev/ttyUSB0 ftdi
 # tcdrain waits while the host side of the line is stalled

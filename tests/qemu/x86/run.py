@@ -50,6 +50,7 @@ class Reader:
     run: threading.Event = field(default_factory=threading.Event)
     idle: threading.Event = field(default_factory=threading.Event)
     stop: bool = False
+    echo: bool = False   #: write every chunk read straight back (RX during TX)
 
     def start(self) -> None:
         self.fd = os.open(self.path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
@@ -71,6 +72,8 @@ class Reader:
                 except (BlockingIOError, OSError):
                     continue
                 self.chunks.append((time.time(), data))
+                if self.echo:
+                    os.write(self.fd, data)
 
     def pause(self) -> None:
         self.run.clear()
@@ -254,6 +257,12 @@ def main() -> int:
                 stall["resumed"] = time.time()
                 rd.run.set()
             threading.Timer(STALL_S, resume).start()
+        elif line.startswith(("CHECK-START ", "CHECK-END ")):
+            rd = readers[LABELS[line.split()[1]]]
+            rd.echo = line.startswith("CHECK-START")
+            if rd.echo:
+                q.stdin.write(b"go\n")
+                q.stdin.flush()
         elif line.startswith("READY-FOR-SLAVE "):
             label = line.split()[1]
             rd = readers[LABELS[label]]

@@ -10,6 +10,7 @@
  *                         RTS edges and the level left after close)
  *   busy DEV LABEL HIGH   a child holds the port (soft RTS); the probe on
  *                         it must answer -EBUSY without opening it
+ *   check DEV LABEL       fap_port_check_direction while the host echoes
  *   latency DEV LABEL     FTDI latency_timer 1 ms while open, restored
  *   drain DEV LABEL N     soft RTS, one N-byte write while the host stalls
  *                         its side: how long the write (tcdrain) took
@@ -253,6 +254,32 @@ static void latency(const char *dev, const char *label)
            "latency_timer %d ms, %d while open, %d after close", before, during, after);
 }
 
+/* fap ports --check's measurement (fap_port_check_direction) with soft
+ * RTS, while the host end echoes every byte (a transceiver with RX during
+ * TX). The host relays the echo through the pty, so its latency is in the
+ * margin: the check is that a release time is reported for every round. */
+static void direction(const char *dev, const char *label)
+{
+    fap_port *p = open_soft(dev, 1, 0, 0);
+    if (!p)
+        return;
+    printf("CHECK-START %s\n", label);
+    fflush(stdout);
+    char go[16];
+    if (!fgets(go, sizeof go, stdin)) {}   /* the host echoes from now on */
+    static const char pattern[] = "UUUUUUUUUUUUUUUUUUUUUUUUUUUUUU\x0f\xf0";
+    fap_port_check c;
+    int rc = fap_port_check_direction(p, pattern, sizeof pattern - 1, 5, 1000, &c);
+    fap_port_close(p);
+    printf("CHECK-END %s\n", label);
+    char margins[160] = "";
+    for (unsigned i = 0, o = 0; i < c.echoed && o < sizeof margins - 16; i++)
+        o += (unsigned)snprintf(margins + o, sizeof margins - o, " %+lld", (long long)(c.margin_ns[i] / 1000));
+    result(label, "direction_check", rc == 0 && c.rounds == 5 && c.echoed == 5 && c.collisions == 0,
+           "rc %d, %u of %u rounds echoed, %llu collisions, release - last echo (us):%s", rc,
+           c.echoed, c.rounds, (unsigned long long)c.collisions, margins);
+}
+
 int main(int argc, char **argv)
 {
     if (argc < 3)
@@ -263,6 +290,8 @@ int main(int argc, char **argv)
         info(dev, label, strstr(dev, "ttyS") != NULL);
     else if (strcmp(cmd, "trace") == 0 && argc > 6)
         trace(dev, label, atoi(argv[4]), (unsigned)atoi(argv[5]), (unsigned)atoi(argv[6]));
+    else if (strcmp(cmd, "check") == 0)
+        direction(dev, label);
     else if (strcmp(cmd, "latency") == 0)
         latency(dev, label);
     else if (strcmp(cmd, "busy") == 0 && argc > 4) {
