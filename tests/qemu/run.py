@@ -150,19 +150,21 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
     return res
 
 
-def start_qemu(cmd: list[str], work: Path, mon: Path
+def start_qemu(cmd: list[str], work: Path, mon: Path, trace: Path
                ) -> tuple[subprocess.Popen[bytes], Callable[[bytes], str]] | None:
-    """Start QEMU (paused, ``-S``, with ``-monitor unix:mon``) and connect
-    to its monitor: (process, monitor(command) -> answer), or None after
-    printing why. The monitor connects to us (QEMU as the client): no
-    waiting for a socket to appear."""
+    """Start QEMU paused (``-S``) with the console on virtio-console (its
+    stdio: cmd names the virtio-serial bus), the monitor on ``mon`` and the
+    trace log in ``trace``, and connect to the monitor: (process,
+    monitor(command) -> answer), or None after printing why. The monitor
+    connects to us (QEMU as the client): no waiting for a socket to appear."""
+    cmd = cmd + ["-chardev", "stdio,id=con,signal=off", "-device", "virtconsole,chardev=con",
+                 "-monitor", f"unix:{mon}", "-D", str(trace), "-msg", "timestamp=on", "-S"]
     listener = socket.socket(socket.AF_UNIX)
     listener.bind(str(mon))
     listener.listen(1)
     listener.settimeout(15)
     qerr = open(work / "qemu.stderr", "wb")
     q = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=qerr)
-    assert q.stdin and q.stdout
     try:
         ms, _ = listener.accept()
     except socket.timeout:
@@ -220,16 +222,13 @@ def main() -> int:
     a, initrd, trace, mon = suite_setup(__doc__.splitlines()[0])
     t0 = time.monotonic()
     cmd = ["qemu-system-aarch64", "-M", "virt", "-cpu", "cortex-a57", "-smp", "1", "-m", "256",
-           "-nodefaults", "-display", "none", "-no-reboot", "-S",
+           "-nodefaults", "-display", "none", "-no-reboot",
            "-kernel", str(a.kernel), "-initrd", str(initrd),
            "-append", "console=hvc0 quiet panic=-1 rdinit=/init",
            "-serial", "pty",
-           "-device", "virtio-serial-device", "-chardev", "stdio,id=con,signal=off",
-           "-device", "virtconsole,chardev=con",
-           "-monitor", f"unix:{mon}",
-           "-trace", "pl011_write", "-trace", "pl061_set_output",
-           "-D", str(trace), "-msg", "timestamp=on"]
-    started = start_qemu(cmd, a.work, mon)
+           "-device", "virtio-serial-device",
+           "-trace", "pl011_write", "-trace", "pl061_set_output"]
+    started = start_qemu(cmd, a.work, mon, trace)
     if started is None:
         return 1
     q, monitor = started

@@ -189,20 +189,17 @@ def main() -> int:
     a, initrd, trace, mon = suite_setup(__doc__.splitlines()[0], ("--accel", "tcg"))
     t0 = time.monotonic()
     cmd = ["qemu-system-x86_64", "-M", "q35", "-accel", a.accel, "-smp", "1", "-m", "256",
-           "-nodefaults", "-display", "none", "-no-reboot", "-S",
+           "-nodefaults", "-display", "none", "-no-reboot",
            "-kernel", str(a.kernel), "-initrd", str(initrd),
            "-append", "console=hvc0 quiet panic=-1 rdinit=/init 8250.nr_uarts=4",
            "-chardev", "pty,id=serial0", "-device", "isa-serial,chardev=serial0,index=0",
            "-chardev", "pty,id=serial1", "-device", "isa-serial,chardev=serial1,index=1",
            "-chardev", "pty,id=pci0", "-device", "pci-serial,chardev=pci0",
            "-device", "qemu-xhci", "-chardev", "pty,id=usb0", "-device", "usb-serial,chardev=usb0",
-           "-device", "virtio-serial-pci", "-chardev", "stdio,id=con,signal=off",
-           "-device", "virtconsole,chardev=con",
-           "-monitor", f"unix:{mon}",
+           "-device", "virtio-serial-pci",
            "-trace", "serial_write", "-trace", "usb_serial_handle_control",
-           "-trace", "usb_packet_state_change",
-           "-D", str(trace), "-msg", "timestamp=on"]
-    started = start_qemu(cmd, a.work, mon)
+           "-trace", "usb_packet_state_change"]
+    started = start_qemu(cmd, a.work, mon, trace)
     if started is None:
         return 1
     q, monitor = started
