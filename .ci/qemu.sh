@@ -8,3 +8,4 @@ cd "$(dirname "$0")/.."
 start=$(date +%s)
 bash tests/qemu/run.sh
 echo "qemu: OK (PL011 kernel RS-485 suite passed in $(( $(date +%s) - start )) s)"
+bash .ci/qemu_x86.sh   # the 8250 / ftdi_sio direction suite (tests/qemu/x86)

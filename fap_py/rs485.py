@@ -9,6 +9,7 @@ there is one set of defaults, C's.
 from __future__ import annotations
 
 import enum
+import os
 from dataclasses import dataclass
 from typing import Any, Dict, Optional
 
@@ -26,6 +27,7 @@ class RS485Mode(enum.IntEnum):
     KERNEL = lib.FAP_RS485_KERNEL      #: TIOCSRS485: the kernel toggles RTS
     SOFT_RTS = lib.FAP_RS485_SOFT_RTS  #: assert RTS, write, tcdrain(), release RTS
     NONE = lib.FAP_RS485_NONE          #: auto-direction transceiver, USB adapter, pty
+    GPIO = lib.FAP_RS485_GPIO          #: a GPIO line (gpio_chip, gpio_line) is the DE/RE pin
 
     def __str__(self) -> str:
         """The name (``print(node.rs485_mode)`` shows ``NONE``, not ``3``)."""
@@ -46,8 +48,13 @@ class RS485Mode(enum.IntEnum):
 
 
 _INT_FIELDS = ("delay_before_send_us", "delay_after_send_us", "echo_timeout_us",
-               "turnaround_us", "write_timeout_us")
-_BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive")
+               "turnaround_us", "write_timeout_us", "gpio_line")
+# gpio_chip paths handed to C: kept for the life of the process (C copies
+# the path at open, but an options struct may be used long after the RS485
+# that filled it is gone; a machine has a handful of gpiochips)
+_CHIP_PATHS: Dict[bytes, Any] = {}
+_BOOL_FIELDS = ("rts_active_high", "rx_during_tx", "echo_suppression", "exclusive",
+                "low_latency")
 
 
 def c_defaults() -> Dict[str, Any]:
@@ -58,6 +65,7 @@ def c_defaults() -> Dict[str, Any]:
     out: Dict[str, Any] = {"mode": RS485Mode(po.rs485_mode)}
     out.update({name: int(getattr(po, name)) for name in _INT_FIELDS})
     out.update({name: int(getattr(po, name)) for name in _BOOL_FIELDS})
+    out["gpio_chip"] = None if po.gpio_chip == ffi.NULL else ffi.string(po.gpio_chip).decode()
     return out
 
 
@@ -92,6 +100,10 @@ class RS485:
     turnaround_us: Optional[int] = None          #: quiet time after the last byte received
     exclusive: Optional[bool] = None             #: TIOCEXCL + flock: refuse a second opener
     write_timeout_us: Optional[int] = None       #: longest write (0 = C's rule)
+    gpio_chip: Optional[str] = None              #: GPIO mode: DE/RE line's /dev/gpiochipN
+    gpio_line: Optional[int] = None              #: GPIO mode: line offset on gpio_chip
+    low_latency: Optional[bool] = None           #: FTDI latency_timer 1 ms while open
+                                                 #: (C default: in soft-RTS and GPIO modes)
 
     def __post_init__(self) -> None:
         if self.mode is not None:
@@ -110,6 +122,13 @@ class RS485:
         for name in _BOOL_FIELDS:
             if getattr(self, name) is not None and not isinstance(getattr(self, name), bool):
                 raise InvalidTypeError(f"RS485.{name} must be a bool or None")
+        if self.gpio_chip is not None:
+            if not isinstance(self.gpio_chip, (str, os.PathLike)):
+                raise InvalidTypeError(f"RS485.gpio_chip must be a path, not {self.gpio_chip!r}")
+            if not os.fspath(self.gpio_chip) or "\0" in os.fspath(self.gpio_chip):
+                raise InvalidValueError("RS485.gpio_chip must be a non-empty path")
+        if self.mode == RS485Mode.GPIO and self.gpio_chip is None:
+            raise InvalidValueError("RS485.mode GPIO needs RS485.gpio_chip (e.g. '/dev/gpiochip0')")
 
     def apply_to(self, po: Any, baudrate: int) -> Any:
         """Set ``baudrate`` and the fields given (not None) in a cffi
@@ -129,6 +148,11 @@ class RS485:
         for name in _BOOL_FIELDS:
             if getattr(self, name) is not None:
                 setattr(po, name, int(getattr(self, name)))
+        if self.gpio_chip is not None:
+            path = os.fsencode(self.gpio_chip)
+            if path not in _CHIP_PATHS:
+                _CHIP_PATHS[path] = ffi.new("char[]", path)
+            po.gpio_chip = _CHIP_PATHS[path]
         return po
 
 

@@ -34,7 +34,9 @@ typedef enum fap_rs485_mode {
     FAP_RS485_AUTO = 0,     /* try KERNEL, fall back to NONE; see fap_port_mode() */
     FAP_RS485_KERNEL = 1,   /* TIOCSRS485 with SER_RS485_ENABLED, kernel toggles RTS */
     FAP_RS485_SOFT_RTS = 2, /* assert RTS, write, tcdrain(), release RTS */
-    FAP_RS485_NONE = 3      /* auto-direction transceiver, USB adapter, pty */
+    FAP_RS485_NONE = 3,     /* auto-direction transceiver, USB adapter, pty */
+    FAP_RS485_GPIO = 4      /* a GPIO line (gpio_chip, gpio_line) is the DE/RE
+                               pin: asserted, write, tcdrain(), released */
 } fap_rs485_mode;
 
 /* "Not given": keep what the device's own RS-485 config (TIOCGRS485: the
@@ -46,7 +48,7 @@ typedef enum fap_rs485_mode {
 typedef struct fap_port_options {
     unsigned baud;                 /* any standard termios rate; default 115200 */
     fap_rs485_mode rs485_mode;     /* default FAP_RS485_AUTO */
-    int rts_active_high;           /* RTS pin level while sending, in every mode:
+    int rts_active_high;           /* RTS (GPIO mode: DE) pin level while sending, in every mode:
                                       1 high, 0 low, FAP_PORT_KEEP (default) the
                                       device's config, else high */
     unsigned delay_before_send_us; /* RTS to the sending level -> first bit (kernel:
@@ -63,6 +65,17 @@ typedef struct fap_port_options {
     unsigned write_timeout_us;     /* longest one fap_port_write may take to hand all
                                       bytes to the driver (-ETIMEDOUT after);
                                       0 = twice the frame's wire time + 1 s */
+    /* Added after write_timeout_us (appended: the fields above keep their
+     * offsets). FAP_RS485_GPIO: the GPIO character device and line offset
+     * of the DE/RE pin; its level while sending is rts_active_high (KEEP =
+     * high), its delays delay_before/after_send_us (KEEP = 0), as for soft
+     * RTS. The path is copied at open. Default NULL / 0. */
+    const char *gpio_chip;         /* e.g. "/dev/gpiochip0" */
+    unsigned gpio_line;            /* line offset on that chip */
+    int low_latency;               /* a USB adapter's latency_timer (FTDI, sysfs)
+                                      at 1 ms while open, the old value back at
+                                      close: 1 always, 0 never, FAP_PORT_KEEP
+                                      (default) in soft-RTS and GPIO modes */
 } fap_port_options;
 
 typedef struct fap_port_stats {
@@ -84,7 +97,9 @@ void fap_port_options_init(fap_port_options *o);
  * Errors: -errno of open/ioctl/tcsetattr; -EBUSY if another process holds
  * it; -EINVAL for an unsupported baud rate; an explicit KERNEL or SOFT_RTS
  * mode that the device refuses fails with that ioctl's errno (-ENOTTY on a
- * pty) and nothing stays open. */
+ * pty) and nothing stays open. GPIO mode: -EINVAL without gpio_chip, else
+ * the errno of opening the chip or requesting the line (-ENOENT, -EBUSY
+ * when another consumer holds the line). */
 int fap_port_open(fap_port **out, const char *path, const fap_port_options *o);
 
 /* Close the port (restores the RS-485 config the port had before, if we
@@ -175,15 +190,20 @@ int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
 unsigned fap_port_baud_rate(size_t i);
 
 /* What a device is set to now, without changing it (for port listings).
- * Opens path briefly (non-exclusive, O_NONBLOCK; the usual tty open side
- * effect of raising DTR/RTS applies), reads termios and TIOCGRS485, writes
+ * First, without opening it: if another process holds the port (the
+ * flock fap_port_open takes, as /proc/locks lists it, or a UUCP lock file
+ * /var/lock/LCK..name with a live pid), returns -EBUSY and never opens
+ * it (an open would raise RTS under that program). Otherwise opens path
+ * briefly (non-exclusive, O_NONBLOCK; the usual tty open side effect of
+ * raising DTR/RTS applies), reads termios and TIOCGRS485, writes
  * the same RS-485 config back with TIOCSRS485 (a no-op where it works),
  * closes. Fills *baud (0 if not a standard rate) and, when the driver
  * answers TIOCGRS485, the RS-485 flags and delays. Returns 0 if the
  * kernel can switch RS-485 mode on this port, 1 if the driver reports an
  * RS-485 config but refuses to set one (a plain 16550), -ENOTTY if the
- * driver has no RS-485 (pty, most USB adapters), or the -errno of
- * open/tcgetattr. NULL pointers are skipped. */
+ * driver has no RS-485 (pty, most USB adapters), -EBUSY (held, see
+ * above), or the -errno of stat, reading /proc/locks, open or tcgetattr.
+ * NULL pointers are skipped. */
 int fap_port_probe(const char *path, unsigned *baud, uint32_t *rs485_flags,
                    uint32_t *delay_before_ms, uint32_t *delay_after_ms);
 
@@ -202,6 +222,27 @@ int fap_port_rts_settings(const fap_port *p, int *active_high,
  * ends a blocked call at once. -EINVAL for a NULL cancel_fd. */
 int fap_port_open_cancellable(fap_port **out, const char *path, const fap_port_options *o,
                               const int *cancel_fd);
+
+/* Self-verifying direction control, on a line whose transceiver echoes
+ * (RX during TX). Each of `rounds` rounds drops pending input, writes the
+ * n-byte pattern with fap_port_write (soft RTS / GPIO: it returns after the
+ * line was released; other modes after tcdrain) while a second thread
+ * reads the echo until timeout_ms; the round's margin is the write's return
+ * minus the moment the last echoed byte was read (CLOCK_MONOTONIC ns):
+ * negative = the port let go before its last byte came back (tcdrain does
+ * not cover the adapter). The read side's own latency (FIFO timeout, USB
+ * polling) is in the margin. Needs echo_suppression off. Returns 0, or
+ * -EINVAL (NULL, n 0, rounds > FAP_PORT_CHECK_MAX_ROUNDS, echo
+ * suppression on), or the first error of the discard or the write. */
+#define FAP_PORT_CHECK_MAX_ROUNDS 16
+typedef struct fap_port_check {
+    unsigned rounds;              /* rounds run */
+    unsigned echoed;              /* rounds whose whole pattern came back */
+    uint64_t collisions;          /* echoed bytes that differ from those sent */
+    int64_t margin_ns[FAP_PORT_CHECK_MAX_ROUNDS];   /* per echoed round */
+} fap_port_check;
+int fap_port_check_direction(fap_port *p, const void *pattern, size_t n, unsigned rounds,
+                             unsigned timeout_ms, fap_port_check *out);
 
 #ifdef __cplusplus
 }

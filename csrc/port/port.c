@@ -25,6 +25,7 @@ void fap_port_options_init(fap_port_options *o)
     o->delay_before_send_us = FAP_PORT_KEEP_DELAY;
     o->delay_after_send_us = FAP_PORT_KEEP_DELAY;
     o->exclusive = 1;
+    o->low_latency = FAP_PORT_KEEP;
 }
 
 static int validate_options(const fap_port_options *in, fap_port_options *out)
@@ -42,6 +43,10 @@ static int validate_options(const fap_port_options *in, fap_port_options *out)
     case FAP_RS485_SOFT_RTS:
     case FAP_RS485_NONE:
         break;
+    case FAP_RS485_GPIO:
+        if (!out->gpio_chip || !out->gpio_chip[0])
+            return -EINVAL;
+        break;
     default:
         return -EINVAL;
     }
@@ -51,6 +56,8 @@ static int validate_options(const fap_port_options *in, fap_port_options *out)
         out->rx_during_tx = out->rx_during_tx != 0;
     out->echo_suppression = out->echo_suppression != 0;
     out->exclusive = out->exclusive != 0;
+    if (out->low_latency != FAP_PORT_KEEP)
+        out->low_latency = out->low_latency != 0;
     return 0;
 }
 
@@ -95,6 +102,7 @@ static void port_free(fap_port *p)
     pthread_mutex_destroy(&p->rx_mu);
     pthread_mutex_destroy(&p->tx_mu);
     free(p->path);
+    free(p->gpio_chip);
     if (p->be->destroy)
         p->be->destroy(p->ctx);
     free(p);
@@ -111,7 +119,7 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
         return -ENOMEM;
     p->be = be;
     p->ctx = ctx;
-    p->conn.fd = -1;
+    p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     p->poll_fd = p->pend_efd = -1;
     pthread_mutex_init(&p->tx_mu, NULL);
     pthread_mutex_init(&p->rx_mu, NULL);
@@ -123,10 +131,16 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
         return err;
     }
     p->path = strdup(path);
+    int nomem = !p->path;
+    if (p->opt.gpio_chip) {   /* ours: reopen uses it after the caller's is gone */
+        p->gpio_chip = strdup(p->opt.gpio_chip);
+        nomem |= !p->gpio_chip;
+        p->opt.gpio_chip = p->gpio_chip;
+    }
     p->poll_fd = epoll_create1(EPOLL_CLOEXEC);
     p->pend_efd = eventfd(0, EFD_NONBLOCK | EFD_CLOEXEC);
-    if (!p->path || p->poll_fd < 0 || p->pend_efd < 0) {
-        err = p->path ? -errno : -ENOMEM;
+    if (nomem || p->poll_fd < 0 || p->pend_efd < 0) {
+        err = nomem ? -ENOMEM : -errno;
         port_free(p);
         return err;
     }
@@ -170,7 +184,7 @@ int fap_port_reopen(fap_port *p)
     while (p->busy > 0)
         pthread_cond_wait(&p->idle_cv, &p->st_mu);
     lf_port_conn old = p->conn;
-    p->conn.fd = -1;
+    p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;   /* old owns them now */
     if (!p->gone_err)
         p->gone_err = -ENODEV;   /* between close and open: no device */
     pthread_mutex_unlock(&p->st_mu);
@@ -224,7 +238,8 @@ void lf_port_release(fap_port *p)
          * node is free for the replug. Stay busy until it is closed, so a
          * reopen cannot race with this close (its flock would see ours). */
         dead = p->conn;
-        p->conn.fd = -1;
+        dead.tio_restore = 0;   /* gone: no pin or termios to put back */
+        p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     } else {
         p->busy--;
         if (p->busy == 0)

@@ -20,7 +20,8 @@ typedef struct lf_port_backend {
     int (*open)(void *ctx, const char *path, int flags);
     int (*close)(void *ctx, int fd);
     /* request is one of TIOCEXCL, TIOCNXCL, TIOCGRS485, TIOCSRS485,
-     * TIOCMBIS, TIOCMBIC; arg as for ioctl(2) (NULL for EXCL/NXCL). */
+     * TIOCMBIS, TIOCMBIC, TIOCSERGETLSR; arg as for ioctl(2) (NULL for
+     * EXCL/NXCL). */
     int (*ioctl)(void *ctx, int fd, unsigned long request, void *arg);
     int (*tcgetattr)(void *ctx, int fd, struct termios *t);
     int (*tcsetattr)(void *ctx, int fd, int action, const struct termios *t);
@@ -39,9 +40,22 @@ typedef struct lf_port_backend {
     /* Optional: the clock rx pacing measures the link's pace with
      * (CLOCK_MONOTONIC ns); NULL = lf_now_ns. A fake wire runs its own. */
     int64_t (*now)(void *ctx);
+    /* FAP_RS485_GPIO: request line of the gpiochip device chip as an
+     * output at value (0/1): the line's fd, or a negative errno; set it:
+     * 0 or a negative errno. The line fd is closed with close(). NULL in
+     * a backend without GPIO: that mode then fails with -EOPNOTSUPP. */
+    int (*gpio_open)(void *ctx, const char *chip, unsigned line, int value);
+    int (*gpio_set)(void *ctx, int line_fd, int value);
+    /* Where sysfs is (USB latency_timer); NULL = "/sys". Tests point it
+     * at a fake tree. */
+    const char *sysfs_root;
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
+
+/* The posix backend's GPIO functions (port_gpio.c, uAPI v2 ioctls). */
+int lf_port_gpio_open(void *ctx, const char *chip, unsigned line, int value);
+int lf_port_gpio_set(void *ctx, int line_fd, int value);
 
 /* fap_port_open with an explicit backend (tests). be must outlive the port;
  * ctx is passed back to every backend call. */

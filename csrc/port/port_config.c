@@ -49,8 +49,10 @@ unsigned fap_port_baud_rate(size_t i)
 
 /* Raw 8N1, no flow control. VMIN=1 VTIME=0 with O_NONBLOCK: an empty queue
  * reads as EAGAIN (with VMIN=0 n_tty returns 0, indistinguishable from a
- * hang-up), and the deadline is ours, via poll. */
-static int configure_termios(const fap_port *p, int fd)
+ * hang-up), and the deadline is ours, via poll. Soft RTS also clears
+ * HUPCL: the hang-up at close drops RTS, the transmit level of an
+ * active-high transceiver (see lf_port_conn_close). */
+static int configure_termios(const fap_port *p, int fd, lf_port_conn *c)
 {
     speed_t speed;
     if (lf_port_baud_to_speed(p->opt.baud, &speed) < 0)
@@ -58,6 +60,11 @@ static int configure_termios(const fap_port *p, int fd)
     struct termios t;
     if (p->be->tcgetattr(p->ctx, fd, &t) < 0)
         return -errno;
+    if (c->mode == FAP_RS485_SOFT_RTS) {
+        c->tio_saved = t;
+        c->tio_restore = 1;
+        t.c_cflag &= ~(tcflag_t)HUPCL;
+    }
     cfmakeraw(&t);
     t.c_cflag &= ~(tcflag_t)(CSIZE | PARENB | CSTOPB | CRTSCTS);
     t.c_cflag |= CS8 | CLOCAL | CREAD;
@@ -177,8 +184,30 @@ static int soft_rts_enable(const fap_port *p, int fd, lf_port_conn *c)
     return lf_port_rts(p, fd, c, 0);
 }
 
+/* GPIO DE/RE: the line requested as an output already at the receive
+ * level; polarity and delays as soft RTS takes them (no device config to
+ * fall back on: high, 0, 0). */
+static int gpio_enable(const fap_port *p, lf_port_conn *c)
+{
+    if (!p->be->gpio_open || !p->be->gpio_set)
+        return -EOPNOTSUPP;
+    c->rts_active_high = p->opt.rts_active_high != FAP_PORT_KEEP ? p->opt.rts_active_high : 1;
+    c->delay_before_us = p->opt.delay_before_send_us != FAP_PORT_KEEP_DELAY
+                             ? p->opt.delay_before_send_us : 0;
+    c->delay_after_us = p->opt.delay_after_send_us != FAP_PORT_KEEP_DELAY
+                            ? p->opt.delay_after_send_us : 0;
+    int fd = p->be->gpio_open(p->ctx, p->opt.gpio_chip, p->opt.gpio_line, !c->rts_active_high);
+    if (fd < 0)
+        return fd;
+    c->gpio_fd = fd;
+    return 0;
+}
+
 int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending)
 {
+    if (c->gpio_fd >= 0)   /* the DE line is a GPIO: its level is the pin's */
+        return p->be->gpio_set(p->ctx, c->gpio_fd, sending ? c->rts_active_high
+                                                           : !c->rts_active_high);
     int bits = TIOCM_RTS;
     /* The pin level: high while sending for an active-high transceiver.
      * The modem-control RTS bit is the complement of the pin on a UART
@@ -207,6 +236,11 @@ static int setup_direction(const fap_port *p, int fd, lf_port_conn *c)
         if (err == 0)
             c->mode = FAP_RS485_SOFT_RTS;
         return err;
+    case FAP_RS485_GPIO:
+        err = gpio_enable(p, c);
+        if (err == 0)
+            c->mode = FAP_RS485_GPIO;
+        return err;
     case FAP_RS485_AUTO:
         err = kernel_rs485_enable(p, fd, c);
         if (err == 0) {
@@ -226,6 +260,8 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
 {
     memset(c, 0, sizeof *c);
     c->fd = -1;
+    c->gpio_fd = -1;
+    c->latency_saved = -1;
     int fd = p->be->open(p->ctx, p->path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
     if (fd < 0)
         return -errno;
@@ -250,9 +286,10 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
     err = setup_direction(p, fd, c);
     if (err)
         goto fail;
-    err = configure_termios(p, fd);
+    err = configure_termios(p, fd, c);
     if (err)
         goto fail;
+    lf_port_latency_low(p, c);
     /* Bytes that piled up before we attached are not for us. */
     if (p->be->tcflush(p->ctx, fd, TCIOFLUSH) < 0) {
         err = -errno;
@@ -266,9 +303,30 @@ fail:
 
 void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
 {
+    if (c->gpio_fd >= 0) {   /* the DE line to the receive level, then free it */
+        (void)lf_port_rts(p, c->fd, c, 0);
+        (void)p->be->close(p->ctx, c->gpio_fd);
+        c->gpio_fd = -1;
+    }
+    lf_port_latency_restore(c);
     if (c->fd < 0)
         return;
     /* Best effort: on a vanished device these fail, and that is fine. */
+    if (c->tio_restore) {
+        /* Soft RTS: the pin to the receive level, then the termios the port
+         * had, except the bits that would move RTS: HUPCL stays cleared (the
+         * close would drop RTS), and no CRTSCTS (the kernel would drive RTS)
+         * or B0 (drops it). TCSANOW is safe: every soft-RTS write drained. */
+        (void)lf_port_rts(p, c->fd, c, 0);
+        struct termios t = c->tio_saved;
+        t.c_cflag &= ~(tcflag_t)(HUPCL | CRTSCTS);
+        if (cfgetospeed(&t) == B0) {
+            speed_t speed;
+            if (lf_port_baud_to_speed(p->opt.baud, &speed) == 0)
+                (void)cfsetospeed(&t, speed);
+        }
+        (void)p->be->tcsetattr(p->ctx, c->fd, TCSANOW, &t);
+    }
     if (c->rs485_restore)
         (void)p->be->ioctl(p->ctx, c->fd, TIOCSRS485, &c->rs485_saved);
     if (c->excl_set)
@@ -276,5 +334,6 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
     (void)p->be->close(p->ctx, c->fd);   /* also drops the flock */
     c->fd = -1;
     c->rs485_restore = 0;
+    c->tio_restore = 0;
     c->excl_set = 0;
 }

@@ -11,6 +11,7 @@ const char *fap_rs485_mode_name(fap_rs485_mode m)
     case FAP_RS485_KERNEL: return "kernel";
     case FAP_RS485_SOFT_RTS: return "soft-rts";
     case FAP_RS485_NONE: return "none";
+    case FAP_RS485_GPIO: return "gpio";
     }
     return "unknown";
 }

@@ -21,6 +21,11 @@ typedef struct lf_port_conn {
     int rs485_restore;            /* we changed the RS-485 config */
     struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
     struct serial_rs485 rs485_active;  /* TIOCGRS485 after our TIOCSRS485 */
+    int gpio_fd;                  /* GPIO mode: the DE line's fd, else -1 */
+    int latency_saved;            /* USB latency_timer (ms) to restore, -1 none */
+    char latency_file[160];       /* its sysfs file */
+    int tio_restore;              /* soft RTS: restore tio_saved (HUPCL off) at close */
+    struct termios tio_saved;     /* termios before we configured the port */
     /* Resolved line settings (options, else the device's config). */
     int rts_active_high;          /* pin high while sending */
     unsigned delay_before_us, delay_after_us;
@@ -31,6 +36,7 @@ struct fap_port {
     const lf_port_backend *be;
     void *ctx;
     char *path;
+    char *gpio_chip;              /* opt.gpio_chip points here (a copy) */
     fap_port_options opt;         /* validated copy, used again by reopen */
 
     /* Lock order: tx_mu, then rx_mu, then st_mu. */
@@ -69,8 +75,19 @@ unsigned lf_port_speed_to_baud(speed_t speed);   /* 0 if not in the table */
 int lf_port_conn_open(const fap_port *p, lf_port_conn *c);
 /* Undo lf_port_conn_open (restore RS-485, clear TIOCEXCL, close). */
 void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
-/* Soft RTS: drive the RTS pin to c's sending (1) or receive (0) level. */
+/* Soft RTS / GPIO: drive the RTS pin (GPIO mode: the DE line) to c's
+ * sending (1) or receive (0) level. */
 int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending);
+
+/* port_latency.c: set a USB adapter's latency_timer to 1 ms while open
+ * (per p->opt.low_latency and c->mode), and put the old value back. */
+void lf_port_latency_low(const fap_port *p, lf_port_conn *c);
+void lf_port_latency_restore(lf_port_conn *c);
+
+/* port_probe.c: does another process hold path (a lock on its inode in
+ * locks_file, /proc/locks' format; or a live UUCP LCK..name in uucp_dir,
+ * NULL = skip)? 1 yes, 0 no, negative errno (stat, reading locks_file). */
+int lf_port_held_elsewhere(const char *path, const char *locks_file, const char *uucp_dir);
 
 /* port.c: I/O calls borrow the fd; a vanished device is closed by the
  * last borrower, so an fd number is never reused under a running call. */

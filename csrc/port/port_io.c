@@ -6,6 +6,7 @@
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 
 #include "common/mono_clock.h"
 
@@ -222,6 +223,20 @@ static int drain(fap_port *p, int fd)
     return 0;
 }
 
+/* tcdrain() returns when the driver thinks the transmitter is empty
+ * (serial_core: its tx_empty). Where the driver also reports the line
+ * status register (TIOCSERGETLSR: 8250, PL011), wait for TEMT there too
+ * before the direction line drops; bounded by 3 character times + 1 ms. */
+static void wait_temt(fap_port *p, int fd)
+{
+    int64_t ct = lf_char_time_ns(p->opt.baud);
+    int64_t end = lf_now_ns() + 3 * ct + LF_NS_PER_MS;
+    unsigned lsr = 0;
+    while (p->be->ioctl(p->ctx, fd, TIOCSERGETLSR, &lsr) == 0 && !(lsr & TIOCSER_TEMT) &&
+           lf_now_ns() < end)
+        p->be->sleep_until(p->ctx, lf_now_ns() + ct / 2);
+}
+
 static void wait_turnaround(fap_port *p)
 {
     if (!p->opt.turnaround_us)
@@ -268,6 +283,7 @@ static ssize_t port_write(fap_port *p, const void *buf, size_t n, int lazy_drain
     }
     wait_turnaround(p);
 
+    int switched = mode == FAP_RS485_SOFT_RTS || mode == FAP_RS485_GPIO;   /* we drive DE */
     echo_state es = {.sent = buf, .n = n};
     int echo = p->opt.echo_suppression;
     size_t written = 0;
@@ -277,16 +293,18 @@ static ssize_t port_write(fap_port *p, const void *buf, size_t n, int lazy_drain
         if (err)
             goto out;
     }
-    if (mode == FAP_RS485_SOFT_RTS) {
+    if (switched) {
         err = lf_port_rts(p, fd, &p->conn, 1);   /* conn is stable under tx_mu */
         if (err)
             goto out;   /* nothing sent */
         delay_us(p, p->conn.delay_before_us);
     }
     err = write_all(p, fd, buf, n, &written, echo ? &es : NULL);
-    if (!err && (!lazy_drain || echo || mode == FAP_RS485_SOFT_RTS))
+    if (!err && (!lazy_drain || echo || switched))
         err = drain(p, fd);   /* the last stop bit has left the UART */
-    if (mode == FAP_RS485_SOFT_RTS) {
+    if (!err && switched)
+        wait_temt(p, fd);
+    if (switched) {
         if (!err)
             delay_us(p, p->conn.delay_after_us);
         int rerr = lf_port_rts(p, fd, &p->conn, 0);   /* release even after an error */

@@ -590,7 +590,8 @@ int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o)
     if (!c)
         return -ENOMEM;
     int err = lf_port_url_parse(url, &c->url);
-    if (!err && o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS))
+    if (!err && o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS
+                      || o->rs485_mode == FAP_RS485_GPIO))
         err = FAP_PORT_ENET485;
     if (err) {
         free(c);

@@ -94,4 +94,6 @@ const lf_port_backend lf_port_posix_backend = {
     .write = px_write,
     .poll = px_poll,
     .sleep_until = px_sleep_until,
+    .gpio_open = lf_port_gpio_open,   /* port_gpio.c */
+    .gpio_set = lf_port_gpio_set,
 };

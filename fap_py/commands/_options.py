@@ -49,7 +49,7 @@ EXIT_CODES: Dict[int, str] = {
     EXIT_INTERRUPTED: "interrupted (Ctrl-C)",
 }
 
-RS485_CHOICES = ("auto", "kernel", "soft", "none")
+RS485_CHOICES = ("auto", "kernel", "soft", "none", "gpio")
 
 log = logging.getLogger("fap_py.cli")
 
@@ -206,13 +206,19 @@ def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[
     g.add_argument("--rs485", choices=RS485_CHOICES, default=rs485_default,
                    help="transmitter switching: kernel RS-485 ioctl (auto falls back to none "
                    "where the driver has none), soft = RTS toggled by the library, "
-                   "none = auto-direction transceiver")
+                   "none = auto-direction transceiver, gpio = a GPIO line (--gpio-chip, "
+                   "--gpio-line) is the DE/RE pin")
     g.add_argument("--rts-before", metavar="MS", type=seconds, default=0.0,
                    help="RTS asserted -> first bit, milliseconds")
     g.add_argument("--rts-after", metavar="MS", type=seconds, default=0.0,
                    help="last bit -> RTS released, milliseconds")
     g.add_argument("--rts-polarity", choices=("high", "low"), default="high",
-                   help="RTS level while sending")
+                   help="RTS level while sending (--rs485 gpio: the DE line's)")
+    g.add_argument("--gpio-chip", metavar="PATH",
+                   help="--rs485 gpio: the GPIO character device of the DE/RE line "
+                   "(e.g. /dev/gpiochip0)")
+    g.add_argument("--gpio-line", metavar="N", type=count, default=0,
+                   help="--rs485 gpio: the line offset on --gpio-chip")
     return g
 
 
@@ -260,7 +266,13 @@ def rs485_from_args(args: argparse.Namespace, **extra: Any) -> Any:
         extra.setdefault("echo_suppression", True)
 
     mode = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
-            "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE}[args.rs485]
+            "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE,
+            "gpio": RS485Mode.GPIO}[args.rs485]
+    chip = getattr(args, "gpio_chip", None)
+    if mode == RS485Mode.GPIO and not chip:
+        raise UsageError("--rs485 gpio needs --gpio-chip PATH (and --gpio-line N)")
+    if chip:
+        extra.update(gpio_chip=chip, gpio_line=args.gpio_line)
     return RS485(mode=mode, rts_active_high=args.rts_polarity == "high",
                  delay_before_send_us=round(args.rts_before * 1000),
                  delay_after_send_us=round(args.rts_after * 1000), **extra)

@@ -1,10 +1,12 @@
 """``fap ports``: the machine's serial ports and whether each does kernel RS-485.
 
-Ports come from pyserial's ``list_ports``; each one is then probed through
-the C port layer (``fap_port_probe``: termios, ``TIOCGRS485`` and the same
-config written back with ``TIOCSRS485``, nothing changed). A driver
-without RS-485 answers ENOTTY ("no"); a plain 16550 reports a config but
-cannot set one ("read-only").
+Ports come from sysfs (:mod:`fap_py.sysfs_ports`: driver, USB VID:PID,
+serial, ``/dev/serial/by-id`` name, FTDI latency timer); each one is then
+probed through the C port layer (``fap_port_probe``: termios,
+``TIOCGRS485`` and the same config written back with ``TIOCSRS485``,
+nothing changed). A driver without RS-485 answers ENOTTY ("no"); a plain
+16550 reports a config but cannot set one ("read-only"); a port another
+program holds is "busy" and never opened (an open raises RTS under it).
 """
 from __future__ import annotations
 
@@ -13,7 +15,12 @@ import errno
 import os
 from typing import Any, Dict, List
 
-from ._options import add_command, add_output_options, emit
+from .. import sysfs_ports
+from ._options import BusError, add_command, add_output_options, baud, count, emit, seconds
+
+#: where ports are looked up (tests point these at a fake tree)
+SYSFS_ROOT = "/sys"
+DEV_ROOT = "/dev"
 
 # linux/serial.h SER_RS485_* bits: the kernel ABI, named for the listing
 _RS485_FLAGS = ((1 << 0, "enabled"), (1 << 1, "rts_on_send"), (1 << 2, "rts_after_send"),
@@ -22,13 +29,25 @@ _RS485_FLAGS = ((1 << 0, "enabled"), (1 << 1, "rts_on_send"), (1 << 2, "rts_afte
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "ports", help="list serial ports, their RS-485 support and configuration",
-                    example="fap ports\nfap ports --all --json\nfap ports --device /dev/pts/3")
+                    example="fap ports\nfap ports --all --json\nfap ports --device /dev/pts/3\n"
+                    "fap ports --check /dev/ttyS0 --baud 9600")
     p.add_argument("--all", action="store_true",
-                   help="also the ports pyserial lists without a known device (ttyS* with no UART)")
+                   help="also serial_core slots without a UART (sysfs type 0: empty ttyS* slots)")
     p.add_argument("--device", metavar="PATH", action="append",
                    help="probe this path too (e.g. a pty of `fap bus`); repeatable")
     p.add_argument("--no-probe", action="store_true",
                    help="do not open the ports (opening a tty raises DTR/RTS)")
+    c = p.add_argument_group("direction check (--check)")
+    c.add_argument("--check", metavar="PATH",
+                   help="time the release of the direction line against the transceiver's echo "
+                   "of a test pattern on PATH, and recommend a mode")
+    c.add_argument("--baud", metavar="N", type=baud, default=115200, help="--check: baud rate")
+    c.add_argument("--rs485", choices=("soft", "none"), default="soft",
+                   help="--check: the mode to time (soft falls back to none on a port "
+                   "without an RTS line)")
+    c.add_argument("--rts-after", metavar="MS", type=seconds, default=0.0,
+                   help="--check: last bit -> RTS released, milliseconds")
+    c.add_argument("--rounds", metavar="N", type=count, default=5, help="--check: patterns sent")
     add_output_options(p)
     p.set_defaults(func=run)
 
@@ -51,24 +70,63 @@ def probe(path: str) -> Dict[str, Any]:
                     rs485_flags=names, rts_before_ms=int(before[0]), rts_after_ms=int(after[0]))
     elif r == -errno.ENOTTY:
         info["rs485"] = "no"
+    elif r == -errno.EBUSY:
+        info["rs485"] = "busy"   # held by another program: not opened
     else:
         info.update(rs485="unknown", error=os.strerror(-r))
     return info
 
 
-def run(args: argparse.Namespace) -> int:
-    from serial.tools import list_ports
+def check(args: argparse.Namespace) -> int:
+    """``--check PATH``: exit 0 when the release follows the last echoed
+    byte in every round, 1 when it does not (or nothing came back)."""
+    from ..direction_check import measure
+    from ..errors import PortError
+    from ..rs485 import RS485, RS485Mode
 
+    state = probe(args.check)
+    if state.get("rs485") == "busy":
+        raise BusError(f"{args.check}: busy: held by another program (not opened)")
+    mode = RS485Mode.SOFT_RTS if args.rs485 == "soft" else RS485Mode.NONE
+    line = RS485(mode=mode, delay_after_send_us=round(args.rts_after * 1000))
+    try:
+        res = measure(args.check, args.baud, line, rounds=args.rounds,
+                      kernel_rs485=state.get("rs485") == "yes")
+    except PortError as exc:
+        if exc.errno != errno.ENOTTY or mode != RS485Mode.SOFT_RTS:
+            raise
+        res = measure(args.check, args.baud, RS485(mode=RS485Mode.NONE), rounds=args.rounds,
+                      kernel_rs485=False)   # no RTS line here (a pty): time the drain only
+    row = {"event": "check", "device": res.device, "mode": res.mode, "rounds": res.rounds,
+           "echoed": res.echoed, "collisions": res.collisions, "release_us": res.release_us,
+           "margins_us": list(res.margins_us), "recommend": res.recommend,
+           "warnings": list(res.warnings)}
+    if res.margins_us:
+        med = res.release_us or 0
+        text = (f"{res.device}: mode {res.mode}, line released {abs(med)} us "
+                f"{'after' if med >= 0 else 'before'} the last echoed byte (median of "
+                f"{len(res.margins_us)}; {min(res.margins_us)}..{max(res.margins_us)} us, + = after); "
+                f"recommended mode: {res.recommend}")
+    else:
+        text = f"{res.device}: mode {res.mode}, no echo; recommended mode: {res.recommend}"
+    emit(args, row, "\n".join([text] + [f"  warning: {w}" for w in res.warnings]))
+    return 1 if res.warnings else 0
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.check:
+        return check(args)
     rows: List[Dict[str, Any]] = []
     seen = set()
-    for p in sorted(list_ports.comports(include_links=False), key=lambda p: p.device):
-        if not args.all and p.hwid in ("n/a", None) and p.device.startswith("/dev/ttyS"):
-            continue   # legacy 8250 slots without a UART behind them
-        rows.append({"device": p.device, "description": p.description, "hwid": p.hwid})
-        seen.add(p.device)
+    for port in sysfs_ports.list_ports(SYSFS_ROOT, DEV_ROOT, include_empty=args.all):
+        rows.append({"device": port.device, "description": port.description,
+                     "driver": port.driver, "uart_type": port.uart_type,
+                     "vid_pid": port.vid_pid, "serial": port.serial, "by_id": port.by_id,
+                     "latency_timer_ms": port.latency_timer_ms})
+        seen.add(port.device)
     for path in args.device or ():
         if path not in seen:
-            rows.append({"device": path, "description": "given with --device", "hwid": "n/a"})
+            rows.append({"device": path, "description": "given with --device"})
     for row in rows:
         if not args.no_probe:
             row.update(probe(row["device"]))
@@ -80,6 +138,13 @@ def run(args: argparse.Namespace) -> int:
 
 def _human(row: Dict[str, Any]) -> str:
     text = f"{row['device']:<16} {row['description']}"
+    extra = [f"{k} {row[f]}" for k, f in (("driver", "driver"), ("usb", "vid_pid"),
+                                          ("serial", "serial"), ("by-id", "by_id"))
+             if row.get(f)]
+    if row.get("latency_timer_ms") is not None:
+        extra.append(f"latency timer {row['latency_timer_ms']} ms")
+    if extra:
+        text += f" ({', '.join(extra)})"
     rs = row.get("rs485")
     if rs in ("yes", "read-only"):
         state = "enabled" if row["rs485_enabled"] else "disabled"
@@ -88,6 +153,8 @@ def _human(row: Dict[str, Any]) -> str:
                  f"RTS delays {row['rts_before_ms']}/{row['rts_after_ms']} ms)")
     elif rs == "no":
         text += "  | RS-485: no kernel support (ENOTTY)"
+    elif rs == "busy":
+        text += "  | busy: held by another program (not opened)"
     elif rs == "unknown":
         text += f"  | RS-485: unknown ({row['error']})"
     if row.get("baud"):

@@ -10,18 +10,24 @@
  * (opened only while no fap_port is open: every open of a tty raises RTS). */
 #include <errno.h>
 #include <fcntl.h>
+#include <linux/gpio.h>
 #include <linux/serial.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/wait.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "fap_port.h"
 
 static const char *dev = "/dev/ttyAMA0";
+/* GPIO mode: the PL061 beside the PL011; line 1 is free (3 is the virt
+ * machine's power button). run.py's GPIO_LINE must match. */
+static const char *gpio_chip = "/dev/gpiochip0";
+enum { GPIO_LINE = 1 };
 static int failures;
 
 static void result(const char *name, int ok, const char *fmt, ...)
@@ -131,6 +137,10 @@ static fap_port *open_port(fap_rs485_mode mode, int high, unsigned before_us, un
     fap_port_options o;
     fap_port_options_init(&o);
     o.rs485_mode = mode;
+    if (mode == FAP_RS485_GPIO) {
+        o.gpio_chip = gpio_chip;
+        o.gpio_line = GPIO_LINE;
+    }
     if (high != 2)
         o.rts_active_high = high;
     if (before_us != 1u)
@@ -282,6 +292,71 @@ static void trace_check(const char *name, fap_rs485_mode mode, int high,
     fflush(stdout);
 }
 
+/* The GPIO line's level now, read without changing it: a v2 request with
+ * neither INPUT nor OUTPUT keeps the direction as it is (and an output's
+ * value). 0/1, or -errno. */
+static int gpio_level(int *value_out)
+{
+    int cfd = open(gpio_chip, O_RDWR);
+    if (cfd < 0)
+        return -errno;
+    struct gpio_v2_line_request req;
+    memset(&req, 0, sizeof req);
+    req.offsets[0] = GPIO_LINE;
+    req.num_lines = 1;
+    strcpy(req.consumer, "rs485_checks");
+    int rc = ioctl(cfd, GPIO_V2_GET_LINE_IOCTL, &req) < 0 ? -errno : 0;
+    close(cfd);
+    if (rc)
+        return rc;
+    struct gpio_v2_line_values v = {.mask = 1};
+    rc = ioctl(req.fd, GPIO_V2_LINE_GET_VALUES_IOCTL, &v) < 0 ? -errno : 0;
+    close(req.fd);
+    *value_out = (int)(v.bits & 1);
+    return rc;
+}
+
+/* Known levels in the trace before the GPIO checks (PL061 traces changes
+ * only): drive the line 1 then 0 once, as an output. */
+static void gpio_prime(void)
+{
+    fap_port *p = open_port(FAP_RS485_GPIO, 0, 0, 0);   /* requested high (receive) */
+    if (p)
+        fap_port_close(p);
+    p = open_port(FAP_RS485_GPIO, 1, 0, 0);             /* requested low */
+    if (p)
+        fap_port_close(p);
+}
+
+/* The DE line after a GPIO-mode port closed, and after a process that
+ * wrote and exited without closing: at the receive level. */
+static void gpio_released(int high)
+{
+    fap_port *p = open_port(FAP_RS485_GPIO, high, 0, 0);
+    if (!p)
+        return;
+    ssize_t w = fap_port_write(p, "g", 1);
+    fap_port_close(p);
+    int v = -1, rc = gpio_level(&v);
+    char name[64];
+    snprintf(name, sizeof name, "gpio_%s_released_at_close", high ? "high" : "low");
+    result(name, w == 1 && rc == 0 && v == !high, "write %zd, line %d level %d (rc %d)", w,
+           GPIO_LINE, v, rc);
+    fflush(stdout);
+    pid_t child = fork();
+    if (child == 0) {
+        fap_port *q = open_port(FAP_RS485_GPIO, high, 0, 0);
+        _exit(q && fap_port_write(q, "e", 1) == 1 ? 0 : 1);   /* no close */
+    }
+    int st = -1;
+    waitpid(child, &st, 0);
+    v = -1;
+    rc = gpio_level(&v);
+    snprintf(name, sizeof name, "gpio_%s_released_at_exit", high ? "high" : "low");
+    result(name, child > 0 && WIFEXITED(st) && WEXITSTATUS(st) == 0 && rc == 0 && v == !high,
+           "child exit 0x%x, line %d level %d (rc %d)", st, GPIO_LINE, v, rc);
+}
+
 /* rs485_checks set FLAGS BEFORE AFTER      the board's config (raw ioctl)
  * rs485_checks expect FLAGS BEFORE AFTER NAME   RESULT: is it that now? */
 static int ctl(int argc, char **argv)
@@ -332,6 +407,14 @@ int main(int argc, char **argv)
     trace_check("soft_high", FAP_RS485_SOFT_RTS, 1, 5, 8, off);
     trace_check("soft_low", FAP_RS485_SOFT_RTS, 0, 5, 8, off);
     trace_check("soft_over_kernel", FAP_RS485_SOFT_RTS, 1, 4, 6, board_low);
+    /* GPIO DE/RE on the PL061, timed against the PL011's data bytes */
+    gpio_prime();
+    trace_check("gpio_high", FAP_RS485_GPIO, 1, 3, 5, off);
+    trace_check("gpio_low", FAP_RS485_GPIO, 0, 3, 5, off);
+    trace_check("gpio_high_nodelay", FAP_RS485_GPIO, 1, 0, 0, off);
+    trace_check("gpio_low_nodelay", FAP_RS485_GPIO, 0, 0, 0, off);
+    gpio_released(1);
+    gpio_released(0);
     printf("CHECKS-DONE failures=%d\n", failures);
     fflush(stdout);
     return failures != 0;

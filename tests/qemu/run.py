@@ -24,9 +24,12 @@ import threading
 import time
 import tty
 from pathlib import Path
+from typing import Callable
 
 CR_RTS = 0x800          # PL011 UARTCR.RTS: the complement of the nUARTRTS pin
 REG_DR, REG_CR = 0x000, 0x030
+GPIO_LINE = 1           # the PL061 line the GPIO checks use as DE (rs485_checks.c)
+GPIO_OUT = 0x10000      # parse_trace's pseudo-offset of a PL061 output: + line
 BOOT_TIMEOUT_S = 80
 
 
@@ -58,13 +61,18 @@ def build_initramfs(root: Path, dest: Path) -> None:
 
 
 def parse_trace(path: Path) -> list[tuple[float, int, int]]:
-    """(host time s, register offset, value) of every pl011_write."""
+    """(host time s, register offset, value) of every pl011_write, and of
+    every PL061 output change as (time, GPIO_OUT + line, level), in order."""
     rx = re.compile(r"@(\d+)\.(\d+):pl011_write addr 0x([0-9a-f]+) value 0x([0-9a-f]+)")
+    gx = re.compile(r"@(\d+)\.(\d+):pl061_set_output \S+ setting output (\d+) to (\d+)")
     out = []
     for line in path.read_text(errors="replace").splitlines():
         m = rx.search(line)
         if m:
             out.append((int(m[1]) + int(m[2]) / 1e6, int(m[3], 16), int(m[4], 16)))
+        m = gx.search(line)
+        if m:
+            out.append((int(m[1]) + int(m[2]) / 1e6, GPIO_OUT + int(m[3]), int(m[4]) != 0))
     return out
 
 
@@ -83,7 +91,10 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
         return [(f"{name}_trace_found", False, "payload not in the pl011_write trace")]
     i_first, t_first = dr[start][0], dr[start][1]
     i_last, t_last = dr[start + len(payload) - 1][0], dr[start + len(payload) - 1][1]
-    crs = [(i, t, not (v & CR_RTS)) for i, (t, a, v) in enumerate(writes) if a == REG_CR]
+    if fields["mode"] == "gpio":   # the DE pin is a PL061 line: its level as traced
+        crs = [(i, t, bool(v)) for i, (t, a, v) in enumerate(writes) if a == GPIO_OUT + GPIO_LINE]
+    else:
+        crs = [(i, t, not (v & CR_RTS)) for i, (t, a, v) in enumerate(writes) if a == REG_CR]
 
     def pin_at(idx: int) -> bool | None:
         level = None
@@ -139,43 +150,28 @@ def judge_trace(name: str, fields: dict[str, str], writes: list[tuple[float, int
     return res
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kernel", required=True, type=Path)
-    ap.add_argument("--root", required=True, type=Path, help="files of the initramfs")
-    ap.add_argument("--work", required=True, type=Path)
-    ap.add_argument("--slave", required=True, type=Path, help="host fap_slave binary")
-    a = ap.parse_args()
-    a.work.mkdir(parents=True, exist_ok=True)
-    initrd, trace, mon = a.work / "initrd.cpio", a.work / "trace.log", a.work / "monitor.sock"
-    for p in (trace, mon):
-        p.unlink(missing_ok=True)
-    build_initramfs(a.root, initrd)
-    t0 = time.monotonic()
-    cmd = ["qemu-system-aarch64", "-M", "virt", "-cpu", "cortex-a57", "-smp", "1", "-m", "256",
-           "-nodefaults", "-display", "none", "-no-reboot", "-S",
-           "-kernel", str(a.kernel), "-initrd", str(initrd),
-           "-append", "console=hvc0 quiet panic=-1 rdinit=/init",
-           "-serial", "pty",
-           "-device", "virtio-serial-device", "-chardev", "stdio,id=con,signal=off",
-           "-device", "virtconsole,chardev=con",
-           "-monitor", f"unix:{mon}",
-           "-trace", "pl011_write", "-D", str(trace), "-msg", "timestamp=on"]
-    # The monitor connects to us (QEMU as the client): no waiting for a socket.
+def start_qemu(cmd: list[str], work: Path, mon: Path, trace: Path
+               ) -> tuple[subprocess.Popen[bytes], Callable[[bytes], str]] | None:
+    """Start QEMU paused (``-S``) with the console on virtio-console (its
+    stdio: cmd names the virtio-serial bus), the monitor on ``mon`` and the
+    trace log in ``trace``, and connect to the monitor: (process,
+    monitor(command) -> answer), or None after printing why. The monitor
+    connects to us (QEMU as the client): no waiting for a socket to appear."""
+    cmd = cmd + ["-chardev", "stdio,id=con,signal=off", "-device", "virtconsole,chardev=con",
+                 "-monitor", f"unix:{mon}", "-D", str(trace), "-msg", "timestamp=on", "-S"]
     listener = socket.socket(socket.AF_UNIX)
     listener.bind(str(mon))
     listener.listen(1)
     listener.settimeout(15)
-    qerr = open(a.work / "qemu.stderr", "wb")
+    qerr = open(work / "qemu.stderr", "wb")
     q = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=qerr)
-    assert q.stdin and q.stdout
     try:
         ms, _ = listener.accept()
     except socket.timeout:
         q.kill()
-        print("FAIL: QEMU's monitor never connected:", (a.work / "qemu.stderr").read_text(),
+        print("FAIL: QEMU's monitor never connected:", (work / "qemu.stderr").read_text(),
               file=sys.stderr)
-        return 1
+        return None
     ms.settimeout(15)
 
     def monitor(command: bytes) -> str:
@@ -187,6 +183,56 @@ def main() -> int:
     banner = b""
     while not banner.endswith(b"(qemu) "):
         banner += ms.recv(4096)
+    return q, monitor
+
+
+def suite_setup(description: str, *extra: tuple[str, str]
+                ) -> tuple[argparse.Namespace, Path, Path, Path]:
+    """The runners' common command line (--kernel --root --work --slave,
+    plus (option, default) pairs), a fresh work directory and the
+    initramfs: (args, initrd, trace log, monitor socket)."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("--kernel", required=True, type=Path)
+    ap.add_argument("--root", required=True, type=Path, help="files of the initramfs")
+    ap.add_argument("--work", required=True, type=Path)
+    ap.add_argument("--slave", required=True, type=Path, help="host fap_slave binary")
+    for opt, default in extra:
+        ap.add_argument(opt, default=default)
+    a = ap.parse_args()
+    a.work.mkdir(parents=True, exist_ok=True)
+    initrd, trace, mon = a.work / "initrd.cpio", a.work / "trace.log", a.work / "monitor.sock"
+    for p in (trace, mon):
+        p.unlink(missing_ok=True)
+    build_initramfs(a.root, initrd)
+    return a, initrd, trace, mon
+
+
+def report(suite: str, results: list[tuple[str, bool, str]], elapsed: float) -> int:
+    """Print one PASS/FAIL line per check and the tally: the exit status."""
+    print()
+    width = max(len(n) for n, _, _ in results)
+    for n, ok, d in results:
+        print(f"{'PASS' if ok else 'FAIL'}  {n:<{width}}  {d}")
+    bad = sum(not ok for _, ok, _ in results)
+    print(f"\n{suite}: {len(results) - bad} passed, {bad} failed; guest run {elapsed:.1f} s")
+    return 1 if bad else 0
+
+
+def main() -> int:
+    a, initrd, trace, mon = suite_setup(__doc__.splitlines()[0])
+    t0 = time.monotonic()
+    cmd = ["qemu-system-aarch64", "-M", "virt", "-cpu", "cortex-a57", "-smp", "1", "-m", "256",
+           "-nodefaults", "-display", "none", "-no-reboot",
+           "-kernel", str(a.kernel), "-initrd", str(initrd),
+           "-append", "console=hvc0 quiet panic=-1 rdinit=/init",
+           "-serial", "pty",
+           "-device", "virtio-serial-device",
+           "-trace", "pl011_write", "-trace", "pl061_set_output"]
+    started = start_qemu(cmd, a.work, mon, trace)
+    if started is None:
+        return 1
+    q, monitor = started
+    assert q.stdin and q.stdout
     m = re.search(r"serial0: filename=pty:(/dev/pts/\d+)", monitor(b"info chardev"))
     if not m:
         q.kill()
@@ -273,14 +319,8 @@ def main() -> int:
                     and slave.returncode == 0,
                     f"{len(replies)} of 3 replies, {m[0] if m else 'no exit line'}, host slave exit "
                     f"{slave.returncode if slave else None}"))
-    results.append(("guest_completed", done, f"{len(writes)} pl011_write trace events"))
-    print()
-    width = max(len(n) for n, _, _ in results)
-    for n, ok, d in results:
-        print(f"{'PASS' if ok else 'FAIL'}  {n:<{width}}  {d}")
-    bad = sum(not ok for _, ok, _ in results)
-    print(f"\nqemu suite: {len(results) - bad} passed, {bad} failed; guest run {elapsed:.1f} s")
-    return 1 if bad else 0
+    results.append(("guest_completed", done, f"{len(writes)} pl011_write / pl061_set_output trace events"))
+    return report("qemu suite", results, elapsed)
 
 
 if __name__ == "__main__":

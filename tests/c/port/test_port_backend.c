@@ -5,7 +5,9 @@
  * restore on close, error paths), soft-RTS ordering and its error paths,
  * EINTR and partial writes, and the turnaround wait. */
 #include <linux/serial.h>
+#include <stdlib.h>
 #include <pthread.h>
+#include <sys/eventfd.h>
 #include <sys/ioctl.h>
 
 #include "fap_port.h"
@@ -13,7 +15,8 @@
 #include "pty_util.h"
 #include "unit.h"
 
-enum ev_kind { EV_RTS_SET, EV_RTS_CLEAR, EV_WRITE, EV_DRAIN, EV_SLEEP, EV_GRS485, EV_SRS485 };
+enum ev_kind { EV_RTS_SET, EV_RTS_CLEAR, EV_WRITE, EV_DRAIN, EV_SLEEP, EV_GRS485, EV_SRS485,
+               EV_GPIO_OPEN, EV_GPIO_SET, EV_GPIO_CLOSE };
 
 typedef struct fake_ev {
     enum ev_kind kind;
@@ -34,7 +37,18 @@ typedef struct fake {
     size_t write_chunk;    /* >0: accept at most this many bytes per write */
     fake_ev ev[64];
     int nev;
+    /* the close (kept out of ev[], whose counts the tests check): the
+     * c_cflag of the last tcsetattr and the last RTS event before it */
+    int closes;
+    tcflag_t cflag_set;
+    int rts_at_close;   /* EV_RTS_SET / EV_RTS_CLEAR, -1 none */
+    /* the GPIO DE line: an eventfd stands for the line fd */
+    int gpio_fd, gpio_value, fail_gpio_open, fail_gpio_set;
+    char gpio_chip[64];
+    unsigned gpio_line;
 } fake;
+
+static int count_ev(const fake *f, enum ev_kind k);
 
 static void rec(fake *f, enum ev_kind k, int64_t v)
 {
@@ -43,9 +57,27 @@ static void rec(fake *f, enum ev_kind k, int64_t v)
 }
 
 static int f_open(void *c, const char *path, int flags) { (void)c; return open(path, flags); }
-static int f_close(void *c, int fd) { (void)c; return close(fd); }
+static int f_close(void *c, int fd)
+{
+    fake *f = c;
+    if (f->gpio_fd > 0 && fd == f->gpio_fd) {
+        rec(f, EV_GPIO_CLOSE, f->gpio_value);
+        f->gpio_fd = 0;
+        return close(fd);
+    }
+    f->closes++;
+    f->rts_at_close = -1;
+    for (int i = f->nev - 1; i >= 0 && f->rts_at_close < 0; i--)
+        if (f->ev[i].kind == EV_RTS_SET || f->ev[i].kind == EV_RTS_CLEAR)
+            f->rts_at_close = (int)f->ev[i].kind;
+    return close(fd);
+}
 static int f_tcgetattr(void *c, int fd, struct termios *t) { (void)c; return tcgetattr(fd, t); }
-static int f_tcsetattr(void *c, int fd, int a, const struct termios *t) { (void)c; return tcsetattr(fd, a, t); }
+static int f_tcsetattr(void *c, int fd, int a, const struct termios *t)
+{
+    ((fake *)c)->cflag_set = t->c_cflag;
+    return tcsetattr(fd, a, t);
+}
 static int f_tcflush(void *c, int fd, int q) { (void)c; return tcflush(fd, q); }
 static int f_flock(void *c, int fd, int op) { (void)c; return lf_port_posix_backend.flock(NULL, fd, op); }
 static int f_poll(void *c, struct pollfd *p, nfds_t n, int ms) { (void)c; return poll(p, n, ms); }
@@ -143,11 +175,36 @@ static void f_sleep_until(void *c, int64_t deadline)
     rec(c, EV_SLEEP, deadline);   /* recorded, not slept: the tests stay fast */
 }
 
+static int f_gpio_open(void *c, const char *chip, unsigned line, int value)
+{
+    fake *f = c;
+    rec(f, EV_GPIO_OPEN, value);
+    if (f->fail_gpio_open)
+        return -f->fail_gpio_open;
+    snprintf(f->gpio_chip, sizeof f->gpio_chip, "%s", chip);
+    f->gpio_line = line;
+    f->gpio_value = value;
+    f->gpio_fd = eventfd(0, EFD_CLOEXEC);
+    return f->gpio_fd;
+}
+
+static int f_gpio_set(void *c, int fd, int value)
+{
+    fake *f = c;
+    rec(f, EV_GPIO_SET, value);
+    if (fd != f->gpio_fd)
+        return -EBADF;
+    if (f->fail_gpio_set)
+        return -f->fail_gpio_set;
+    f->gpio_value = value;
+    return 0;
+}
+
 static const lf_port_backend fake_backend = {
     .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcgetattr,
     .tcsetattr = f_tcsetattr, .tcflush = f_tcflush, .tcdrain = f_tcdrain,
     .flock = f_flock, .read = f_read, .write = f_write, .poll = f_poll,
-    .sleep_until = f_sleep_until,
+    .sleep_until = f_sleep_until, .gpio_open = f_gpio_open, .gpio_set = f_gpio_set,
 };
 
 static fap_port_options opts_mode(fap_rs485_mode m)
@@ -346,6 +403,28 @@ static void test_auto_does_not_hide_a_dying_device(void)
 
 /* ---- soft RTS ------------------------------------------------------------- */
 
+/* One 5-byte write with the direction switched by us (soft RTS, GPIO):
+ * on, the delay before, write, drain, the delay after, off. */
+static void check_switched_write(const fake *f, enum ev_kind on, int64_t on_value,
+                                 enum ev_kind off, int64_t off_value,
+                                 int64_t before_ns, int64_t after_ns)
+{
+    MUST(f->nev == 6);
+    CHECK_EQ(f->ev[0].kind, on);
+    CHECK_EQ(f->ev[0].value, on_value);
+    CHECK_EQ(f->ev[1].kind, EV_SLEEP);
+    CHECK(f->ev[1].value >= f->ev[0].at_ns + before_ns);
+    CHECK(f->ev[1].value <= f->ev[1].at_ns + before_ns);
+    CHECK_EQ(f->ev[2].kind, EV_WRITE);
+    CHECK_EQ(f->ev[2].value, 5);
+    CHECK_EQ(f->ev[3].kind, EV_DRAIN);
+    CHECK_EQ(f->ev[4].kind, EV_SLEEP);
+    CHECK(f->ev[4].value >= f->ev[3].at_ns + after_ns);
+    CHECK(f->ev[4].value <= f->ev[4].at_ns + after_ns);
+    CHECK_EQ(f->ev[5].kind, off);
+    CHECK_EQ(f->ev[5].value, off_value);
+}
+
 static void check_soft_rts_order(int active_high)
 {
     test_pty t;
@@ -370,19 +449,7 @@ static void check_soft_rts_order(int active_high)
 
     f.nev = 0;
     CHECK_EQ(fap_port_write(p, "frame", 5), 5);
-    MUST(f.nev == 6);
-    CHECK_EQ(f.ev[0].kind, on);
-    CHECK_EQ(f.ev[0].value, TIOCM_RTS);
-    CHECK_EQ(f.ev[1].kind, EV_SLEEP);
-    CHECK(f.ev[1].value >= f.ev[0].at_ns + 500000);
-    CHECK(f.ev[1].value <= f.ev[1].at_ns + 500000);
-    CHECK_EQ(f.ev[2].kind, EV_WRITE);
-    CHECK_EQ(f.ev[2].value, 5);
-    CHECK_EQ(f.ev[3].kind, EV_DRAIN);
-    CHECK_EQ(f.ev[4].kind, EV_SLEEP);
-    CHECK(f.ev[4].value >= f.ev[3].at_ns + 700000);
-    CHECK(f.ev[4].value <= f.ev[4].at_ns + 700000);
-    CHECK_EQ(f.ev[5].kind, off);
+    check_switched_write(&f, on, TIOCM_RTS, off, TIOCM_RTS, 500000, 700000);
     char m[5];
     CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
     CHECK_MEM(m, "frame", 5);
@@ -404,6 +471,248 @@ static void check_soft_rts_order(int active_high)
 
 static void test_soft_rts_active_high(void) { check_soft_rts_order(1); }
 static void test_soft_rts_active_low(void) { check_soft_rts_order(0); }
+
+/* Defect: with HUPCL set (the tty default) the kernel's hang-up at close
+ * drops RTS, which is the transmit level of an active-high transceiver.
+ * Soft RTS clears HUPCL while open, puts the pin at the receive level
+ * before the close and gives back the termios the port had, HUPCL
+ * excepted; the other modes leave HUPCL as it was. */
+static void check_soft_rts_close(int active_high)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    struct termios orig;   /* a pty master reads and sets the slave's */
+    MUST(tcgetattr(t.master, &orig) == 0);
+    orig.c_cflag |= HUPCL;   /* a UART's default; a pty slave's lacks it */
+    orig.c_lflag |= ICANON;
+    MUST(tcsetattr(t.master, TCSANOW, &orig) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    o.rts_active_high = active_high;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    struct termios now;
+    MUST(tcgetattr(t.master, &now) == 0);
+    CHECK_EQ(now.c_cflag & HUPCL, 0);   /* while open */
+    CHECK_EQ(now.c_lflag & ICANON, 0);  /* raw */
+    CHECK_EQ(fap_port_write(p, "x", 1), 1);
+    f.nev = 0;   /* RTS at the close must come from the close itself */
+    fap_port_close(p);
+    CHECK_EQ(f.closes, 1);
+    CHECK_EQ(f.rts_at_close, active_high ? EV_RTS_SET : EV_RTS_CLEAR);   /* receive level */
+    CHECK_EQ(f.cflag_set & HUPCL, 0);
+    MUST(tcgetattr(t.master, &now) == 0);
+    CHECK_EQ(now.c_cflag & HUPCL, 0);
+    CHECK(now.c_lflag & ICANON);         /* the rest as it was */
+    CHECK_EQ(cfgetospeed(&now), cfgetospeed(&orig));
+    tp_close(&t);
+}
+
+static void test_soft_rts_close_active_high(void) { check_soft_rts_close(1); }
+static void test_soft_rts_close_active_low(void) { check_soft_rts_close(0); }
+
+static void test_other_modes_keep_hupcl(void)
+{
+    static const fap_rs485_mode modes[] = {FAP_RS485_NONE, FAP_RS485_KERNEL};
+    for (size_t i = 0; i < 2; i++) {
+        test_pty t;
+        MUST(tp_open(&t) == 0);
+        fake f;
+        fake_uart(&f);
+        struct termios tio;
+        MUST(tcgetattr(t.master, &tio) == 0);
+        tio.c_cflag |= HUPCL;
+        MUST(tcsetattr(t.master, TCSANOW, &tio) == 0);
+        fap_port_options o = opts_mode(modes[i]);
+        fap_port *p = NULL;
+        MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+        struct termios now;
+        MUST(tcgetattr(t.master, &now) == 0);
+        CHECK(now.c_cflag & HUPCL);
+        fap_port_close(p);
+        tp_close(&t);
+    }
+}
+
+/* GPIO DE/RE: the line is requested at the receive level, set to the
+ * sending level before the first byte (then the delay), released after
+ * tcdrain (and the delay), put back and freed at close; no RTS ioctl. */
+static void check_gpio(int active_high)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_GPIO);
+    char chip[] = "/dev/gpiochip7";
+    o.gpio_chip = chip;
+    o.gpio_line = 5;
+    o.rts_active_high = active_high;
+    o.delay_before_send_us = 400;
+    o.delay_after_send_us = 600;
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    chip[0] = 'X';   /* the port keeps its own copy */
+    CHECK_EQ(fap_port_mode(p), FAP_RS485_GPIO);
+    CHECK(strcmp(fap_rs485_mode_name(FAP_RS485_GPIO), "gpio") == 0);
+    CHECK(strcmp(f.gpio_chip, "/dev/gpiochip7") == 0);
+    CHECK_EQ(f.gpio_line, 5);
+    MUST(f.nev == 1);
+    CHECK_EQ(f.ev[0].kind, EV_GPIO_OPEN);
+    CHECK_EQ(f.ev[0].value, !active_high);   /* requested at the receive level */
+    int hi = -1;
+    unsigned b = 0, a = 0;
+    CHECK_EQ(fap_port_rts_settings(p, &hi, &b, &a), 0);
+    CHECK_EQ(hi, active_high);
+    CHECK_EQ(b, 400);
+    CHECK_EQ(a, 600);
+
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "frame", 5), 5);
+    check_switched_write(&f, EV_GPIO_SET, active_high, EV_GPIO_SET, !active_high, 400000, 600000);
+    char m[5];
+    CHECK_EQ(tp_read_exact(t.master, m, 5, 1000), 5);
+    /* send and transact drain too: the line must not drop early */
+    f.nev = 0;
+    CHECK_EQ(fap_port_send(p, "s", 1), 1);
+    CHECK_EQ(count_ev(&f, EV_DRAIN), 1);
+    CHECK_EQ(count_ev(&f, EV_RTS_SET) + count_ev(&f, EV_RTS_CLEAR), 0);
+    CHECK_EQ(tp_read_exact(t.master, m, 1, 1000), 1);
+
+    /* reopen: the line is freed and requested again */
+    f.nev = 0;
+    CHECK_EQ(fap_port_reopen(p), 0);
+    CHECK_EQ(count_ev(&f, EV_GPIO_CLOSE), 1);
+    CHECK_EQ(count_ev(&f, EV_GPIO_OPEN), 1);
+    f.nev = 0;
+    fap_port_close(p);
+    MUST(f.nev == 2);
+    CHECK_EQ(f.ev[0].kind, EV_GPIO_SET);
+    CHECK_EQ(f.ev[0].value, !active_high);   /* released at close */
+    CHECK_EQ(f.ev[1].kind, EV_GPIO_CLOSE);
+    tp_close(&t);
+}
+
+static void test_gpio_active_high(void) { check_gpio(1); }
+static void test_gpio_active_low(void) { check_gpio(0); }
+
+static void test_gpio_errors(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_GPIO);
+    fap_port *p = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -EINVAL);   /* no chip */
+    o.gpio_chip = "";
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -EINVAL);
+    o.gpio_chip = "/dev/gpiochip0";
+    int fds = tp_count_fds();
+    f.fail_gpio_open = ENOENT;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f), -ENOENT);
+    CHECK_EQ(tp_count_fds(), fds);   /* nothing stays open */
+    CHECK(p == NULL);
+    f.fail_gpio_open = 0;
+    /* a backend without GPIO */
+    lf_port_backend nogpio = fake_backend;
+    nogpio.gpio_open = NULL;
+    CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &nogpio, &f), -EOPNOTSUPP);
+    /* a failing set: nothing is written, the error comes back */
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &fake_backend, &f) == 0);
+    f.fail_gpio_set = EIO;
+    f.nev = 0;
+    CHECK_EQ(fap_port_write(p, "x", 1), -EIO);
+    CHECK_EQ(count_ev(&f, EV_WRITE), 0);
+    f.fail_gpio_set = 0;
+    fap_port_close(p);
+    /* the real backend on a path that is no gpiochip */
+    o.gpio_chip = "/dev/null";
+    CHECK(fap_port_open(&p, t.name, &o) < 0);
+    o.gpio_chip = "/nonexistent/gpiochip0";
+    CHECK_EQ(fap_port_open(&p, t.name, &o), -ENOENT);
+    CHECK_EQ(tp_count_fds(), fds);
+    tp_close(&t);
+}
+
+/* FTDI latency_timer through a fake sysfs tree: 1 ms while open in soft
+ * RTS / GPIO (the default), or always / never as asked; the old value
+ * back at close; a timer already at 1 ms, or none, is left alone. */
+static int latency_now(const char *file)
+{
+    char buf[16] = {0};
+    FILE *f = fopen(file, "r");
+    if (!f)
+        return -1;
+    int ok = fgets(buf, sizeof buf, f) != NULL;
+    fclose(f);
+    return ok ? atoi(buf) : -1;
+}
+
+static void set_latency(const char *file, int ms)
+{
+    FILE *f = fopen(file, "w");
+    if (f) {
+        fprintf(f, "%d\n", ms);
+        fclose(f);
+    }
+}
+
+static void test_latency_timer(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    char root[64], dir[256], file[300], real[256];
+    snprintf(root, sizeof root, "/tmp/fap-sysfs-%d", (int)getpid());
+    MUST(realpath(t.name, real) != NULL);
+    const char *name = strrchr(real, '/') + 1;
+    snprintf(dir, sizeof dir, "mkdir -p %s/class/tty/%s/device", root, name);
+    MUST(system(dir) == 0);
+    snprintf(file, sizeof file, "%s/class/tty/%s/device/latency_timer", root, name);
+    set_latency(file, 16);
+    lf_port_backend be = fake_backend;
+    be.sysfs_root = root;
+    static const struct { fap_rs485_mode mode; int opt, expect; } cases[] = {
+        {FAP_RS485_SOFT_RTS, FAP_PORT_KEEP, 1}, {FAP_RS485_GPIO, FAP_PORT_KEEP, 1},
+        {FAP_RS485_NONE, FAP_PORT_KEEP, 16}, {FAP_RS485_NONE, 1, 1},
+        {FAP_RS485_SOFT_RTS, 0, 16}, {FAP_RS485_KERNEL, FAP_PORT_KEEP, 16},
+    };
+    for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
+        fake f;
+        fake_uart(&f);
+        fap_port_options o = opts_mode(cases[i].mode);
+        o.low_latency = cases[i].opt;
+        o.gpio_chip = "/dev/gpiochip0";
+        fap_port *p = NULL;
+        MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+        CHECK_EQ(latency_now(file), cases[i].expect);
+        if (i == 0) {   /* a replug: the new device's timer is set again */
+            set_latency(file, 16);
+            CHECK_EQ(fap_port_reopen(p), 0);
+            CHECK_EQ(latency_now(file), 1);
+        }
+        fap_port_close(p);
+        CHECK_EQ(latency_now(file), 16);
+    }
+    /* already at 1 ms: nothing to undo */
+    set_latency(file, 1);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port_options o = opts_mode(FAP_RS485_SOFT_RTS);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    CHECK_EQ(latency_now(file), 1);
+    /* no such file (not an FTDI): opens all the same */
+    unlink(file);
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    CHECK_EQ(latency_now(file), -1);
+    snprintf(dir, sizeof dir, "rm -rf %s", root);
+    CHECK_EQ(system(dir), 0);
+    tp_close(&t);
+}
 
 /* A UART whose kernel RS-485 is on (device tree, an earlier program): the
  * driver would ignore our RTS writes, so soft mode switches it off while
@@ -840,6 +1149,10 @@ UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_ke
           UNIT(test_kernel_set_enotty), UNIT(test_kernel_get_enotty),
           UNIT(test_auto_does_not_hide_a_dying_device),
           UNIT(test_soft_rts_active_high), UNIT(test_soft_rts_active_low),
+          UNIT(test_soft_rts_close_active_high), UNIT(test_soft_rts_close_active_low),
+          UNIT(test_other_modes_keep_hupcl),
+          UNIT(test_gpio_active_high), UNIT(test_gpio_active_low), UNIT(test_gpio_errors),
+          UNIT(test_latency_timer),
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
           UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
