@@ -55,7 +55,7 @@ class Entry:
 def parse_header(path: Path) -> List[Function]:
     """Prototypes at file scope, each with its doc comment: the comment block
     that precedes its group (prototypes and #defines with no blank line
-    between them), plus a comment trailing it on its own line."""
+    between them), plus a comment that follows it on the same line."""
     text = path.read_text(encoding="utf-8")
     events = []                       # (start, end, kind, text)
     for m in re.finditer(r"/\*.*?\*/", text, re.S):
