@@ -67,7 +67,7 @@ if [[ " ${arches[*]} " == *" aarch64 "* ]]; then
   cp /etc/resolv.conf "$arm_root/etc/resolv.conf"
   mountpoint -q "$arm_root/proc" || mount -t proc proc "$arm_root/proc"
   mountpoint -q "$arm_root/dev/pts" || mount -t devpts -o newinstance,ptmxmode=0666 devpts "$arm_root/dev/pts"
-  env -i HOME=/root PATH=/usr/bin:/bin LANG=C.UTF-8 PIP_DISABLE_PIP_VERSION_CHECK=1 \
+  env -i HOME=/root PATH=/usr/local/bin:/usr/bin:/bin:/usr/sbin:/sbin LANG=C.UTF-8 PIP_DISABLE_PIP_VERSION_CHECK=1 \
     PIP_CERT=/etc/ssl/certs/host-ca-certificates.crt chroot "$arm_root" /bin/sh -euc '
     cd /tmp/fapci
     python3 -m venv venv
