@@ -251,7 +251,7 @@ def render(fn: Function, entry: Entry, date: str, version: str) -> str:
         "Compile and link with",
         ".IR \"$(pkg-config --cflags --libs fap)\" ,",
         "or",
-        ".IR \"-I/usr/local/include/libfap ... -lfap -lpthread -lrt\" .",
+        ".IR \"\\\\%-I/usr/local/include/libfap ... -lfap -lpthread -lrt\" .",   # \\% no hyphenation
         ".SH DESCRIPTION",
     ]
     desc = s.get("description") or fn.comment
