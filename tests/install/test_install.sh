@@ -1,9 +1,10 @@
 #!/bin/sh
 # Install libfap (headers, libraries, fap.pc) into a scratch DESTDIR and
 # build a vendor-style program against it, both with the plain
-# `cc app.c -lfap -lpthread -lrt` and with pkg-config.
+# `cc -I<includedir>/libfap app.c -lfap -lpthread -lrt` and with pkg-config;
+# then the example makefiles, both through pkg-config and through PREFIX.
 set -eu
-builddir=$1; srcdir=$2
+builddir=$1; srcdir=$2; examples=${3:-}
 cc=${CC:-cc}
 dest=$(mktemp -d)
 trap 'rm -rf "$dest"' EXIT
@@ -14,14 +15,42 @@ pc=$(find "$dest" -name 'fap.pc' | head -n 1)
 [ -n "$libso" ] && [ -n "$hdr" ] && [ -n "$pc" ] || { echo "missing installed files"; exit 1; }
 find "$dest" -name 'libfap.a' | grep -q . || { echo "libfap.a not installed"; exit 1; }
 libdir=$(dirname "$libso"); incdir=$(dirname "$hdr")
+# headers in their own directory, never in the root of include/ (the APRS
+# parser also called libfap installs a fap.h there)
+[ "$(basename "$incdir")" = libfap ] || { echo "fap.h installed in $incdir, not include/libfap"; exit 1; }
+prefix=$(dirname "$(dirname "$incdir")")   # DESTDIR + the configured prefix
 
-# 1. the vendor's way: headers and library found through the usual search paths
-C_INCLUDE_PATH=$incdir LIBRARY_PATH=$libdir \
-  $cc "$srcdir/vendor_app.c" -o "$dest/app_plain" -lfap -lpthread -lrt
+# 1. the vendor's way: -I to the header directory, the library by name
+$cc -I"$incdir" "$srcdir/vendor_app.c" -o "$dest/app_plain" -L"$libdir" -lfap -lpthread -lrt
 LD_LIBRARY_PATH=$libdir "$dest/app_plain" /nonexistent/ttyFAP
 
 # 2. pkg-config (the .pc names the final prefix; the sysroot maps it into DESTDIR)
-flags=$(PKG_CONFIG_PATH=$(dirname "$pc") PKG_CONFIG_SYSROOT_DIR=$dest pkg-config --cflags --libs fap)
-$cc "$srcdir/vendor_app.c" -o "$dest/app_pc" $flags
+export PKG_CONFIG_PATH="$(dirname "$pc")" PKG_CONFIG_SYSROOT_DIR="$dest"
+cflags=$(pkg-config --cflags fap)
+case " $cflags " in
+  *" -I$incdir "*) ;;
+  *) echo "pkg-config --cflags fap gave '$cflags', not -I$incdir"; exit 1 ;;
+esac
+$cc "$srcdir/vendor_app.c" -o "$dest/app_pc" $cflags $(pkg-config --libs fap)
 LD_LIBRARY_PATH=$libdir "$dest/app_pc" /nonexistent/ttyFAP
-echo "1 passed, 0 failed"
+passed=2
+
+# 3. the example makefiles: through pkg-config, then through PREFIX alone
+#    (meson's libdir, e.g. lib/x86_64-linux-gnu, found without LIBDIR)
+if [ -n "$examples" ]; then
+  command -v make >/dev/null || { echo "make missing"; exit 1; }
+  for ex in fap execasync mikroc; do
+    mkdir -p "$dest/ex-pc/$ex" "$dest/ex-prefix/$ex"
+    make -s -C "$dest/ex-pc/$ex" -f "$examples/$ex/Makefile" VPATH="$examples/$ex" CC="$cc"
+    env -u PKG_CONFIG_PATH make -s -C "$dest/ex-prefix/$ex" -f "$examples/$ex/Makefile" \
+      VPATH="$examples/$ex" CC="$cc" PREFIX="$prefix"
+  done
+  # each runs and reaches fapInit (the PREFIX build through its rpath alone)
+  for way in pc prefix; do
+    out=$(LD_LIBRARY_PATH=$([ $way = pc ] && echo "$libdir") \
+          "$dest/ex-$way/fap/fap_slave" /nonexistent/ttyFAP 7 2>&1) || true
+    case $out in *"fapInit() Failed"*) ;; *) echo "ex-$way fap_slave: $out"; exit 1 ;; esac
+  done
+  passed=4
+fi
+echo "$passed passed, 0 failed"
