@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
-from ..errors import InvalidTypeError, InvalidValueError
+from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
 from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
 
@@ -24,7 +24,7 @@ else:  # pragma: no cover - Python < 3.11 only
 
 PROTOCOLS = ("fap", "execasync", "g485", "mikroc")
 _RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
-                "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE}
+                "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE, "gpio": RS485Mode.GPIO}
 
 
 class BridgeConfigError(InvalidValueError):
@@ -176,9 +176,22 @@ def _rs485(t: Dict[str, Any], where: str) -> RS485:
     if polarity not in ("high", "low"):
         raise BridgeConfigError(f"{where}.rts_polarity must be high or low, not {_show(polarity)}")
     echo = _pop(t, "echo_suppression", bool, where, False)
-    return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
-                 delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
-                 echo_suppression=echo)
+    # rs485 = "gpio": a GPIO line is the DE/RE pin (rts_* are its level and delays)
+    chip = _pop(t, "gpio_chip", str, where, None) if mode == "gpio" else None
+    line = _pop(t, "gpio_line", int, where, 0) if mode == "gpio" else None
+    if mode == "gpio":
+        if not chip:
+            raise BridgeConfigError(f"{where}.gpio_chip: rs485 = \"gpio\" needs the DE/RE line's "
+                                    "/dev/gpiochipN")
+        line = _range(line, 0, 1023, f"{where}.gpio_line")
+    elif "gpio_chip" in t or "gpio_line" in t:
+        raise BridgeConfigError(f"{where}: gpio_chip and gpio_line need rs485 = \"gpio\"")
+    try:
+        return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
+                     delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
+                     echo_suppression=echo, gpio_chip=chip, gpio_line=line)
+    except FapError as exc:
+        raise BridgeConfigError(f"{where}: {exc}") from None
 
 
 def _bus(t: Dict[str, Any], index: int) -> BusConfig:

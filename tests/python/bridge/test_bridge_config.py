@@ -105,6 +105,9 @@ protocol = "mikroc"
     ({"broker": BROKER, "bus": [_bus(slaves=[1, 1])]}, "twice"),
     ({"broker": BROKER, "bus": [_bus(baud="fast")]}, "baud"),
     ({"broker": BROKER, "bus": [_bus(rs485="maybe")]}, "rs485"),
+    ({"broker": BROKER, "bus": [_bus(rs485="gpio")]}, "gpio_chip"),
+    ({"broker": BROKER, "bus": [_bus(rs485="gpio", gpio_chip="/dev/gpiochip0", gpio_line=-1)]}, "gpio_line"),
+    ({"broker": BROKER, "bus": [_bus(rs485="soft", gpio_line=3)]}, "gpio"),
     ({"broker": BROKER, "bus": [_bus(name="a/b")]}, "name"),
     ({"broker": BROKER, "bus": [_bus(), _bus()]}, "differ"),
     ({"broker": BROKER, "bus": [_bus(name="bridge")]}, "bridge"),
@@ -121,6 +124,15 @@ def test_bad_configs_name_the_key(data, words):
     with pytest.raises(BridgeConfigError, match=words.replace("[", r"\[").replace("]", r"\]")) as info:
         from_dict(data)
     assert isinstance(info.value, InvalidValueError)
+
+
+def test_gpio_direction_mode():
+    """rs485 = "gpio" takes the DE/RE line like the CLI's --rs485 gpio (issue 22)."""
+    cfg = from_dict({"broker": BROKER, "bus": [_bus(rs485="gpio", gpio_chip="/dev/gpiochip0", gpio_line=17,
+                                                    rts_polarity="low", rts_after=1)]})
+    rs = cfg.buses[0].rs485
+    assert rs.mode == RS485Mode.GPIO and rs.gpio_chip == "/dev/gpiochip0" and rs.gpio_line == 17
+    assert not rs.rts_active_high and rs.delay_after_send_us == 1000
 
 
 def test_shipped_example_parses():
