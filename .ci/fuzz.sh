@@ -18,4 +18,5 @@ tests/fuzz/run.sh --seconds "${FUZZ_SECONDS:-20}"
 # from outside the tree: the source fap_py/ (no compiled extension) must not shadow the installed one
 (root=$PWD; cd /tmp && CI=true python -m pytest -q -p no:cacheprovider "$root/tests/fuzz/test_g485_fuzz.py")
 (root=$PWD; cd /tmp && CI=true python -m pytest -q -p no:cacheprovider "$root/tests/fuzz/test_monitor_fuzz.py")
+(root=$PWD; cd /tmp && CI=true python -m pytest -q -p no:cacheprovider "$root/tests/fuzz/test_bridge_config_fuzz.py")
 echo "fuzz.sh: OK, fuzz smoke passed in $(( $(date +%s) - start ))s"
