@@ -245,14 +245,16 @@ def test_vector_streams_unchanged_by_the_bounds():
 
 def test_read_capture_refuses_devices_and_huge_files(tmp_path):
     """vbus.read_capture (which holds the file) checks type and size first."""
-    from fap_py.vbus import CAPTURE_SIZE_MAX, CaptureFormatError, read_capture
+    from fap_py.errors import FileError
+    from fap_py.vbus import MAX_CAPTURE_BYTES, read_capture
 
-    with pytest.raises(CaptureFormatError, match="/dev/zero: not a regular file"):
+    with pytest.raises(FileError, match="not a regular file") as info:
         read_capture("/dev/zero")
+    assert info.value.filename == "/dev/zero"
     huge = tmp_path / "huge.cap"
     with open(huge, "wb") as fh:               # sparse: no disk used
-        fh.truncate(CAPTURE_SIZE_MAX + 1)
-    with pytest.raises(CaptureFormatError, match="more than"):
+        fh.truncate(MAX_CAPTURE_BYTES + 1)
+    with pytest.raises(FileError, match="more than"):
         read_capture(huge)
 
 
