@@ -248,9 +248,8 @@ def test_read_capture_refuses_devices_and_huge_files(tmp_path):
     from fap_py.errors import FileError
     from fap_py.vbus import MAX_CAPTURE_BYTES, read_capture
 
-    with pytest.raises(FileError, match="not a regular file") as info:
+    with pytest.raises(FileError, match="/dev/zero: capture file: not a regular file"):
         read_capture("/dev/zero")
-    assert info.value.filename == "/dev/zero"
     huge = tmp_path / "huge.cap"
     with open(huge, "wb") as fh:               # sparse: no disk used
         fh.truncate(MAX_CAPTURE_BYTES + 1)
