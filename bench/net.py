@@ -109,20 +109,9 @@ def _g485_run(client: str, server: str, baud: int, seconds: float,
 
         port = serial.serial_for_url(client, baudrate=baud, timeout=0.05)
 
-    srv = g.start_server([sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1",
-                          "--baud", str(baud), "--port", server])
-    try:
-        read, close, _ = g.g485_client(port, baud, "none")
-        try:
-            g.warm_up(read)
-            res = g.measure(read, seconds, srv.pid)
-        finally:
-            close()
-    finally:
-        srv.terminate()
-        srv.wait(10)
-        if srv.stdout:
-            srv.stdout.close()
+    res = g.run_pair([sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1",
+                      "--baud", str(baud), "--port", server],
+                     lambda: g.g485_client(port, baud, "none"), seconds)
     return {"rate": res["rate"], "failed": res["errors"]}
 
 
