@@ -240,19 +240,7 @@ class Runner:
         }[client]
         cap = self.tmp / f"{kind}-{baud}.cap" if capture and baud else None
         with VirtualBus(ports=2, baud=baud or None, seed=1, capture=str(cap) if cap else None) as bus:
-            srv = g.start_server(server_argv + [bus.paths[1]])
-            try:
-                read, close, _ = factory(bus.paths[0])
-                try:
-                    g.warm_up(read)
-                    res = g.measure(read, seconds, srv.pid)
-                finally:
-                    close()
-            finally:
-                srv.terminate()
-                srv.wait(10)
-                if srv.stdout:
-                    srv.stdout.close()
+            res = g.run_pair(server_argv + [bus.paths[1]], lambda: factory(bus.paths[0]), seconds)
         out = {"rate": res["rate"], "client_us": res["client_us"], "server_us": res["server_us"],
                "client_load": res["client_load"], "failed": res["errors"]}
         if cap:

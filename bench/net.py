@@ -5,8 +5,8 @@
   raw ``tcp://`` and ``rfc2217://`` (libfap's own client), against the same
   master on the bus's pty directly; G485 also through pyserial's
   ``socket://`` and ``rfc2217://?ign_set_control``. The slave sits on the
-  bus directly. ser2net runs with ``chardelay: false`` (docs/port.md's
-  recipe); missing ser2net skips these rows.
+  bus directly. ser2net runs as docs/port.md's recipe says:
+  ``chardelay: false`` and ``tcp(nodelay)``; missing ser2net skips these rows.
 * **Mismatched baud**: the bus paced at 1 Mbaud, master and slave opened
   at 115200 (the local baud means nothing to the link) against both opened
   at 1,000,000: the engines' pacing must follow the link, not the baud.
@@ -27,6 +27,8 @@ log = logging.getLogger("bench")
 #: the C kinds measured through the transports (bench_wire)
 C_NET_KINDS = ("fap-poll", "exec", "mikroc")
 #: client transports: name -> URL scheme of libfap ("" = the pty itself) or a pyserial URL
+#: ser2net's socket without Nagle (docs/port.md's recipe)
+NODELAY = True
 MODES = ("direct", "tcp", "rfc2217", "pyserial-socket", "pyserial-rfc2217")
 
 
@@ -34,7 +36,7 @@ def _ser2net(workdir: Path, mode: str, dev: str, baud: int) -> Any:
     sys.path.insert(0, str(ROOT / "tests" / "python" / "port"))
     from net_helpers import Ser2net  # the tests' launcher: one way to run ser2net
 
-    return Ser2net(workdir, [(mode, dev, baud)], {"chardelay": "false"})
+    return Ser2net(workdir, [(mode, dev, baud)], {"chardelay": "false"}, nodelay=NODELAY)
 
 
 def have_ser2net() -> bool:
@@ -109,20 +111,9 @@ def _g485_run(client: str, server: str, baud: int, seconds: float,
 
         port = serial.serial_for_url(client, baudrate=baud, timeout=0.05)
 
-    srv = g.start_server([sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1",
-                          "--baud", str(baud), "--port", server])
-    try:
-        read, close, _ = g.g485_client(port, baud, "none")
-        try:
-            g.warm_up(read)
-            res = g.measure(read, seconds, srv.pid)
-        finally:
-            close()
-    finally:
-        srv.terminate()
-        srv.wait(10)
-        if srv.stdout:
-            srv.stdout.close()
+    res = g.run_pair([sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1",
+                      "--baud", str(baud), "--port", server],
+                     lambda: g.g485_client(port, baud, "none"), seconds)
     return {"rate": res["rate"], "failed": res["errors"]}
 
 
@@ -199,7 +190,8 @@ def markdown_lines(res: Dict[str, Any]) -> List[str]:
     net = res.get("network")
     if net:
         L += ["", f"## Through ser2net on loopback, paced at {net['baud']} baud", "",
-              "The master through the transport, the slave on the bus; ser2net `chardelay: false`. "
+              "The master through the transport, the slave on the bus; ser2net `chardelay: false`, "
+              "`tcp(nodelay)`. "
               "Share: of the same master on the pty directly. Turnaround: the slave's, from the capture.",
               "", "| protocol | client transport | exchanges/s (share) | turnaround p50 / p99 µs | failed |",
               "|---|---|---|---|---|"]

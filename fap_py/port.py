@@ -94,7 +94,10 @@ def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) ->
 class Port(NativeHandle):
     """One serial device opened through libfap's port layer.
 
-    :param path: the device (``/dev/ttyUSB0``, a pty, a virtual-bus port).
+    :param path: the device (``/dev/ttyUSB0``, a pty, a virtual-bus port), or an
+        Ethernet serial server's ``tcp://HOST:PORT`` / ``rfc2217://HOST:PORT``
+        (docs/port.md, "Network transports"; a note from the server's set-up,
+        such as an RFC 2217 option it never answered, is logged at WARNING).
     :param baudrate: any standard termios rate.
     :param rs485: line options (:class:`fap_py.fap.RS485`); None = the port
         layer's defaults (mode AUTO, exclusive lock, no echo suppression).

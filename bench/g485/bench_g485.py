@@ -34,7 +34,7 @@ import subprocess
 import sys
 import time
 import tty
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 REGS = 10
 CLK_TCK = os.sysconf("SC_CLK_TCK")
@@ -246,6 +246,25 @@ def warm_up(read: Reader, seconds: float = 10.0) -> None:
         except Exception:
             if time.monotonic() > deadline:
                 raise
+
+
+def run_pair(server_argv: List[str], client: Callable[[], Tuple[Reader, Callable[[], None], Any]],
+             seconds: float) -> Dict[str, float]:
+    """Start the server program, open the client (``client()``: read, close,
+    ...), warm up, measure, stop both: :func:`measure`'s result."""
+    srv = start_server(server_argv)
+    try:
+        read, close, _ = client()
+        try:
+            warm_up(read)
+            return measure(read, seconds, srv.pid)
+        finally:
+            close()
+    finally:
+        srv.terminate()
+        srv.wait(10)
+        if srv.stdout:
+            srv.stdout.close()
 
 
 def measure(read: Reader, seconds: float, server_pid: int) -> Dict[str, float]:

@@ -425,12 +425,12 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     const uint8_t both = LF_CPC_PURGE_BOTH;
     len += lf_telnet_cpc(LF_CPC_PURGE_DATA, &both, 1, msg + len);
     c->purged = 1;
+    const uint8_t be32[4] = {(uint8_t)(baud >> 24), (uint8_t)(baud >> 16),
+                             (uint8_t)(baud >> 8), (uint8_t)baud};
     for (size_t i = 0; i < sizeof line_cmds; i++) {
         uint8_t cmd = line_cmds[i];
-        uint8_t v[4] = {(uint8_t)(baud >> 24), (uint8_t)(baud >> 16), (uint8_t)(baud >> 8),
-                        (uint8_t)baud};
         if (cmd == LF_CPC_SET_BAUDRATE)
-            len += lf_telnet_cpc(cmd, v, 4, msg + len);
+            len += lf_telnet_cpc(cmd, be32, 4, msg + len);
         else
             len += lf_telnet_cpc(cmd, (const uint8_t[]){(uint8_t)want[cmd]}, 1, msg + len);
     }

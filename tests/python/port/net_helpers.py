@@ -68,10 +68,11 @@ def listening(port: int) -> bool:
 class Ser2net:
     """ser2net serving devices: ``entries`` is a list of (mode, device, baud),
     mode ``"raw"`` or ``"rfc2217"``; :attr:`urls` the matching client URLs.
-    ``options``: more ser2net connection options (``{"chardelay-min": 100}``)."""
+    ``options``: more ser2net connection options (``{"chardelay-min": 100}``);
+    ``nodelay``: ser2net's own socket without Nagle (``tcp(nodelay)``)."""
 
     def __init__(self, workdir: Path, entries: List[Tuple[str, str, int]],
-                 options: Optional[Dict[str, Any]] = None) -> None:
+                 options: Optional[Dict[str, Any]] = None, nodelay: bool = False) -> None:
         need("ser2net", SER2NET is not None)
         self.workdir = Path(workdir)
         self.entries = entries
@@ -82,8 +83,9 @@ class Ser2net:
         self.log = self.workdir / "ser2net.log"
         lines = ["%YAML 1.1", "---"]
         for i, ((mode, dev, baud), port) in enumerate(zip(self.entries, self.ports)):
-            acc = f"tcp,127.0.0.1,{port}" if mode == "raw" \
-                else f"telnet(rfc2217),tcp,127.0.0.1,{port}"
+            tcp = "tcp(nodelay)" if nodelay else "tcp"
+            acc = f"{tcp},127.0.0.1,{port}" if mode == "raw" \
+                else f"telnet(rfc2217),{tcp},127.0.0.1,{port}"
             lines += [f"connection: &c{i}", f"  accepter: {acc}",
                       f"  connector: serialdev,{dev},{baud}n81,local",
                       "  options:", "    kickolduser: true"]
