@@ -35,7 +35,7 @@ ECHO_MAX = 256      #: bytes of a refused tx echoed on the error topic
 TEXT_MAX = 300      #: characters of an error text (published and logged)
 
 
-def clip(text: str, limit: int = TEXT_MAX) -> str:
+def _clip(text: str, limit: int = TEXT_MAX) -> str:
     """``text`` cut to ``limit`` characters, saying how much was cut."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
@@ -43,7 +43,7 @@ def clip(text: str, limit: int = TEXT_MAX) -> str:
 def _describe(exc: BaseException) -> str:
     if isinstance(exc, RecursionError):
         return "TxError: JSON nested too deeply"
-    return clip(f"{type(exc).__name__}: {exc}")
+    return _clip(f"{type(exc).__name__}: {exc}")
 
 
 class Bridge:
@@ -139,18 +139,18 @@ class Bridge:
                     bus.engine.close()
                     bus.engine = None
                 first = bus.open_error is None
-                bus.open_error = clip(f"{type(exc).__name__}: {exc}")
+                bus.open_error = _clip(f"{type(exc).__name__}: {exc}")
                 if first:
                     log.warning("bus %s: cannot open %s: %s (retrying every %g s; the other buses run)",
-                                bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
+                                bus.cfg.name, _clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
                     self._bus_state(bus)
                 else:
-                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error)
+                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, _clip(bus.cfg.port, 100), bus.open_error)
                 return False
             was_down = bus.open_error is not None
             bus.open_error = None
         if was_down:
-            log.warning("bus %s: %s opened", bus.cfg.name, clip(bus.cfg.port, 100))
+            log.warning("bus %s: %s opened", bus.cfg.name, _clip(bus.cfg.port, 100))
         self._bus_state(bus)
         return True
 
@@ -180,7 +180,7 @@ class Bridge:
         if down:
             buses += f" (unavailable: {', '.join(down)})"
         store = "" if self.store_error is None else f", outbox failing: {self.not_stored} not stored"
-        return clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
+        return _clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
 
     def _stop_buses(self) -> None:
         with self._bus_lock:
@@ -247,7 +247,7 @@ class Bridge:
                 self._seq = first          # rolled back: the numbers were not used
                 self.not_stored += len(rows)
                 changed = self.store_error is None
-                self.store_error = clip(str(exc))
+                self.store_error = _clip(str(exc))
                 if changed:
                     log.error("%s: publications are counted as not stored until it works again", exc)
             else:
@@ -362,8 +362,8 @@ class Bridge:
     def error(self, bus: str, node: Any, tx_id: Optional[str], message: str,
               payload: Optional[bytes] = None, node_text: Optional[str] = None) -> None:
         """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded)."""
-        message = clip(message)
-        tx_id = None if tx_id is None else clip(tx_id, 100)
+        message = _clip(message)
+        tx_id = None if tx_id is None else _clip(tx_id, 100)
         log.warning("bus %s node %s: tx %s failed: %s", bus, node if node is not None else node_text,
                     tx_id, message)
         fields: Dict[str, Any] = {"bus": bus, "node": node, "id": tx_id, "error": message}
@@ -384,7 +384,7 @@ class Bridge:
         node: Optional[int] = None
         try:
             if not (node_text.isascii() and node_text.isdigit()) or len(node_text) > 5:
-                raise TxError(f"node {clip(node_text, 40)!r} is not a node number")
+                raise TxError(f"node {_clip(node_text, 40)!r} is not a node number")
             node = int(node_text)
             bus.check_node(node)
             if len(payload) > TX_MAX:

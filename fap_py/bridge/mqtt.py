@@ -20,7 +20,8 @@ import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from ..errors import FapError
+from .._validate import check_int
+from ..errors import FapError, InvalidTypeError
 from .config import BridgeConfig
 from .store import Store, StoreError
 
@@ -56,6 +57,11 @@ _LOG_FIRST = 10   # refused publications logged one by one; after that every 100
 
 def describe_connect_error(exc: Optional[BaseException], host: str, port: int) -> str:
     """One line naming why a connection attempt failed (TLS, refused, DNS, timeout ...)."""
+    if not isinstance(host, str):
+        raise InvalidTypeError(f"host must be a str, not {type(host).__name__}")
+    check_int(port, "port", 0, 65535)
+    if exc is not None and not isinstance(exc, BaseException):
+        raise InvalidTypeError(f"exc must be an exception or None, not {type(exc).__name__}")
     where = f"{host}:{port}"
     if exc is None:
         return f"{where}: connection failed"
