@@ -20,9 +20,10 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Tuple
 
-from ..errors import FapError
+from .._validate import check_bytes, check_seconds, check_timeout
+from ..errors import FapError, InvalidTypeError, InvalidValueError
 from .buses import BusAdapter, TxError, make_adapter
-from .config import BridgeConfig, verify_files
+from .config import BridgeConfig, check_bus_node, verify_files
 from .homeassistant import Discovery
 from .mqtt import MqttLink
 from .sparkplug import SparkplugNode
@@ -124,7 +125,7 @@ class Bridge:
 
     def wait_connected(self, timeout: Optional[float] = None) -> bool:
         """True once the broker accepted us (BrokerRefusedError if it refused)."""
-        return self.link.wait_connected(timeout)
+        return self.link.wait_connected(check_timeout(timeout))
 
     def _open_bus(self, bus: BusAdapter) -> bool:
         """Open and start ``bus``; False (state ``unavailable`` published) if its port fails."""
@@ -194,6 +195,7 @@ class Bridge:
 
     def stop(self, drain: float = 5.0) -> None:
         """Stop the buses, drain the outbox (up to ``drain`` s), go offline."""
+        drain = check_seconds(drain, "drain")
         if self._stop.is_set():
             return
         self._stop.set()
@@ -279,10 +281,19 @@ class Bridge:
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""
+        self._check_bus(bus, node)
+        if not isinstance(fields, dict):
+            raise InvalidTypeError(f"fields must be a dict, not {type(fields).__name__}")
         self.rx_many(bus, [(node, fields)])
 
     def rx_many(self, bus: str, items: List[Tuple[int, Dict[str, Any]]]) -> None:
         """Several received messages, in bus order (one disk transaction)."""
+        if not isinstance(items, list):
+            raise InvalidTypeError(f"items must be a list of (node, fields), not {type(items).__name__}")
+        for item in items:
+            if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], dict)):
+                raise InvalidTypeError("items must be a list of (node, fields)")
+            self._check_bus(bus, item[0])
         t = time.time()
         ts = now_iso(t)
         for node in {node for node, _ in items}:
@@ -328,6 +339,12 @@ class Bridge:
         with self._lock:
             return {k: bool(st[0]) for k, st in self._states.items() if st[0] is not None}
 
+    def _check_bus(self, bus: Any, node: Any) -> None:
+        """A bus of this bridge and a node number (InvalidTypeError / InvalidValueError)."""
+        check_bus_node(bus, node)
+        if bus not in self.buses:
+            raise InvalidValueError(f"no bus {bus[:40]!r} in this bridge")
+
     def _seen(self, bus: str, node: int, t: float) -> None:
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
@@ -337,6 +354,9 @@ class Bridge:
 
     def state(self, bus: str, node: int, active: bool) -> None:
         """Publish the retained state of ``node`` when it changes."""
+        self._check_bus(bus, node)
+        if not isinstance(active, bool):
+            raise InvalidTypeError(f"active must be a bool, not {type(active).__name__}")
         if self.discovery.enabled:
             self.discovery.node_seen(bus, node)
         with self._lock:
@@ -362,6 +382,15 @@ class Bridge:
     def error(self, bus: str, node: Any, tx_id: Optional[str], message: str,
               payload: Optional[bytes] = None, node_text: Optional[str] = None) -> None:
         """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded)."""
+        # node: any int (a tx to node 99999 is refused here, by number), None if not a number
+        if not isinstance(bus, str) or isinstance(node, bool) \
+                or not (node is None or isinstance(node, int)):
+            raise InvalidTypeError("error(): bus must be a str, node an int or None")
+        if not all(v is None or isinstance(v, str) for v in (tx_id, node_text)) \
+                or not isinstance(message, str):
+            raise InvalidTypeError("error(): tx_id and node_text must be str or None, message a str")
+        if payload is not None:
+            payload = check_bytes(payload, "payload", 0, 1 << 62)
         message = _clip(message)
         tx_id = None if tx_id is None else _clip(tx_id, 100)
         log.warning("bus %s node %s: tx %s failed: %s", bus, node if node is not None else node_text,
@@ -408,6 +437,7 @@ class Bridge:
     # -- stats --------------------------------------------------------------------------
     def stats(self, bus: str) -> Dict[str, Any]:
         """The counters published on ``<prefix>/<bus>/stats``."""
+        self._check_bus(bus, 0)
         adapter = self.buses[bus]
         return {"bus": bus, "state": "running" if adapter.open_error is None else "unavailable",
                 "bridge": dict(adapter.counters, jobs_waiting=adapter.jobs.qsize()),

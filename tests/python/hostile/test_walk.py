@@ -24,21 +24,12 @@ pytestmark = pytest.mark.timeout(600)
 
 RUNNER = Path(__file__).with_name("walk_runner.py")
 
-# fap_py.monitor and fap_py.bridge are being fixed in parallel (issue 26 items
-# 1, 3, 5-7, 10 belong to their helpers): what the walk still finds there,
-# per callable, as counts of findings by kind. ONLY these two packages may be
-# listed. The test fails when a listed callable no longer fails (remove the
-# entry when merging its fix) and when an unlisted one does.
-EXPECTED_FAILURES: Dict[str, str] = {
-    "fap_py.bridge.bridge.Bridge": "1 generic, 1 no_instance",
-    "fap_py.bridge.buses.Sink": "1 no_instance",
-    "fap_py.bridge.mqtt.MqttLink": "5 generic, 1 no_instance",
-    "fap_py.bridge.store.Store": "1 accepted, 5 generic, 1 no_instance",
-    "fap_py.bridge.store.now_iso": "2 accepted, 7 generic",
-    "fap_py.monitor.decoders.Decoder.feed": "17 generic",
-    "fap_py.monitor.pcap.PcapWriter": "6 generic, 1 no_instance",
-    "fap_py.monitor.sources.LivePort": "4 generic, 1 no_instance",
-}
+# Callables the walk may still find fault with, each with the reason its call
+# cannot be checked, as counts of findings by kind. ONLY fap_py.monitor and
+# fap_py.bridge may be listed. The test fails when a listed callable no
+# longer fails (remove the entry) and when an unlisted one does. Empty: every
+# finding of issue 26 is fixed at its source.
+EXPECTED_FAILURES: Dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")
