@@ -23,6 +23,8 @@ import statistics
 from dataclasses import dataclass, field
 from typing import Optional, Tuple
 
+from ._validate import U32, check_baud, check_bool, check_int, check_path, check_seconds
+from .errors import InvalidTypeError
 from .port import Port, port_error
 from .rs485 import RS485, RS485Mode
 
@@ -58,7 +60,18 @@ def judge(device: str, mode: RS485Mode, rounds: int, echoed: int, collisions: in
     """The verdict from what the measurement saw: the rounds run, those
     whose whole pattern came back, the bytes that came back different, and
     per echoed round the release minus the last echo (µs)."""
-    margins = list(margins_us)
+    if not isinstance(device, str):
+        raise InvalidTypeError(f"device must be a str, not {type(device).__name__}")
+    if not isinstance(mode, RS485Mode):
+        raise InvalidTypeError(f"mode must be an RS485Mode, not {type(mode).__name__}")
+    rounds, echoed, collisions = (check_int(v, what, 0, U32) for v, what in
+                                  ((rounds, "rounds"), (echoed, "echoed"),
+                                   (collisions, "collisions")))
+    if not isinstance(margins_us, (tuple, list)):
+        raise InvalidTypeError(f"margins_us must be a tuple of ints, not "
+                               f"{type(margins_us).__name__}")
+    margins = [check_int(m, "margins_us item", -U32, U32) for m in margins_us]
+    check_bool(kernel_rs485, "kernel_rs485")
     warnings = []
     if not margins:
         warnings.append("no echo: the transceiver does not hear itself (receiver off while "
@@ -89,12 +102,20 @@ def measure(path: str, baudrate: int, rs485: RS485, *, rounds: int = 5,
     :func:`judge`'s)."""
     from ._native import ffi, lib
 
-    rounds = min(max(1, rounds), int(lib.FAP_PORT_CHECK_MAX_ROUNDS))
+    path = check_path(path, "path")
+    baudrate = check_baud(baudrate)
+    if not isinstance(rs485, RS485):
+        raise InvalidTypeError(f"rs485 must be an RS485, not {type(rs485).__name__}")
+    # out-of-range counts are clamped (the CLI's --rounds relies on it); wrong types refused
+    rounds = min(max(1, check_int(rounds, "rounds", -U32, U32)),
+                 int(lib.FAP_PORT_CHECK_MAX_ROUNDS))
+    wait_ms = int(check_seconds(timeout, "timeout") * 1000)
+    check_bool(kernel_rs485, "kernel_rs485")
     out = ffi.new("fap_port_check *")
     line = dataclasses.replace(rs485, echo_suppression=False)
     with Port(path, baudrate, line) as port:
         r = port._call(lib.fap_port_check_direction, PATTERN, len(PATTERN), rounds,
-                       int(timeout * 1000), out)
+                       wait_ms, out)
         if r < 0:
             raise port_error(r, "direction check", path)
         mode = port.mode

@@ -16,6 +16,8 @@ import os
 from dataclasses import dataclass
 from typing import Dict, List, Optional
 
+from ._validate import check_bool, check_path
+
 __all__ = ["SerialPort", "list_ports", "UART_TYPES"]
 
 log = logging.getLogger(__name__)
@@ -107,6 +109,9 @@ def list_ports(sysfs: str = "/sys", dev_root: str = "/dev",
                include_empty: bool = False) -> List[SerialPort]:
     """Every tty with a hardware device behind it, sorted by name.
     ``include_empty``: also serial_core slots whose type is 0 (no UART)."""
+    sysfs = check_path(sysfs, "sysfs")
+    dev_root = check_path(dev_root, "dev_root")
+    check_bool(include_empty, "include_empty")
     cls = os.path.join(sysfs, "class", "tty")
     try:
         names = sorted(os.listdir(cls))

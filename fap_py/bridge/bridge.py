@@ -20,9 +20,10 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Tuple
 
-from ..errors import FapError
+from .._validate import check_bytes, check_seconds, check_timeout
+from ..errors import FapError, InvalidTypeError, InvalidValueError
 from .buses import BusAdapter, TxError, make_adapter
-from .config import BridgeConfig, verify_files
+from .config import BridgeConfig, check_bus_node, verify_files
 from .homeassistant import Discovery
 from .mqtt import MqttLink
 from .sparkplug import SparkplugNode
@@ -35,7 +36,7 @@ ECHO_MAX = 256      #: bytes of a refused tx echoed on the error topic
 TEXT_MAX = 300      #: characters of an error text (published and logged)
 
 
-def clip(text: str, limit: int = TEXT_MAX) -> str:
+def _clip(text: str, limit: int = TEXT_MAX) -> str:
     """``text`` cut to ``limit`` characters, saying how much was cut."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
 
@@ -43,7 +44,7 @@ def clip(text: str, limit: int = TEXT_MAX) -> str:
 def _describe(exc: BaseException) -> str:
     if isinstance(exc, RecursionError):
         return "TxError: JSON nested too deeply"
-    return clip(f"{type(exc).__name__}: {exc}")
+    return _clip(f"{type(exc).__name__}: {exc}")
 
 
 class Bridge:
@@ -124,7 +125,7 @@ class Bridge:
 
     def wait_connected(self, timeout: Optional[float] = None) -> bool:
         """True once the broker accepted us (BrokerRefusedError if it refused)."""
-        return self.link.wait_connected(timeout)
+        return self.link.wait_connected(check_timeout(timeout))
 
     def _open_bus(self, bus: BusAdapter) -> bool:
         """Open and start ``bus``; False (state ``unavailable`` published) if its port fails."""
@@ -139,18 +140,18 @@ class Bridge:
                     bus.engine.close()
                     bus.engine = None
                 first = bus.open_error is None
-                bus.open_error = clip(f"{type(exc).__name__}: {exc}")
+                bus.open_error = _clip(f"{type(exc).__name__}: {exc}")
                 if first:
                     log.warning("bus %s: cannot open %s: %s (retrying every %g s; the other buses run)",
-                                bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
+                                bus.cfg.name, _clip(bus.cfg.port, 100), bus.open_error, bus.cfg.reopen_interval)
                     self._bus_state(bus)
                 else:
-                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, clip(bus.cfg.port, 100), bus.open_error)
+                    log.info("bus %s: cannot open %s: %s", bus.cfg.name, _clip(bus.cfg.port, 100), bus.open_error)
                 return False
             was_down = bus.open_error is not None
             bus.open_error = None
         if was_down:
-            log.warning("bus %s: %s opened", bus.cfg.name, clip(bus.cfg.port, 100))
+            log.warning("bus %s: %s opened", bus.cfg.name, _clip(bus.cfg.port, 100))
         self._bus_state(bus)
         return True
 
@@ -180,7 +181,7 @@ class Bridge:
         if down:
             buses += f" (unavailable: {', '.join(down)})"
         store = "" if self.store_error is None else f", outbox failing: {self.not_stored} not stored"
-        return clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
+        return _clip(f"broker {broker}; {buses}; outbox {self.store.pending}{store}")
 
     def _stop_buses(self) -> None:
         with self._bus_lock:
@@ -194,6 +195,7 @@ class Bridge:
 
     def stop(self, drain: float = 5.0) -> None:
         """Stop the buses, drain the outbox (up to ``drain`` s), go offline."""
+        drain = check_seconds(drain, "drain")
         if self._stop.is_set():
             return
         self._stop.set()
@@ -247,7 +249,7 @@ class Bridge:
                 self._seq = first          # rolled back: the numbers were not used
                 self.not_stored += len(rows)
                 changed = self.store_error is None
-                self.store_error = clip(str(exc))
+                self.store_error = _clip(str(exc))
                 if changed:
                     log.error("%s: publications are counted as not stored until it works again", exc)
             else:
@@ -279,10 +281,19 @@ class Bridge:
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""
+        self._check_bus(bus, node)
+        if not isinstance(fields, dict):
+            raise InvalidTypeError(f"fields must be a dict, not {type(fields).__name__}")
         self.rx_many(bus, [(node, fields)])
 
     def rx_many(self, bus: str, items: List[Tuple[int, Dict[str, Any]]]) -> None:
         """Several received messages, in bus order (one disk transaction)."""
+        if not isinstance(items, list):
+            raise InvalidTypeError(f"items must be a list of (node, fields), not {type(items).__name__}")
+        for item in items:
+            if not (isinstance(item, tuple) and len(item) == 2 and isinstance(item[1], dict)):
+                raise InvalidTypeError("items must be a list of (node, fields)")
+            self._check_bus(bus, item[0])
         t = time.time()
         ts = now_iso(t)
         for node in {node for node, _ in items}:
@@ -328,6 +339,12 @@ class Bridge:
         with self._lock:
             return {k: bool(st[0]) for k, st in self._states.items() if st[0] is not None}
 
+    def _check_bus(self, bus: Any, node: Any) -> None:
+        """A bus of this bridge and a node number (InvalidTypeError / InvalidValueError)."""
+        check_bus_node(bus, node)
+        if bus not in self.buses:
+            raise InvalidValueError(f"no bus {bus[:40]!r} in this bridge")
+
     def _seen(self, bus: str, node: int, t: float) -> None:
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
@@ -337,6 +354,9 @@ class Bridge:
 
     def state(self, bus: str, node: int, active: bool) -> None:
         """Publish the retained state of ``node`` when it changes."""
+        self._check_bus(bus, node)
+        if not isinstance(active, bool):
+            raise InvalidTypeError(f"active must be a bool, not {type(active).__name__}")
         if self.discovery.enabled:
             self.discovery.node_seen(bus, node)
         with self._lock:
@@ -362,8 +382,17 @@ class Bridge:
     def error(self, bus: str, node: Any, tx_id: Optional[str], message: str,
               payload: Optional[bytes] = None, node_text: Optional[str] = None) -> None:
         """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded)."""
-        message = clip(message)
-        tx_id = None if tx_id is None else clip(tx_id, 100)
+        # node: any int (a tx to node 99999 is refused here, by number), None if not a number
+        if not isinstance(bus, str) or isinstance(node, bool) \
+                or not (node is None or isinstance(node, int)):
+            raise InvalidTypeError("error(): bus must be a str, node an int or None")
+        if not all(v is None or isinstance(v, str) for v in (tx_id, node_text)) \
+                or not isinstance(message, str):
+            raise InvalidTypeError("error(): tx_id and node_text must be str or None, message a str")
+        if payload is not None:
+            payload = check_bytes(payload, "payload", 0, 1 << 62)
+        message = _clip(message)
+        tx_id = None if tx_id is None else _clip(tx_id, 100)
         log.warning("bus %s node %s: tx %s failed: %s", bus, node if node is not None else node_text,
                     tx_id, message)
         fields: Dict[str, Any] = {"bus": bus, "node": node, "id": tx_id, "error": message}
@@ -384,7 +413,7 @@ class Bridge:
         node: Optional[int] = None
         try:
             if not (node_text.isascii() and node_text.isdigit()) or len(node_text) > 5:
-                raise TxError(f"node {clip(node_text, 40)!r} is not a node number")
+                raise TxError(f"node {_clip(node_text, 40)!r} is not a node number")
             node = int(node_text)
             bus.check_node(node)
             if len(payload) > TX_MAX:
@@ -408,6 +437,7 @@ class Bridge:
     # -- stats --------------------------------------------------------------------------
     def stats(self, bus: str) -> Dict[str, Any]:
         """The counters published on ``<prefix>/<bus>/stats``."""
+        self._check_bus(bus, 0)
         adapter = self.buses[bus]
         return {"bus": bus, "state": "running" if adapter.open_error is None else "unavailable",
                 "bridge": dict(adapter.counters, jobs_waiting=adapter.jobs.qsize()),

@@ -18,7 +18,8 @@ import threading
 import time
 from typing import Any, Dict, List, Optional, Protocol, Tuple
 
-from ..errors import FapError, FapTimeoutError, InvalidValueError
+from .._validate import check_int, check_seconds
+from ..errors import FapError, FapTimeoutError, InvalidTypeError, InvalidValueError
 from .config import BusConfig
 
 log = logging.getLogger(__name__)
@@ -56,6 +57,7 @@ class NodeCounters:
         self.last_reply: Optional[float] = None   # seconds
 
     def reply(self, seconds: float) -> None:
+        seconds = check_seconds(seconds, "seconds")   # a NaN would poison the sum and buckets
         for i, le in enumerate(REPLY_BUCKETS):
             if seconds <= le:
                 self.buckets[i] += 1
@@ -108,6 +110,11 @@ def _int(req: Dict[str, Any], key: str, default: Any = ...) -> int:
     return value
 
 
+def _check_cfg(cfg: Any) -> None:
+    if not isinstance(cfg, BusConfig):
+        raise InvalidTypeError(f"cfg must be a BusConfig, not {type(cfg).__name__}")
+
+
 def _stats(obj: Any) -> Dict[str, Any]:
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
         return dataclasses.asdict(obj)
@@ -120,6 +127,10 @@ class BusAdapter:
     nodes_lo, nodes_hi = 0, 255
 
     def __init__(self, cfg: BusConfig, sink: Sink) -> None:
+        _check_cfg(cfg)
+        if not all(callable(getattr(sink, m, None)) for m in ("rx", "rx_many", "state", "error")):
+            raise InvalidTypeError(f"sink must have rx, rx_many, state and error methods, "
+                                   f"not {type(sink).__name__}")
         self.cfg = cfg
         self.sink = sink
         self.engine: Any = None
@@ -134,6 +145,7 @@ class BusAdapter:
 
     def node(self, node: int) -> NodeCounters:
         """The counters of ``node`` (created on first use)."""
+        node = check_int(node, "node", 0, 255)
         c = self.nodes.get(node)
         if c is None:
             c = self.nodes[node] = NodeCounters()
@@ -164,7 +176,7 @@ class BusAdapter:
             self.node(node)
         return {str(n): c.report() for n, c in sorted(self.nodes.items())}
 
-    def timed(self, node: int, call: Any, *args: Any, **kw: Any) -> Any:
+    def _timed(self, node: int, call: Any, *args: Any, **kw: Any) -> Any:
         """``call(*args)``, its time recorded as ``node``'s reply time; a failure counted."""
         t0 = time.monotonic()
         try:
@@ -211,6 +223,8 @@ class BusAdapter:
     # -- tx ------------------------------------------------------------------------
     def check_node(self, node: int) -> None:
         """TxError unless ``node`` is a node number of this protocol and the bus runs."""
+        if isinstance(node, bool) or not isinstance(node, int):
+            raise InvalidTypeError(f"node must be an int, not {type(node).__name__}")
         if not self.nodes_lo <= node <= self.nodes_hi:
             raise TxError(f"node {node} outside {self.nodes_lo}..{self.nodes_hi} for {self.cfg.protocol}")
         if not self.running:
@@ -219,6 +233,12 @@ class BusAdapter:
     def submit(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float] = None) -> None:
         """Queue a tx for the worker (TxError if the queue is full); ``deadline`` (monotonic):
         the tx expires then (MQTT 5 message expiry) and is not run after it."""
+        if not isinstance(tx_id, str):
+            raise InvalidTypeError(f"tx_id must be a str, not {type(tx_id).__name__}")
+        if not isinstance(req, dict):
+            raise InvalidTypeError(f"req must be a dict, not {type(req).__name__}")
+        if deadline is not None:
+            check_seconds(deadline, "deadline", hi=1e15)   # a monotonic time
         self.check_node(node)
         try:
             self.jobs.put_nowait((node, tx_id, req, deadline))
@@ -231,7 +251,7 @@ class BusAdapter:
             self.sink.error(self.cfg.name, node, tx_id, "expired before it could run (MQTT message expiry)")
             return
         try:
-            reply = self.execute(node, req)
+            reply = self._execute(node, req)
         except FapError as exc:
             self.counters["tx_errors"] += 1
             self.sink.error(self.cfg.name, node, tx_id, f"{type(exc).__name__}: {exc}")
@@ -242,7 +262,7 @@ class BusAdapter:
             self.counters["rx"] += 1
             self.sink.rx(self.cfg.name, node, dict(reply, reply_to=tx_id))
 
-    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         """Carry out one tx; the fields of the reply to publish on rx, or None."""
         raise NotImplementedError
 
@@ -319,7 +339,7 @@ class FapAdapter(BusAdapter):
                 os.close(fd)
             self._wake = None
 
-    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         op = req.get("op", "send")
         if op != "send":
             raise TxError(f"op {op!r}: a fap bus only sends")
@@ -392,13 +412,13 @@ class ExecAsyncAdapter(BusAdapter):
     def poll(self) -> None:
         for node in self.cfg.nodes:
             try:
-                reply = self.timed(node, self.engine.transact, node, self.cfg.poll_data)
+                reply = self._timed(node, self.engine.transact, node, self.cfg.poll_data)
             except FapError as exc:
                 self._polled(node, None, exc)
             else:
                 self._polled(node, {"data": reply.hex()}, None)
 
-    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         op = req.get("op", "send")
         if op != "send":
             raise TxError(f"op {op!r}: an execasync bus only sends")
@@ -406,7 +426,7 @@ class ExecAsyncAdapter(BusAdapter):
         if node == 255:
             self.engine.broadcast(data)
             return {"data": ""}
-        reply = self.timed(node, self.engine.transact, node, data)
+        reply = self._timed(node, self.engine.transact, node, data)
         self.sink.state(self.cfg.name, node, True)
         return {"data": reply.hex()}
 
@@ -426,14 +446,14 @@ class MikrocAdapter(BusAdapter):
     def poll(self) -> None:
         for node in self.cfg.nodes:
             try:
-                reply = self.timed(node, self.engine.request, node, self.cfg.poll_data,
+                reply = self._timed(node, self.engine.request, node, self.cfg.poll_data,
                                    timeout=self.cfg.timeout)
             except FapError as exc:
                 self._polled(node, None, exc)
             else:
                 self._polled(node, {"data": reply.data.hex()}, None)
 
-    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         from ..mikroc import BROADCAST
 
         op = req.get("op", "send")
@@ -443,7 +463,7 @@ class MikrocAdapter(BusAdapter):
         if node == BROADCAST:
             self.engine.send(node, data)
             return {"data": ""}
-        reply = self.timed(node, self.engine.request, node, data, timeout=self.cfg.timeout)
+        reply = self._timed(node, self.engine.request, node, data, timeout=self.cfg.timeout)
         return {"data": reply.data.hex()}
 
 
@@ -468,25 +488,25 @@ class G485Adapter(BusAdapter):
         for dev in self.cfg.devices:
             for first, count in dev.registers:
                 try:
-                    data = self.timed(dev.address, self.engine.read, dev.address, first, count)
+                    data = self._timed(dev.address, self.engine.read, dev.address, first, count)
                 except FapError as exc:
                     self._polled(dev.address, None, exc)
                     break          # the device is not answering: skip its other runs this round
                 self._polled(dev.address, {"op": "read", "register": first, "data": data.hex()}, None)
 
-    def execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         m = self.engine
         op = req.get("op")
         if op == "read":
             register, count = _int(req, "register"), _int(req, "count", 1)
             return {"op": op, "register": register,
-                    "data": self.timed(node, m.read, node, register, count).hex()}
+                    "data": self._timed(node, m.read, node, register, count).hex()}
         if op == "write":
             register, data = _int(req, "register"), _hex(req)
             if node == 0:
                 m.broadcast_write(register, data)
             else:
-                self.timed(node, m.write, node, register, data)
+                self._timed(node, m.write, node, register, data)
             return {"op": op, "register": register, "data": data.hex()}
         if op == "set":
             command = req.get("command")
@@ -507,4 +527,5 @@ ADAPTERS = {"fap": FapAdapter, "execasync": ExecAsyncAdapter, "g485": G485Adapte
 
 def make_adapter(cfg: BusConfig, sink: Sink) -> BusAdapter:
     """The adapter for ``cfg.protocol``."""
+    _check_cfg(cfg)
     return ADAPTERS[cfg.protocol](cfg, sink)

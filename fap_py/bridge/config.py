@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
+from .._validate import check_int
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
 from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
@@ -114,6 +115,14 @@ class BridgeConfig:
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
     discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
     sparkplug: Optional[SparkplugConfig] = None         #: [sparkplug]
+
+
+def check_bus_node(bus: Any, node: Any) -> None:
+    """InvalidTypeError / InvalidValueError unless ``bus`` is a bus name (str) and ``node``
+    a node number (0..255): what the bridge's per-node calls are handed."""
+    if not isinstance(bus, str):
+        raise InvalidTypeError(f"bus must be a str, not {type(bus).__name__}")
+    check_int(node, "node", 0, 255)
 
 
 # -- checking helpers -----------------------------------------------------------
@@ -448,4 +457,5 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
 
 
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
+           "check_bus_node",
            "G485Device", "SparkplugConfig", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

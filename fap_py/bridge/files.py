@@ -30,17 +30,24 @@ class BridgeFileError(PortError):
 
 
 def text_path(path: object, field: str = "path") -> str:
-    """``path`` (str or os.PathLike of str) as a str; InvalidTypeError otherwise."""
+    """``path`` (str or os.PathLike of str) as a str; InvalidTypeError otherwise,
+    BridgeFileError (a bad file, exit 3) for an empty path or one holding a NUL."""
+    if not isinstance(field, str):
+        raise InvalidTypeError(f"field must be a str, not {type(field).__name__}")
     if isinstance(path, os.PathLike):
         path = os.fspath(path)
     if not isinstance(path, str):
         raise InvalidTypeError(f"{field} must be a path (str), not {type(path).__name__}")
+    if not path:
+        raise BridgeFileError(errno.ENOENT, field, "''", "an empty path")
+    if "\0" in path:
+        raise BridgeFileError(errno.EINVAL, field, repr(path), "a path cannot hold a NUL byte")
     return path
 
 
 def read_bounded(path: str, limit: int, field: str) -> bytes:
     """The content of the regular file ``path``, at most ``limit`` bytes (else BridgeFileError)."""
-    path = text_path(path, str(field))
+    path = text_path(path, field)
     if isinstance(limit, bool) or not isinstance(limit, int) or not 0 <= limit <= 1 << 30:
         raise InvalidValueError(f"limit must be an integer in 0..{1 << 30}, not {limit!r:.40}")
     try:
@@ -48,8 +55,6 @@ def read_bounded(path: str, limit: int, field: str) -> bytes:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError as exc:
         raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.strerror or str(exc)) from None
-    except ValueError:   # an embedded NUL
-        raise BridgeFileError(errno.EINVAL, field, repr(path), "a path cannot hold a NUL byte") from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
@@ -97,7 +102,7 @@ def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
 
 def check_port(path: str, field: str) -> None:
     """``path`` exists and is a character device (a serial port or a pty); opens nothing."""
-    path = text_path(path, str(field))
+    path = text_path(path, field)
     try:
         st = os.stat(path)
     except (OSError, ValueError) as exc:

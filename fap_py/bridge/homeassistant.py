@@ -21,8 +21,8 @@ import re
 import threading
 from typing import Any, Callable, Dict, List, Set, Tuple
 
-from ..errors import InvalidTypeError
-from .config import BridgeConfig, BusConfig
+from ..errors import InvalidTypeError, InvalidValueError
+from .config import BridgeConfig, BusConfig, check_bus_node
 
 _ORIGIN = {"name": "fap_py bridge", "support_url": "https://github.com/libfap/libfap/blob/main/docs/bridge.md"}
 
@@ -87,6 +87,9 @@ class Discovery:
 
     def payloads(self, bus: str, node: int) -> List[Tuple[str, Dict[str, Any]]]:
         """(config topic, payload) of every entity of ``node``."""
+        check_bus_node(bus, node)
+        if bus not in self.buses:
+            raise InvalidValueError(f"bus {bus[:40]!r} has no Home Assistant discovery")
         c, b = self.config, self.buses[bus]
         base = f"{c.prefix}/{bus}"
         topics = {"state": f"{base}/{node}/state", "rx": f"{base}/{node}/rx", "stats": f"{base}/stats"}
@@ -121,6 +124,7 @@ class Discovery:
 
     def node_seen(self, bus: str, node: int) -> None:
         """A node is known (configured or heard): announce it the first time."""
+        check_bus_node(bus, node)
         if bus not in self.buses:
             return
         with self._lock:
@@ -131,6 +135,13 @@ class Discovery:
 
     def add_configured(self, nodes: Dict[str, Tuple[int, ...]]) -> None:
         """The nodes the configuration names, announced at the next :meth:`republish`."""
+        if not isinstance(nodes, dict):
+            raise InvalidTypeError(f"nodes must be a dict of bus: node numbers, not {type(nodes).__name__}")
+        for bus, ids in nodes.items():
+            if not isinstance(ids, (tuple, list)):
+                raise InvalidTypeError(f"nodes[{bus!r:.40}] must be a tuple of node numbers")
+            for n in ids:
+                check_bus_node(bus, n)
         with self._lock:
             for bus, ids in nodes.items():
                 if bus in self.buses:

@@ -20,7 +20,8 @@ import threading
 import time
 from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from ..errors import FapError
+from .._validate import check_bool, check_bytes, check_int, check_seconds, check_timeout
+from ..errors import FapError, InvalidTypeError
 from .config import BridgeConfig
 from .store import Store, StoreError
 
@@ -51,11 +52,17 @@ def paho() -> Any:
 # CONNACK codes that no retry can fix: bad credentials, not authorised, banned.
 _FATAL_CONNACK = {4, 5, 134, 135, 138, 140}
 
+_PAYLOAD_MAX = 268_435_455   #: MQTT's largest packet (its remaining length field)
 _LOG_FIRST = 10   # refused publications logged one by one; after that every 1000th
 
 
 def describe_connect_error(exc: Optional[BaseException], host: str, port: int) -> str:
     """One line naming why a connection attempt failed (TLS, refused, DNS, timeout ...)."""
+    if not isinstance(host, str):
+        raise InvalidTypeError(f"host must be a str, not {type(host).__name__}")
+    check_int(port, "port", 0, 65535)
+    if exc is not None and not isinstance(exc, BaseException):
+        raise InvalidTypeError(f"exc must be an exception or None, not {type(exc).__name__}")
     where = f"{host}:{port}"
     if exc is None:
         return f"{where}: connection failed"
@@ -87,6 +94,8 @@ class MqttLink:
 
     def __init__(self, config: BridgeConfig, store: Store,
                  on_tx: Callable[[str, bytes, Optional[float]], None]) -> None:
+        if not isinstance(config, BridgeConfig) or not isinstance(store, Store) or not callable(on_tx):
+            raise InvalidTypeError("MqttLink(config: BridgeConfig, store: Store, on_tx: callable)")
         mqtt = paho()
         self._mqtt = mqtt
         self.config = config
@@ -164,6 +173,7 @@ class MqttLink:
     def wait_connected(self, timeout: Optional[float]) -> bool:
         """True once connected and subscribed to the tx topics; raises
         BrokerRefusedError if the broker said no."""
+        timeout = check_timeout(timeout)
         with self._cond:
             self._cond.wait_for(lambda: self._subscribed or self.refused is not None, timeout)
             if self.refused is not None:
@@ -186,17 +196,23 @@ class MqttLink:
     def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> None:
         """Publish outside the outbox (QoS 1, best effort): the bridge's own health, which
         must get out even when the outbox cannot be written."""
+        if not isinstance(topic, str):
+            raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
+        payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
+        check_bool(retain, "retain")
         if self._connected:
             self.client.publish(topic, payload, qos=1, retain=retain)
 
     def drain(self, timeout: float) -> bool:
         """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
+        timeout = check_seconds(timeout, "timeout")
         with self._cond:
             return self._cond.wait_for(
                 lambda: self.store.pending == 0 and not self._acked and not self._inflight, timeout)
 
     def stop(self, timeout: float = 5.0) -> None:
         """Publish ``online`` -> ``offline`` cleanly, disconnect and stop the threads."""
+        timeout = check_seconds(timeout, "timeout")
         with self._cond:
             self._stopping = True
             self._cond.notify_all()

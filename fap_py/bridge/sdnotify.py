@@ -13,6 +13,8 @@ import os
 import socket
 from typing import Mapping, Optional
 
+from ..errors import InvalidTypeError
+
 log = logging.getLogger(__name__)
 
 
@@ -21,7 +23,12 @@ class Notifier:
 
     def __init__(self, env: Optional[Mapping[str, str]] = None) -> None:
         env = os.environ if env is None else env
+        if not isinstance(env, Mapping):
+            raise InvalidTypeError(f"env must be a mapping of str, not {type(env).__name__}")
         path = env.get("NOTIFY_SOCKET", "")
+        if not all(isinstance(v, str) for v in (path, env.get("WATCHDOG_USEC", ""),
+                                                  env.get("WATCHDOG_PID", ""))):
+            raise InvalidTypeError("env: NOTIFY_SOCKET, WATCHDOG_USEC and WATCHDOG_PID must be str")
         self.address: Optional[str] = None
         if path.startswith("@"):
             self.address = "\0" + path[1:]

@@ -34,8 +34,9 @@ import threading
 import time
 from typing import Any, Deque, Dict, List, Optional, Tuple
 
+from .._validate import check_bool, check_seconds
 from ..errors import InvalidTypeError, InvalidValueError
-from .config import BridgeConfig
+from .config import BridgeConfig, check_bus_node
 from .mqtt import MissingDependencyError, describe_connect_error, paho
 
 log = logging.getLogger(__name__)
@@ -164,6 +165,8 @@ class SparkplugNode:
 
     # -- topics -----------------------------------------------------------------
     def topic(self, kind: str, device: Optional[str] = None) -> str:
+        if not isinstance(kind, str) or not (device is None or isinstance(device, str)):
+            raise InvalidTypeError("topic(kind: str, device: str or None)")
         t = f"{NAMESPACE}/{self.group}/{kind}/{self.edge}"
         return t if device is None else f"{t}/{device}"
 
@@ -184,6 +187,7 @@ class SparkplugNode:
 
     def stop(self, timeout: float = 5.0) -> None:
         """NDEATH (the spec's clean goodbye), then disconnect."""
+        timeout = check_seconds(timeout, "timeout")
         if self._connected:
             info = self.client.publish(self.topic("NDEATH"), encode([("bdSeq", INT64, self.bd_seq)], None), qos=1)
             try:
@@ -251,6 +255,11 @@ class SparkplugNode:
 
     def device(self, bus: str, node: int, metrics: List[Metric], alive: Optional[bool] = None) -> None:
         """A node's news: ``alive`` True/False -> DBIRTH/DDEATH, else DDATA with ``metrics``."""
+        check_bus_node(bus, node)
+        if alive is not None:
+            check_bool(alive, "alive")
+        if not isinstance(metrics, list):
+            raise InvalidTypeError(f"metrics must be a list, not {type(metrics).__name__}")
         if bus not in self.buses:
             return
         device = self.device_id(bus, node)

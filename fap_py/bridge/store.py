@@ -19,7 +19,8 @@ import time
 from contextlib import contextmanager
 from typing import Iterator, List, Optional, Tuple
 
-from ..errors import PortError
+from .._validate import U32, check_bool, check_bytes, check_int, check_path, check_seconds
+from ..errors import InvalidTypeError, PortError
 
 log = logging.getLogger(__name__)
 
@@ -41,10 +42,27 @@ CREATE TABLE IF NOT EXISTS counters (
 """
 
 Row = Tuple[int, str, bytes, bool]
+_YEAR_10000 = 253_402_300_800.0   #: the first Unix time RFC 3339's four-digit year cannot hold
 
 
 class StoreError(PortError):
     """The state file refused a write or a read (disk full, I/O error): nothing was changed."""
+
+
+_SEQ_MAX = (1 << 63) - 1   #: sqlite's INTEGER
+
+
+def _row(topic: object, payload: object, retain: object) -> Tuple[str, bytes, int]:
+    """A publication as stored, its fields checked (a wrong type would be stored as is)."""
+    if not isinstance(topic, str):
+        raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
+    return topic, check_bytes(payload, "payload", 0, _SEQ_MAX), int(check_bool(retain, "retain"))
+
+
+def _seqs(seqs: object) -> List[int]:
+    if not isinstance(seqs, (list, tuple)):
+        raise InvalidTypeError(f"seqs must be a list of ints, not {type(seqs).__name__}")
+    return [check_int(s, "seqs item", 0, _SEQ_MAX) for s in seqs]
 
 
 def _errno_of(exc: sqlite3.Error) -> int:
@@ -56,9 +74,10 @@ class Store:
     """The outbox and the seen-id set in one sqlite3 file (thread-safe)."""
 
     def __init__(self, path: str, queue_max: int = 100_000, seen_max: int = 10_000) -> None:
+        path = check_path(path, "path")
         self.path = path
-        self.queue_max = queue_max
-        self.seen_max = seen_max
+        self.queue_max = check_int(queue_max, "queue_max", 1, U32)
+        self.seen_max = check_int(seen_max, "seen_max", 1, U32)
         self._lock = threading.Lock()
         try:
             os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -101,9 +120,9 @@ class Store:
     # -- outbox ---------------------------------------------------------------
     def put(self, topic: str, payload: bytes, retain: bool = False) -> int:
         """Append a publication; returns its sequence number (never reused)."""
+        row = _row(topic, payload, retain)
         with self._txn("append"):
-            cur = self._db.execute("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)",
-                                   (topic, payload, int(retain)))
+            cur = self._db.execute("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)", row)
             rows = self._rows + 1
             if rows > self.queue_max:
                 rows -= self._drop_oldest(rows - self.queue_max)
@@ -114,11 +133,14 @@ class Store:
 
     def put_many(self, items: List[Tuple[str, bytes, bool]]) -> None:
         """Append several publications in one transaction."""
+        if not isinstance(items, list) or not all(isinstance(i, tuple) and len(i) == 3 for i in items):
+            raise InvalidTypeError(f"items must be a list of (topic, payload, retain), "
+                                   f"not {type(items).__name__}")
         if not items:
             return
+        values = [_row(t, p, r) for t, p, r in items]
         with self._txn("append"):
-            self._db.executemany("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)",
-                                 [(t, p, int(r)) for t, p, r in items])
+            self._db.executemany("INSERT INTO outbox(topic, payload, retain) VALUES (?,?,?)", values)
             rows = self._rows + len(items)
             if rows > self.queue_max:
                 rows -= self._drop_oldest(rows - self.queue_max)
@@ -142,6 +164,7 @@ class Store:
 
     def after(self, seq: int, limit: int) -> List[Row]:
         """Up to ``limit`` rows with a sequence number above ``seq``, oldest first."""
+        seq, limit = check_int(seq, "seq", 0, _SEQ_MAX), check_int(limit, "limit", 0, _SEQ_MAX)
         with self._lock:
             try:
                 rows = self._db.execute("SELECT seq, topic, payload, retain FROM outbox WHERE seq > ? "
@@ -152,10 +175,11 @@ class Store:
 
     def delete(self, seqs: List[int]) -> None:
         """Forget acknowledged rows."""
+        seqs = _seqs(seqs)
         if not seqs:
             return
         with self._txn("delete"):
-            cur = self._db.executemany("DELETE FROM outbox WHERE seq=?", [(s,) for s in seqs])
+            cur = self._db.executemany("DELETE FROM outbox WHERE seq=?", [(q,) for q in seqs])
             gone = max(0, cur.rowcount)
         self._rows -= gone
 
@@ -167,6 +191,8 @@ class Store:
     # -- seen tx ids ----------------------------------------------------------
     def first_time(self, tx_id: str) -> bool:
         """Record ``tx_id``; False if it was recorded before (a redelivery)."""
+        if not isinstance(tx_id, str):
+            raise InvalidTypeError(f"tx_id must be a str, not {type(tx_id).__name__}")
         with self._lock:
             if self._db.execute("SELECT 1 FROM seen WHERE id=?", (tx_id,)).fetchone():
                 return False
@@ -193,5 +219,5 @@ class Store:
 
 def now_iso(t: Optional[float] = None) -> str:
     """UTC timestamp with microseconds, RFC 3339 (``2026-11-24T04:40:00.123456Z``)."""
-    t = time.time() if t is None else t
+    t = time.time() if t is None else check_seconds(t, "t", hi=_YEAR_10000 - 1)
     return time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(t)) + f".{int(t % 1 * 1e6):06d}Z"

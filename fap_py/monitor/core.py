@@ -81,8 +81,9 @@ class Record:
         return self.event.fields
 
 
-class Timeline:
-    """Time and sender of every stream offset: one segment per chunk."""
+class _Timeline:
+    """Time and sender of every stream offset: one segment per chunk. Private: only
+    Monitor feeds it, with values it has checked."""
 
     __slots__ = ("_offsets", "_segs", "_pos", "_end")
 
@@ -148,7 +149,7 @@ class Monitor:
         self.baud = check_int(baud, "baud", 0, U32)
         #: good frames seen by the decoder ``auto`` locked on when it locked
         self.lock_frames = 0
-        self.timeline = Timeline()
+        self.timeline = _Timeline()
         self.filter = EventFilter()
         self.bytes = 0
         self._window = 0          # auto: stream offset where the trials' current stretch began

@@ -555,7 +555,7 @@ class EventFilter:
 
     def push(self, events: List[Event]) -> List[Event]:
         out: List[Event] = []
-        for ev in events:
+        for ev in _check_events(events):
             if ev.error is None:
                 inside = bool(self._pending) and ev.offset < self._covered
                 if inside:

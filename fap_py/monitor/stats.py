@@ -6,7 +6,7 @@ import random
 from collections import defaultdict
 from typing import Any, Dict, List, Optional
 
-from .._validate import U32, check_int
+from .._validate import U32, check_int, check_seconds
 from ..errors import InvalidTypeError
 from .core import Record
 from .decoders import G485_PREAMBLE
@@ -42,6 +42,7 @@ class NodeStats:
         self._rng = random.Random(0)      # deterministic: the same input, the same summary
 
     def add_reply(self, seconds: float) -> None:
+        seconds = check_seconds(seconds, "seconds")   # a NaN would poison max and percentiles
         self.n_replies += 1
         self.reply_max = max(self.reply_max, seconds)
         if len(self.replies) < REPLY_SAMPLES:

@@ -55,6 +55,10 @@ def test_messages_both_ways_state_and_status(broker, observer_factory, fap_bus, 
         assert err["id"] == "bad" and "hex" in err["error"]
         obs.publish("fap/line1/1/tx", {"data": "00"})
         obs.wait_for("fap/line1/1/error", lambda d: d["id"] is None and "id" in d["error"])
+        # a node number no FAP bus has (nor any bus: > 255): refused on its own error topic
+        obs.publish("fap/line1/99999/tx", {"id": "far", "data": "00"})
+        (far,) = obs.wait_for("fap/line1/99999/error")
+        assert far["node"] == 99999 and "outside" in far["error"]
         # retained state: a late subscriber gets every slave's state at once
         late = observer_factory(broker.port, "fap/line1/+/state", client_id="late")
         s1_state = late.wait_for("fap/line1/1/state", lambda d: d["state"] == "active")[0]

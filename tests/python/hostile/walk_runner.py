@@ -26,11 +26,13 @@ from __future__ import annotations
 import asyncio
 import importlib
 import inspect
+import io
 import json
 import os
 import pkgutil
 import re
 import sys
+import tempfile
 import threading
 import time
 from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple
@@ -59,6 +61,12 @@ NO_INSTANCE = {
     "fap_py.fap.Node": "the base of fap.Master and fap.Slave: its methods are walked on those",
     "fap_py.fap_aio.AsyncPump": "the asyncio pump behind Node.arecv/await_event/aevents (walked "
                                 "there); its methods run only inside the loop it belongs to",
+    "fap_py.bridge.buses.BusAdapter": "the base of the four bus adapters: its methods are walked "
+                                      "on those",
+    "fap_py.bridge.buses.Sink": "a typing.Protocol (what an adapter reports to, the Bridge): no "
+                                "instances",
+    "fap_py.monitor.decoders.Decoder": "the base of the four decoders: its methods are walked on "
+                                       "those",
 }
 
 #: parameters that are free text in a message (any value prints), per callable
@@ -186,15 +194,46 @@ class Ctx:
 def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
     """Instances whose methods are walked (classes the walk cannot build alone)."""
     from fap_py import execasync, fap, mikroc, vbus
+    from fap_py.bridge import buses
+    from fap_py.bridge.bridge import Bridge
+    from fap_py.bridge.homeassistant import Discovery
+    from fap_py.bridge.mqtt import MqttLink
+    from fap_py.bridge.sparkplug import SparkplugNode
+    from fap_py.bridge.store import Store
     from fap_py.g485.aio import AsyncG485Master
     from fap_py.g485.codec import reply_prefix
     from fap_py.g485.device import SimDevice
     from fap_py.g485.master import G485Master, ReplyWaiter
     from fap_py.g485.simulator import Simulator
     from fap_py.g485.transport import PortIO, SerialIO
+    from fap_py.monitor.pcap import PcapWriter
+    from fap_py.monitor.sources import LivePort
     from fap_py.port import Port
 
     line = ctx.line
+
+    class Sink:
+        """What a bus adapter reports to: drops everything."""
+
+        def rx(self, *a: Any) -> None: ...
+        def rx_many(self, *a: Any) -> None: ...
+        def state(self, *a: Any) -> None: ...
+        def error(self, *a: Any) -> None: ...
+
+    def adapter(cls: Any, protocol: str, **kw: Any) -> Any:
+        """A bus adapter on a bus of its own, not opened (so not running)."""
+        from fap_py.bridge.config import BusConfig
+        return cls(BusConfig(name="b", port=own(), protocol=protocol, **kw), Sink())
+
+    def bridge_config() -> Any:
+        """A bridge on one bus of its own (not opened), a broker nobody listens on (never
+        connected: nothing here starts), Sparkplug and Home Assistant on."""
+        from fap_py.bridge.config import BridgeConfig, BrokerConfig, BusConfig, SparkplugConfig
+        bus = BusConfig(name="b", port=own(), protocol="execasync", nodes=(1,),
+                        homeassistant=True, sparkplug=True)
+        return BridgeConfig(broker=BrokerConfig(host="127.0.0.1", port=1, tls=False),
+                            buses=(bus,), host="walk", state_dir=tempfile.mkdtemp(),
+                            sparkplug=SparkplugConfig("g", "e"))
 
     def own() -> str:
         """A port of a bus of its own: the instance keeps it while its methods are walked."""
@@ -223,6 +262,21 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
             G485Master(own(), timeout=0.01, retries=0, rs485=line), reply_prefix(8, 3)),
         "fap_py.g485.transport.PortIO": lambda: PortIO(own(), 115200, line),
         "fap_py.g485.transport.SerialIO": lambda: SerialIO("loop://", 115200),
+        "fap_py.bridge.buses.FapAdapter": lambda: adapter(buses.FapAdapter, "fap", slaves=(5,)),
+        "fap_py.bridge.buses.ExecAsyncAdapter": lambda: adapter(buses.ExecAsyncAdapter,
+                                                                "execasync", nodes=(1,)),
+        "fap_py.bridge.buses.MikrocAdapter": lambda: adapter(buses.MikrocAdapter, "mikroc",
+                                                             nodes=(1,)),
+        "fap_py.bridge.buses.G485Adapter": lambda: adapter(buses.G485Adapter, "g485"),
+        "fap_py.bridge.store.Store": lambda: Store(os.path.join(tempfile.mkdtemp(), "s.sqlite")),
+        "fap_py.bridge.mqtt.MqttLink": lambda: MqttLink(bridge_config(), Store(
+            os.path.join(tempfile.mkdtemp(), "s.sqlite")), lambda *a: None),
+        "fap_py.bridge.homeassistant.Discovery": lambda: Discovery(bridge_config(),
+                                                                   lambda *a: None),
+        "fap_py.bridge.sparkplug.SparkplugNode": lambda: SparkplugNode(bridge_config(), list),
+        "fap_py.bridge.bridge.Bridge": lambda: Bridge(bridge_config()),
+        "fap_py.monitor.pcap.PcapWriter": lambda: PcapWriter(io.BytesIO()),
+        "fap_py.monitor.sources.LivePort": lambda: LivePort(own(), 9600),
     }
 
 
