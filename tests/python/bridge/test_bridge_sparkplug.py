@@ -97,9 +97,10 @@ def test_sparkplug_edge_node(broker, observer_factory, paho_mqtt, tmp_path):
             (death,) = msgs("NDEATH")
             assert metric(death, "bdSeq").long_value == bd0 and not death.HasField("seq")
             # ... data meanwhile waits (the main link still publishes rx) ...
+            # (subscribed before the sends: rx is not retained, a later subscriber would miss it)
+            obs_rx = observer_factory(broker.port, "fap/line1/1/rx", client_id="rx")
             for i in range(3):
                 s1.send(bytes([0x10 + i]), timeout=WAIT)
-            obs_rx = observer_factory(broker.port, "fap/line1/1/rx", client_id="rx")
             obs_rx.wait_for("fap/line1/1/rx", lambda d: d["data"] == "12")
             # ... and follows the next births, flagged historical, with a new bdSeq
             wait(lambda: len(msgs("NBIRTH")) == 3 and any(
