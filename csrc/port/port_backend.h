@@ -52,6 +52,10 @@ typedef struct lf_port_backend {
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
+/* Its poll and sleep_until, shared by backends whose fd is an ordinary one
+ * (port_net.c: a socket). */
+int lf_port_posix_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms);
+void lf_port_posix_sleep_until(void *ctx, int64_t deadline_ns);
 
 /* The posix backend's GPIO functions (port_gpio.c, uAPI v2 ioctls). */
 int lf_port_gpio_open(void *ctx, const char *chip, unsigned line, int value);

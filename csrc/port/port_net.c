@@ -546,17 +546,6 @@ static ssize_t net_write(void *ctx, int fd, const void *buf, size_t n)
     return (ssize_t)take;
 }
 
-static int net_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms)
-{
-    (void)ctx;
-    return poll(fds, n, timeout_ms);
-}
-
-static void net_sleep_until(void *ctx, int64_t deadline_ns)
-{
-    (void)ctx;
-    lf_sleep_until(deadline_ns);
-}
 
 static void net_destroy(void *ctx)
 {
@@ -577,8 +566,8 @@ static const lf_port_backend net_backend = {
     .flock = net_flock,
     .read = net_read,
     .write = net_write,
-    .poll = net_poll,
-    .sleep_until = net_sleep_until,
+    .poll = lf_port_posix_poll,
+    .sleep_until = lf_port_posix_sleep_until,
     .destroy = net_destroy,
 };
 

@@ -69,13 +69,13 @@ static ssize_t px_write(void *ctx, int fd, const void *buf, size_t n)
     return write(fd, buf, n);
 }
 
-static int px_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms)
+int lf_port_posix_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms)
 {
     (void)ctx;
     return poll(fds, n, timeout_ms);
 }
 
-static void px_sleep_until(void *ctx, int64_t deadline_ns)
+void lf_port_posix_sleep_until(void *ctx, int64_t deadline_ns)
 {
     (void)ctx;
     lf_sleep_until(deadline_ns);
@@ -92,8 +92,8 @@ const lf_port_backend lf_port_posix_backend = {
     .flock = px_flock,
     .read = px_read,
     .write = px_write,
-    .poll = px_poll,
-    .sleep_until = px_sleep_until,
+    .poll = lf_port_posix_poll,
+    .sleep_until = lf_port_posix_sleep_until,
     .gpio_open = lf_port_gpio_open,   /* port_gpio.c */
     .gpio_set = lf_port_gpio_set,
 };
