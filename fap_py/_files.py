@@ -22,6 +22,14 @@ __all__ = ["open_user_file", "read_user_file"]
 PathArg = Union[str, bytes, "os.PathLike[str]", "os.PathLike[bytes]"]
 
 
+def _error(err: int, what: str, why: str, shown: str) -> FileError:
+    """FileError ``shown: what: why``, with ``why`` kept as ``.why`` (the bridge words
+    its own errors around it)."""
+    exc = FileError(err, f"{what}: {why}", shown)
+    exc.why = why
+    return exc
+
+
 def open_user_file(path: PathArg, *, limit: int, what: str) -> "tuple[str, BinaryIO]":
     """(the path as shown, the regular file ``path`` open for binary reading),
     checked to hold at most ``limit`` bytes; for callers that stream the file.
@@ -34,16 +42,14 @@ def open_user_file(path: PathArg, *, limit: int, what: str) -> "tuple[str, Binar
     try:
         fd = os.open(raw, os.O_RDONLY | os.O_CLOEXEC | os.O_NOCTTY | os.O_NONBLOCK)
     except OSError as exc:
-        raise FileError(exc.errno or errno.EIO, f"{what}: {exc.strerror}", shown) from None
+        raise _error(exc.errno or errno.EIO, what, exc.strerror or str(exc), shown) from None
     try:
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             kind = "a directory" if stat.S_ISDIR(st.st_mode) else "not a regular file"
-            raise FileError(errno.EISDIR if stat.S_ISDIR(st.st_mode) else errno.EINVAL,
-                            f"{what}: {kind}", shown)
+            raise _error(errno.EISDIR if stat.S_ISDIR(st.st_mode) else errno.EINVAL, what, kind, shown)
         if st.st_size > limit:
-            raise FileError(errno.EFBIG, f"{what}: {st.st_size} bytes, more than the "
-                            f"{limit} allowed", shown)
+            raise _error(errno.EFBIG, what, f"{st.st_size} bytes, more than the {limit} allowed", shown)
         return shown, os.fdopen(fd, "rb")
     except BaseException:
         os.close(fd)
@@ -61,7 +67,7 @@ def read_user_file(path: PathArg, *, limit: int, what: str) -> bytes:
         try:
             data = fh.read(limit + 1)
         except OSError as exc:
-            raise FileError(exc.errno or errno.EIO, f"{what}: {exc.strerror}", shown) from None
+            raise _error(exc.errno or errno.EIO, what, exc.strerror or str(exc), shown) from None
     if len(data) > limit:
-        raise FileError(errno.EFBIG, f"{what}: grew past the {limit} bytes allowed", shown)
+        raise _error(errno.EFBIG, what, f"grew past the {limit} bytes allowed", shown)
     return data

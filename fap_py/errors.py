@@ -103,6 +103,9 @@ class FileError(PortError):
     (``fap_py._files``). Also a :class:`PortError` (and an ``OSError``): the
     command line's "bad file" exit status 3."""
 
+    #: what is wrong with the file, without its name (set by ``fap_py._files``)
+    why: str = ""
+
 
 #: errno values that mean the device is no longer there
 _GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)

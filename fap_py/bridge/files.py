@@ -13,7 +13,8 @@ import os
 import stat
 from typing import Optional
 
-from ..errors import InvalidTypeError, InvalidValueError, PortError
+from .._files import read_user_file
+from ..errors import FileError, InvalidTypeError, InvalidValueError, PortError
 
 CONFIG_MAX = 1 << 20        #: bridge.toml
 SECRET_MAX = 64 << 10       #: password_file
@@ -50,33 +51,10 @@ def read_bounded(path: str, limit: int, field: str) -> bytes:
     path = text_path(path, field)
     if isinstance(limit, bool) or not isinstance(limit, int) or not 0 <= limit <= 1 << 30:
         raise InvalidValueError(f"limit must be an integer in 0..{1 << 30}, not {limit!r:.40}")
-    try:
-        # O_NONBLOCK: opening a FIFO or a tty must not wait for the other end
-        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
-    except OSError as exc:
-        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.strerror or str(exc)) from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise BridgeFileError(errno.EINVAL, field, path, "not a regular file")
-        if st.st_size > limit:
-            raise BridgeFileError(errno.EFBIG, field, path, f"{st.st_size} bytes, more than {limit}")
-        chunks, total = [], 0
-        while total <= limit:          # the file may grow after fstat: stop at the bound
-            chunk = os.read(fd, limit + 1 - total)
-            if not chunk:
-                break
-            chunks.append(chunk)
-            total += len(chunk)
-        if total > limit:
-            raise BridgeFileError(errno.EFBIG, field, path, f"more than {limit} bytes")
-        return b"".join(chunks)
-    except OSError as exc:
-        if isinstance(exc, BridgeFileError):
-            raise
-        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.strerror or str(exc)) from None
-    finally:
-        os.close(fd)
+    try:                               # the package's one bounded read of a named file
+        return read_user_file(path, limit=limit, what=field)
+    except FileError as exc:
+        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.why or exc.strerror) from None
 
 
 def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
