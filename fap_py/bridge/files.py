@@ -54,7 +54,7 @@ def read_bounded(path: str, limit: int, field: str) -> bytes:
     try:                               # the package's one bounded read of a named file
         return read_user_file(path, limit=limit, what=field)
     except FileError as exc:
-        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.why or exc.strerror) from None
+        raise BridgeFileError(exc.errno or errno.EIO, field, path, exc.why or exc.strerror or str(exc)) from None
 
 
 def check_state_dir(path: str, field: str = "bridge.state_dir") -> None:
