@@ -48,6 +48,7 @@ from .errors import (
     InvalidValueError,
     error_from_code,
 )
+from .rs485 import DEFAULT_BAUD as _DEFAULT_BAUD
 from .rs485 import RS485, RS485Mode, port_options  # the line options every fap_py node takes
 
 log = logging.getLogger("fap_py.execasync")
@@ -59,6 +60,10 @@ ETX: int = lib.EXEC_ASYNC_ETX
 BROADCAST: int = lib.EXEC_ASYNC_BROADCAST
 MAX_DATA: int = lib.EXEC_ASYNC_MAX_DATA          # RawSize is a byte
 MAX_FRAME: int = lib.EXEC_ASYNC_MAX_FRAME        # every data byte a DLE
+# Facts the tools read through fap_py._protocols (never re-typed in a tool).
+NODE_MIN: int = 1                               # node numbers a master addresses
+NODE_MAX: int = lib.EXEC_ASYNC_BROADCAST - 1
+DEFAULT_BAUD: int = _DEFAULT_BAUD
 
 BytesLike = Union[bytes, bytearray, memoryview]
 
@@ -780,7 +785,7 @@ class Slave(NativeHandle):
 
 
 __all__ = [
-    "RS485", "RS485Mode", "BROADCAST", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "Decoder", "ExecAsyncError",
+    "RS485", "RS485Mode", "BROADCAST", "NODE_MIN", "NODE_MAX", "DEFAULT_BAUD", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "Decoder", "ExecAsyncError",
     "ExecTypeError", "ExecValueError", "Frame", "Master", "MasterStats", "NoReplyError", "Request",
     "ServeResult", "Slave", "SlaveStats", "Status", "StructLayout", "encode",
 ]

@@ -58,9 +58,18 @@ from .errors import (
 from .fap_aio import AsyncPump
 from .fap_classic import classic_check
 from .fap_types import MASTER_ID, MAX_DATA, MAX_ID, EventKind, Message, SlaveEvent, Stats, mask_ids
-from .rs485 import RS485, RS485Mode, line_options, port_options
+from .rs485 import DEFAULT_BAUD, RS485, RS485Mode, line_options, port_options
+
+# Facts the tools read through fap_py._protocols (never re-typed in a tool).
+NODE_MIN: int = 1                       # slave IDs a master polls
+NODE_MAX: int = MAX_ID
+BROADCAST = None                        # FAP has no broadcast ID
 
 __all__ = [
+    "NODE_MIN",
+    "NODE_MAX",
+    "DEFAULT_BAUD",
+    "BROADCAST",
     "MASTER_ID",
     "MAX_DATA",
     "MAX_ID",

@@ -48,9 +48,13 @@ from .errors import (
     FrameError,
     error_from_code,
 )
+from .rs485 import DEFAULT_BAUD as _DEFAULT_BAUD
 from .rs485 import RS485, port_options  # the line options every fap_py node takes
 
 __all__ = [
+    "NODE_MIN",
+    "NODE_MAX",
+    "DEFAULT_BAUD",
     "BROADCAST",
     "MAX_DATA",
     "START_BYTE",
@@ -77,6 +81,10 @@ START_BYTE: int = lib.MIKROC_RS485_START_BYTE
 STOP_BYTE: int = lib.MIKROC_RS485_STOP_BYTE
 BROADCAST: int = lib.MIKROC_RS485_BROADCAST
 MAX_DATA: int = lib.MIKROC_RS485_MAX_DATA
+# Facts the tools read through fap_py._protocols (never re-typed in a tool).
+NODE_MIN: int = 0                               # any address byte a master may send to
+NODE_MAX: int = 255
+DEFAULT_BAUD: int = _DEFAULT_BAUD
 
 PathLike = Union[str, "os.PathLike[str]"]
 

@@ -8,6 +8,7 @@
 
 See docs/g485.md for every decision the vendor document leaves open.
 """
+from ..rs485 import DEFAULT_BAUD
 from .codec import (
                     BROADCAST,
                     MASTER_ADDRESS,
@@ -30,6 +31,8 @@ from .codec import (
                     encode_set,
                     encode_write,
 )
+from .codec import MAX_SLAVE_ADDRESS as NODE_MAX
+from .codec import MIN_SLAVE_ADDRESS as NODE_MIN
 from .device import RegisterSpec, SimDevice
 from .errors import (
                     BroadcastReadError,
@@ -50,7 +53,7 @@ from .master import Check, G485Master, MasterStats
 from .simulator import Simulator
 
 __all__ = [
-    "BROADCAST", "MASTER_ADDRESS", "WAKE_UP_PREAMBLE", "Discarded", "ErrorBit", "Packet", "PacketKind",
+    "BROADCAST", "NODE_MIN", "NODE_MAX", "DEFAULT_BAUD", "MASTER_ADDRESS", "WAKE_UP_PREAMBLE", "Discarded", "ErrorBit", "Packet", "PacketKind",
     "ParseIssue", "Parser", "SetCommand", "decode_frame", "describe_error_word", "encode_error_word_request",
     "encode_error_word_response", "encode_handshake_request", "encode_handshake_response",
     "encode_read_request", "encode_read_response", "encode_set", "encode_write",
