@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import os
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, Dict, Optional, Tuple
 
 from .errors import InvalidValueError
 
-__all__ = ["TOOLS", "PROTOCOLS", "Protocol", "UnknownProtocolError", "get", "names", "all_protocols",
+__all__ = ["ENV_EXTRA", "TOOLS", "PROTOCOLS", "Protocol", "UnknownProtocolError", "get", "names", "all_protocols",
            "register", "unregister"]
 
 #: Each tool's plug-in package, relative to a protocol's ``package``:
@@ -118,11 +119,32 @@ PROTOCOLS: Tuple[Protocol, ...] = (
     Protocol("g485", "Gicren G485", 4, "fap_py.g485"),
 )
 
+#: Out-of-tree protocols: ``module:ATTR`` references (comma-separated) to Protocol rows,
+#: loaded on first use of the table. A child process (a soak child, the CLI run as a
+#: program) inherits them through the environment, as it inherits PYTHONPATH.
+ENV_EXTRA = "FAP_EXTRA_PROTOCOLS"
+
 _extra: Dict[str, Protocol] = {}
+_env_loaded = False
+
+
+def _load_env() -> None:
+    global _env_loaded
+    _env_loaded = True
+    for ref in filter(None, (r.strip() for r in os.environ.get(ENV_EXTRA, "").split(","))):
+        mod, _, attr = ref.partition(":")
+        try:
+            row = getattr(importlib.import_module(mod), attr)
+        except (ImportError, AttributeError, ValueError) as e:
+            raise UnknownProtocolError(f"{ENV_EXTRA}: cannot load {ref!r}: {e}") from None
+        if row.name not in _extra:
+            register(row)
 
 
 def all_protocols() -> Tuple[Protocol, ...]:
-    """The table plus any protocol added with ``register`` (tests, out-of-tree plug-ins)."""
+    """The table plus protocols added with ``register`` or ``FAP_EXTRA_PROTOCOLS``."""
+    if not _env_loaded:
+        _load_env()
     return PROTOCOLS + tuple(_extra.values())
 
 

@@ -24,3 +24,11 @@ def test_master_and_slave_on_a_virtual_bus(toy_protocol):
             assert master.request(2, b"hello") == b"olleh"
             assert master.stats.frames_rx == 1
         assert slave.stats.frames_tx == 1
+
+
+def test_a_child_process_sees_the_toy_through_the_environment(toy_env):
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", "from fap_py import _protocols as P; print(P.names())"],
+                         env=toy_env, capture_output=True, text=True, timeout=60, check=True).stdout
+    assert "'toy'" in out
