@@ -9,8 +9,8 @@ import argparse
 from dataclasses import asdict
 from typing import TYPE_CHECKING
 
-from ._node import Payloads, add_payload_options, reply_option, show, stop_on_sigterm
-from ._options import (
+from .._node import Payloads, add_payload_options, reply_option, show, stop_on_sigterm
+from .._options import (
     EXIT_INTERRUPTED,
     add_actions,
     add_command,

@@ -13,8 +13,8 @@ import argparse
 import time
 from typing import Any, List
 
-from ._node import Payloads, Stop, add_payload_options, show, stop_on_sigterm
-from ._options import (
+from .._node import Payloads, Stop, add_payload_options, show, stop_on_sigterm
+from .._options import (
     EXIT_INTERRUPTED,
     BusError,
     UsageError,

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict
 
-from ._node import (
+from .._node import (
     Payloads,
     add_payload_options,
     reply_option,
@@ -21,7 +21,7 @@ from ._node import (
     show,
     stop_on_sigterm,
 )
-from ._options import (
+from .._options import (
     EXIT_INTERRUPTED,
     add_actions,
     add_command,

@@ -16,8 +16,8 @@ import os
 import time
 from typing import Any, Callable, Dict, Tuple
 
-from ._node import repetitions, scan, scan_summary, stop_on_sigterm
-from ._options import (
+from .._node import repetitions, scan, scan_summary, stop_on_sigterm
+from .._options import (
     EXIT_INTERRUPTED,
     BusError,
     UsageError,
