@@ -12,6 +12,8 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict
 
+from fap_py import _protocols
+
 from .._node import (
     Payloads,
     add_payload_options,
@@ -38,6 +40,12 @@ from .._options import (
     rs485_from_args,
 )
 
+PROTOCOL = _protocols.get("exec")   # node range, broadcast node, default baud: from the binding
+
+
+def _nodes() -> str:
+    return f"{PROTOCOL.node_min}..{PROTOCOL.node_max}"
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "exec", help="exec async protocol: master, slave, scan, encode/decode",
@@ -46,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     e = add_command(cmds, "encode", help="print the frame for node, seq and data",
                     example="fap exec encode --node 5 --seq 1 414243")
-    e.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast")
+    e.add_argument("--node", type=integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast")
     e.add_argument("--seq", type=integer, default=0, help="sequence number 0..255")
     e.add_argument("data", type=hexbytes, nargs="?", default=b"",
                    help="payload, hex (default: empty)")
@@ -61,7 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     d.set_defaults(func=run_decode)
 
     def line(q: argparse.ArgumentParser) -> None:
-        add_echo_option(add_port_options(q))
+        add_echo_option(add_port_options(q, baud_default=PROTOCOL.default_baud))
         add_output_options(q)
 
     m = add_command(cmds, "master", aliases=["poll"],
@@ -70,12 +78,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
     line(m)
     add_link_options(m, timeout_default=0.1, retries_default=3)
-    m.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast (no reply)")
+    m.add_argument("--node", type=integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast (no reply)")
     add_repeat_options(m)
     add_payload_options(m, what="request")
     m.set_defaults(func=run_master)
 
-    b = add_command(cmds, "broadcast", help="send to every slave (node 255), no reply",
+    b = add_command(cmds, "broadcast", help=f"send to every slave (node {PROTOCOL.broadcast}), no reply",
                     example="fap exec broadcast --port /dev/ttyUSB0 ff00")
     line(b)
     add_payload_options(b)
@@ -84,7 +92,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s = add_command(cmds, "slave", help="answer as a node until interrupted",
                     example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
     line(s)
-    s.add_argument("--node", type=integer, required=True, help="1..254")
+    s.add_argument("--node", type=integer, required=True, help=_nodes())
     s.add_argument("--reply", type=reply_option(), default="echo",
                    help="'echo', 'none' or a fixed reply in hex")
     s.add_argument("--turnaround-us", type=integer, default=0,
@@ -96,8 +104,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
     line(c)
     add_link_options(c, timeout_default=0.05, retries_default=0)
-    c.add_argument("--first", type=integer, default=1, help="first node to try")
-    c.add_argument("--last", type=integer, default=254, help="last node to try")
+    c.add_argument("--first", type=integer, default=PROTOCOL.node_min, help="first node to try")
+    c.add_argument("--last", type=integer, default=PROTOCOL.node_max, help="last node to try")
     c.add_argument("--probe", metavar="HEX", type=hexbytes, default=b"",
                    help="request payload sent to each node, hex (default: empty)")
     c.set_defaults(func=run_scan)
@@ -247,9 +255,10 @@ def run_slave(args: argparse.Namespace) -> int:
 def run_scan(args: argparse.Namespace) -> int:
     from fap_py.execasync import ExecAsyncError, Master
 
-    if not 1 <= args.first <= args.last <= 254:
-        from ._options import UsageError
-        raise UsageError(f"need 1 <= --first <= --last <= 254, not {args.first}..{args.last}")
+    lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
+    if not lo <= args.first <= args.last <= hi:
+        from .._options import UsageError
+        raise UsageError(f"need {lo} <= --first <= --last <= {hi}, not {args.first}..{args.last}")
     with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
                 rs485=_rs485(args)) as master:
         def probe(node: int):

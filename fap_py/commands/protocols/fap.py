@@ -13,6 +13,8 @@ import argparse
 import time
 from typing import Any, List
 
+from fap_py import _protocols
+
 from .._node import Payloads, Stop, add_payload_options, show, stop_on_sigterm
 from .._options import (
     EXIT_INTERRUPTED,
@@ -31,14 +33,17 @@ from .._options import (
     seconds,
 )
 
+PROTOCOL = _protocols.get("fap")   # its facts (slave IDs, default baud) come from the binding
+
 
 def _ids(text: str) -> List[int]:
     try:
         ids = [int(x, 0) for x in text.replace(",", " ").split()]
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a list of IDs: {text!r}") from None
-    if not ids or any(not 1 <= i <= 31 for i in ids):
-        raise argparse.ArgumentTypeError(f"slave IDs are 1..31: {text!r}")
+    lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
+    if not ids or any(not lo <= i <= hi for i in ids):
+        raise argparse.ArgumentTypeError(f"slave IDs are {lo}..{hi}: {text!r}")
     return ids
 
 
@@ -48,7 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     cmds = add_actions(p, "fap_command")
 
     def common(q: argparse.ArgumentParser) -> None:
-        add_echo_option(add_port_options(q))
+        add_echo_option(add_port_options(q, baud_default=PROTOCOL.default_baud))
         add_output_options(q)
         add_repeat_options(q)
         q.add_argument("--wait", metavar="S", type=seconds, default=5.0,
@@ -76,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     example="fap fap slave --port /dev/ttyUSB1 --id 3 --count 0\n"
                     "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text -")
     common(s)
-    s.add_argument("--id", type=integer, required=True, help="this slave's ID, 1..31")
+    s.add_argument("--id", type=integer, required=True, help=f"this slave's ID, {PROTOCOL.node_min}..{PROTOCOL.node_max}")
     s.add_argument("--to", type=integer, default=0, help="destination of DATA (0 = master)")
     s.set_defaults(func=run_slave)
 

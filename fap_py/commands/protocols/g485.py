@@ -16,6 +16,8 @@ import os
 import time
 from typing import Any, Callable, Dict, Tuple
 
+from fap_py import _protocols
+
 from .._node import repetitions, scan, scan_summary, stop_on_sigterm
 from .._options import (
     EXIT_INTERRUPTED,
@@ -34,6 +36,8 @@ from .._options import (
     rs485_from_args,
 )
 
+PROTOCOL = _protocols.get("g485")   # device IDs, broadcast ID, default baud: from the binding
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = add_command(sub, "g485", help="Gicren G485: device simulator, master transactions, scan",
@@ -42,12 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True,
                check: bool = False) -> None:
-        add_echo_option(add_port_options(q))
+        add_echo_option(add_port_options(q, baud_default=PROTOCOL.default_baud))
         add_link_options(q, timeout_default=0.1, retries_default=2)
         add_output_options(q)
         if address:
             q.add_argument("--address", type=integer, required=True,
-                           help="device ID 1..126 (0 = broadcast)")
+                           help=f"device ID {PROTOCOL.node_min}..{PROTOCOL.node_max} "
+                           f"({PROTOCOL.broadcast} = broadcast)")
         if check:      # only writes and sets are confirmed
             q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake",
                            help="how the write or set is confirmed")
@@ -56,7 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = add_command(cmds, "sim", help="simulate devices on a port until interrupted",
                     example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
-    add_echo_option(add_port_options(s))
+    add_echo_option(add_port_options(s, baud_default=PROTOCOL.default_baud))
     add_output_options(s)
     s.add_argument("--address", type=integer, action="append", required=True,
                    help="a device ID to simulate (repeat for several devices)")
@@ -98,11 +103,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     c = add_command(cmds, "scan", help="find the devices that answer a handshake "
                     "(progress bar on a terminal, devices printed as they answer)",
-                    example="fap g485 scan --port /dev/ttyUSB0 --first 1 --last 126")
+                    example=f"fap g485 scan --port /dev/ttyUSB0 --first {PROTOCOL.node_min} "
+                    f"--last {PROTOCOL.node_max}")
     master(c, repeat=False, address=False)
     c.set_defaults(timeout=0.05, retries=0)
-    c.add_argument("--first", type=integer, default=1, help="first ID to try")
-    c.add_argument("--last", type=integer, default=126, help="last ID to try")
+    c.add_argument("--first", type=integer, default=PROTOCOL.node_min, help="first ID to try")
+    c.add_argument("--last", type=integer, default=PROTOCOL.node_max, help="last ID to try")
     c.set_defaults(func=run_scan)
 
 
@@ -238,8 +244,9 @@ def run_handshake(args: argparse.Namespace) -> int:
 def run_scan(args: argparse.Namespace) -> int:
     from fap_py.g485 import G485Error
 
-    if not 1 <= args.first <= args.last <= 126:
-        raise UsageError(f"need 1 <= --first <= --last <= 126, not {args.first}..{args.last}")
+    lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
+    if not lo <= args.first <= args.last <= hi:
+        raise UsageError(f"need {lo} <= --first <= --last <= {hi}, not {args.first}..{args.last}")
     with _master(args) as m:
         def probe(address: int):
             # G485 replies carry no address: a late reply could be credited to

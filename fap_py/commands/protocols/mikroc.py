@@ -9,6 +9,8 @@ import argparse
 from dataclasses import asdict
 from typing import TYPE_CHECKING
 
+from fap_py import _protocols
+
 from .._node import Payloads, add_payload_options, reply_option, show, stop_on_sigterm
 from .._options import (
     EXIT_INTERRUPTED,
@@ -29,7 +31,17 @@ from .._options import (
 if TYPE_CHECKING:  # pragma: no cover
     from fap_py.mikroc import NodeStats
 
-BAUD_DEFAULT = 19200   # the mikroC library's usual rate
+PROTOCOL = _protocols.get("mikroc")   # broadcast address: from the binding
+
+
+def _baud_default() -> int:
+    """The mikroC library's usual rate: the default of the binding's Master (the table's
+    ``default_baud`` is the package-wide rate, which the mikroC nodes do not default to)."""
+    import inspect
+
+    from fap_py.mikroc import Master
+
+    return int(inspect.signature(Master).parameters["baudrate"].default)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,19 +51,19 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     m = add_command(cmds, "master", help="send 0..3 bytes to a slave and print its reply",
                     example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
-                    "--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address 50 01   "
+                    f"--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address {PROTOCOL.broadcast} 01   "
                     "# broadcast, no reply")
-    add_echo_option(add_port_options(m, baud_default=BAUD_DEFAULT))
+    add_echo_option(add_port_options(m, baud_default=_baud_default()))
     add_link_options(m, timeout_default=0.2, retries_default=0)
     add_output_options(m)
-    m.add_argument("--address", type=integer, required=True, help="slave address (50 = broadcast)")
+    m.add_argument("--address", type=integer, required=True, help=f"slave address ({PROTOCOL.broadcast} = broadcast)")
     add_repeat_options(m)
     add_payload_options(m, what="message", size=" (0..3 bytes each)")
     m.set_defaults(func=run_master)
 
     s = add_command(cmds, "slave", help="answer as a slave until interrupted",
                     example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
-    add_echo_option(add_port_options(s, baud_default=BAUD_DEFAULT))
+    add_echo_option(add_port_options(s, baud_default=_baud_default()))
     add_output_options(s)
     s.add_argument("--address", type=integer, required=True, help="this slave's address")
     s.add_argument("--reply", type=reply_option(3), default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
