@@ -7,7 +7,8 @@ sampler, child processes, bit-error channel model). Each protocol's part is its 
 ``fap_py.soak.<name>``, found by name through the protocol table::
 
     from fap_py import _protocols, soak
-    result = soak.run("exec", soak.Config(seconds=10))
+    for name in _protocols.names():
+        print(soak.run(name, soak.Config(seconds=10))["ok"])
 
 A plug-in module has ``run(cfg) -> dict`` (one JSON-able report with ``"protocol"`` and the
 verdict ``"ok"``) and ``child(path, node, baud, seed, rate, until) -> int`` (a slave process's
