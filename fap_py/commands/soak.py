@@ -69,33 +69,33 @@ def register(sub: argparse._SubParsersAction) -> None:
         description=__doc__.split("\n\n")[1] if __doc__ else None,
         example="fap soak --seconds 30 --slaves 4 --json")
     p.add_argument("--protocol", choices=_choices(), default=ALL, help="what to soak")
-    p.add_argument("--seconds", metavar="S", type=seconds, default=d.seconds,
-                   help="duration of each protocol's bus soak")
-    p.add_argument("--slaves", metavar="N", type=count, default=d.slaves,
-                   help=f"slave processes (1..{min(max_slaves(n) for n in names)})")
-    p.add_argument("--baud", metavar="N", type=baud, default=d.baud, help="paced bus rate, bit/s")
-    p.add_argument("--bit-error-rate", metavar="P", type=seconds, default=d.bit_error_rate,
-                   help="per byte, every port")
-    p.add_argument("--drop-rate", metavar="P", type=seconds, default=d.drop_rate,
-                   help="per byte, every port")
-    p.add_argument("--bus8-bit-error-rate", metavar="P", type=seconds, default=d.bus8_bit_error_rate,
-                   help="mikroC / G485 bus soak: bit error rate per byte (higher than "
-                        "--bit-error-rate, so that enough frames are damaged to measure what "
-                        "the 8-bit checks let through)")
-    link = add_link_options(p, timeout_default=d.timeout, retries_default=d.retries)
-    link.description = "exec async, mikroC and G485 master"
-    p.add_argument("--master-rate", metavar="R", type=seconds, default=d.master_rate,
-                   help="FAP messages/s the master queues")
-    p.add_argument("--slave-rate", metavar="R", type=seconds, default=d.slave_rate,
-                   help="FAP messages/s each slave queues")
-    p.add_argument("--check8-seconds", metavar="S", type=seconds, default=d.check8_seconds,
-                   help="mikroC / G485 channel run time")
-    p.add_argument("--check8-ber", metavar="P", type=seconds, default=d.check8_ber,
-                   help="mikroC / G485 channel bit error rate")
-    p.add_argument("--sample", metavar="S", type=seconds, default=d.sample,
-                   help="resource sampling period, seconds")
-    p.add_argument("--seed", metavar="N", type=count, default=d.seed,
-                   help="seed of every random choice and fault")
+    # the options set a Config field of the same name (--bit-error-rate: bit_error_rate)
+    types = {"S": seconds, "P": seconds, "R": seconds, "N": count}
+    most = min(max_slaves(n) for n in names)
+    options = [
+        ("seconds", "S", "duration of each protocol's bus soak"),
+        ("slaves", "N", f"slave processes (1..{most})"),
+        ("baud", "N", "paced bus rate, bit/s"),
+        ("bit_error_rate", "P", "per byte, every port"),
+        ("drop_rate", "P", "per byte, every port"),
+        ("bus8_bit_error_rate", "P", "mikroC / G485 bus soak: bit error rate per byte (higher than "
+         "--bit-error-rate, so that enough frames are damaged to measure what the 8-bit checks let "
+         "through)"),
+        ("link", "", ""),
+        ("master_rate", "R", "FAP messages/s the master queues"),
+        ("slave_rate", "R", "FAP messages/s each slave queues"),
+        ("check8_seconds", "S", "mikroC / G485 channel run time"),
+        ("check8_ber", "P", "mikroC / G485 channel bit error rate"),
+        ("sample", "S", "resource sampling period, seconds"),
+        ("seed", "N", "seed of every random choice and fault"),
+    ]
+    for name, metavar, text in options:
+        if name == "link":       # --timeout, --retries: the request/reply masters'
+            link = add_link_options(p, timeout_default=d.timeout, retries_default=d.retries)
+            link.description = "exec async, mikroC and G485 master"
+            continue
+        p.add_argument("--" + name.replace("_", "-"), metavar=metavar, default=getattr(d, name),
+                       type=baud if name == "baud" else types[metavar], help=text)
     add_output_options(p)
     p.set_defaults(func=run)
 

@@ -34,11 +34,11 @@ def _nodes() -> str:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = opt.add_command(sub, "exec", help="exec async protocol: master, slave, scan, encode/decode",
-                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102")
+                        example="fap exec master --port /dev/ttyUSB0 --node 5 0102")
     cmds = opt.add_actions(p, "exec_command")
 
     e = opt.add_command(cmds, "encode", help="print the frame for node, seq and data",
-                    example="fap exec encode --node 5 --seq 1 414243")
+                        example="fap exec encode --node 5 --seq 1 414243")
     e.add_argument("--node", type=opt.integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast")
     e.add_argument("--seq", type=opt.integer, default=0, help="sequence number 0..255")
     e.add_argument("data", type=opt.hexbytes, nargs="?", default=b"",
@@ -47,8 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.set_defaults(func=run_encode)
 
     d = opt.add_command(cmds, "decode", help="decode frames from hex bytes (exit 1 if any is bad "
-                    "or the input ends inside a frame)",
-                    example="fap exec decode 100205014142431003b9ec")
+                        "or the input ends inside a frame)",
+                        example="fap exec decode 100205014142431003b9ec")
     d.add_argument("data", type=opt.hexbytes, help="received bytes, hex")
     opt.add_output_options(d)
     d.set_defaults(func=run_decode)
@@ -58,9 +58,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         opt.add_output_options(q)
 
     m = opt.add_command(cmds, "master", aliases=["poll"],
-                    help="send requests to a node and print its replies",
-                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
-                    "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
+                        help="send requests to a node and print its replies",
+                        example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
+                        "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
     line(m)
     opt.add_link_options(m, timeout_default=0.1, retries_default=3)
     m.add_argument("--node", type=opt.integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast (no reply)")
@@ -69,13 +69,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.set_defaults(func=run_master)
 
     b = opt.add_command(cmds, "broadcast", help=f"send to every slave (node {PROTOCOL.broadcast}), no reply",
-                    example="fap exec broadcast --port /dev/ttyUSB0 ff00")
+                        example="fap exec broadcast --port /dev/ttyUSB0 ff00")
     line(b)
     add_payload_options(b)
     b.set_defaults(func=run_broadcast)
 
     s = opt.add_command(cmds, "slave", help="answer as a node until interrupted",
-                    example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
+                        example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
     line(s)
     s.add_argument("--node", type=opt.integer, required=True, help=_nodes())
     s.add_argument("--reply", type=reply_option(), default="echo",
@@ -86,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_slave)
 
     c = opt.add_command(cmds, "scan", help="find the nodes that answer (progress bar on a terminal)",
-                    example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
+                        example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
     line(c)
     opt.add_link_options(c, timeout_default=0.05, retries_default=0)
     c.add_argument("--first", type=opt.integer, default=PROTOCOL.node_min, help="first node to try")
@@ -115,16 +115,16 @@ def run_decode(args: argparse.Namespace) -> int:
     frames = dec.feed(args.data)
     for f in frames:
         opt.emit(args, {"node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
-             f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
+                 f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
     # what the decoder still holds after the last complete frame: a truncated frame
     tail = _unfinished(args.data, frames)
     if tail:
         opt.emit(args, {"status": "truncated", "bytes": tail},
-             f"truncated frame: {opt.plural(len(tail), 'byte')} after the last complete frame "
-             f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
+                 f"truncated frame: {opt.plural(len(tail), 'byte')} after the last complete frame "
+                 f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
     if not frames and not tail:
         opt.emit(args, {"status": "no_frame", "bytes": args.data},
-             f"no exec async frame in {opt.plural(len(args.data), 'byte')}")
+                 f"no exec async frame in {opt.plural(len(args.data), 'byte')}")
     return 0 if frames and not tail and all(f.ok for f in frames) else 1
 
 
@@ -182,9 +182,9 @@ def run_master(args: argparse.Namespace) -> int:
             interrupted = True
         st = master.stats
         opt.emit(args, {"event": "stats", **asdict(st), "interrupted": interrupted},
-             f"{opt.plural(st.transactions, 'transaction')}, {opt.plural(st.retries, 'retry', 'retries')}"
-             f", {st.failures} failed, {opt.plural(st.corrupt, 'corrupt frame')}"
-             + (" (interrupted)" if interrupted else ""))
+                 f"{opt.plural(st.transactions, 'transaction')}, {opt.plural(st.retries, 'retry', 'retries')}"
+                 f", {st.failures} failed, {opt.plural(st.corrupt, 'corrupt frame')}"
+                 + (" (interrupted)" if interrupted else ""))
     if interrupted:
         return opt.EXIT_INTERRUPTED
     data.finish(f"{failed} of {opt.plural(sent, 'request')} to node {args.node} failed"
@@ -221,8 +221,8 @@ def run_slave(args: argparse.Namespace) -> int:
     with Slave(args.port, args.baud, node=args.node, handler=handler,
                rs485=_rs485(args, args.turnaround_us)) as slave, stop_on_sigterm() as done:
         opt.emit(args, {"event": "ready", "node": args.node, "port": args.port, "baud": args.baud},
-             f"ready: exec async slave node {args.node} on {args.port} at {args.baud} baud "
-             f"(reply: {args.reply})")
+                 f"ready: exec async slave node {args.node} on {args.port} at {args.baud} baud "
+                 f"(reply: {args.reply})")
         served = 0
         try:
             while not done.is_set() and (not args.max_requests or served < args.max_requests):
@@ -232,8 +232,8 @@ def run_slave(args: argparse.Namespace) -> int:
             pass
         st = slave.stats
         opt.emit(args, {"event": "stats", **asdict(st)},
-             f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
-             f"corrupt {st.corrupt}, ignored {st.ignored}")
+                 f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
+                 f"corrupt {st.corrupt}, ignored {st.ignored}")
     return 0
 
 
@@ -255,5 +255,5 @@ def run_scan(args: argparse.Namespace) -> int:
         result = scan(list(range(args.first, args.last + 1)), probe, label="exec node",
                       progress=not args.json,
                       found=lambda n, r: opt.emit(args, {"event": "found", "node": n, "reply": r},
-                                              f"node {n} answers: {show(r)}"))
+                                                  f"node {n} answers: {show(r)}"))
     return scan_summary(args, result, args.last - args.first + 1, "nodes")

@@ -34,7 +34,7 @@ def _ids(text: str) -> List[int]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = opt.add_command(sub, "fap", help="FAP (libfap) master or slave on a port",
-                    example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f")
+                        example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f")
     cmds = opt.add_actions(p, "fap_command")
 
     def common(q: argparse.ArgumentParser) -> None:
@@ -47,8 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         add_payload_options(q)
 
     m = opt.add_command(cmds, "master", help="run the master (ID 0): poll slaves, send, print what arrives",
-                    example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f\n"
-                    "fap fap master --port /dev/ttyUSB0 --slaves 3 --count 0 --json   # listen")
+                        example="fap fap master --port /dev/ttyUSB0 --slaves 3,7 --to 3 68656c6c6f\n"
+                        "fap fap master --port /dev/ttyUSB0 --slaves 3 --count 0 --json   # listen")
     common(m)
     m.add_argument("--slaves", type=_ids, required=True, metavar="IDS",
                    help="slave IDs to poll, e.g. 3,7,12")
@@ -63,8 +63,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.set_defaults(func=run_master)
 
     s = opt.add_command(cmds, "slave", help="run a slave: send when polled, print what arrives",
-                    example="fap fap slave --port /dev/ttyUSB1 --id 3 --count 0\n"
-                    "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text -")
+                        example="fap fap slave --port /dev/ttyUSB1 --id 3 --count 0\n"
+                        "echo 'temp=21.5' | fap fap slave --port /dev/ttyUSB1 --id 3 --text -")
     common(s)
     s.add_argument("--id", type=opt.integer, required=True, help=f"this slave's ID, {PROTOCOL.node_min}..{PROTOCOL.node_max}")
     s.add_argument("--to", type=opt.integer, default=0, help="destination of DATA (0 = master)")
@@ -74,13 +74,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _print_message(args: argparse.Namespace, msg: Any) -> None:
     src = "master" if msg.source == 0 else f"slave {msg.source}"
     opt.emit(args, {"event": "rx", "from": msg.source, "data": msg.data},
-         f"<- {src}: {show(msg.data)}")
+             f"<- {src}: {show(msg.data)}")
 
 
 def _print_events(args: argparse.Namespace, node: Any) -> None:
     for ev in node.events():
         opt.emit(args, {"event": ev.kind.name.lower(), "slave": ev.id},
-             f"event: slave {ev.id} {ev.kind.name.lower().replace('slave_', '')}")
+                 f"event: slave {ev.id} {ev.kind.name.lower().replace('slave_', '')}")
 
 
 def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_master: bool,
@@ -119,12 +119,12 @@ def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_maste
         except FapTimeoutError:
             left = node.tx_pending
             opt.emit(args, {"event": "unsent", "frames": left},
-                 f"{opt.plural(left, 'message')} still queued (not polled within {args.wait} s)")
+                     f"{opt.plural(left, 'message')} still queued (not polled within {args.wait} s)")
     st = node.stats()
     opt.emit(args, {"event": "stats", **st.as_dict(),
                 **({"interrupted": True} if done.interrupted else {})},
-         f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
-         f"CRC errors {st.crc_errors}" + (" (interrupted)" if done.interrupted else ""))
+             f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "
+             f"CRC errors {st.crc_errors}" + (" (interrupted)" if done.interrupted else ""))
     data.finish()
     # a master polling is a client: Ctrl-C is an interruption (130); a slave
     # with --count 0 is a server, whose normal end is a signal (docs/cli.md)
@@ -144,8 +144,8 @@ def run_master(args: argparse.Namespace) -> int:
             stop_on_sigterm() as done:
         opt.emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "slaves": args.slaves,
                     "rs485": master.rs485_mode},
-             f"ready: FAP master on {args.port} at {args.baud} baud, slaves "
-             f"{', '.join(map(str, args.slaves))} (RS-485 {master.rs485_mode.name})")
+                 f"ready: FAP master on {args.port} at {args.baud} baud, slaves "
+                 f"{', '.join(map(str, args.slaves))} (RS-485 {master.rs485_mode.name})")
         if args.data:
             try:
                 master.wait_active([to], timeout=args.wait)
@@ -164,6 +164,6 @@ def run_slave(args: argparse.Namespace) -> int:
             stop_on_sigterm() as done:
         opt.emit(args, {"event": "ready", "port": args.port, "baud": args.baud, "id": args.id,
                     "rs485": slave.rs485_mode},
-             f"ready: FAP slave {args.id} on {args.port} at {args.baud} baud "
-             f"(RS-485 {slave.rs485_mode.name})")
+                 f"ready: FAP slave {args.id} on {args.port} at {args.baud} baud "
+                 f"(RS-485 {slave.rs485_mode.name})")
         return _loop(args, slave, args.to, data, False, done)

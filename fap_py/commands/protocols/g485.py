@@ -26,7 +26,7 @@ PROTOCOL = _protocols.get("g485")   # device IDs, broadcast ID, default baud: fr
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = opt.add_command(sub, "g485", help="Gicren G485: device simulator, master transactions, scan",
-                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+                        example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     cmds = opt.add_actions(p, "g485_command")
 
     def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True,
@@ -45,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
             opt.add_repeat_options(q)
 
     s = opt.add_command(cmds, "sim", help="simulate devices on a port until interrupted",
-                    example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
+                        example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
     opt.add_echo_option(opt.add_port_options(s, baud_default=PROTOCOL.default_baud))
     opt.add_output_options(s)
     s.add_argument("--address", type=opt.integer, action="append", required=True,
@@ -57,39 +57,39 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=run_sim)
 
     r = opt.add_command(cmds, "read", help="read registers",
-                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+                        example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     master(r)
     r.add_argument("--register", type=opt.integer, required=True, help="first register")
     r.add_argument("--registers", type=opt.integer, default=1, help="how many registers")
     r.set_defaults(func=run_read)
 
     w = opt.add_command(cmds, "write", help="write registers",
-                    example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
+                        example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
     master(w, repeat=False, check=True)
     w.add_argument("--register", type=opt.integer, required=True, help="first register")
     w.add_argument("values", type=opt.integer, nargs="+", help="register values 0..255")
     w.set_defaults(func=run_write)
 
     t = opt.add_command(cmds, "set", help="send a Set command (factory_reset, save_eeprom, reset, ...)",
-                    example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
+                        example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
     master(t, repeat=False, check=True)
     t.add_argument("command", help="SetCommand name or value")
     t.set_defaults(func=run_set)
 
     e = opt.add_command(cmds, "error-word", help="read the error word",
-                    example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
+                        example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
     master(e)
     e.set_defaults(func=run_error_word)
 
     h = opt.add_command(cmds, "handshake", help="read the device's check byte",
-                    example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
+                        example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
     master(h)
     h.set_defaults(func=run_handshake)
 
     c = opt.add_command(cmds, "scan", help="find the devices that answer a handshake "
-                    "(progress bar on a terminal, devices printed as they answer)",
-                    example=f"fap g485 scan --port /dev/ttyUSB0 --first {PROTOCOL.node_min} "
-                    f"--last {PROTOCOL.node_max}")
+                        "(progress bar on a terminal, devices printed as they answer)",
+                        example=f"fap g485 scan --port /dev/ttyUSB0 --first {PROTOCOL.node_min} "
+                        f"--last {PROTOCOL.node_max}")
     master(c, repeat=False, address=False)
     c.set_defaults(timeout=0.05, retries=0)
     c.add_argument("--first", type=opt.integer, default=PROTOCOL.node_min, help="first ID to try")
@@ -118,15 +118,15 @@ def run_sim(args: argparse.Namespace) -> int:
     with stop_on_sigterm() as done, Simulator(args.port, devices, baudrate=args.baud,
                                                   rs485=_rs485(args)) as sim:
         opt.emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
-             f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
+                 f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
         while not done.wait(0.2):
             if sim.error is not None:
                 raise sim.error
         replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
     opt.emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
                 "packets": events, "replies": replies, "reopened": reopened},
-         f"summary: {opt.plural(events, 'packet')} handled, {opt.plural(replies, 'reply', 'replies')} "
-         f"sent, port reopened {opt.plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
+             f"summary: {opt.plural(events, 'packet')} handled, {opt.plural(replies, 'reply', 'replies')} "
+             f"sent, port reopened {opt.plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
     return 0
 
 
@@ -162,7 +162,7 @@ def _poll(args: argparse.Namespace, what: str, ask: Callable[[Any], Any],
                         raise                   # one request: its error is the one line
                     failed += 1
                     opt.emit(args, {"event": "error", "address": args.address, "error": str(exc)},
-                         f"device {args.address}: {exc}")
+                             f"device {args.address}: {exc}")
                     continue
                 opt.emit(args, {"event": "reply", "address": args.address, **obj}, text)
         except KeyboardInterrupt:
@@ -170,8 +170,8 @@ def _poll(args: argparse.Namespace, what: str, ask: Callable[[Any], Any],
     if interrupted or args.count != 1:
         opt.emit(args, {"event": "summary", "address": args.address, "requests": done,
                     "failed": failed, **({"interrupted": True} if interrupted else {})},
-             f"{opt.plural(done, what)} to device {args.address}, {failed} failed"
-             + (" (interrupted)" if interrupted else ""))
+                 f"{opt.plural(done, what)} to device {args.address}, {failed} failed"
+                 + (" (interrupted)" if interrupted else ""))
     if interrupted:
         return opt.EXIT_INTERRUPTED
     if failed:
@@ -194,7 +194,7 @@ def run_write(args: argparse.Namespace) -> int:
         m.write(args.address, args.register, args.values)
     opt.emit(args, {"event": "written", "address": args.address, "register": args.register,
                 "written": args.values},
-         f"wrote {opt.plural(len(args.values), 'register')} from {args.register}")
+             f"wrote {opt.plural(len(args.values), 'register')} from {args.register}")
     return 0
 
 
@@ -207,7 +207,7 @@ def run_set(args: argparse.Namespace) -> int:
     with _master(args) as m:
         m.set(args.address, command)  # type: ignore[arg-type]
     opt.emit(args, {"event": "set", "address": args.address, "set": args.command},
-         f"set {args.command}: done")
+             f"set {args.command}: done")
     return 0
 
 
@@ -245,5 +245,5 @@ def run_scan(args: argparse.Namespace) -> int:
         result = scan(list(range(args.first, args.last + 1)), probe, label="G485 ID",
                       progress=not args.json,
                       found=lambda a, _: opt.emit(args, {"event": "found", "address": a},
-                                              f"device {a} answers (ID register confirms)"))
+                                                  f"device {a} answers (ID register confirms)"))
     return scan_summary(args, result, args.last - args.first + 1, "IDs")

@@ -32,13 +32,13 @@ def _baud_default() -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = opt.add_command(sub, "mikroc", help="mikroC RS-485: master requests, a slave that answers",
-                    example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203")
+                        example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203")
     cmds = opt.add_actions(p, "mikroc_command")
 
     m = opt.add_command(cmds, "master", help="send 0..3 bytes to a slave and print its reply",
-                    example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
-                    f"--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address {PROTOCOL.broadcast} 01   "
-                    "# broadcast, no reply")
+                        example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
+                        f"--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address {PROTOCOL.broadcast} 01   "
+                        "# broadcast, no reply")
     opt.add_echo_option(opt.add_port_options(m, baud_default=_baud_default()))
     opt.add_link_options(m, timeout_default=0.2, retries_default=0)
     opt.add_output_options(m)
@@ -48,7 +48,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.set_defaults(func=run_master)
 
     s = opt.add_command(cmds, "slave", help="answer as a slave until interrupted",
-                    example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
+                        example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
     opt.add_echo_option(opt.add_port_options(s, baud_default=_baud_default()))
     opt.add_output_options(s)
     s.add_argument("--address", type=opt.integer, required=True, help="this slave's address")
@@ -85,7 +85,7 @@ def run_master(args: argparse.Namespace) -> int:
                         else:
                             opt.emit(args, {"event": "reply", "address": reply.address,
                                         "data": reply.data},
-                                 f"slave {reply.address}: {show(reply.data)}")
+                                     f"slave {reply.address}: {show(reply.data)}")
                         break
         except KeyboardInterrupt:       # Ctrl-C: the summary, then exit 130
             interrupted = True
@@ -99,8 +99,8 @@ def run_master(args: argparse.Namespace) -> int:
 
 def _stats(args: argparse.Namespace, st: "NodeStats", interrupted: bool = False) -> None:
     opt.emit(args, {"event": "stats", **asdict(st), **({"interrupted": True} if interrupted else {})},
-         f"{opt.plural(st.frames, 'frame')}, {opt.plural(st.errors, 'error')}, {st.damaged} damaged, "
-         f"{st.ignored} ignored" + (" (interrupted)" if interrupted else ""))
+             f"{opt.plural(st.frames, 'frame')}, {opt.plural(st.errors, 'error')}, {st.damaged} damaged, "
+             f"{st.ignored} ignored" + (" (interrupted)" if interrupted else ""))
 
 
 def run_slave(args: argparse.Namespace) -> int:
@@ -112,8 +112,8 @@ def run_slave(args: argparse.Namespace) -> int:
             stop_on_sigterm() as done:
         opt.emit(args, {"event": "ready", "address": args.address, "port": args.port,
                     "baud": args.baud},
-             f"ready: mikroC slave {args.address} on {args.port} at {args.baud} baud "
-             f"(reply: {args.reply})")
+                 f"ready: mikroC slave {args.address} on {args.port} at {args.baud} baud "
+                 f"(reply: {args.reply})")
         served = 0
         while not done.is_set() and (not args.max_requests or served < args.max_requests):
             try:
@@ -127,7 +127,7 @@ def run_slave(args: argparse.Namespace) -> int:
                 break
             served += 1
             opt.emit(args, {"event": "request", "address": msg.address, "data": msg.data},
-                 f"{'broadcast' if msg.address == BROADCAST else 'request'}: {show(msg.data)}")
+                     f"{'broadcast' if msg.address == BROADCAST else 'request'}: {show(msg.data)}")
             if args.reply != "none" and msg.address != BROADCAST:
                 slave.send(msg.data if fixed is None else fixed)
         _stats(args, slave.stats)
