@@ -1,7 +1,9 @@
 """The ``fap`` console command: ``fap --help`` lists the subcommands.
 
 Each module in :mod:`fap_py.commands` (not starting with ``_``) defines
-``register(subparsers)``; the shared options, output and error path live in
+``register(subparsers)``, and so does each protocol's command plug-in, found by
+name through the protocol table (``fap_py.commands.protocols.<name>``, see
+:mod:`fap_py._protocols`); the shared options, output and error path live in
 :mod:`fap_py.commands._options`. docs/cli.md documents every command.
 """
 from __future__ import annotations
@@ -10,9 +12,9 @@ import importlib
 import logging
 import pkgutil
 import sys
-from typing import List, Optional
+from typing import List, Optional, Tuple
 
-from . import __version__, commands
+from . import __version__, _protocols, commands
 from .commands._options import (
     EXIT_CODES,
     EXIT_USAGE,
@@ -43,14 +45,21 @@ def build_parser() -> Parser:
     parser.add_argument("--version", action="version", version=f"fap_py {__version__}")
     add_global_flags(parser, top=True)
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        if info.name.startswith("_"):
-            continue
-        module = importlib.import_module(f"{commands.__name__}.{info.name}")
-        register = getattr(module, "register", None)
+    for _, name in sorted(_command_modules()):
+        register = getattr(importlib.import_module(name), "register", None)
         if register is not None:
             register(sub)
     return parser
+
+
+def _command_modules() -> List[Tuple[str, str]]:
+    """(sort key, module) of every command: the modules of :mod:`fap_py.commands` and each
+    protocol's command plug-in (a protocol without one has no command)."""
+    found = [(info.name, f"{commands.__name__}.{info.name}")
+             for info in pkgutil.iter_modules(commands.__path__)
+             if not info.name.startswith("_") and not info.ispkg]
+    found += [(p.name, p.plugin_name("cli")) for p in _protocols.all_protocols() if p.has_plugin("cli")]
+    return found
 
 
 def setup_logging(verbose: int, debug: bool) -> None:
@@ -65,7 +74,11 @@ def setup_logging(verbose: int, debug: bool) -> None:
 
 def main(argv: Optional[List[str]] = None) -> int:
     rest, verbose, debug = split_global_flags(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except _protocols.UnknownProtocolError as exc:   # a bad FAP_EXTRA_PROTOCOLS entry
+        sys.stderr.write(f"fap: error: {exc}\n")
+        return EXIT_USAGE
     try:
         args = parser.parse_args(rest)
     except SystemExit as exc:          # --help, --version, usage errors

@@ -9,29 +9,30 @@ from __future__ import annotations
 import json
 import random
 
-from fap_py.commands import _soak8bit as s8
+from fap_py.soak import g485 as sg
+from fap_py.soak import mikroc as sm
 
 from .conftest import run_proc
 
 
 def test_mikroc_identity_byte_catches_a_changed_sequence_or_node() -> None:
-    req = s8.mikroc_request(1234, 3)
+    req = sm.mikroc_request(1234, 3)
     assert len(req) == 3 and req[:2] == (1234).to_bytes(2, "big")
     # another node, or another sequence under the same hash byte: caught
     # (the keyed byte differs for these; in general 1 in 256 slips past)
-    assert s8.mikroc_request(1234, 4) != req
-    assert req != s8.mikroc_reply(1234, 3)
+    assert sm.mikroc_request(1234, 4) != req
+    assert req != sm.mikroc_reply(1234, 3)
 
 
 def test_g485_block_digest_detects_any_single_bit_flip() -> None:
-    blk = s8.g485_block(7, 2, random.Random(1))
-    assert len(blk) == s8.G485_BLOCK and s8.g485_intact(blk, 2)
-    assert not s8.g485_intact(blk, 3)               # another node's block
+    blk = sg.g485_block(7, 2, random.Random(1))
+    assert len(blk) == sg.G485_BLOCK and sg.g485_intact(blk, 2)
+    assert not sg.g485_intact(blk, 3)               # another node's block
     for i in range(len(blk)):
         for bit in range(8):
             bad = bytearray(blk)
             bad[i] ^= 1 << bit
-            assert not s8.g485_intact(bytes(bad), 2)
+            assert not sg.g485_intact(bytes(bad), 2)
 
 
 def _soak(proto: str) -> dict:

@@ -50,6 +50,10 @@ EXCLUDED = {
                        "reached through fap_py.cli.main, whose argv the CLI's random-argv test walks",
     "fap_py.cli": "the command line itself: main(argv) takes argv strings (the CLI's random-argv "
                   "test), setup_logging is its -v handling",
+    "fap_py.soak": "the fault soak engine behind `fap soak` (it lived in fap_py.commands): run(cfg) "
+                   "soaks for cfg.seconds with slave processes, child() is a slave process's body "
+                   "that runs until it is killed; reached through `fap soak`, whose argv the "
+                   "random-argv test walks, and tests/python/cli/test_soak*.py",
 }
 
 #: functions that are C callbacks (cffi ``extern "Python"``): called by C with C data,

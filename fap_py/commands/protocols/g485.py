@@ -16,93 +16,84 @@ import os
 import time
 from typing import Any, Callable, Dict, Tuple
 
-from ._node import repetitions, scan, scan_summary, stop_on_sigterm
-from ._options import (
-    EXIT_INTERRUPTED,
-    BusError,
-    UsageError,
-    add_actions,
-    add_command,
-    add_echo_option,
-    add_link_options,
-    add_output_options,
-    add_port_options,
-    add_repeat_options,
-    emit,
-    integer,
-    plural,
-    rs485_from_args,
-)
+from fap_py import _protocols
+
+from .. import _options as opt
+from .._node import repetitions, scan, scan_summary, stop_on_sigterm
+
+PROTOCOL = _protocols.get("g485")   # device IDs, broadcast ID, default baud: from the binding
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = add_command(sub, "g485", help="Gicren G485: device simulator, master transactions, scan",
-                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
-    cmds = add_actions(p, "g485_command")
+    p = opt.add_command(sub, "g485", help="Gicren G485: device simulator, master transactions, scan",
+                        example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+    cmds = opt.add_actions(p, "g485_command")
 
     def master(q: argparse.ArgumentParser, *, repeat: bool = True, address: bool = True,
                check: bool = False) -> None:
-        add_echo_option(add_port_options(q))
-        add_link_options(q, timeout_default=0.1, retries_default=2)
-        add_output_options(q)
+        opt.add_echo_option(opt.add_port_options(q, baud_default=PROTOCOL.default_baud))
+        opt.add_link_options(q, timeout_default=0.1, retries_default=2)
+        opt.add_output_options(q)
         if address:
-            q.add_argument("--address", type=integer, required=True,
-                           help="device ID 1..126 (0 = broadcast)")
+            q.add_argument("--address", type=opt.integer, required=True,
+                           help=f"device ID {PROTOCOL.node_min}..{PROTOCOL.node_max} "
+                           f"({PROTOCOL.broadcast} = broadcast)")
         if check:      # only writes and sets are confirmed
             q.add_argument("--check", choices=["handshake", "reread", "none"], default="handshake",
                            help="how the write or set is confirmed")
         if repeat:
-            add_repeat_options(q)
+            opt.add_repeat_options(q)
 
-    s = add_command(cmds, "sim", help="simulate devices on a port until interrupted",
-                    example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
-    add_echo_option(add_port_options(s))
-    add_output_options(s)
-    s.add_argument("--address", type=integer, action="append", required=True,
+    s = opt.add_command(cmds, "sim", help="simulate devices on a port until interrupted",
+                        example="fap g485 sim --port /dev/pts/3 --address 1 --address 2")
+    opt.add_echo_option(opt.add_port_options(s, baud_default=PROTOCOL.default_baud))
+    opt.add_output_options(s)
+    s.add_argument("--address", type=opt.integer, action="append", required=True,
                    help="a device ID to simulate (repeat for several devices)")
     s.add_argument("--eeprom-dir", help="keep each device's EEPROM in DIR/g485-<ID>.json")
     s.add_argument("--wake-up-loss", action="store_true",
                    help="lose the first burst after power-on/reset (baud detection)")
-    s.add_argument("--seed", type=integer, default=0, help="seed of bulk-mode discards")
+    s.add_argument("--seed", type=opt.integer, default=0, help="seed of bulk-mode discards")
     s.set_defaults(func=run_sim)
 
-    r = add_command(cmds, "read", help="read registers",
-                    example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
+    r = opt.add_command(cmds, "read", help="read registers",
+                        example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     master(r)
-    r.add_argument("--register", type=integer, required=True, help="first register")
-    r.add_argument("--registers", type=integer, default=1, help="how many registers")
+    r.add_argument("--register", type=opt.integer, required=True, help="first register")
+    r.add_argument("--registers", type=opt.integer, default=1, help="how many registers")
     r.set_defaults(func=run_read)
 
-    w = add_command(cmds, "write", help="write registers",
-                    example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
+    w = opt.add_command(cmds, "write", help="write registers",
+                        example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
     master(w, repeat=False, check=True)
-    w.add_argument("--register", type=integer, required=True, help="first register")
-    w.add_argument("values", type=integer, nargs="+", help="register values 0..255")
+    w.add_argument("--register", type=opt.integer, required=True, help="first register")
+    w.add_argument("values", type=opt.integer, nargs="+", help="register values 0..255")
     w.set_defaults(func=run_write)
 
-    t = add_command(cmds, "set", help="send a Set command (factory_reset, save_eeprom, reset, ...)",
-                    example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
+    t = opt.add_command(cmds, "set", help="send a Set command (factory_reset, save_eeprom, reset, ...)",
+                        example="fap g485 set --port /dev/ttyUSB0 --address 1 save_eeprom")
     master(t, repeat=False, check=True)
     t.add_argument("command", help="SetCommand name or value")
     t.set_defaults(func=run_set)
 
-    e = add_command(cmds, "error-word", help="read the error word",
-                    example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
+    e = opt.add_command(cmds, "error-word", help="read the error word",
+                        example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
     master(e)
     e.set_defaults(func=run_error_word)
 
-    h = add_command(cmds, "handshake", help="read the device's check byte",
-                    example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
+    h = opt.add_command(cmds, "handshake", help="read the device's check byte",
+                        example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
     master(h)
     h.set_defaults(func=run_handshake)
 
-    c = add_command(cmds, "scan", help="find the devices that answer a handshake "
-                    "(progress bar on a terminal, devices printed as they answer)",
-                    example="fap g485 scan --port /dev/ttyUSB0 --first 1 --last 126")
+    c = opt.add_command(cmds, "scan", help="find the devices that answer a handshake "
+                        "(progress bar on a terminal, devices printed as they answer)",
+                        example=f"fap g485 scan --port /dev/ttyUSB0 --first {PROTOCOL.node_min} "
+                        f"--last {PROTOCOL.node_max}")
     master(c, repeat=False, address=False)
     c.set_defaults(timeout=0.05, retries=0)
-    c.add_argument("--first", type=integer, default=1, help="first ID to try")
-    c.add_argument("--last", type=integer, default=126, help="last ID to try")
+    c.add_argument("--first", type=opt.integer, default=PROTOCOL.node_min, help="first ID to try")
+    c.add_argument("--last", type=opt.integer, default=PROTOCOL.node_max, help="last ID to try")
     c.set_defaults(func=run_scan)
 
 
@@ -110,7 +101,7 @@ def _rs485(args: argparse.Namespace) -> Any:
     """Line options for a device path or libfap's tcp:// / rfc2217:// (the C port
     layer); None for a pyserial URL (it has its own)."""
     pyserial_url = "://" in args.port and not args.port.startswith(("tcp://", "rfc2217://"))
-    return None if pyserial_url else rs485_from_args(args)
+    return None if pyserial_url else opt.rs485_from_args(args)
 
 
 def run_sim(args: argparse.Namespace) -> int:
@@ -126,16 +117,16 @@ def run_sim(args: argparse.Namespace) -> int:
     t0 = time.monotonic()
     with stop_on_sigterm() as done, Simulator(args.port, devices, baudrate=args.baud,
                                                   rs485=_rs485(args)) as sim:
-        emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
-             f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
+        opt.emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
+                 f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
         while not done.wait(0.2):
             if sim.error is not None:
                 raise sim.error
         replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
-    emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
+    opt.emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
                 "packets": events, "replies": replies, "reopened": reopened},
-         f"summary: {plural(events, 'packet')} handled, {plural(replies, 'reply', 'replies')} "
-         f"sent, port reopened {plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
+             f"summary: {opt.plural(events, 'packet')} handled, {opt.plural(replies, 'reply', 'replies')} "
+             f"sent, port reopened {opt.plural(reopened, 'time')}, {time.monotonic() - t0:.1f} s")
     return 0
 
 
@@ -170,21 +161,21 @@ def _poll(args: argparse.Namespace, what: str, ask: Callable[[Any], Any],
                     if args.count == 1:
                         raise                   # one request: its error is the one line
                     failed += 1
-                    emit(args, {"event": "error", "address": args.address, "error": str(exc)},
-                         f"device {args.address}: {exc}")
+                    opt.emit(args, {"event": "error", "address": args.address, "error": str(exc)},
+                             f"device {args.address}: {exc}")
                     continue
-                emit(args, {"event": "reply", "address": args.address, **obj}, text)
+                opt.emit(args, {"event": "reply", "address": args.address, **obj}, text)
         except KeyboardInterrupt:
             interrupted = True
     if interrupted or args.count != 1:
-        emit(args, {"event": "summary", "address": args.address, "requests": done,
+        opt.emit(args, {"event": "summary", "address": args.address, "requests": done,
                     "failed": failed, **({"interrupted": True} if interrupted else {})},
-             f"{plural(done, what)} to device {args.address}, {failed} failed"
-             + (" (interrupted)" if interrupted else ""))
+                 f"{opt.plural(done, what)} to device {args.address}, {failed} failed"
+                 + (" (interrupted)" if interrupted else ""))
     if interrupted:
-        return EXIT_INTERRUPTED
+        return opt.EXIT_INTERRUPTED
     if failed:
-        raise BusError(f"{failed} of {plural(done, what)} to device {args.address} failed")
+        raise opt.BusError(f"{failed} of {opt.plural(done, what)} to device {args.address} failed")
     return 0
 
 
@@ -201,9 +192,9 @@ def run_read(args: argparse.Namespace) -> int:
 def run_write(args: argparse.Namespace) -> int:
     with _master(args) as m:
         m.write(args.address, args.register, args.values)
-    emit(args, {"event": "written", "address": args.address, "register": args.register,
+    opt.emit(args, {"event": "written", "address": args.address, "register": args.register,
                 "written": args.values},
-         f"wrote {plural(len(args.values), 'register')} from {args.register}")
+             f"wrote {opt.plural(len(args.values), 'register')} from {args.register}")
     return 0
 
 
@@ -215,8 +206,8 @@ def run_set(args: argparse.Namespace) -> int:
         pass
     with _master(args) as m:
         m.set(args.address, command)  # type: ignore[arg-type]
-    emit(args, {"event": "set", "address": args.address, "set": args.command},
-         f"set {args.command}: done")
+    opt.emit(args, {"event": "set", "address": args.address, "set": args.command},
+             f"set {args.command}: done")
     return 0
 
 
@@ -238,8 +229,9 @@ def run_handshake(args: argparse.Namespace) -> int:
 def run_scan(args: argparse.Namespace) -> int:
     from fap_py.g485 import G485Error
 
-    if not 1 <= args.first <= args.last <= 126:
-        raise UsageError(f"need 1 <= --first <= --last <= 126, not {args.first}..{args.last}")
+    lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
+    if not lo <= args.first <= args.last <= hi:
+        raise opt.UsageError(f"need {lo} <= --first <= --last <= {hi}, not {args.first}..{args.last}")
     with _master(args) as m:
         def probe(address: int):
             # G485 replies carry no address: a late reply could be credited to
@@ -252,6 +244,6 @@ def run_scan(args: argparse.Namespace) -> int:
 
         result = scan(list(range(args.first, args.last + 1)), probe, label="G485 ID",
                       progress=not args.json,
-                      found=lambda a, _: emit(args, {"event": "found", "address": a},
-                                              f"device {a} answers (ID register confirms)"))
+                      found=lambda a, _: opt.emit(args, {"event": "found", "address": a},
+                                                  f"device {a} answers (ID register confirms)"))
     return scan_summary(args, result, args.last - args.first + 1, "IDs")

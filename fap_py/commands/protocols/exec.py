@@ -12,7 +12,10 @@ from __future__ import annotations
 import argparse
 from dataclasses import asdict
 
-from ._node import (
+from fap_py import _protocols
+
+from .. import _options as opt
+from .._node import (
     Payloads,
     add_payload_options,
     reply_option,
@@ -21,97 +24,87 @@ from ._node import (
     show,
     stop_on_sigterm,
 )
-from ._options import (
-    EXIT_INTERRUPTED,
-    add_actions,
-    add_command,
-    add_echo_option,
-    add_link_options,
-    add_output_options,
-    add_port_options,
-    add_repeat_options,
-    detail,
-    emit,
-    hexbytes,
-    integer,
-    plural,
-    rs485_from_args,
-)
+
+PROTOCOL = _protocols.get("exec")   # node range, broadcast node, default baud: from the binding
+
+
+def _nodes() -> str:
+    return f"{PROTOCOL.node_min}..{PROTOCOL.node_max}"
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = add_command(sub, "exec", help="exec async protocol: master, slave, scan, encode/decode",
-                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102")
-    cmds = add_actions(p, "exec_command")
+    p = opt.add_command(sub, "exec", help="exec async protocol: master, slave, scan, encode/decode",
+                        example="fap exec master --port /dev/ttyUSB0 --node 5 0102")
+    cmds = opt.add_actions(p, "exec_command")
 
-    e = add_command(cmds, "encode", help="print the frame for node, seq and data",
-                    example="fap exec encode --node 5 --seq 1 414243")
-    e.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast")
-    e.add_argument("--seq", type=integer, default=0, help="sequence number 0..255")
-    e.add_argument("data", type=hexbytes, nargs="?", default=b"",
+    e = opt.add_command(cmds, "encode", help="print the frame for node, seq and data",
+                        example="fap exec encode --node 5 --seq 1 414243")
+    e.add_argument("--node", type=opt.integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast")
+    e.add_argument("--seq", type=opt.integer, default=0, help="sequence number 0..255")
+    e.add_argument("data", type=opt.hexbytes, nargs="?", default=b"",
                    help="payload, hex (default: empty)")
-    add_output_options(e)
+    opt.add_output_options(e)
     e.set_defaults(func=run_encode)
 
-    d = add_command(cmds, "decode", help="decode frames from hex bytes (exit 1 if any is bad "
-                    "or the input ends inside a frame)",
-                    example="fap exec decode 100205014142431003b9ec")
-    d.add_argument("data", type=hexbytes, help="received bytes, hex")
-    add_output_options(d)
+    d = opt.add_command(cmds, "decode", help="decode frames from hex bytes (exit 1 if any is bad "
+                        "or the input ends inside a frame)",
+                        example="fap exec decode 100205014142431003b9ec")
+    d.add_argument("data", type=opt.hexbytes, help="received bytes, hex")
+    opt.add_output_options(d)
     d.set_defaults(func=run_decode)
 
     def line(q: argparse.ArgumentParser) -> None:
-        add_echo_option(add_port_options(q))
-        add_output_options(q)
+        opt.add_echo_option(opt.add_port_options(q, baud_default=PROTOCOL.default_baud))
+        opt.add_output_options(q)
 
-    m = add_command(cmds, "master", aliases=["poll"],
-                    help="send requests to a node and print its replies",
-                    example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
-                    "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
+    m = opt.add_command(cmds, "master", aliases=["poll"],
+                        help="send requests to a node and print its replies",
+                        example="fap exec master --port /dev/ttyUSB0 --node 5 0102 --count 0 "
+                        "--interval 0.5\necho 0102 | fap exec master --port /dev/ttyUSB0 --node 5 --json -")
     line(m)
-    add_link_options(m, timeout_default=0.1, retries_default=3)
-    m.add_argument("--node", type=integer, required=True, help="1..254, 255 = broadcast (no reply)")
-    add_repeat_options(m)
+    opt.add_link_options(m, timeout_default=0.1, retries_default=3)
+    m.add_argument("--node", type=opt.integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast (no reply)")
+    opt.add_repeat_options(m)
     add_payload_options(m, what="request")
     m.set_defaults(func=run_master)
 
-    b = add_command(cmds, "broadcast", help="send to every slave (node 255), no reply",
-                    example="fap exec broadcast --port /dev/ttyUSB0 ff00")
+    b = opt.add_command(cmds, "broadcast", help=f"send to every slave (node {PROTOCOL.broadcast}), no reply",
+                        example="fap exec broadcast --port /dev/ttyUSB0 ff00")
     line(b)
     add_payload_options(b)
     b.set_defaults(func=run_broadcast)
 
-    s = add_command(cmds, "slave", help="answer as a node until interrupted",
-                    example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
+    s = opt.add_command(cmds, "slave", help="answer as a node until interrupted",
+                        example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
     line(s)
-    s.add_argument("--node", type=integer, required=True, help="1..254")
+    s.add_argument("--node", type=opt.integer, required=True, help=_nodes())
     s.add_argument("--reply", type=reply_option(), default="echo",
                    help="'echo', 'none' or a fixed reply in hex")
-    s.add_argument("--turnaround-us", type=integer, default=0,
+    s.add_argument("--turnaround-us", type=opt.integer, default=0,
                    help="quiet time before each reply, microseconds")
-    s.add_argument("--max-requests", type=integer, default=0, help="stop after N (0 = never)")
+    s.add_argument("--max-requests", type=opt.integer, default=0, help="stop after N (0 = never)")
     s.set_defaults(func=run_slave)
 
-    c = add_command(cmds, "scan", help="find the nodes that answer (progress bar on a terminal)",
-                    example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
+    c = opt.add_command(cmds, "scan", help="find the nodes that answer (progress bar on a terminal)",
+                        example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
     line(c)
-    add_link_options(c, timeout_default=0.05, retries_default=0)
-    c.add_argument("--first", type=integer, default=1, help="first node to try")
-    c.add_argument("--last", type=integer, default=254, help="last node to try")
-    c.add_argument("--probe", metavar="HEX", type=hexbytes, default=b"",
+    opt.add_link_options(c, timeout_default=0.05, retries_default=0)
+    c.add_argument("--first", type=opt.integer, default=PROTOCOL.node_min, help="first node to try")
+    c.add_argument("--last", type=opt.integer, default=PROTOCOL.node_max, help="last node to try")
+    c.add_argument("--probe", metavar="HEX", type=opt.hexbytes, default=b"",
                    help="request payload sent to each node, hex (default: empty)")
     c.set_defaults(func=run_scan)
 
 
 def _rs485(args: argparse.Namespace, turnaround_us: int = 0):
-    return rs485_from_args(args, turnaround_us=turnaround_us)
+    return opt.rs485_from_args(args, turnaround_us=turnaround_us)
 
 
 def run_encode(args: argparse.Namespace) -> int:
     from fap_py.execasync import encode
 
     frame = encode(args.node, args.data, args.seq)
-    emit(args, {"frame": frame, "node": args.node, "seq": args.seq, "data": args.data}, frame.hex())
+    opt.emit(args, {"frame": frame, "node": args.node, "seq": args.seq, "data": args.data}, frame.hex())
     return 0
 
 
@@ -121,17 +114,17 @@ def run_decode(args: argparse.Namespace) -> int:
     dec = Decoder()
     frames = dec.feed(args.data)
     for f in frames:
-        emit(args, {"node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
-             f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
+        opt.emit(args, {"node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
+                 f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
     # what the decoder still holds after the last complete frame: a truncated frame
     tail = _unfinished(args.data, frames)
     if tail:
-        emit(args, {"status": "truncated", "bytes": tail},
-             f"truncated frame: {plural(len(tail), 'byte')} after the last complete frame "
-             f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
+        opt.emit(args, {"status": "truncated", "bytes": tail},
+                 f"truncated frame: {opt.plural(len(tail), 'byte')} after the last complete frame "
+                 f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
     if not frames and not tail:
-        emit(args, {"status": "no_frame", "bytes": args.data},
-             f"no exec async frame in {plural(len(args.data), 'byte')}")
+        opt.emit(args, {"status": "no_frame", "bytes": args.data},
+                 f"no exec async frame in {opt.plural(len(args.data), 'byte')}")
     return 0 if frames and not tail and all(f.ok for f in frames) else 1
 
 
@@ -172,29 +165,29 @@ def run_master(args: argparse.Namespace) -> int:
                 for req in batch:
                     if args.node == BROADCAST:
                         master.broadcast(req)
-                        emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+                        opt.emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
                         continue
                     seq = master.next_seq(args.node)
                     sent += 1
                     try:
                         reply = master.transact(args.node, req)
-                        emit(args, {"event": "reply", "node": args.node, "seq": seq,
+                        opt.emit(args, {"event": "reply", "node": args.node, "seq": seq,
                                     "data": reply}, f"node {args.node} seq {seq}: {show(reply)}")
                     except ExecAsyncError as exc:
                         failed += 1
-                        why = detail(exc, f"node {args.node}")
-                        emit(args, {"event": "error", "node": args.node, "seq": seq,
+                        why = opt.detail(exc, f"node {args.node}")
+                        opt.emit(args, {"event": "error", "node": args.node, "seq": seq,
                                     "error": why}, f"node {args.node} seq {seq}: {why}")
         except KeyboardInterrupt:       # Ctrl-C: the summary, then exit 130
             interrupted = True
         st = master.stats
-        emit(args, {"event": "stats", **asdict(st), "interrupted": interrupted},
-             f"{plural(st.transactions, 'transaction')}, {plural(st.retries, 'retry', 'retries')}"
-             f", {st.failures} failed, {plural(st.corrupt, 'corrupt frame')}"
-             + (" (interrupted)" if interrupted else ""))
+        opt.emit(args, {"event": "stats", **asdict(st), "interrupted": interrupted},
+                 f"{opt.plural(st.transactions, 'transaction')}, {opt.plural(st.retries, 'retry', 'retries')}"
+                 f", {st.failures} failed, {opt.plural(st.corrupt, 'corrupt frame')}"
+                 + (" (interrupted)" if interrupted else ""))
     if interrupted:
-        return EXIT_INTERRUPTED
-    data.finish(f"{failed} of {plural(sent, 'request')} to node {args.node} failed"
+        return opt.EXIT_INTERRUPTED
+    data.finish(f"{failed} of {opt.plural(sent, 'request')} to node {args.node} failed"
                 if failed else "")
     return 0
 
@@ -206,7 +199,7 @@ def run_broadcast(args: argparse.Namespace) -> int:
     with Master(args.port, args.baud, rs485=_rs485(args)) as master:
         for req in data:
             master.broadcast(req)
-            emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+            opt.emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
     data.finish()
     return 0
 
@@ -215,11 +208,11 @@ def run_slave(args: argparse.Namespace) -> int:
     from fap_py.errors import ClosedError
     from fap_py.execasync import Request, Slave
 
-    fixed = None if args.reply in ("echo", "none") else hexbytes(args.reply)
+    fixed = None if args.reply in ("echo", "none") else opt.hexbytes(args.reply)
 
     def handler(req: Request):
         kind = "broadcast" if req.broadcast else f"seq {req.seq}"
-        emit(args, {"event": "request", "node": args.node, "seq": req.seq,
+        opt.emit(args, {"event": "request", "node": args.node, "seq": req.seq,
                     "broadcast": req.broadcast, "data": req.data}, f"{kind}: {req.data.hex()}")
         if args.reply == "none":
             return None
@@ -227,9 +220,9 @@ def run_slave(args: argparse.Namespace) -> int:
 
     with Slave(args.port, args.baud, node=args.node, handler=handler,
                rs485=_rs485(args, args.turnaround_us)) as slave, stop_on_sigterm() as done:
-        emit(args, {"event": "ready", "node": args.node, "port": args.port, "baud": args.baud},
-             f"ready: exec async slave node {args.node} on {args.port} at {args.baud} baud "
-             f"(reply: {args.reply})")
+        opt.emit(args, {"event": "ready", "node": args.node, "port": args.port, "baud": args.baud},
+                 f"ready: exec async slave node {args.node} on {args.port} at {args.baud} baud "
+                 f"(reply: {args.reply})")
         served = 0
         try:
             while not done.is_set() and (not args.max_requests or served < args.max_requests):
@@ -238,18 +231,19 @@ def run_slave(args: argparse.Namespace) -> int:
         except ClosedError:
             pass
         st = slave.stats
-        emit(args, {"event": "stats", **asdict(st)},
-             f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
-             f"corrupt {st.corrupt}, ignored {st.ignored}")
+        opt.emit(args, {"event": "stats", **asdict(st)},
+                 f"processed {st.processed}, resent {st.resent}, broadcasts {st.broadcasts}, "
+                 f"corrupt {st.corrupt}, ignored {st.ignored}")
     return 0
 
 
 def run_scan(args: argparse.Namespace) -> int:
     from fap_py.execasync import ExecAsyncError, Master
 
-    if not 1 <= args.first <= args.last <= 254:
-        from ._options import UsageError
-        raise UsageError(f"need 1 <= --first <= --last <= 254, not {args.first}..{args.last}")
+    lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
+    if not lo <= args.first <= args.last <= hi:
+        from .._options import UsageError
+        raise UsageError(f"need {lo} <= --first <= --last <= {hi}, not {args.first}..{args.last}")
     with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
                 rs485=_rs485(args)) as master:
         def probe(node: int):
@@ -260,6 +254,6 @@ def run_scan(args: argparse.Namespace) -> int:
 
         result = scan(list(range(args.first, args.last + 1)), probe, label="exec node",
                       progress=not args.json,
-                      found=lambda n, r: emit(args, {"event": "found", "node": n, "reply": r},
-                                              f"node {n} answers: {show(r)}"))
+                      found=lambda n, r: opt.emit(args, {"event": "found", "node": n, "reply": r},
+                                                  f"node {n} answers: {show(r)}"))
     return scan_summary(args, result, args.last - args.first + 1, "nodes")
