@@ -83,6 +83,7 @@ class PortStats:
     write_errors: int = 0
     read_errors: int = 0
     reopens: int = 0
+    rt_refused: int = 0   #: an I/O thread's real-time settings refused after the open
 
 
 def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) -> float:

@@ -17,7 +17,8 @@ from ._native import ffi, lib
 from ._validate import U32, check_baud, check_int
 from .errors import InvalidTypeError, InvalidValueError
 
-__all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults"]
+__all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults",
+           "parse_realtime"]
 
 
 class RS485Mode(enum.IntEnum):
@@ -104,6 +105,8 @@ class RS485:
     gpio_line: Optional[int] = None              #: GPIO mode: line offset on gpio_chip
     low_latency: Optional[bool] = None           #: FTDI latency_timer 1 ms while open
                                                  #: (C default: in soft-RTS and GPIO modes)
+    realtime: Optional[str] = None               #: real-time spec of the engine's I/O thread,
+                                                 #: e.g. "fifo:50,mlock,cpu=1" (docs/realtime.md)
 
     def __post_init__(self) -> None:
         if self.mode is not None:
@@ -129,6 +132,8 @@ class RS485:
                 raise InvalidValueError("RS485.gpio_chip must be a non-empty path")
         if self.mode == RS485Mode.GPIO and self.gpio_chip is None:
             raise InvalidValueError("RS485.mode GPIO needs RS485.gpio_chip (e.g. '/dev/gpiochip0')")
+        if self.realtime is not None:
+            parse_realtime(self.realtime, "RS485.realtime")   # C's parser says what is wrong
 
     def apply_to(self, po: Any, baudrate: int) -> Any:
         """Set ``baudrate`` and the fields given (not None) in a cffi
@@ -153,7 +158,24 @@ class RS485:
             if path not in _CHIP_PATHS:
                 _CHIP_PATHS[path] = ffi.new("char[]", path)
             po.gpio_chip = _CHIP_PATHS[path]
+        if self.realtime is not None:
+            po.rt = parse_realtime(self.realtime, "RS485.realtime")[0]
         return po
+
+
+def parse_realtime(spec: str, what: str = "realtime") -> Any:
+    """A cffi ``fap_port_rt *`` from a real-time spec (``"fifo:50,mlock,cpu=1"``,
+    ``"off"``), parsed by C's one parser (``fap_port_rt_parse``); raises
+    :class:`InvalidValueError` naming ``what`` and the bad item."""
+    if not isinstance(spec, str):
+        raise InvalidTypeError(f"{what} must be a real-time spec string, not {spec!r}")
+    if "\0" in spec:
+        raise InvalidValueError(f"{what}: a NUL in the spec")
+    rt = ffi.new("fap_port_rt *")
+    why = ffi.new("char[]", 200)
+    if lib.fap_port_rt_parse(spec.encode(), rt, why, len(why)) < 0:
+        raise InvalidValueError(f"{what}: {ffi.string(why).decode()}")
+    return rt
 
 
 def line_options(rs485: Optional[RS485]) -> RS485:
