@@ -181,10 +181,10 @@ static int apply_cpus(uint64_t cpus)
 
 int fap_port_rt_apply(const fap_port_rt *rt)
 {
+    if (rt && rt_valid(rt) < 0)
+        return -EINVAL;
     if (rt_is_off(rt))
         return 0;
-    if (rt_valid(rt) < 0)
-        return -EINVAL;
     if (rt->mlock && mlockall(MCL_CURRENT | MCL_FUTURE) < 0)
         return errno == ENOMEM || errno == EPERM || errno == EAGAIN ? FAP_PORT_EMLOCK : -errno;
     if (rt->cpus) {
@@ -218,10 +218,10 @@ static void *rt_try_main(void *arg)
 
 int fap_port_rt_check(const fap_port_rt *rt)
 {
+    if (rt && rt_valid(rt) < 0)
+        return -EINVAL;
     if (rt_is_off(rt))
         return 0;
-    if (rt_valid(rt) < 0)
-        return -EINVAL;
     struct rt_try t = {rt, 0};
     pthread_t th;
     int e = pthread_create(&th, NULL, rt_try_main, &t);
