@@ -74,10 +74,10 @@ static void test_parse(void)
         fap_port_rt keep = {FAP_RT_RR, 7, 1, 9};
         char why[160] = "";
         CHECK_EQ(fap_port_rt_parse(bad[i].spec, &keep, why, sizeof why), -EINVAL);
-        if (!strstr(why, bad[i].says))
-            fprintf(stderr, "spec '%s': reason '%s' lacks '%s'\n", bad[i].spec, why,
-                    bad[i].says);
-        CHECK(strstr(why, bad[i].says) != NULL);
+        int says = strstr(why, bad[i].says) != NULL;
+        if (!says)
+            fprintf(stderr, "spec %zu: unexpected reason: %s\n", i, why);
+        CHECK(says);
         CHECK(keep.policy == FAP_RT_RR && keep.priority == 7 && keep.cpus == 9);  /* untouched */
     }
     char tiny[8];
@@ -471,7 +471,8 @@ static void refused_in_child(void)
     CHECK_EQ(fap_port_rt_apply(&rt), FAP_PORT_ERTPRIV);   /* ... but not 30 */
     CHECK_EQ(fap_port_rt_check(&rt), FAP_PORT_ERTPRIV);
     rt = (fap_port_rt){FAP_RT_OFF, 0, 1, 0};
-    CHECK_EQ(fap_port_rt_apply(&rt), FAP_PORT_EMLOCK);
+    if (!SANITIZED)   /* the sanitizers' mlockall is a no-op that says 0 */
+        CHECK_EQ(fap_port_rt_apply(&rt), FAP_PORT_EMLOCK);
     CHECK(strstr(fap_port_strerror(FAP_PORT_ERTPRIV), "CAP_SYS_NICE") != NULL);
     CHECK(strstr(fap_port_strerror(FAP_PORT_EMLOCK), "mlockall") != NULL);
 
@@ -497,7 +498,8 @@ static void refused_in_child(void)
     execSlave *s = NULL;
     CHECK_EQ(execSlaveOpen(&s, t.name, &po, &so, serve_handler, NULL), FAP_PORT_ERTPRIV);
     po.rt = spec("mlock");
-    CHECK_EQ(fap_port_open(&p, t.name, &po), FAP_PORT_EMLOCK);
+    if (!SANITIZED)
+        CHECK_EQ(fap_port_open(&p, t.name, &po), FAP_PORT_EMLOCK);
     fap_vbus_options vo;
     fap_vbus_options_init(&vo);
     vo.rt = spec("rr:50");
