@@ -163,18 +163,20 @@ class RS485:
         return po
 
 
-def parse_realtime(spec: str, what: str = "realtime") -> Any:
+def parse_realtime(spec: str, what: str = "") -> Any:
     """A cffi ``fap_port_rt *`` from a real-time spec (``"fifo:50,mlock,cpu=1"``,
     ``"off"``), parsed by C's one parser (``fap_port_rt_parse``); raises
-    :class:`InvalidValueError` naming ``what`` and the bad item."""
+    :class:`InvalidValueError` naming ``what`` (when given) and the bad item."""
+    head = f"{what}: " if what else ""
     if not isinstance(spec, str):
-        raise InvalidTypeError(f"{what} must be a real-time spec string, not {spec!r}")
+        raise InvalidTypeError(f"{what or 'realtime'} must be a real-time spec string, "
+                               f"not {spec!r}")
     if "\0" in spec:
-        raise InvalidValueError(f"{what}: a NUL in the spec")
+        raise InvalidValueError(f"{head}a NUL in the real-time spec")
     rt = ffi.new("fap_port_rt *")
     why = ffi.new("char[]", 200)
     if lib.fap_port_rt_parse(spec.encode(), rt, why, len(why)) < 0:
-        raise InvalidValueError(f"{what}: {ffi.string(why).decode()}")
+        raise InvalidValueError(f"{head}{ffi.string(why).decode()}")
     return rt
 
 

@@ -229,7 +229,7 @@ def realtime_spec(text: str) -> str:
     from ..rs485 import parse_realtime
 
     try:
-        parse_realtime(text, "real-time spec")
+        parse_realtime(text)
     except InvalidValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
     return text
