@@ -43,6 +43,16 @@ static fap_port_rt spec(const char *s)
     return rt;
 }
 
+/* Port options for a pty (no RS-485 ioctls) with the real-time spec. */
+static fap_port_options pty_opts(const char *rt)
+{
+    fap_port_options o;
+    fap_port_options_init(&o);
+    o.rs485_mode = FAP_RS485_NONE;
+    o.rt = spec(rt);
+    return o;
+}
+
 static void test_parse(void)
 {
     fap_port_rt rt = spec("fifo:50,mlock,cpu=1");
@@ -270,9 +280,7 @@ static void test_bad_cpu(void)
 
     test_pty t;
     MUST(tp_open(&t) == 0);
-    fap_port_options o;
-    fap_port_options_init(&o);
-    o.rs485_mode = FAP_RS485_NONE;
+    fap_port_options o = pty_opts("");
     o.rt = rt;
     fap_port *p = NULL;
     CHECK_EQ(fap_port_open(&p, t.name, &o), FAP_PORT_ERTCPU);
@@ -309,10 +317,7 @@ static void test_port_enter(void)
         return;
     test_pty t;
     MUST(tp_open(&t) == 0);
-    fap_port_options o;
-    fap_port_options_init(&o);
-    o.rs485_mode = FAP_RS485_NONE;
-    o.rt = spec("fifo:11");
+    fap_port_options o = pty_opts("fifo:11");
     fap_port *p = NULL;
     MUST(fap_port_open(&p, t.name, &o) == 0);
     CHECK_EQ(seen_self().policy, SCHED_OTHER);   /* the open only checked */
@@ -364,8 +369,7 @@ static void test_engines(void)
     fapx_options_init(&fo);
     fo.mode = FAPX_MASTER;
     fo.id = 0;
-    fo.port.rs485_mode = FAP_RS485_NONE;
-    fo.port.rt = spec("fifo:12");
+    fo.port = pty_opts("fifo:12");
     fapx *h = NULL;
     CHECK_EQ(fapx_open(&h, t.name, &fo), 0);
     CHECK_EQ(wait_rt_threads(SCHED_FIFO, 12, 1), 1);
@@ -376,10 +380,7 @@ static void test_engines(void)
 
     /* exec async slave: the thread that serves */
     MUST(tp_open(&t) == 0);
-    fap_port_options po;
-    fap_port_options_init(&po);
-    po.rs485_mode = FAP_RS485_NONE;
-    po.rt = spec("rr:13");
+    fap_port_options po = pty_opts("rr:13");
     execSlaveOptions so;
     execSlaveOptionsInit(&so);
     struct serve_arg a = {NULL, 1, {0, 0, 0}};
@@ -479,10 +480,7 @@ static void refused_in_child(void)
     /* every engine's open fails with the code, and nothing stays open */
     test_pty t;
     MUST(tp_open(&t) == 0);
-    fap_port_options po;
-    fap_port_options_init(&po);
-    po.rs485_mode = FAP_RS485_NONE;
-    po.rt = spec("fifo:30");
+    fap_port_options po = pty_opts("fifo:30");
     fap_port *p = NULL;
     CHECK_EQ(fap_port_open(&p, t.name, &po), FAP_PORT_ERTPRIV);
     CHECK(p == NULL);
