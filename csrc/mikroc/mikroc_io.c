@@ -80,7 +80,7 @@ static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_
     /* want > 1: the frame's wire time in one sleep, not a wake-up per byte */
     if (n == 0)
         n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
-                         : fap_port_read(c->port, c->rx, max, deadline_ns);
+                     : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;
         return (int)n;

@@ -524,19 +524,54 @@ static void refused_in_child(void)
     close(t.master);
 }
 
-static void test_refused(void)
+/* Run fn in a child (what it drops stays there); its checks pass or not. */
+static void in_child(void (*fn)(void))
 {
     fflush(NULL);
     pid_t pid = fork();
     REQUIRE(pid >= 0);
     if (pid == 0) {
-        refused_in_child();
+        fn();
         fflush(NULL);
         _exit(unit_failed ? 1 : 0);
     }
     int status = 0;
     REQUIRE(waitpid(pid, &status, 0) == pid);
     CHECK(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+}
+
+static void test_refused(void)
+{
+    in_child(refused_in_child);
+}
+
+/* Checked at open, refused when the engine thread starts (the privilege
+ * went away in between): counted in the port's rt_refused, not lost. */
+static void refused_after_open_in_child(void)
+{
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    setenv("FAP_REALTIME", "fifo:10", 1);
+    MUST(fapInit(t.name, 115200) == GOOD);
+    rlim_t rtprio;
+    MUST(drop_privilege(0, &rtprio) == 0);   /* threads made from now on inherit it */
+    fapT cfg = {.id = 0, .mode = FAP_MASTER, .idcTime = 0};
+    CHECK(fapConfig(&cfg) == GOOD);
+    fap_port_stats st = {0};
+    int64_t end = tp_now_ns() + 5000000000LL;
+    do {
+        fap_port_get_stats(fapx_port(fapClassicHandle()), &st);
+    } while (st.rt_refused == 0 && tp_now_ns() < end && sched_yield() == 0);
+    CHECK_EQ(st.rt_refused, 1);
+    CHECK_EQ(rt_threads(SCHED_FIFO, 10), 0);
+    fapClassicClose();
+    close(t.master);
+}
+
+static void test_refused_after_open(void)
+{
+    if (privileged())
+        in_child(refused_after_open_in_child);
 }
 
 static void test_mlock(void)
@@ -567,4 +602,5 @@ static void test_mlock(void)
 }
 
 UNIT_MAIN(UNIT(test_parse), UNIT(test_env), UNIT(test_apply_in_thread), UNIT(test_bad_cpu),
-          UNIT(test_port_enter), UNIT(test_engines), UNIT(test_refused), UNIT(test_mlock))
+          UNIT(test_port_enter), UNIT(test_engines), UNIT(test_refused),
+          UNIT(test_refused_after_open), UNIT(test_mlock))
