@@ -67,6 +67,8 @@ def c_defaults() -> Dict[str, Any]:
     out.update({name: int(getattr(po, name)) for name in _INT_FIELDS})
     out.update({name: int(getattr(po, name)) for name in _BOOL_FIELDS})
     out["gpio_chip"] = None if po.gpio_chip == ffi.NULL else ffi.string(po.gpio_chip).decode()
+    rt = po.rt   # the real-time option: all off unless asked (docs/realtime.md)
+    out["realtime"] = "off" if not (rt.policy or rt.priority or rt.mlock or rt.cpus) else None
     return out
 
 
@@ -171,8 +173,8 @@ def parse_realtime(spec: str, what: str = "") -> Any:
     if not isinstance(spec, str):
         raise InvalidTypeError(f"{what or 'realtime'} must be a real-time spec string, "
                                f"not {spec!r}")
-    if "\0" in spec:
-        raise InvalidValueError(f"{head}a NUL in the real-time spec")
+    if "\0" in spec or not spec.isascii():
+        raise InvalidValueError(f"{head}the real-time spec {spec!r} is not plain ASCII text")
     rt = ffi.new("fap_port_rt *")
     why = ffi.new("char[]", 200)
     if lib.fap_port_rt_parse(spec.encode(), rt, why, len(why)) < 0:

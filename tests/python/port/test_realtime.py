@@ -73,7 +73,7 @@ def test_spec_reaches_c() -> None:
 @pytest.mark.parametrize("spec, says", [
     ("fifo:0", "'fifo:0'"), ("fifo:100", "1..99"), ("cpu=64", "'cpu=64'"),
     ("mlock,mlock", "given already"), ("off,fifo:3", "alone"), ("fast", "'fast'"),
-    ("fifo:3,", "comma"), ("a\0b", "NUL"),
+    ("fifo:3,", "comma"), ("a\0b", "ASCII"), ("fifo:\udcff", "ASCII"),
 ])
 def test_bad_spec_is_invalid_value(spec: str, says: str) -> None:
     with pytest.raises(InvalidValueError, match=says):
