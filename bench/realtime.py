@@ -185,12 +185,13 @@ def measure(rounds: int = 3, seconds: float = 5.0, profile: bool = True) -> Dict
 
 
 def targets(res: Optional[Dict[str, Any]] = None, rounds: int = 3,
-            seconds: float = 5.0) -> List["Target"]:
+            seconds: float = 5.0, quick: bool = False) -> List["Target"]:
     """The issue-24 row: p99 turnaround with the option and two hogs <= 1 ms
     (FAP, 115200); the other conditions in the note. ``res`` from
-    :func:`measure` (measured now when None)."""
+    :func:`measure` (measured now when None; ``quick``: one round of 2 s,
+    no perf round, a smoke test rather than a measurement)."""
     if res is None:
-        res = measure(rounds, seconds)
+        res = measure(1, 2.0, False) if quick else measure(rounds, seconds)
     s = res["summary"]
     side = ", ".join(f"{n} p50/p99 {s[n]['p50']:.0f}/{s[n]['p99']:.0f} µs" for n, _, _ in CONDITIONS)
     la = res["loadavg_before"]
