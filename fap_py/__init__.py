@@ -24,6 +24,7 @@ from .errors import (
     PortError,
     PortGoneError,
     QueueFullError,
+    RealTimeError,
     SlaveExistsError,
     UnknownSlaveError,
 )
@@ -85,6 +86,7 @@ __all__ = [
     "PortBusyError",
     "PortError",
     "PortGoneError",
+    "RealTimeError",
     "QueueFullError",
     "native_version",
     "EventKind",

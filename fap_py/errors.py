@@ -107,6 +107,12 @@ class FileError(PortError):
     why: str = ""
 
 
+class RealTimeError(PortError):
+    """The real-time option (docs/realtime.md) was refused at open: no
+    privilege for SCHED_FIFO/RR (``errno`` EPERM), a CPU the process may not
+    use (EINVAL) or mlockall refused (ENOMEM)."""
+
+
 #: errno values that mean the device is no longer there
 _GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
 
@@ -120,7 +126,8 @@ def _port_codes() -> Dict[str, int]:
     from ._native import lib
 
     names = ("FAP_PORT_ECOLLISION", "FAP_PORT_ECLOSED", "FAP_PORT_EURL", "FAP_PORT_ENET485",
-             "FAP_PORT_ERESOLVE", "FAP_PORT_EREFUSED")
+             "FAP_PORT_ERESOLVE", "FAP_PORT_EREFUSED",
+             "FAP_PORT_ERTPRIV", "FAP_PORT_ERTCPU", "FAP_PORT_EMLOCK")
     return {name: int(getattr(lib, name)) for name in names}
 
 
@@ -164,6 +171,12 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
     net = _net_error(code, prefix, path)
     if net is not None:
         return net
+    rt = {codes["FAP_PORT_ERTPRIV"]: _errno.EPERM, codes["FAP_PORT_ERTCPU"]: _errno.EINVAL,
+          codes["FAP_PORT_EMLOCK"]: _errno.ENOMEM}.get(code)
+    if rt is not None:   # the real-time option refused (docs/realtime.md)
+        from ._native import ffi, lib
+        return RealTimeError(rt, f"{prefix}{ffi.string(lib.fap_port_strerror(code)).decode()}",
+                             path)
     err = -code
     if err == _errno.ETIMEDOUT:
         return FapTimeoutError(f"{prefix}{os.strerror(err)}")

@@ -83,6 +83,7 @@ class PortStats:
     write_errors: int = 0
     read_errors: int = 0
     reopens: int = 0
+    rt_refused: int = 0   #: an I/O thread's real-time settings refused after the open
 
 
 def check_timeout(value: Any, what: str = "timeout", *, zero_ok: bool = True) -> float:
@@ -139,6 +140,8 @@ class Port(NativeHandle):
                                 "(TIOCSRS485: ENOTTY); use soft RTS or none (--rs485 soft|none)",
                                 self.path)
             raise port_error(rc, "open", self.path)
+        # the real-time option (docs/realtime.md): the thread doing the I/O takes it
+        self._rt = bool(po.rt.policy or po.rt.cpus)
         self._buf = ffi.new("unsigned char[]", MAX_READ)
         self._buffer = ffi.buffer(self._buf)
         self.baudrate = int(lib.fap_port_baud(out[0]))
@@ -207,6 +210,8 @@ class Port(NativeHandle):
             n = len(buf)                     # bytes, also for a view of wider items
         else:
             raise InvalidTypeError(f"data must be bytes-like, not {type(data).__name__}")
+        if self._rt:
+            self._rt_enter()
         rc = self._call(self._lib.fap_port_write, buf, n)
         if rc < 0:
             raise port_error(rc, "write", self.path)
@@ -217,6 +222,8 @@ class Port(NativeHandle):
         (``fap_port_send``): it returns once the bytes are queued, for a reply or a
         broadcast that nobody times from the write's return. ``data``: bytes-like."""
         data = check_bytes(data, "data", 0, 1 << 62)   # bytes-like, strided views too
+        if self._rt:
+            self._rt_enter()
         rc = self._call(self._lib.fap_port_send, data, len(data))
         if rc < 0:
             raise port_error(rc, "write", self.path)
@@ -253,6 +260,8 @@ class Port(NativeHandle):
                 or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"read_until({n}, {deadline_ns}) out of range")
         read, buf = self._lib.fap_port_read, self._buf
+        if self._rt:
+            self._rt_enter()
         while True:
             step = deadline_ns
             if deadline_ns:
@@ -283,6 +292,8 @@ class Port(NativeHandle):
         step = deadline_ns
         if deadline_ns:
             step = min(deadline_ns, time.monotonic_ns() + _SLICE_NS)
+        if self._rt:
+            self._rt_enter()
         got = self._call(self._lib.fap_port_transact, data, len(data), self._buf, n, step)
         if got > 0:
             return self._buffer[:got]
@@ -291,6 +302,12 @@ class Port(NativeHandle):
         if step >= deadline_ns or not n:
             return b""
         return self.read_until(n, deadline_ns)  # a long wait goes on in slices
+
+    def _rt_enter(self) -> None:
+        """Apply the port's real-time settings to this thread (once per thread, in C)."""
+        rc = self._call(self._lib.fap_port_rt_enter)
+        if rc < 0:
+            raise port_error(rc, "real-time", self.path)
 
     def flush_input(self) -> None:
         """Discard bytes received and not read yet (and unsent output)."""

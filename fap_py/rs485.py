@@ -17,7 +17,8 @@ from ._native import ffi, lib
 from ._validate import U32, check_baud, check_int
 from .errors import InvalidTypeError, InvalidValueError
 
-__all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults"]
+__all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults",
+           "parse_realtime"]
 
 
 class RS485Mode(enum.IntEnum):
@@ -66,6 +67,8 @@ def c_defaults() -> Dict[str, Any]:
     out.update({name: int(getattr(po, name)) for name in _INT_FIELDS})
     out.update({name: int(getattr(po, name)) for name in _BOOL_FIELDS})
     out["gpio_chip"] = None if po.gpio_chip == ffi.NULL else ffi.string(po.gpio_chip).decode()
+    rt = po.rt   # the real-time option: all off unless asked (docs/realtime.md)
+    out["realtime"] = "off" if not (rt.policy or rt.priority or rt.mlock or rt.cpus) else None
     return out
 
 
@@ -104,6 +107,8 @@ class RS485:
     gpio_line: Optional[int] = None              #: GPIO mode: line offset on gpio_chip
     low_latency: Optional[bool] = None           #: FTDI latency_timer 1 ms while open
                                                  #: (C default: in soft-RTS and GPIO modes)
+    realtime: Optional[str] = None               #: real-time spec of the engine's I/O thread,
+                                                 #: e.g. "fifo:50,mlock,cpu=1" (docs/realtime.md)
 
     def __post_init__(self) -> None:
         if self.mode is not None:
@@ -129,6 +134,8 @@ class RS485:
                 raise InvalidValueError("RS485.gpio_chip must be a non-empty path")
         if self.mode == RS485Mode.GPIO and self.gpio_chip is None:
             raise InvalidValueError("RS485.mode GPIO needs RS485.gpio_chip (e.g. '/dev/gpiochip0')")
+        if self.realtime is not None:
+            parse_realtime(self.realtime, "RS485.realtime")   # C's parser says what is wrong
 
     def apply_to(self, po: Any, baudrate: int) -> Any:
         """Set ``baudrate`` and the fields given (not None) in a cffi
@@ -153,7 +160,26 @@ class RS485:
             if path not in _CHIP_PATHS:
                 _CHIP_PATHS[path] = ffi.new("char[]", path)
             po.gpio_chip = _CHIP_PATHS[path]
+        if self.realtime is not None:
+            po.rt = parse_realtime(self.realtime, "RS485.realtime")[0]
         return po
+
+
+def parse_realtime(spec: str, what: str = "") -> Any:
+    """A cffi ``fap_port_rt *`` from a real-time spec (``"fifo:50,mlock,cpu=1"``,
+    ``"off"``), parsed by C's one parser (``fap_port_rt_parse``); raises
+    :class:`InvalidValueError` naming ``what`` (when given) and the bad item."""
+    head = f"{what}: " if what else ""
+    if not isinstance(spec, str):
+        raise InvalidTypeError(f"{what or 'realtime'} must be a real-time spec string, "
+                               f"not {spec!r}")
+    if "\0" in spec or not spec.isascii():
+        raise InvalidValueError(f"{head}the real-time spec {spec!r} is not plain ASCII text")
+    rt = ffi.new("fap_port_rt *")
+    why = ffi.new("char[]", 200)
+    if lib.fap_port_rt_parse(spec.encode(), rt, why, len(why)) < 0:
+        raise InvalidValueError(f"{head}{ffi.string(why).decode()}")
+    return rt
 
 
 def line_options(rs485: Optional[RS485]) -> RS485:

@@ -98,6 +98,8 @@ class VirtualBus(NativeHandle):
         capture: record every byte on the bus in this file.
         seed: seed of every random fault (runs with the same seed and the
             same traffic see the same faults).
+        realtime: real-time spec of the relay thread (``"fifo:60,mlock"``,
+            docs/realtime.md); refused without the privilege (RealTimeError).
 
     Raises:
         InvalidValueError: bad arguments.
@@ -108,7 +110,7 @@ class VirtualBus(NativeHandle):
 
     def __init__(self, ports: int = 3, baud: Optional[int] = None, echo: bool = False,
                  link_dir: Optional[PathLike] = None, capture: Optional[PathLike] = None,
-                 seed: int = 0) -> None:
+                 seed: int = 0, realtime: Optional[str] = None) -> None:
         super().__init__()
         self._ffi, self._lib = ffi, lib
         self._lock = threading.Lock()
@@ -125,6 +127,9 @@ class VirtualBus(NativeHandle):
         opts.baud = baud
         opts.echo = 1 if echo else 0
         opts.seed = seed & 0xFFFFFFFFFFFFFFFF
+        if realtime is not None:   # the relay thread's (docs/realtime.md)
+            from .rs485 import parse_realtime
+            opts.rt = parse_realtime(realtime, "realtime")[0]
         keep = []   # the C strings must outlive fap_vbus_open
         if link_dir is not None:
             keep.append(ffi.new("char[]", os.fsencode(link_dir)))

@@ -29,6 +29,32 @@ extern "C" {
 #define FAP_PORT_EREFUSED    (-10013)  /* the RFC 2217 server refused COM-PORT-OPTION,
                                           the baud rate or 8N1 */
 
+/* Real-time settings of an engine's I/O thread (docs/realtime.md).
+ * fap_port_open checks them (a throwaway thread tries them; mlockall is
+ * process-wide and stays) and fails with one of these codes when the
+ * process may not have them; each engine's I/O thread then applies them to
+ * itself (fap_port_rt_enter). Never silently ignored. */
+#define FAP_PORT_ERTPRIV     (-10020)  /* SCHED_FIFO/RR refused: no CAP_SYS_NICE and
+                                          RLIMIT_RTPRIO below the priority */
+#define FAP_PORT_ERTCPU      (-10021)  /* an asked CPU is not in the process's allowed set */
+#define FAP_PORT_EMLOCK      (-10022)  /* mlockall refused: RLIMIT_MEMLOCK, no CAP_IPC_LOCK,
+                                          or not enough memory */
+
+typedef enum fap_rt_policy {
+    FAP_RT_OFF = 0,    /* the thread keeps its policy (default) */
+    FAP_RT_FIFO = 1,   /* SCHED_FIFO at priority */
+    FAP_RT_RR = 2      /* SCHED_RR at priority */
+} fap_rt_policy;
+
+#define FAP_RT_MAX_CPUS 64   /* CPUs an affinity mask can name (0..63) */
+
+typedef struct fap_port_rt {
+    fap_rt_policy policy;   /* default FAP_RT_OFF */
+    int priority;           /* 1..99 with FIFO/RR (sched_get_priority_min/max), else 0 */
+    int mlock;              /* 1: mlockall(MCL_CURRENT | MCL_FUTURE) at open */
+    uint64_t cpus;          /* affinity: bit i = CPU i; 0 = leave the thread's */
+} fap_port_rt;
+
 /* How the transmitter is switched on and off. */
 typedef enum fap_rs485_mode {
     FAP_RS485_AUTO = 0,     /* try KERNEL, fall back to NONE; see fap_port_mode() */
@@ -76,6 +102,9 @@ typedef struct fap_port_options {
                                       at 1 ms while open, the old value back at
                                       close: 1 always, 0 never, FAP_PORT_KEEP
                                       (default) in soft-RTS and GPIO modes */
+    /* Appended: real-time settings of the engine's I/O thread (see
+     * fap_port_rt below, docs/realtime.md). Default: all off. */
+    fap_port_rt rt;
 } fap_port_options;
 
 typedef struct fap_port_stats {
@@ -86,6 +115,8 @@ typedef struct fap_port_stats {
     uint64_t write_errors;
     uint64_t read_errors;
     uint64_t reopens;
+    uint64_t rt_refused;      /* appended: an I/O thread's real-time settings refused
+                                 after the open's check passed (fap_port_rt_enter) */
 } fap_port_stats;
 
 typedef struct fap_port fap_port;   /* opaque; one per open device */
@@ -243,6 +274,39 @@ typedef struct fap_port_check {
 } fap_port_check;
 int fap_port_check_direction(fap_port *p, const void *pattern, size_t n, unsigned rounds,
                              unsigned timeout_ms, fap_port_check *out);
+
+/* Parse a real-time spec: comma-separated items, any order, each once:
+ * "fifo:PRIO" or "rr:PRIO" (1..99), "mlock", "cpu=N" or "cpu=N-M" (CPUs
+ * 0..63; items may repeat to add CPUs), "off" alone (or "" or NULL) for
+ * none. Example: "fifo:50,mlock,cpu=1". Fills *out only on success.
+ * Returns 0, or -EINVAL with a one-line reason naming the bad item in why
+ * (n bytes, always terminated; NULL = none). */
+int fap_port_rt_parse(const char *spec, fap_port_rt *out, char *why, size_t n);
+
+/* The spec of the environment variable FAP_REALTIME (the classic API's
+ * way in: fapInit reads it), parsed like fap_port_rt_parse; unset or empty
+ * = all off. Returns 0 or -EINVAL (why as above). */
+int fap_port_rt_from_env(fap_port_rt *out, char *why, size_t n);
+
+/* Apply rt to the calling thread now: mlockall if asked, then the CPU
+ * affinity, then the scheduling policy. NULL or all off: 0, nothing done.
+ * Returns 0, -EINVAL (a value out of range), FAP_PORT_ERTCPU,
+ * FAP_PORT_EMLOCK or FAP_PORT_ERTPRIV; the settings applied before a
+ * failing one stay. */
+int fap_port_rt_apply(const fap_port_rt *rt);
+
+/* Try rt in a short-lived thread (the calling thread keeps its policy and
+ * CPUs; mlockall, process-wide, stays in force). fap_port_open calls it.
+ * Same returns as fap_port_rt_apply, or the -errno of pthread_create. */
+int fap_port_rt_check(const fap_port_rt *rt);
+
+/* Apply the port's real-time settings (opened with, checked by the open)
+ * to the calling thread, once per thread and port: later calls from the
+ * same thread cost a compare. Engines call it where their I/O thread
+ * starts (the FAP engine thread, the exec async and mikroC calls that
+ * read and write, the virtual bus relay). Returns 0 or fap_port_rt_apply's
+ * code; a refusal is also counted in fap_port_stats.rt_refused. */
+int fap_port_rt_enter(fap_port *p);
 
 #ifdef __cplusplus
 }

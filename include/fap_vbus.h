@@ -19,6 +19,8 @@
 
 #include <stdint.h>
 
+#include "fap_port.h"   /* fap_port_rt */
+
 #ifdef __cplusplus
 extern "C" {
 #endif
@@ -32,6 +34,10 @@ typedef struct fap_vbus_options {
     const char *link_dir;      /* directory for the port symlinks (NULL = temp dir) */
     const char *capture_path;  /* record every byte here (NULL = no capture) */
     uint64_t seed;             /* seed of every random fault */
+    /* appended: the relay thread's real-time settings (docs/realtime.md),
+     * applied by the relay as it starts; fap_vbus_open fails with the
+     * refusal's code (FAP_PORT_ERTPRIV ...). Default all off. */
+    fap_port_rt rt;
 } fap_vbus_options;
 
 typedef struct fap_vbus_stats {

@@ -169,7 +169,9 @@ static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
      * reply; a corrupt leftover would otherwise trigger a needless retry. */
     /* Not fap_port_flush: it also drops output not yet on the wire, e.g. a
      * broadcast sent just before. */
-    int err = fap_port_discard_input(m->port);
+    int err = fap_port_rt_enter(m->port);   /* real-time option: the caller's thread */
+    if (!err)
+        err = fap_port_discard_input(m->port);
     if (!err)
         err = send_attempt(m);
     return err;
@@ -315,7 +317,9 @@ int execMasterBroadcast(execMaster *m, const byte *data, word len)
     uint8_t seq = m->seq.next[EXEC_ASYNC_BROADCAST];
     word n = execAsyncBufferOut(EXEC_ASYNC_BROADCAST, (byte *)data, m->txbuf, (byte)len, seq);
     m->seq.next[EXEC_ASYNC_BROADCAST] = lf_exec_seq_next(seq);
-    ssize_t w = fap_port_write(m->port, m->txbuf, n);
+    ssize_t w = fap_port_rt_enter(m->port);   /* real-time option: the caller's thread */
+    if (w == 0)
+        w = fap_port_write(m->port, m->txbuf, n);
     lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
                   lf_now_ns(), m->txbuf, n);
     if (w >= 0) {

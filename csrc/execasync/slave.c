@@ -262,6 +262,9 @@ int execSlaveServe(execSlave *s, int timeout_ms)
     if (!s)
         return -EINVAL;
     lf_ns deadline = timeout_ms < 0 ? LF_NEVER : lf_now_ns() + (lf_ns)timeout_ms * LF_NS_PER_MS;
+    int rt = fap_port_rt_enter(s->port);   /* real-time option: the serving thread */
+    if (rt)
+        return rt;
     for (;;) {
         if (__atomic_load_n(&s->stopped, __ATOMIC_ACQUIRE))
             return -ECANCELED;

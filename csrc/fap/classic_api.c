@@ -87,7 +87,12 @@ usys fapInit(char *devName, usys baudRate)
         else
             fapx_options_init(&o);
         o.port.baud = baudRate;
-        if (lf_fapx_create(&g_h, devName, &o) < 0) {
+        /* the real-time option of the classic API: FAP_REALTIME (docs/realtime.md);
+         * a bad spec, or one the process may not have, fails fapInit */
+        char *rt = getenv("FAP_REALTIME");
+        if (rt && *rt && fap_port_rt_from_env(&o.port.rt, NULL, 0) < 0) {
+            rc = BAD;
+        } else if (lf_fapx_create(&g_h, devName, &o) < 0) {
             g_h = NULL;
             rc = BAD;
         } else {

@@ -338,6 +338,9 @@ static lf_ns min_ns(lf_ns a, lf_ns b)
 void *lf_fapx_engine_main(void *arg)
 {
     fapx *h = arg;
+    /* The real-time option (port_rt.c), checked by the open: applied to
+     * this thread; a refusal now is counted in the port's rt_refused. */
+    (void)fap_port_rt_enter(h->port);
     uint8_t rbuf[4096];
     lf_ns now = lf_now_ns();
     lf_fap_timing t = {

@@ -75,9 +75,12 @@ int mikrocRS485_CtxResetRx(mikrocRS485_ctx *c)
  * the deadline, <0 error. */
 static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_ns)
 {
+    /* the caller's thread does the I/O: the real-time option applies to it */
+    ssize_t n = fap_port_rt_enter(c->port);
     /* want > 1: the frame's wire time in one sleep, not a wake-up per byte */
-    ssize_t n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
-                         : fap_port_read(c->port, c->rx, max, deadline_ns);
+    if (n == 0)
+        n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
+                     : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;
         return (int)n;
@@ -161,7 +164,9 @@ int mikrocRS485_CtxSend(mikrocRS485_ctx *c, const char *data_buffer,
         int master = c->role == MIKROC_RS485_ROLE_MASTER;
         int n = mikrocRS485_Encode(frame, (const uint8_t *)data_buffer, datalen,
                                    master ? address : c->address, master);
-        ssize_t w = n < 0 ? n : fap_port_write(c->port, frame, (size_t)n);
+        ssize_t w = n < 0 ? n : fap_port_rt_enter(c->port);   /* real-time: this thread */
+        if (w == 0)
+            w = fap_port_write(c->port, frame, (size_t)n);
         r = w < 0 ? (int)w : 0;
         if (c->trace && n > 0)
             lf_mikroc_trace(c, FAP_TRACE_TX, w == n ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,

@@ -126,6 +126,8 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
     pthread_mutex_init(&p->st_mu, NULL);
     pthread_cond_init(&p->idle_cv, NULL);
     int err = validate_options(o, &p->opt);
+    if (!err)
+        err = lf_port_rt_open(p);   /* real-time option refused: the open fails */
     if (err) {
         port_free(p);
         return err;

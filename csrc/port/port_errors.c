@@ -3,6 +3,7 @@
 #include <string.h>
 
 #include "fap_port.h"
+#include "port/port_internal.h"
 
 const char *fap_rs485_mode_name(fap_rs485_mode m)
 {
@@ -29,6 +30,9 @@ const char *fap_port_strerror(int err)
     case FAP_PORT_EREFUSED: return "the RFC 2217 server refused a line setting";
     default: break;
     }
+    const char *rt = lf_port_rt_strerror(err);   /* port_rt.c */
+    if (rt)
+        return rt;
     long e = err < 0 ? -(long)err : err;   /* -INT_MIN does not fit an int */
     /* strerrordesc_np: thread-safe, no locale, NULL for unknown numbers. */
     const char *s = (e > 0 && e < 4096) ? strerrordesc_np(e) : NULL;

@@ -65,6 +65,7 @@ struct fap_port {
     fap_port_stats stats;
     const int *cancel_fd;         /* readable: every wait ends with -ECANCELED
                                      (lf_port_open_cancellable); NULL: none */
+    uint64_t rt_serial;           /* port_rt.c: which open a thread applied rt for */
 };
 
 /* port_config.c */
@@ -105,5 +106,10 @@ static inline int lf_port_errno_vanished(int e)
 /* An I/O call failed with err (negative): if that says the device
  * vanished, record it, so later calls fail fast until a reopen. */
 void lf_port_note_error(fap_port *p, int err);
+
+/* port_rt.c: check p->opt.rt at open (fap_port_rt_check) and number the
+ * open for fap_port_rt_enter; the name of its error codes (else NULL). */
+int lf_port_rt_open(fap_port *p);
+const char *lf_port_rt_strerror(int err);
 
 #endif

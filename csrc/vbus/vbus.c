@@ -71,6 +71,8 @@ struct fap_vbus {
     pthread_cond_t cv;
     int closing;
     uint64_t req_gen, done_gen;
+    fap_port_rt rt;           /* real-time option: the relay applies it, open waits */
+    int rt_err, rt_known;
 
     uint64_t bytes_out, overflow, disconnects;
 
@@ -313,7 +315,12 @@ static void *relay_main(void *arg)
     struct pollfd pfd[3 + FAP_VBUS_MAX_PORTS];
     int who[3 + FAP_VBUS_MAX_PORTS];
 
+    int rt = fap_port_rt_apply(&b->rt);   /* real-time option (port_rt.c) */
     pthread_mutex_lock(&b->mu);
+    b->rt_err = rt;
+    b->rt_known = 1;
+    b->closing |= rt != 0;   /* refused: fap_vbus_open fails with rt */
+    pthread_cond_broadcast(&b->cv);
     for (;;) {
         lf_ns next = relay_due(b, lf_now_ns());
         if (b->closing)
@@ -583,10 +590,20 @@ int fap_vbus_open(fap_vbus **out, const fap_vbus_options *o)
     sigset_t all, old;
     sigfillset(&all);
     pthread_sigmask(SIG_SETMASK, &all, &old);
+    b->rt = o->rt;
     err = -pthread_create(&b->thread, NULL, relay_main, b);
     pthread_sigmask(SIG_SETMASK, &old, NULL);
     if (err)
         goto fail;
+    pthread_mutex_lock(&b->mu);   /* the relay's real-time settings took, or not */
+    while (!b->rt_known)
+        pthread_cond_wait(&b->cv, &b->mu);
+    err = b->rt_err;
+    pthread_mutex_unlock(&b->mu);
+    if (err) {
+        pthread_join(b->thread, NULL);
+        goto fail;
+    }
     pthread_setname_np(b->thread, "fap-vbus");   /* for top -H, gdb */
     b->thread_started = 1;
     b->owner = getpid();

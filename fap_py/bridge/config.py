@@ -16,6 +16,7 @@ from urllib.parse import unquote, urlsplit
 from .._validate import check_int
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
+from ..rs485 import parse_realtime
 from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
 
 if sys.version_info >= (3, 11):
@@ -195,10 +196,17 @@ def _rs485(t: Dict[str, Any], where: str) -> RS485:
         line = _range(line, 0, 1023, f"{where}.gpio_line")
     elif "gpio_chip" in t or "gpio_line" in t:
         raise BridgeConfigError(f"{where}: gpio_chip and gpio_line need rs485 = \"gpio\"")
+    # the engine's I/O thread real-time: "fifo:50,mlock,cpu=1" (docs/realtime.md)
+    realtime = _pop(t, "realtime", str, where, None)
+    if realtime is not None:
+        try:
+            parse_realtime(realtime, f"{where}.realtime")
+        except InvalidValueError as exc:
+            raise BridgeConfigError(str(exc)) from None
     try:
         return RS485(mode=_RS485_MODES[mode], rts_active_high=polarity == "high",
                      delay_before_send_us=int(before * 1000), delay_after_send_us=int(after * 1000),
-                     echo_suppression=echo, gpio_chip=chip, gpio_line=line)
+                     echo_suppression=echo, gpio_chip=chip, gpio_line=line, realtime=realtime)
     except FapError as exc:
         raise BridgeConfigError(f"{where}: {exc}") from None
 

@@ -219,7 +219,30 @@ def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[
                    "(e.g. /dev/gpiochip0)")
     g.add_argument("--gpio-line", metavar="N", type=count, default=0,
                    help="--rs485 gpio: the line offset on --gpio-chip")
+    add_realtime_option(g)
     return g
+
+
+def realtime_spec(text: str) -> str:
+    """argparse type of ``--realtime``: a spec C's one parser accepts
+    (``fap_port_rt_parse``), e.g. ``fifo:50,mlock,cpu=1``."""
+    from ..rs485 import parse_realtime
+
+    try:
+        parse_realtime(text)
+    except InvalidValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+def add_realtime_option(group: Any) -> None:
+    """``--realtime SPEC`` (docs/realtime.md): the engine's I/O thread (or the
+    bus relay) at SCHED_FIFO/RR, mlockall, CPU affinity; refused at open
+    without the privilege."""
+    group.add_argument("--realtime", metavar="SPEC", type=realtime_spec, default=None,
+                       help="real-time I/O thread: fifo:PRIO or rr:PRIO (1..99), mlock, "
+                       "cpu=N[-M], comma-separated; needs CAP_SYS_NICE or RLIMIT_RTPRIO "
+                       "(docs/realtime.md)")
 
 
 def add_echo_option(group: argparse._ArgumentGroup) -> None:
@@ -273,6 +296,8 @@ def rs485_from_args(args: argparse.Namespace, **extra: Any) -> Any:
         raise UsageError("--rs485 gpio needs --gpio-chip PATH (and --gpio-line N)")
     if chip:
         extra.update(gpio_chip=chip, gpio_line=args.gpio_line)
+    if getattr(args, "realtime", None):
+        extra.setdefault("realtime", args.realtime)
     return RS485(mode=mode, rts_active_high=args.rts_polarity == "high",
                  delay_before_send_us=round(args.rts_before * 1000),
                  delay_after_send_us=round(args.rts_after * 1000), **extra)

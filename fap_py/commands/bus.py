@@ -13,7 +13,7 @@ import threading
 import time
 from typing import TYPE_CHECKING, Any, List, Optional
 
-from ._options import add_command, add_output_options, baud, emit
+from ._options import add_command, add_output_options, add_realtime_option, baud, emit
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..vbus import VirtualBus
@@ -37,6 +37,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--drop-rate", type=float, default=0.0, metavar="X",
                    help="per-byte probability of a dropped byte, every port")
     p.add_argument("--seed", type=int, default=0, help="seed of the random faults")
+    add_realtime_option(p)   # the relay thread (docs/realtime.md)
     add_output_options(p)
     p.set_defaults(func=run)
 
@@ -55,7 +56,8 @@ def _open(args: argparse.Namespace) -> "VirtualBus":
                           args.capture) from None
     try:
         return VirtualBus(ports=args.ports, baud=args.baud or None, echo=args.echo,
-                          link_dir=args.link_dir, capture=args.capture, seed=args.seed)
+                          link_dir=args.link_dir, capture=args.capture, seed=args.seed,
+                          realtime=args.realtime)
     except OSError as exc:
         if not args.link_dir or exc.errno is None:
             raise

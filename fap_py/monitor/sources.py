@@ -195,6 +195,9 @@ class LivePort:
     def _chunks(self, deadline: Callable[[], Optional[int]], idle_s: Optional[float],
                 stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
         char_s = char_seconds(self.baud)
+        rt = lib.fap_port_rt_enter(self._port)   # --realtime: the reading thread (docs/realtime.md)
+        if rt < 0:
+            raise error_from_code(rt, f"real-time {self.path}", self.path)
         last = lib.fap_port_now_ns()
         while not stop():
             now = lib.fap_port_now_ns()

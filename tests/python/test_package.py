@@ -118,9 +118,10 @@ def test_rs485_defaults_are_the_c_port_layers() -> None:
     d = c_defaults()
     assert d["mode"] == po.rs485_mode
     for name, _ in ffi.typeof("fap_port_options").fields:
-        if name not in ("baud", "rs485_mode", "gpio_chip"):
+        if name not in ("baud", "rs485_mode", "gpio_chip", "rt"):
             assert d[name] == getattr(po, name), name
     assert po.gpio_chip == ffi.NULL and d["gpio_chip"] is None
+    assert d["realtime"] == "off" and (po.rt.policy, po.rt.mlock, po.rt.cpus) == (0, 0, 0)
     # and a field that is given is what C gets
     RS485(mode=RS485Mode.NONE, turnaround_us=7, exclusive=False).apply_to(mine, 9600)
     assert (mine.rs485_mode, mine.turnaround_us, mine.exclusive, mine.baud) == (

@@ -326,7 +326,7 @@ def test_examples_of_issue_12() -> None:
 def test_more_entry_points(nodes: Dict[str, Any], tmp_path: Any) -> None:
     from fap_py import vbus
     from fap_py.fap_classic import classic_check
-    from fap_py.rs485 import line_options, port_options
+    from fap_py.rs485 import line_options, parse_realtime, port_options
 
     fm = nodes["fap_master"]
     layout = execasync.StructLayout([("a", "u8")])
@@ -346,6 +346,10 @@ def test_more_entry_points(nodes: Dict[str, Any], tmp_path: Any) -> None:
         ("exec pack", layout.pack, BAD_DATA + [{"a": 256}, {"a": -1}, {"a": True}, {"b": 1}]),
         ("vbus parse_capture", vbus.parse_capture, [5, None, [5], b"x", ["1 x zz"]]),
         ("vbus read_capture", vbus.read_capture, [5, None, 1.5, str(tmp_path / "missing")]),
+        ("parse_realtime spec", parse_realtime,
+         [5, None, b"fifo:5", "fifo:0", "fifo:\udcff", "a\0", "x" * 100000, "cpu=99999999999"]),
+        ("RS485 realtime", lambda v: RS485(realtime=v), [5, b"rr:1", "rr:0", "mlock,mlock"]),
+        ("VirtualBus realtime", lambda v: vbus.VirtualBus(ports=2, realtime=v), [5, "cpu=63-64"]),
     ]
     for name, call, values in cases:
         for v in values:
@@ -356,6 +360,7 @@ def test_more_entry_points(nodes: Dict[str, Any], tmp_path: Any) -> None:
 #: below fails when one is added without a hostile case here.
 COVERED = {
     "fap.classic_check", "fap.port_options", "rs485.port_options", "rs485.line_options",
+    "rs485.parse_realtime",
     "RS485.apply_to", "Node.send", "Node.flush", "Node.recv", "Node.messages", "Node.wait_event",
     "Node.events", "Node.arecv", "Node.await_event", "Node.aevents", "Master.add_slave",
     "Master.remove_slave", "Master.is_active", "Master.wait_active", "Slave.send",
