@@ -94,7 +94,8 @@ class PortBusyError(PortError):
 
 
 class PortGoneError(PortError):
-    """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
+    """The device vanished (EIO, ENXIO, ENODEV, EPIPE, EBADF; ``fap_port_error_is_gone``):
+    unplugged, or the far end of a pty or a connection closed."""
 
 
 class FileError(PortError):
@@ -105,10 +106,6 @@ class FileError(PortError):
 
     #: what is wrong with the file, without its name (set by ``fap_py._files``)
     why: str = ""
-
-
-#: errno values that mean the device is no longer there
-_GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
 
 
 @functools.lru_cache(maxsize=None)
@@ -122,6 +119,14 @@ def _port_codes() -> Dict[str, int]:
     names = ("FAP_PORT_ECOLLISION", "FAP_PORT_ECLOSED", "FAP_PORT_EURL", "FAP_PORT_ENET485",
              "FAP_PORT_ERESOLVE", "FAP_PORT_EREFUSED")
     return {name: int(getattr(lib, name)) for name in names}
+
+
+def _device_gone(code: int) -> bool:
+    """Whether the negative code says the device is gone: the C core's one
+    list (fap_port_error_is_gone), not a copy of it."""
+    from ._native import lib
+
+    return bool(lib.fap_port_error_is_gone(code))
 
 
 def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
@@ -171,6 +176,6 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
         return InvalidValueError(f"{prefix}{os.strerror(err)}")
     if err == _errno.EBUSY:
         return PortBusyError(err, f"{prefix}port busy (held by another process or port)", path)
-    if err in _GONE:
+    if _device_gone(code):
         return PortGoneError(err, f"{prefix}{os.strerror(err)} (device gone)", path)
     return PortError(err, f"{prefix}{os.strerror(err)}", path)

@@ -244,6 +244,14 @@ typedef struct fap_port_check {
 int fap_port_check_direction(fap_port *p, const void *pattern, size_t n, unsigned rounds,
                              unsigned timeout_ms, fap_port_check *out);
 
+/* 1 when err, a code a fap_port_* call (or an engine on a port) returned,
+ * says the device is gone and only fap_port_reopen can bring it back:
+ * -EIO, -ENXIO, -ENODEV (unplugged, a pty whose other end closed; a
+ * network transport's dropped connection is -EIO), -EPIPE, -EBADF (the
+ * stream or fd closed under the call) and FAP_PORT_ECLOSED; else 0. The
+ * one list: the port layer, the FAP engine and fap_py all ask here. */
+int fap_port_error_is_gone(int err);
+
 #ifdef __cplusplus
 }
 #endif

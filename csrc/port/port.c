@@ -257,7 +257,7 @@ void lf_port_release(fap_port *p)
 
 void lf_port_note_error(fap_port *p, int err)
 {
-    if (!lf_port_errno_vanished(-err))
+    if (!fap_port_error_is_gone(err))
         return;
     pthread_mutex_lock(&p->st_mu);
     if (!p->gone_err)

@@ -98,10 +98,6 @@ void lf_port_watch(fap_port *p, int fd);
 void lf_port_unwatch(fap_port *p, int fd);
 /* Mark pend non-empty / empty on pend_efd (rx_mu held). */
 void lf_port_pend_signal(fap_port *p, int nonempty);
-static inline int lf_port_errno_vanished(int e)
-{
-    return e == EIO || e == ENXIO || e == ENODEV;
-}
 /* An I/O call failed with err (negative): if that says the device
  * vanished, record it, so later calls fail fast until a reopen. */
 void lf_port_note_error(fap_port *p, int err);
