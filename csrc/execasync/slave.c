@@ -71,7 +71,7 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
     execSlaveOptionsInit(&defaults);
     if (!o)
         o = &defaults;
-    if (o->node == 0 || o->node == EXEC_ASYNC_BROADCAST)
+    if (o->node < EXEC_ASYNC_NODE_MIN || o->node > EXEC_ASYNC_NODE_MAX)
         return -EINVAL;
     execSlave *s = calloc(1, sizeof *s);
     if (!s)
