@@ -96,6 +96,8 @@ static void port_free(fap_port *p)
         close(p->poll_fd);
     if (p->pend_efd >= 0)
         close(p->pend_efd);
+    if (p->intr_fd >= 0)
+        close(p->intr_fd);
     free(p->pend);
     pthread_cond_destroy(&p->idle_cv);
     pthread_mutex_destroy(&p->st_mu);
@@ -120,7 +122,7 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
     p->be = be;
     p->ctx = ctx;
     p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
-    p->poll_fd = p->pend_efd = -1;
+    p->poll_fd = p->pend_efd = p->intr_fd = -1;
     pthread_mutex_init(&p->tx_mu, NULL);
     pthread_mutex_init(&p->rx_mu, NULL);
     pthread_mutex_init(&p->st_mu, NULL);

@@ -65,6 +65,9 @@ struct fap_port {
     fap_port_stats stats;
     const int *cancel_fd;         /* readable: every wait ends with -ECANCELED
                                      (lf_port_open_cancellable); NULL: none */
+    int intr_fd;                  /* the port's own cancel fd (an eventfd,
+                                     lf_port_open_interruptible), else -1 */
+    int interrupted;              /* atomic: lf_port_interrupt was called */
 };
 
 /* port_config.c */

@@ -47,17 +47,11 @@ static lf_ns pace_now(const fap_port *p)
     return p->be->now ? p->be->now(p->ctx) : lf_now_ns();
 }
 
-ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
-                           int64_t deadline_ns)
+/* Steps 2-4 of lf_port_read_paced: got > 0 bytes are in buf already. */
+static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t want,
+                         int64_t deadline_ns)
 {
-    if (!p || (!buf && n))
-        return -EINVAL;
-    if (want > n)
-        want = n;
-    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
-    if (r <= 0)
-        return r;
-    size_t got = (size_t)r;
+    ssize_t r;
     unsigned baud = fap_port_baud(p);
     lf_rx_pace pace = {0};
     lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, pace_now(p));
@@ -86,4 +80,31 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
         observed = 1;
     }
     return (ssize_t)got;
+}
+
+ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    if (want > n)
+        want = n;
+    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
+    if (r <= 0)
+        return r;
+    return read_rest(p, buf, n, (size_t)r, want, deadline_ns);
+}
+
+ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    if (want > n)
+        want = n;
+    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
+    if (r <= 0)
+        return r;
+    int64_t rest = lf_now_ns() + (int64_t)want * lf_char_time_ns(fap_port_baud(p));
+    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns);
 }
