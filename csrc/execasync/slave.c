@@ -231,21 +231,14 @@ int execSlaveServe(execSlave *s, int timeout_ms)
 
 void execSlaveStop(execSlave *s)
 {
-    if (!s)
-        return;
-    lf_port_interrupt(s->port);
+    if (s)
+        lf_port_interrupt(s->port);   /* async-signal-safe */
 }
 
 void execSlaveGetStats(execSlave *s, execSlaveStats *out)
 {
-    if (!s || !out)
-        return;
-    lf_stats_load(out, &s->stats, sizeof *out);
-}
-
-fap_port *execSlavePort(execSlave *s)
-{
-    return s ? s->port : NULL;
+    if (s && out)
+        lf_stats_load(out, &s->stats, sizeof *out);
 }
 
 void execSlaveClose(execSlave *s)
@@ -261,4 +254,9 @@ void execSlaveSetTrace(execSlave *s, fap_trace_fn fn, void *ctx)
 {
     if (s)
         lf_trace_set(&s->trace, fn, ctx);
+}
+
+fap_port *execSlavePort(execSlave *s)
+{
+    return s ? s->port : NULL;
 }

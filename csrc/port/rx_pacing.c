@@ -82,8 +82,9 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
     return (ssize_t)got;
 }
 
-ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
-                           int64_t deadline_ns)
+/* bound_rest: the rest no longer than its wire time (lf_port_read_frame). */
+static ssize_t read_paced(fap_port *p, void *buf, size_t n, size_t want, int64_t deadline_ns,
+                          int bound_rest)
 {
     if (!p || (!buf && n))
         return -EINVAL;
@@ -92,19 +93,19 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
     ssize_t r = fap_port_read(p, buf, n, deadline_ns);
     if (r <= 0)
         return r;
-    return read_rest(p, buf, n, (size_t)r, want, deadline_ns);
+    int64_t rest = bound_rest ? lf_now_ns() + (int64_t)want * lf_char_time_ns(fap_port_baud(p))
+                              : deadline_ns;
+    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns);
+}
+
+ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns)
+{
+    return read_paced(p, buf, n, want, deadline_ns, 0);
 }
 
 ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns)
 {
-    if (!p || (!buf && n))
-        return -EINVAL;
-    if (want > n)
-        want = n;
-    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
-    if (r <= 0)
-        return r;
-    int64_t rest = lf_now_ns() + (int64_t)want * lf_char_time_ns(fap_port_baud(p));
-    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns);
+    return read_paced(p, buf, n, want, deadline_ns, 1);
 }
