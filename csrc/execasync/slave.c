@@ -103,7 +103,8 @@ static void watch_line(execSlave *s)
     while (s->len < PENDING_SIZE) {
         /* with input already there, just collect what is readable */
         lf_ns deadline = s->len > s->pos || lf_now_ns() >= until ? 0 : until;
-        ssize_t r = fap_port_read(s->port, s->pending + s->len, PENDING_SIZE - s->len, deadline);
+        ssize_t r = lf_port_read_until(s->port, s->pending + s->len, PENDING_SIZE - s->len,
+                                       deadline);
         if (r <= 0)
             break;      /* quiet; an error or a stop shows again on the next wait */
         s->len += (size_t)r;

@@ -109,3 +109,18 @@ ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
 {
     return read_paced(p, buf, n, want, deadline_ns, 1);
 }
+
+ssize_t lf_port_read_until(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    int64_t coarse = deadline_ns - LF_NS_PER_MS;   /* a poll ending then ends by deadline_ns */
+    if (coarse > lf_now_ns()) {
+        ssize_t r = fap_port_read(p, buf, n, coarse);
+        if (r != 0)
+            return r;
+    }
+    if (deadline_ns > lf_now_ns())
+        p->be->sleep_until(p->ctx, deadline_ns);
+    return fap_port_read(p, buf, n, 0);
+}
