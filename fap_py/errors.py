@@ -94,7 +94,8 @@ class PortBusyError(PortError):
 
 
 class PortGoneError(PortError):
-    """The device vanished (EIO, ENXIO, ENODEV): unplugged, or the far end of a pty closed."""
+    """The device vanished (EIO, ENXIO, ENODEV, EPIPE, EBADF; ``fap_port_error_is_gone``):
+    unplugged, or the far end of a pty or a connection closed."""
 
 
 class FileError(PortError):
@@ -113,10 +114,6 @@ class RealTimeError(PortError):
     use (EINVAL) or mlockall refused (ENOMEM)."""
 
 
-#: errno values that mean the device is no longer there
-_GONE = (_errno.EIO, _errno.ENXIO, _errno.ENODEV)
-
-
 @functools.lru_cache(maxsize=None)
 def _port_codes() -> Dict[str, int]:
     """libfap's own negative codes (include/fap_port.h), from the compiled core.
@@ -129,6 +126,14 @@ def _port_codes() -> Dict[str, int]:
              "FAP_PORT_ERESOLVE", "FAP_PORT_EREFUSED",
              "FAP_PORT_ERTPRIV", "FAP_PORT_ERTCPU", "FAP_PORT_EMLOCK")
     return {name: int(getattr(lib, name)) for name in names}
+
+
+def _device_gone(code: int) -> bool:
+    """Whether the negative code says the device is gone: the C core's one
+    list (fap_port_error_is_gone), not a copy of it."""
+    from ._native import lib
+
+    return bool(lib.fap_port_error_is_gone(code))
 
 
 def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
@@ -184,6 +189,6 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
         return InvalidValueError(f"{prefix}{os.strerror(err)}")
     if err == _errno.EBUSY:
         return PortBusyError(err, f"{prefix}port busy (held by another process or port)", path)
-    if err in _GONE:
+    if _device_gone(code):
         return PortGoneError(err, f"{prefix}{os.strerror(err)} (device gone)", path)
     return PortError(err, f"{prefix}{os.strerror(err)}", path)

@@ -61,8 +61,8 @@ BROADCAST: int = lib.EXEC_ASYNC_BROADCAST
 MAX_DATA: int = lib.EXEC_ASYNC_MAX_DATA          # RawSize is a byte
 MAX_FRAME: int = lib.EXEC_ASYNC_MAX_FRAME        # every data byte a DLE
 # Facts the tools read through fap_py._protocols (never re-typed in a tool).
-NODE_MIN: int = 1                               # node numbers a master addresses
-NODE_MAX: int = lib.EXEC_ASYNC_BROADCAST - 1
+NODE_MIN: int = lib.EXEC_ASYNC_NODE_MIN         # node numbers a master addresses
+NODE_MAX: int = lib.EXEC_ASYNC_NODE_MAX
 DEFAULT_BAUD: int = _DEFAULT_BAUD
 
 BytesLike = Union[bytes, bytearray, memoryview]

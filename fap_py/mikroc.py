@@ -82,8 +82,8 @@ STOP_BYTE: int = lib.MIKROC_RS485_STOP_BYTE
 BROADCAST: int = lib.MIKROC_RS485_BROADCAST
 MAX_DATA: int = lib.MIKROC_RS485_MAX_DATA
 # Facts the tools read through fap_py._protocols (never re-typed in a tool).
-NODE_MIN: int = 0                               # any address byte a master may send to
-NODE_MAX: int = 255
+NODE_MIN: int = lib.MIKROC_RS485_ADDR_MIN       # any address byte a master may send to
+NODE_MAX: int = lib.MIKROC_RS485_ADDR_MAX
 DEFAULT_BAUD: int = _DEFAULT_BAUD
 
 PathLike = Union[str, "os.PathLike[str]"]

@@ -46,6 +46,8 @@ typedef unsigned char  boolean;   /* 0 false, anything else true */
 #define EXEC_ASYNC_ETX 0x03
 
 #define EXEC_ASYNC_BROADCAST  255   /* node number of a broadcast (no reply) */
+#define EXEC_ASYNC_NODE_MIN   1     /* node numbers a slave takes and a master polls: */
+#define EXEC_ASYNC_NODE_MAX   254   /* 0 is no node, 255 the broadcast */
 #define EXEC_ASYNC_MAX_DATA   255   /* RawSize is a byte: largest payload */
 /* Largest formatted frame for RawSize bytes (every data byte a DLE). */
 #define EXEC_ASYNC_FRAME_SIZE(RawSize) (2u * (unsigned)(RawSize) + 8u)

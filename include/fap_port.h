@@ -307,6 +307,13 @@ int fap_port_rt_check(const fap_port_rt *rt);
  * read and write, the virtual bus relay). Returns 0 or fap_port_rt_apply's
  * code; a refusal is also counted in fap_port_stats.rt_refused. */
 int fap_port_rt_enter(fap_port *p);
+/* 1 when err, a code a fap_port_* call (or an engine on a port) returned,
+ * says the device is gone and only fap_port_reopen can bring it back:
+ * -EIO, -ENXIO, -ENODEV (unplugged, a pty whose other end closed; a
+ * network transport's dropped connection is -EIO), -EPIPE, -EBADF (the
+ * stream or fd closed under the call) and FAP_PORT_ECLOSED; else 0. The
+ * one list: the port layer, the FAP engine and fap_py all ask here. */
+int fap_port_error_is_gone(int err);
 
 #ifdef __cplusplus
 }

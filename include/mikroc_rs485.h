@@ -55,6 +55,8 @@ extern "C" {
 #define MIKROC_RS485_START_BYTE    0x96
 #define MIKROC_RS485_STOP_BYTE     0xA9
 #define MIKROC_RS485_BROADCAST     50    /* reaches every slave but 150 and 169 */
+#define MIKROC_RS485_ADDR_MIN      0     /* any address byte is a node: the API */
+#define MIKROC_RS485_ADDR_MAX      255   /* takes a uint8_t and checks no range */
 #define MIKROC_RS485_MAX_DATA      3
 #define MIKROC_RS485_FRAME_MIN     5     /* no data */
 #define MIKROC_RS485_FRAME_MAX     8     /* three data bytes */

@@ -74,3 +74,30 @@ void lf_exec_sseq_commit(lf_exec_sseq *s, uint8_t seq)
     s->have_last = 1;
     s->last_seq = seq;
 }
+
+void lf_exec_rwin_shift(lf_exec_rwin *w, size_t n)
+{
+    w->end = w->end > n ? w->end - n : 0;
+}
+
+int lf_exec_rwin_byte(lf_exec_rwin *w, size_t i, int done, int in_frame)
+{
+    int in_window = i < w->end;
+    if (!done) {
+        if (in_window && in_frame)
+            w->taint = 1;
+        return 0;
+    }
+    int tainted = w->taint || in_window;
+    w->taint = in_window && in_frame;
+    return tainted;
+}
+
+lf_exec_sact lf_exec_sseq_decide(const lf_exec_sseq *s, const struct execAsyncStateDef *st,
+                                 int tainted)
+{
+    lf_exec_sact act = lf_exec_sseq_classify(s, st);
+    if (tainted && (act == LF_EXEC_S_PROCESS || act == LF_EXEC_S_RESEND))
+        return LF_EXEC_S_WINDOW;
+    return act;
+}

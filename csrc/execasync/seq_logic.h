@@ -4,6 +4,7 @@
 #ifndef LF_EXEC_SEQ_LOGIC_H
 #define LF_EXEC_SEQ_LOGIC_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "common/mono_clock.h"
@@ -68,7 +69,8 @@ typedef enum lf_exec_sact {
     LF_EXEC_S_IGNORE,     /* not for us, or corrupt */
     LF_EXEC_S_PROCESS,    /* new request: run the handler, reply, then commit */
     LF_EXEC_S_RESEND,     /* retry of the last request: resend the last reply */
-    LF_EXEC_S_BROADCAST   /* process, never reply */
+    LF_EXEC_S_BROADCAST,  /* process, never reply */
+    LF_EXEC_S_WINDOW      /* arrived while we answered: drop (lf_exec_rwin) */
 } lf_exec_sact;
 
 typedef struct lf_exec_sseq {
@@ -80,5 +82,32 @@ typedef struct lf_exec_sseq {
 lf_exec_sact lf_exec_sseq_classify(const lf_exec_sseq *s, const struct execAsyncStateDef *st);
 /* The request with this seq has been processed and answered. */
 void lf_exec_sseq_commit(lf_exec_sseq *s, uint8_t seq);
+
+/* ---- slave: the reply window ----
+ * Our response phase runs from the end of a request to the end of our
+ * reply. Every byte received before the reply starts (during the handler
+ * and the turnaround delay, which the slave spends watching the line)
+ * belongs to that window; a frame with a byte in the window is dropped:
+ * not processed, not answered. A broadcast is the exception: never
+ * answered and never repeated by the master, it is still processed.
+ * Bytes that arrive during the write itself are the echo check's business
+ * (FAP_PORT_ECOLLISION), not the window's. The slave keeps its received
+ * bytes in one buffer; the window is a prefix of it. */
+typedef struct lf_exec_rwin {
+    size_t end;     /* buffer[0, end) arrived in the window */
+    int taint;      /* the frame being decoded has a byte in the window */
+} lf_exec_rwin;
+
+/* The caller dropped the first n bytes of its buffer. */
+void lf_exec_rwin_shift(lf_exec_rwin *w, size_t n);
+/* Byte i of the buffer went through the decoder. done: it ended a frame
+ * (execAsyncByteIn returned true); in_frame: the decoder is inside a frame
+ * after it (a framing report may already be inside the next one). Returns
+ * 1 when done and the frame it ended had a byte in the window, else 0. */
+int lf_exec_rwin_byte(lf_exec_rwin *w, size_t i, int done, int in_frame);
+/* lf_exec_sseq_classify, then the window rule: a tainted frame that would
+ * be processed or answered is LF_EXEC_S_WINDOW instead. */
+lf_exec_sact lf_exec_sseq_decide(const lf_exec_sseq *s, const struct execAsyncStateDef *st,
+                                 int tainted);
 
 #endif

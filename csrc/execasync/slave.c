@@ -1,40 +1,33 @@
-/* Exec async slave: the thin I/O layer around seq_logic's classifier.
+/* Exec async slave: the thin I/O layer around seq_logic (the sequence
+ * rule and the reply window, "a message that arrives while we transmit").
  * Receives on the port, feeds execAsyncByteIn, calls the application's
- * handler in the serving thread, sends (or resends) the reply.
+ * handler in the serving thread, sends (or resends) the reply. Every wait
+ * is the port's (fap_port_read, lf_port_read_frame), and execSlaveStop is
+ * the port's interrupt (port/port_cancel.h): it ends whichever is running.
  *
- * "A message that arrives while we transmit": our response phase runs from
- * the end of the request to the end of our reply. Every byte received
- * before the reply starts (during the handler and the turnaround delay,
- * which the slave spends watching the line) belongs to that window; a frame
- * with a byte in the window is dropped: not processed, not answered
- * (stats.rx_during_tx). Bytes that arrive during the write itself are only
- * seen on a bus that echoes (echo suppression reports FAP_PORT_ECOLLISION,
- * stats.collisions): a pty or a 4-wire line cannot say when a byte came,
- * and guessing from "readable right after the write" misfires when the
- * master answers faster than this thread returns from write(). */
+ * A frame with a byte in the reply window is dropped (stats.rx_during_tx).
+ * Bytes that arrive during the write itself are only seen on a bus that
+ * echoes (echo suppression reports FAP_PORT_ECOLLISION, stats.collisions):
+ * a pty or a 4-wire line cannot say when a byte came, and guessing from
+ * "readable right after the write" misfires when the master answers faster
+ * than this thread returns from write(). */
 #include "exec_async_engine.h"
 
 #include <errno.h>
-#include <poll.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/eventfd.h>
-#include <unistd.h>
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
-#include "execasync/stop_signal.h"
-#include "port/port_cancel.h"
 #include "execasync/stats_atomic.h"
+#include "port/port_cancel.h"
 #include "port/rx_pacing.h"
 
 #define PENDING_SIZE 1024
 
 struct execSlave {
-    fap_port *port;
-    int stop_fd;                       /* eventfd: execSlaveStop wakes poll() */
-    int stopped;                       /* atomic */
+    fap_port *port;                    /* interruptible: execSlaveStop */
     execSlaveHandler handler;
     void *ctx;
     lf_ns turnaround;                  /* the port's turnaround_us, in ns */
@@ -47,8 +40,7 @@ struct execSlave {
     word last_len;                     /* 0: the last request had no reply */
     byte pending[PENDING_SIZE];        /* received, not decoded yet */
     size_t pos, len;                   /* pending[pos..len) still to decode */
-    size_t window_end;                 /* pending[..window_end) arrived while we sent */
-    int taint;                         /* the frame being decoded had a byte in the window */
+    lf_exec_rwin window;               /* which of pending arrived in the reply window */
     execSlaveStats stats;
     lf_trace trace;                    /* wire trace hook (fap_trace.h) */
     lf_exec_tap tap;                   /* raw bytes of the request in progress */
@@ -71,21 +63,14 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
     execSlaveOptionsInit(&defaults);
     if (!o)
         o = &defaults;
-    if (o->node == 0 || o->node == EXEC_ASYNC_BROADCAST)
+    if (o->node < EXEC_ASYNC_NODE_MIN || o->node > EXEC_ASYNC_NODE_MAX)
         return -EINVAL;
     execSlave *s = calloc(1, sizeof *s);
     if (!s)
         return -ENOMEM;
-    s->stop_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
-    if (s->stop_fd < 0) {
-        int err = -errno;
-        free(s);
-        return err;
-    }
     /* a reply the line does not take ends at execSlaveStop too */
-    int err = lf_port_open_cancellable(&s->port, path, port, &s->stop_fd);
+    int err = lf_port_open_interruptible(&s->port, path, port);
     if (err) {
-        close(s->stop_fd);
         free(s);
         return err;
     }
@@ -104,7 +89,7 @@ static void compact(execSlave *s)
     if (s->pos == 0)
         return;
     memmove(s->pending, s->pending + s->pos, s->len - s->pos);
-    s->window_end = s->window_end > s->pos ? s->window_end - s->pos : 0;
+    lf_exec_rwin_shift(&s->window, s->pos);
     s->len -= s->pos;
     s->pos = 0;
 }
@@ -115,25 +100,17 @@ static void watch_line(execSlave *s)
 {
     compact(s);
     lf_ns until = s->last_rx + s->turnaround;
-    int fd = fap_port_fd(s->port);
-    while (s->len < PENDING_SIZE && fd >= 0) {
-        lf_ns now = lf_now_ns();
+    while (s->len < PENDING_SIZE) {
         /* with input already there, just collect what is readable */
-        lf_ns wait = s->len > s->pos || now >= until ? 0 : until - now;
-        struct timespec ts = lf_ns_to_timespec(wait);
-        struct pollfd pf = {.fd = fd, .events = POLLIN};
-        int pr = ppoll(&pf, 1, &ts, NULL);
-        if (pr < 0 && errno == EINTR)
-            continue;
-        if (pr <= 0)
-            break;
-        ssize_t r = fap_port_read(s->port, s->pending + s->len, PENDING_SIZE - s->len, 0);
+        lf_ns deadline = s->len > s->pos || lf_now_ns() >= until ? 0 : until;
+        ssize_t r = lf_port_read_until(s->port, s->pending + s->len, PENDING_SIZE - s->len,
+                                       deadline);
         if (r <= 0)
-            break;      /* a read error shows again on the next wait */
+            break;      /* quiet; an error or a stop shows again on the next wait */
         s->len += (size_t)r;
         s->last_rx = lf_now_ns();
     }
-    s->window_end = s->len;
+    s->window.end = s->len;
 }
 
 /* Send the stored reply (the port waits out whatever turnaround is left). */
@@ -157,23 +134,19 @@ static int send_last_reply(execSlave *s)
 static int handle_frame(execSlave *s, int tainted)
 {
     LF_STAT_INC(s->stats.rx_frames);
-    lf_exec_sact act = lf_exec_sseq_classify(&s->seq, &s->rx);
-    if (act == LF_EXEC_S_IGNORE) {
+    lf_exec_sact act = lf_exec_sseq_decide(&s->seq, &s->rx, tainted);
+    execSlaveRequest req = {
+        .node = s->rx.Node, .seq = s->rx.SeqNo, .len = s->rx.Length, .data = s->rxbuf};
+    switch (act) {
+    case LF_EXEC_S_IGNORE:
         if (s->rx.Status != EXEC_ASYNC_GOOD)
             LF_STAT_INC(s->stats.corrupt);
         else
             LF_STAT_INC(s->stats.ignored);
         return 0;
-    }
-    if (tainted && act != LF_EXEC_S_BROADCAST) {
-        /* not answered; a broadcast is never answered anyway, and is never
-         * repeated by the master, so it is still processed */
-        LF_STAT_INC(s->stats.rx_during_tx);
+    case LF_EXEC_S_WINDOW:
+        LF_STAT_INC(s->stats.rx_during_tx);   /* not processed, not answered */
         return 0;
-    }
-    execSlaveRequest req = {
-        .node = s->rx.Node, .seq = s->rx.SeqNo, .len = s->rx.Length, .data = s->rxbuf};
-    switch (act) {
     case LF_EXEC_S_BROADCAST:
         LF_STAT_INC(s->stats.broadcasts);
         (void)s->handler(s->ctx, &req, s->reply, EXEC_ASYNC_MAX_DATA);
@@ -213,48 +186,22 @@ static int handle_frame(execSlave *s, int tainted)
 }
 
 /* Wait for input or a stop until deadline. 1: bytes in pending, 0: time is
- * up, negative: error or -ECANCELED. */
+ * up, negative: error (the port's: a vanished device) or -ECANCELED. */
 static int wait_input(execSlave *s, lf_ns deadline)
 {
-    for (;;) {
-        if (__atomic_load_n(&s->stopped, __ATOMIC_ACQUIRE))
-            return -ECANCELED;
-        int fd = fap_port_fd(s->port);
-        if (fd < 0) {   /* device gone: let the port say why */
-            ssize_t r = fap_port_read(s->port, s->pending, PENDING_SIZE, 0);
-            return r < 0 ? (int)r : -ENODEV;
-        }
-        lf_ns now = lf_now_ns();
-        struct pollfd pf[2] = {{.fd = fd, .events = POLLIN}, {.fd = s->stop_fd, .events = POLLIN}};
-        int pr = poll(pf, 2, lf_poll_timeout_ms(deadline, now));
-        if (pr < 0) {
-            if (errno == EINTR)
-                continue;
-            return -errno;
-        }
-        if (pf[1].revents)
-            return -ECANCELED;
-        if (pf[0].revents) {
-            /* the rest of the frame: one wake-up per wire time, not per
-             * byte (port/rx_pacing.h); a stop waits at most that long */
-            size_t want = lf_exec_rx_missing(&s->rx);
-            unsigned baud = fap_port_baud(s->port);
-            lf_ns until = lf_now_ns() + (lf_ns)want * lf_char_time_ns(baud);
-            ssize_t r = lf_port_read_paced(s->port, s->pending, PENDING_SIZE, want,
-                                           until < deadline ? until : deadline);
-            if (r < 0)
-                return (int)r;
-            if (r > 0) {
-                s->pos = 0;
-                s->len = (size_t)r;
-                s->window_end = 0;
-                s->last_rx = lf_now_ns();
-                return 1;
-            }
-        }
-        if (lf_now_ns() >= deadline)
-            return 0;
-    }
+    if (lf_port_interrupted(s->port))
+        return -ECANCELED;   /* even with input queued: the read would not wait */
+    /* the rest of the frame: one wake-up per wire time, not per byte
+     * (port/rx_pacing.h); a stop during that sleep waits at most that long */
+    ssize_t r = lf_port_read_frame(s->port, s->pending, PENDING_SIZE,
+                                   lf_exec_rx_missing(&s->rx), deadline);
+    if (r <= 0)
+        return (int)r;
+    s->pos = 0;
+    s->len = (size_t)r;
+    s->window.end = 0;
+    s->last_rx = lf_now_ns();
+    return 1;
 }
 
 int execSlaveServe(execSlave *s, int timeout_ms)
@@ -266,25 +213,20 @@ int execSlaveServe(execSlave *s, int timeout_ms)
     if (rt)
         return rt;
     for (;;) {
-        if (__atomic_load_n(&s->stopped, __ATOMIC_ACQUIRE))
+        if (lf_port_interrupted(s->port))
             return -ECANCELED;
         while (s->pos < s->len) {
             size_t i = s->pos++;
-            int in_window = i < s->window_end;
-            if (!lf_exec_byte_in_traced(s->pending[i], &s->rx, s->rxbuf, &s->tap, &s->trace,
-                                        s->last_rx)) {
-                if (in_window && lf_exec_rx_in_frame(&s->rx))
-                    s->taint = 1;
+            int done = lf_exec_byte_in_traced(s->pending[i], &s->rx, s->rxbuf, &s->tap,
+                                              &s->trace, s->last_rx);
+            int tainted = lf_exec_rwin_byte(&s->window, i, done, lf_exec_rx_in_frame(&s->rx));
+            if (!done)
                 continue;
-            }
-            int tainted = s->taint || in_window;
-            /* a framing report may already be inside the next frame */
-            s->taint = in_window && lf_exec_rx_in_frame(&s->rx);
             int r = handle_frame(s, tainted);
             if (r)
                 return r;
         }
-        s->pos = s->len = s->window_end = 0;
+        s->pos = s->len = s->window.end = 0;
         int r = wait_input(s, deadline);
         if (r <= 0)
             return r;
@@ -293,21 +235,14 @@ int execSlaveServe(execSlave *s, int timeout_ms)
 
 void execSlaveStop(execSlave *s)
 {
-    if (!s)
-        return;
-    lf_exec_signal_stop(&s->stopped, s->stop_fd);
+    if (s)
+        lf_port_interrupt(s->port);   /* async-signal-safe */
 }
 
 void execSlaveGetStats(execSlave *s, execSlaveStats *out)
 {
-    if (!s || !out)
-        return;
-    lf_stats_load(out, &s->stats, sizeof *out);
-}
-
-fap_port *execSlavePort(execSlave *s)
-{
-    return s ? s->port : NULL;
+    if (s && out)
+        lf_stats_load(out, &s->stats, sizeof *out);
 }
 
 void execSlaveClose(execSlave *s)
@@ -315,7 +250,6 @@ void execSlaveClose(execSlave *s)
     if (!s)
         return;
     fap_port_close(s->port);
-    close(s->stop_fd);
     lf_trace_destroy(&s->trace);
     free(s);
 }
@@ -324,4 +258,9 @@ void execSlaveSetTrace(execSlave *s, fap_trace_fn fn, void *ctx)
 {
     if (s)
         lf_trace_set(&s->trace, fn, ctx);
+}
+
+fap_port *execSlavePort(execSlave *s)
+{
+    return s ? s->port : NULL;
 }

@@ -1,4 +1,5 @@
-/* stop_signal.h - execMasterStop / execSlaveStop: one flag, one eventfd. */
+/* stop_signal.h - execMasterStop: one flag, one eventfd (the slave stops
+ * through its port's own interrupt instead, port/port_cancel.h). */
 #ifndef LF_EXEC_STOP_SIGNAL_H
 #define LF_EXEC_STOP_SIGNAL_H
 

@@ -9,6 +9,7 @@
 #include <sys/eventfd.h>
 #include <unistd.h>
 
+#include "common/fd_util.h"
 #include "common/mono_clock.h"
 #include "port/port_net.h"
 #include "port/port_url.h"
@@ -92,10 +93,7 @@ static void conn_drop(fap_port *p, lf_port_conn *c)
 
 static void port_free(fap_port *p)
 {
-    if (p->poll_fd >= 0)
-        close(p->poll_fd);
-    if (p->pend_efd >= 0)
-        close(p->pend_efd);
+    lf_close_fds((const int[]){p->poll_fd, p->pend_efd, p->intr_fd}, 3);
     free(p->pend);
     pthread_cond_destroy(&p->idle_cv);
     pthread_mutex_destroy(&p->st_mu);
@@ -120,7 +118,7 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
     p->be = be;
     p->ctx = ctx;
     p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
-    p->poll_fd = p->pend_efd = -1;
+    p->poll_fd = p->pend_efd = p->intr_fd = -1;
     pthread_mutex_init(&p->tx_mu, NULL);
     pthread_mutex_init(&p->rx_mu, NULL);
     pthread_mutex_init(&p->st_mu, NULL);
@@ -259,7 +257,7 @@ void lf_port_release(fap_port *p)
 
 void lf_port_note_error(fap_port *p, int err)
 {
-    if (!lf_port_errno_vanished(-err))
+    if (!fap_port_error_is_gone(err))
         return;
     pthread_mutex_lock(&p->st_mu);
     if (!p->gone_err)
@@ -318,15 +316,19 @@ void fap_port_get_stats(const fap_port *p, fap_port_stats *out)
     pthread_mutex_unlock(&mp->st_mu);
 }
 
+/* A copy of the connection's settings, taken under the lock. */
+static lf_port_conn conn_snapshot(const fap_port *p)
+{
+    fap_port *mp = (fap_port *)p;   /* the lock is not part of the value */
+    pthread_mutex_lock(&mp->st_mu);
+    lf_port_conn c = p->conn;
+    pthread_mutex_unlock(&mp->st_mu);
+    return c;
+}
+
 int fap_port_auto_errno(const fap_port *p)
 {
-    if (!p)
-        return 0;
-    fap_port *mp = (fap_port *)p;
-    pthread_mutex_lock(&mp->st_mu);
-    int e = p->conn.auto_errno;
-    pthread_mutex_unlock(&mp->st_mu);
-    return e;
+    return p ? conn_snapshot(p).auto_errno : 0;
 }
 
 int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
@@ -334,19 +336,15 @@ int fap_port_kernel_rs485(const fap_port *p, uint32_t *flags,
 {
     if (!p)
         return -EINVAL;
-    fap_port *mp = (fap_port *)p;
-    pthread_mutex_lock(&mp->st_mu);
-    int err = p->conn.mode == FAP_RS485_KERNEL && p->conn.rs485_restore ? 0 : -ENOTTY;
-    struct serial_rs485 r = p->conn.rs485_active;
-    pthread_mutex_unlock(&mp->st_mu);
-    if (err)
-        return err;
+    lf_port_conn c = conn_snapshot(p);
+    if (c.mode != FAP_RS485_KERNEL || !c.rs485_restore)
+        return -ENOTTY;
     if (flags)
-        *flags = r.flags;
+        *flags = c.rs485_active.flags;
     if (delay_before_ms)
-        *delay_before_ms = r.delay_rts_before_send;
+        *delay_before_ms = c.rs485_active.delay_rts_before_send;
     if (delay_after_ms)
-        *delay_after_ms = r.delay_rts_after_send;
+        *delay_after_ms = c.rs485_active.delay_rts_after_send;
     return 0;
 }
 
@@ -355,10 +353,7 @@ int fap_port_rts_settings(const fap_port *p, int *active_high,
 {
     if (!p)
         return -EINVAL;
-    fap_port *mp = (fap_port *)p;
-    pthread_mutex_lock(&mp->st_mu);
-    lf_port_conn c = p->conn;
-    pthread_mutex_unlock(&mp->st_mu);
+    lf_port_conn c = conn_snapshot(p);
     if (active_high)
         *active_high = c.rts_active_high;
     if (delay_before_us)

@@ -3,10 +3,14 @@
  * The port layer waits in poll(): for room when the line does not drain (a
  * pty nobody reads, a stalled far end: up to the write timeout per frame),
  * for the echo, for a reply until the caller's deadline. An engine that must
- * stop promptly (fapx_close, execMasterStop) opens its port through the real
- * backend with one change: every poll also watches *cancel_fd (an eventfd
- * the engine owns), and once that is readable the wait fails with ECANCELED,
- * so the call in progress returns -ECANCELED at once. */
+ * stop promptly opens its port through the real backend with one change:
+ * every poll also watches a cancel fd, and once that is readable the wait
+ * fails with ECANCELED, so the call in progress returns -ECANCELED at once.
+ *
+ * Two shapes: the engine owns the fd (lf_port_open_cancellable: fapx, the
+ * exec master), or the port owns it and the engine only says "stop"
+ * (lf_port_open_interruptible + lf_port_interrupt: the exec slave, whose
+ * waits are all the port's). */
 #ifndef LF_PORT_CANCEL_H
 #define LF_PORT_CANCEL_H
 
@@ -16,5 +20,16 @@
  * cancel_fd must outlive the port. */
 int lf_port_open_cancellable(fap_port **out, const char *path, const fap_port_options *o,
                              const int *cancel_fd);
+
+/* fap_port_open with the port's own interrupt (an eventfd it closes at
+ * fap_port_close). */
+int lf_port_open_interruptible(fap_port **out, const char *path, const fap_port_options *o);
+/* From any thread or a signal handler (an atomic store and one write):
+ * the wait in progress and every later one end with -ECANCELED; a port
+ * opened otherwise only records it (lf_port_interrupted). Sticky. */
+void lf_port_interrupt(fap_port *p);
+/* 1 once lf_port_interrupt was called: an engine checks before working on
+ * input a read returned at once (no wait, so no -ECANCELED). */
+int lf_port_interrupted(const fap_port *p);
 
 #endif

@@ -161,7 +161,7 @@ static int soft_rts_enable(const fap_port *p, int fd, lf_port_conn *c)
 {
     struct serial_rs485 cur;
     int err = kernel_rs485_get(p, fd, &cur);
-    if (err && lf_port_errno_vanished(-err))
+    if (err && fap_port_error_is_gone(err))
         return err;
     int have = err == 0;
     if (have && (cur.flags & SER_RS485_ENABLED)) {
@@ -247,7 +247,7 @@ static int setup_direction(const fap_port *p, int fd, lf_port_conn *c)
             c->mode = FAP_RS485_KERNEL;
             return 0;
         }
-        if (lf_port_errno_vanished(-err))
+        if (fap_port_error_is_gone(err))
             return err;   /* a dying device is not "no RS-485 support" */
         c->mode = FAP_RS485_NONE;
         c->auto_errno = -err;

@@ -1,4 +1,5 @@
-/* port_errors.c - names for modes and error codes. */
+/* port_errors.c - names for modes and error codes, and which codes mean
+ * the device is gone. */
 #include <errno.h>
 #include <string.h>
 
@@ -37,4 +38,19 @@ const char *fap_port_strerror(int err)
     /* strerrordesc_np: thread-safe, no locale, NULL for unknown numbers. */
     const char *s = (e > 0 && e < 4096) ? strerrordesc_np(e) : NULL;
     return s ? s : "unknown error";
+}
+
+int fap_port_error_is_gone(int err)
+{
+    switch (err) {
+    case -EIO:      /* tty hung up (pty master closed), USB read error */
+    case -ENXIO:    /* USB adapter unplugged */
+    case -ENODEV:   /* unplugged; between a reopen's close and open */
+    case -EPIPE:    /* the far end of the stream closed */
+    case -EBADF:    /* the fd was closed under the call */
+    case FAP_PORT_ECLOSED:
+        return 1;
+    default:
+        return 0;
+    }
 }

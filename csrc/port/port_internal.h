@@ -66,6 +66,9 @@ struct fap_port {
     const int *cancel_fd;         /* readable: every wait ends with -ECANCELED
                                      (lf_port_open_cancellable); NULL: none */
     uint64_t rt_serial;           /* port_rt.c: which open a thread applied rt for */
+    int intr_fd;                  /* the port's own cancel fd (an eventfd,
+                                     lf_port_open_interruptible), else -1 */
+    int interrupted;              /* atomic: lf_port_interrupt was called */
 };
 
 /* port_config.c */
@@ -99,10 +102,6 @@ void lf_port_watch(fap_port *p, int fd);
 void lf_port_unwatch(fap_port *p, int fd);
 /* Mark pend non-empty / empty on pend_efd (rx_mu held). */
 void lf_port_pend_signal(fap_port *p, int nonempty);
-static inline int lf_port_errno_vanished(int e)
-{
-    return e == EIO || e == ENXIO || e == ENODEV;
-}
 /* An I/O call failed with err (negative): if that says the device
  * vanished, record it, so later calls fail fast until a reopen. */
 void lf_port_note_error(fap_port *p, int err);

@@ -404,7 +404,7 @@ static ssize_t port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns, 
         p->stats.rx_bytes += (uint64_t)result;
         if (!parked)
             p->last_rx_ns = lf_now_ns();
-    } else if (result < 0) {
+    } else if (result < 0 && result != -ECANCELED) {   /* a stop is no read error */
         p->stats.read_errors++;
     }
     pthread_mutex_unlock(&p->st_mu);

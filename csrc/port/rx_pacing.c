@@ -47,17 +47,11 @@ static lf_ns pace_now(const fap_port *p)
     return p->be->now ? p->be->now(p->ctx) : lf_now_ns();
 }
 
-ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
-                           int64_t deadline_ns)
+/* Steps 2-4 of lf_port_read_paced: got > 0 bytes are in buf already. */
+static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t want,
+                         int64_t deadline_ns)
 {
-    if (!p || (!buf && n))
-        return -EINVAL;
-    if (want > n)
-        want = n;
-    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
-    if (r <= 0)
-        return r;
-    size_t got = (size_t)r;
+    ssize_t r;
     unsigned baud = fap_port_baud(p);
     lf_rx_pace pace = {0};
     lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, pace_now(p));
@@ -86,4 +80,47 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
         observed = 1;
     }
     return (ssize_t)got;
+}
+
+/* bound_rest: the rest no longer than its wire time (lf_port_read_frame). */
+static ssize_t read_paced(fap_port *p, void *buf, size_t n, size_t want, int64_t deadline_ns,
+                          int bound_rest)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    if (want > n)
+        want = n;
+    ssize_t r = fap_port_read(p, buf, n, deadline_ns);
+    if (r <= 0)
+        return r;
+    int64_t rest = bound_rest ? lf_now_ns() + (int64_t)want * lf_char_time_ns(fap_port_baud(p))
+                              : deadline_ns;
+    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns);
+}
+
+ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns)
+{
+    return read_paced(p, buf, n, want, deadline_ns, 0);
+}
+
+ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns)
+{
+    return read_paced(p, buf, n, want, deadline_ns, 1);
+}
+
+ssize_t lf_port_read_until(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
+{
+    if (!p || (!buf && n))
+        return -EINVAL;
+    int64_t coarse = deadline_ns - LF_NS_PER_MS;   /* a poll ending then ends by deadline_ns */
+    if (coarse > lf_now_ns()) {
+        ssize_t r = fap_port_read(p, buf, n, coarse);
+        if (r != 0)
+            return r;
+    }
+    if (deadline_ns > lf_now_ns())
+        p->be->sleep_until(p->ctx, deadline_ns);
+    return fap_port_read(p, buf, n, 0);
 }

@@ -73,4 +73,22 @@ lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t 
 ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns);
 
+/* lf_port_read_paced for a listener that waits for requests (the exec
+ * slave): the first bytes until deadline_ns, the rest of `want` no longer
+ * than their wire time at the port's baud (want character times from when
+ * the first bytes were read; never past deadline_ns), so that a partial
+ * frame reaches the decoder instead of waiting out the caller's deadline.
+ * Same returns. */
+ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
+                           int64_t deadline_ns);
+
+/* fap_port_read whose deadline holds to the nanosecond, for short waits
+ * that are part of the wire timing (the exec slave watching the line
+ * through its turnaround delay): the port's poll counts whole
+ * milliseconds, rounded up, so it waits in it until a millisecond before
+ * deadline_ns, sleeps the rest and takes what is queued then. Same
+ * returns; a stop ends the poll part at once, the sleep (under 1 ms) runs
+ * out. */
+ssize_t lf_port_read_until(fap_port *p, void *buf, size_t n, int64_t deadline_ns);
+
 #endif

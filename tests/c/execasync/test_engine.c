@@ -484,10 +484,11 @@ static void test_bad_arguments(void)
     execSlave *s = NULL;
     execSlaveOptions so;
     execSlaveOptionsInit(&so);
-    so.node = 0;
+    so.node = EXEC_ASYNC_NODE_MIN - 1;
     fap_port_options po = port_opts();
     CHECK_EQ(execSlaveOpen(&s, fap_vbus_port_path(bus, 1), &po, &so, handler, NULL), -EINVAL);
-    so.node = 255;
+    so.node = EXEC_ASYNC_NODE_MAX + 1;
+    CHECK_EQ(EXEC_ASYNC_NODE_MAX + 1, EXEC_ASYNC_BROADCAST);
     CHECK_EQ(execSlaveOpen(&s, fap_vbus_port_path(bus, 1), &po, &so, handler, NULL), -EINVAL);
     so.node = 4;
     CHECK(execSlaveOpen(&s, "/nonexistent/tty", &po, &so, handler, NULL) < 0);

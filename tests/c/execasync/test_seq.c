@@ -1,9 +1,10 @@
 /* Sans-I/O sequence logic with a fake clock: the settled numbering rule,
  * master retries (timeout, CRC error, stray frames) and the slave's
- * process / resend / ignore decisions. */
+ * process / resend / ignore decisions, and its reply-window rule. */
 #include <errno.h>
 #include <limits.h>
 
+#include "execasync/codec_internal.h"
 #include "execasync/seq_logic.h"
 #include "unit.h"
 
@@ -190,7 +191,86 @@ static void test_retries_uint_max_does_not_wrap(void)
     CHECK_EQ(t.attempt, 1000);
 }
 
+
+/* The reply window, byte by byte: a frame with any byte in the window is
+ * tainted, one wholly after it is not; taint survives a framing report
+ * whose next frame started inside the window. */
+static void test_reply_window_bytes(void)
+{
+    lf_exec_rwin w = {.end = 3};
+    CHECK_EQ(lf_exec_rwin_byte(&w, 0, 0, 1), 0);   /* a frame starts in the window */
+    CHECK_EQ(lf_exec_rwin_byte(&w, 4, 0, 1), 0);
+    CHECK_EQ(lf_exec_rwin_byte(&w, 5, 1, 0), 1);   /* ...and ends after it: tainted */
+    CHECK_EQ(lf_exec_rwin_byte(&w, 6, 0, 1), 0);
+    CHECK_EQ(lf_exec_rwin_byte(&w, 7, 1, 0), 0);   /* the next one is clean */
+
+    w = (lf_exec_rwin){.end = 2};
+    CHECK_EQ(lf_exec_rwin_byte(&w, 0, 0, 0), 0);   /* noise while idle, in the window */
+    CHECK_EQ(lf_exec_rwin_byte(&w, 1, 0, 0), 0);
+    CHECK_EQ(lf_exec_rwin_byte(&w, 2, 0, 1), 0);   /* the frame starts after it */
+    CHECK_EQ(lf_exec_rwin_byte(&w, 3, 1, 0), 0);
+
+    w = (lf_exec_rwin){.end = 2};
+    CHECK_EQ(lf_exec_rwin_byte(&w, 1, 1, 1), 1);   /* framing report, next frame begun */
+    CHECK_EQ(lf_exec_rwin_byte(&w, 2, 0, 1), 0);
+    CHECK_EQ(lf_exec_rwin_byte(&w, 3, 1, 0), 1);   /* that frame had a byte in the window */
+
+    w = (lf_exec_rwin){.end = 5};
+    lf_exec_rwin_shift(&w, 3);
+    CHECK_EQ(w.end, 2);
+    lf_exec_rwin_shift(&w, 7);
+    CHECK_EQ(w.end, 0);
+}
+
+/* What a tainted frame does: a request or a retry is dropped, a broadcast
+ * still processed, a frame for another node still ignored. */
+static void test_reply_window_decisions(void)
+{
+    lf_exec_sseq s = {.node = 5};
+    struct execAsyncStateDef f = frame(EXEC_ASYNC_GOOD, 5, 7);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 0), LF_EXEC_S_PROCESS);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 1), LF_EXEC_S_WINDOW);
+    lf_exec_sseq_commit(&s, 7);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 0), LF_EXEC_S_RESEND);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 1), LF_EXEC_S_WINDOW);
+    f = frame(EXEC_ASYNC_GOOD, EXEC_ASYNC_BROADCAST, 1);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 1), LF_EXEC_S_BROADCAST);
+    f = frame(EXEC_ASYNC_GOOD, 6, 1);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 1), LF_EXEC_S_IGNORE);
+    f = frame(EXEC_ASYNC_BAD_CRC, 5, 1);
+    CHECK_EQ(lf_exec_sseq_decide(&s, &f, 1), LF_EXEC_S_IGNORE);
+}
+
+/* The same through the real decoder: two requests back to back, the
+ * window ending inside the first; only the first is tainted. */
+static void test_reply_window_decoder(void)
+{
+    byte wire[2 * EXEC_ASYNC_FRAME_SIZE(4)];
+    byte data[4] = {1, 2, 3, 4};
+    word n1 = execAsyncBufferOut(5, data, wire, 4, 1);
+    word n2 = execAsyncBufferOut(5, data, wire + n1, 4, 2);
+    struct execAsyncStateDef st;
+    memset(&st, 0, sizeof st);
+    byte buf[EXEC_ASYNC_MAX_DATA];
+    lf_exec_rwin w = {.end = 2};
+    lf_exec_sseq s = {.node = 5};
+    int frames = 0;
+    for (size_t i = 0; i < (size_t)(n1 + n2); i++) {
+        int done = execAsyncByteIn(wire[i], &st, buf);
+        int tainted = lf_exec_rwin_byte(&w, i, done, lf_exec_rx_in_frame(&st));
+        if (!done)
+            continue;
+        frames++;
+        CHECK_EQ(st.Status, EXEC_ASYNC_GOOD);
+        CHECK_EQ(lf_exec_sseq_decide(&s, &st, tainted),
+                 frames == 1 ? LF_EXEC_S_WINDOW : LF_EXEC_S_PROCESS);
+    }
+    CHECK_EQ(frames, 2);
+}
+
 UNIT_MAIN(UNIT(test_no_stale_reply_after_254_failures), UNIT(test_retries_uint_max_does_not_wrap),
           UNIT(test_numbering_rule), UNIT(test_master_reply_first_time),
           UNIT(test_master_timeout_retries_then_fails), UNIT(test_master_crc_error_retries_at_once),
-          UNIT(test_master_ignores_stray_frames), UNIT(test_slave_rules))
+          UNIT(test_master_ignores_stray_frames), UNIT(test_slave_rules),
+          UNIT(test_reply_window_bytes), UNIT(test_reply_window_decisions),
+          UNIT(test_reply_window_decoder))

@@ -807,6 +807,35 @@ static void test_soft_rts_assert_fails(void)
     tp_close(&t);
 }
 
+/* The one "device gone" list (fap_port_error_is_gone): a write failing
+ * with any code on it leaves the port gone until a reopen; others do not. */
+static void test_error_is_gone(void)
+{
+    static const int gone[] = {-EIO, -ENXIO, -ENODEV, -EPIPE, -EBADF, FAP_PORT_ECLOSED};
+    static const int kept[] = {0, -EPERM, -EINVAL, -ETIMEDOUT, -EBUSY, -ECANCELED,
+                               FAP_PORT_ECOLLISION, EIO, -EAGAIN};
+    for (size_t i = 0; i < sizeof gone / sizeof gone[0]; i++)
+        CHECK_EQ(fap_port_error_is_gone(gone[i]), 1);
+    for (size_t i = 0; i < sizeof kept / sizeof kept[0]; i++)
+        CHECK_EQ(fap_port_error_is_gone(kept[i]), 0);
+
+    test_pty t;
+    MUST(tp_open(&t) == 0);
+    fake f;
+    memset(&f, 0, sizeof f);
+    fap_port *p = NULL;
+    MUST(lf_port_open_with_backend(&p, t.name, NULL, &fake_backend, &f) == 0);
+    f.fail_write = EPIPE;   /* on the list: the port records it */
+    CHECK_EQ(fap_port_write(p, "w", 1), -EPIPE);
+    CHECK_EQ(fap_port_fd(p), -1);
+    CHECK_EQ(fap_port_write(p, "w", 1), -EPIPE);   /* fails fast until a reopen */
+    f.fail_write = 0;
+    CHECK_EQ(fap_port_reopen(p), 0);
+    CHECK_EQ(fap_port_write(p, "z", 1), 1);
+    fap_port_close(p);
+    tp_close(&t);
+}
+
 static void test_soft_rts_open_refused(void)
 {
     test_pty t;
@@ -1156,6 +1185,7 @@ UNIT_MAIN(UNIT(test_transact_modes), UNIT(test_kernel_active_high), UNIT(test_ke
           UNIT(test_soft_rts_turns_kernel_rs485_off), UNIT(test_kernel_keeps_what_is_not_given),
           UNIT(test_none_touches_nothing),
           UNIT(test_soft_rts_assert_fails), UNIT(test_soft_rts_open_refused),
+          UNIT(test_error_is_gone),
           UNIT(test_soft_rts_released_after_error),
           UNIT(test_eintr_and_partial_writes), UNIT(test_read_error_paths),
           UNIT(test_turnaround_deadline),

@@ -80,3 +80,23 @@ def test_bad_baud_and_missing_device(pty: tuple[int, str]) -> None:
     _, name = pty
     assert open_port(name, baud=12345)[0] == -errno.EINVAL
     assert open_port("/nonexistent/ttyFAP9")[0] == -errno.ENOENT
+
+
+@pytest.mark.parametrize("err", [errno.EIO, errno.ENXIO, errno.ENODEV, errno.EPIPE, errno.EBADF])
+def test_gone_codes_come_from_c(err: int) -> None:
+    """fap_py names a vanished device by the C core's one list (fap_port_error_is_gone)."""
+    from fap_py.errors import PortGoneError, error_from_code
+
+    assert lib.fap_port_error_is_gone(-err) == 1
+    exc = error_from_code(-err, "write", "/dev/ttyX")
+    assert isinstance(exc, PortGoneError)
+    assert exc.errno == err
+
+
+def test_other_codes_are_not_gone() -> None:
+    from fap_py.errors import PortError, PortGoneError, error_from_code
+
+    for err in (errno.EPERM, errno.ENOTTY, errno.EAGAIN):
+        assert lib.fap_port_error_is_gone(-err) == 0
+        exc = error_from_code(-err, "write", "/dev/ttyX")
+        assert isinstance(exc, PortError) and not isinstance(exc, PortGoneError)
