@@ -1,0 +1,131 @@
+/* exec async's row of the codec table (include/fap_codec.h): the
+ * receiver's execAsyncByteIn, through the monitor scan (lf_exec_scan),
+ * with the bytes of each report kept so it carries them. The engines call
+ * execAsyncByteIn directly; this is the same decoder. */
+#include <string.h>
+
+#include "fap_codec.h"
+#include "common/codec_span.h"
+#include "execasync/codec_internal.h"
+
+typedef struct exec_state {
+    lf_exec_scan sc;
+    lf_codec_span span;
+} exec_state;
+
+static const char *const exec_fields[] = {"node", "seq"};
+
+static void exec_init(void *state, unsigned baud, int64_t gap_ns)
+{
+    (void)baud;
+    (void)gap_ns;                      /* exec async has no inter-byte gap rule */
+    exec_state *s = state;
+    lf_exec_scan_init(&s->sc);
+    lf_codec_span_init(&s->span, 0);
+}
+
+/* Report what the scan's last stop found. */
+static void exec_report(exec_state *s, const lf_codec_sink *k)
+{
+    lf_exec_scan *sc = &s->sc;
+    if (sc->st.Status == EXEC_ASYNC_GOOD) {
+        fap_codec_frame f = {
+            .offset = sc->rep_start, .data = sc->buf, .data_len = sc->st.Length,
+            .field = {sc->st.Node, sc->st.SeqNo},
+        };
+        lf_codec_span_frame(&s->span, &f, sc->rep_end, k);
+    } else {
+        lf_codec_span_reject(&s->span, sc->rep_start, sc->rep_end, sc->st.Status, k);
+    }
+}
+
+/* Bytes before this offset start no frame: outside a frame all but the
+ * last byte (a DLE there may start one). */
+static uint64_t exec_held_from(const exec_state *s)
+{
+    const lf_exec_scan *sc = &s->sc;
+    if (lf_exec_rx_in_frame(&sc->st))
+        return sc->start;
+    return sc->pos ? sc->pos - 1 : 0;
+}
+
+static void exec_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
+                      fap_codec_frame_cb on_frame, fap_codec_reject_cb on_reject, void *ctx)
+{
+    (void)now_ns;
+    exec_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    while (n > 0) {
+        size_t used = lf_exec_scan_feed(&s->sc, p, n);
+        for (size_t i = 0; i < used; i++)
+            lf_codec_span_push(&s->span, p[i], &k);
+        p += used;
+        n -= used;
+        if (s->sc.st.Status != EXEC_ASYNC_NONE)
+            exec_report(s, &k);
+    }
+    lf_codec_span_garbage(&s->span, exec_held_from(s), &k);
+}
+
+static int64_t exec_deadline(const void *state)
+{
+    (void)state;
+    return FAP_CODEC_NEVER;
+}
+
+static void exec_tick(void *state, int64_t now_ns, fap_codec_frame_cb on_frame,
+                      fap_codec_reject_cb on_reject, void *ctx)
+{
+    (void)now_ns;
+    exec_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    /* a quiet line: the byte held back outside a frame is garbage too */
+    lf_codec_span_garbage(&s->span, lf_exec_rx_in_frame(&s->sc.st) ? s->sc.start : s->sc.pos, &k);
+}
+
+static void exec_finish(void *state, fap_codec_frame_cb on_frame,
+                        fap_codec_reject_cb on_reject, void *ctx)
+{
+    exec_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    if (lf_exec_rx_in_frame(&s->sc.st))
+        lf_codec_span_reject(&s->span, s->sc.start, s->sc.pos, FAP_CODEC_TRUNCATED, &k);
+    lf_codec_span_garbage(&s->span, s->sc.pos, &k);
+    memset(&s->sc.st, 0, sizeof s->sc.st);
+}
+
+static const char *exec_reject_name(int code)
+{
+    if (code == FAP_CODEC_GARBAGE)
+        return "garbage";
+    if (code == FAP_CODEC_TRUNCATED)
+        return "truncated";
+    const char *r = code > 0 && code < 256 ? lf_exec_status_reason(code) : NULL;
+    return r ? r : "?";
+}
+
+static const char *exec_frame_name(const fap_codec_frame *f)
+{
+    (void)f;
+    return NULL;
+}
+
+static size_t exec_missing(const void *state)
+{
+    return lf_exec_rx_missing(&((const exec_state *)state)->sc.st);
+}
+
+const fap_codec lf_codec_exec = {
+    .name = "exec",
+    .state_size = sizeof(exec_state),
+    .n_fields = sizeof exec_fields / sizeof exec_fields[0],
+    .field_names = exec_fields,
+    .init = exec_init,
+    .feed = exec_feed,
+    .deadline = exec_deadline,
+    .tick = exec_tick,
+    .finish = exec_finish,
+    .reject_name = exec_reject_name,
+    .frame_name = exec_frame_name,
+    .missing = exec_missing,
+};

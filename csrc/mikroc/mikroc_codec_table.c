@@ -1,0 +1,138 @@
+/* mikroC RS-485's row of the codec table (include/fap_codec.h): the
+ * receiver's mikrocRS485_DecoderFeed, through the monitor scan
+ * (lf_mikroc_scan), with the bytes of each report kept so it carries
+ * them. The receive paths call the decoder directly; this is the same one. */
+#include <string.h>
+
+#include "fap_codec.h"
+#include "common/codec_span.h"
+#include "mikroc/mikroc_internal.h"
+#include "mikroc/mikroc_scan.h"
+
+typedef struct mikroc_state {
+    lf_mikroc_scan sc;
+    lf_codec_span span;
+} mikroc_state;
+
+static const char *const mikroc_fields[] = {"address", "from_master"};
+
+/* The scan's short reasons, in code order from 2 (1 is garbage). */
+static const char *const mikroc_reasons[] = {"crc", "datalen", "escape", "short", "long", "abort"};
+#define N_REASONS (sizeof mikroc_reasons / sizeof mikroc_reasons[0])
+
+static void mikroc_init(void *state, unsigned baud, int64_t gap_ns)
+{
+    (void)baud;
+    (void)gap_ns;                      /* the mikroC receiver has no gap rule */
+    mikroc_state *s = state;
+    lf_mikroc_scan_init(&s->sc);
+    lf_codec_span_init(&s->span, 0);
+}
+
+static int mikroc_code(const char *reason)
+{
+    for (size_t i = 0; reason && i < N_REASONS; i++)
+        if (strcmp(reason, mikroc_reasons[i]) == 0)
+            return (int)i + 2;
+    return 0;
+}
+
+static void mikroc_report(mikroc_state *s, const lf_codec_sink *k)
+{
+    lf_mikroc_scan *sc = &s->sc;
+    if (sc->code == MIKROC_RS485_FRAME) {
+        fap_codec_frame f = {
+            .offset = sc->rep_start, .data = sc->f.data, .data_len = sc->f.count,
+            .field = {sc->f.address, (sc->f.datalen & MIKROC_RS485_DL_MASTER) != 0},
+        };
+        lf_codec_span_frame(&s->span, &f, sc->rep_end, k);
+    } else {
+        lf_codec_span_reject(&s->span, sc->rep_start, sc->rep_end, mikroc_code(sc->reason), k);
+    }
+    sc->code = 0;
+}
+
+/* Bytes before this offset start no frame (a start byte opens one at once). */
+static uint64_t mikroc_held_from(const mikroc_state *s)
+{
+    return lf_mikroc_scan_in_frame(&s->sc) ? s->sc.start : s->sc.pos;
+}
+
+static void mikroc_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
+                        fap_codec_frame_cb on_frame, fap_codec_reject_cb on_reject, void *ctx)
+{
+    (void)now_ns;
+    mikroc_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    while (n > 0) {
+        size_t used = lf_mikroc_scan_feed(&s->sc, p, n);
+        for (size_t i = 0; i < used; i++)
+            lf_codec_span_push(&s->span, p[i], &k);
+        p += used;
+        n -= used;
+        if (s->sc.code != 0)
+            mikroc_report(s, &k);
+    }
+    lf_codec_span_garbage(&s->span, mikroc_held_from(s), &k);
+}
+
+static int64_t mikroc_deadline(const void *state)
+{
+    (void)state;
+    return FAP_CODEC_NEVER;
+}
+
+static void mikroc_tick(void *state, int64_t now_ns, fap_codec_frame_cb on_frame,
+                        fap_codec_reject_cb on_reject, void *ctx)
+{
+    (void)now_ns;
+    mikroc_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    lf_codec_span_garbage(&s->span, mikroc_held_from(s), &k);
+}
+
+static void mikroc_finish(void *state, fap_codec_frame_cb on_frame,
+                          fap_codec_reject_cb on_reject, void *ctx)
+{
+    mikroc_state *s = state;
+    const lf_codec_sink k = {on_frame, on_reject, ctx};
+    if (lf_mikroc_scan_in_frame(&s->sc))
+        lf_codec_span_reject(&s->span, s->sc.start, s->sc.pos, FAP_CODEC_TRUNCATED, &k);
+    lf_codec_span_garbage(&s->span, s->sc.pos, &k);
+    mikrocRS485_DecoderInit(&s->sc.d);
+}
+
+static const char *mikroc_reject_name(int code)
+{
+    if (code == FAP_CODEC_GARBAGE)
+        return "garbage";
+    if (code == FAP_CODEC_TRUNCATED)
+        return "truncated";
+    return code >= 2 && (size_t)(code - 2) < N_REASONS ? mikroc_reasons[code - 2] : "?";
+}
+
+static const char *mikroc_frame_name(const fap_codec_frame *f)
+{
+    (void)f;
+    return NULL;
+}
+
+static size_t mikroc_missing(const void *state)
+{
+    return lf_mikroc_missing(&((const mikroc_state *)state)->sc.d);
+}
+
+const fap_codec lf_codec_mikroc = {
+    .name = "mikroc",
+    .state_size = sizeof(mikroc_state),
+    .n_fields = sizeof mikroc_fields / sizeof mikroc_fields[0],
+    .field_names = mikroc_fields,
+    .init = mikroc_init,
+    .feed = mikroc_feed,
+    .deadline = mikroc_deadline,
+    .tick = mikroc_tick,
+    .finish = mikroc_finish,
+    .reject_name = mikroc_reject_name,
+    .frame_name = mikroc_frame_name,
+    .missing = mikroc_missing,
+};
