@@ -89,9 +89,16 @@ typedef struct fap_codec {
     /* Name of a frame's message type (FAP's "SEND_DATA"...), NULL when
      * the protocol has none. */
     const char *(*frame_name)(const fap_codec_frame *f);
-    /* The fewest bytes the held partial frame still needs (a lower bound;
-     * the next frame's minimum when nothing is held). */
+    /* A lower bound on the bytes still needed to end a frame, as the
+     * engine paces its reads (FAP: 0 when nothing is held). */
     size_t (*missing)(const void *state);
+    /* Encode one frame with header fields field[0..n_fields-1] and len
+     * bytes of data into out (cap bytes; max_frame always fits). Returns
+     * its length, or 0 when a field or len is out of range (nothing
+     * useful written). */
+    size_t (*encode)(uint8_t *out, size_t cap, const unsigned *field,
+                     const uint8_t *data, size_t len);
+    size_t max_frame;               /* the longest frame encode() writes */
 } fap_codec;
 
 /* The codec called name ("fap", "exec", "mikroc"; "execasync" is accepted

@@ -115,6 +115,18 @@ static size_t exec_missing(const void *state)
     return lf_exec_rx_missing(&((const exec_state *)state)->sc.st);
 }
 
+static size_t exec_encode(uint8_t *out, size_t cap, const unsigned *field,
+                          const uint8_t *data, size_t len)
+{
+    if (field[0] > 0xFF || field[1] > 0xFF || len > EXEC_ASYNC_MAX_DATA ||
+        cap < EXEC_ASYNC_FRAME_SIZE(len) || (len && !data))
+        return 0;
+    byte raw[EXEC_ASYNC_MAX_DATA];
+    if (len)
+        memcpy(raw, data, len);
+    return execAsyncBufferOut((byte)field[0], raw, out, (byte)len, (byte)field[1]);
+}
+
 const fap_codec lf_codec_exec = {
     .name = "exec",
     .state_size = sizeof(exec_state),
@@ -128,4 +140,6 @@ const fap_codec lf_codec_exec = {
     .reject_name = exec_reject_name,
     .frame_name = exec_frame_name,
     .missing = exec_missing,
+    .encode = exec_encode,
+    .max_frame = EXEC_ASYNC_MAX_FRAME,
 };

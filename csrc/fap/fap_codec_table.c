@@ -109,6 +109,12 @@ static size_t fap_missing(const void *state)
     return lf_fap_decoder_missing(&((const fap_state *)state)->d);
 }
 
+static size_t fap_encode(uint8_t *out, size_t cap, const unsigned *field,
+                         const uint8_t *data, size_t len)
+{
+    return lf_fap_encode(out, cap, field[0], field[1], field[2], data, len);
+}
+
 const fap_codec lf_codec_fap = {
     .name = "fap",
     .state_size = sizeof(fap_state),
@@ -122,4 +128,6 @@ const fap_codec lf_codec_fap = {
     .reject_name = fap_reject_name,
     .frame_name = fap_frame_name,
     .missing = fap_missing,
+    .encode = fap_encode,
+    .max_frame = LF_FAP_MAX_FRAME,
 };

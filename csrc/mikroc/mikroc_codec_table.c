@@ -122,6 +122,16 @@ static size_t mikroc_missing(const void *state)
     return lf_mikroc_missing(&((const mikroc_state *)state)->sc.d);
 }
 
+static size_t mikroc_encode(uint8_t *out, size_t cap, const unsigned *field,
+                            const uint8_t *data, size_t len)
+{
+    if (field[0] > 0xFF || field[1] > 1 || len > MIKROC_RS485_MAX_DATA ||
+        cap < MIKROC_RS485_FRAME_MAX)
+        return 0;
+    int n = mikrocRS485_Encode(out, data, (unsigned)len, (uint8_t)field[0], (int)field[1]);
+    return n > 0 ? (size_t)n : 0;
+}
+
 const fap_codec lf_codec_mikroc = {
     .name = "mikroc",
     .state_size = sizeof(mikroc_state),
@@ -135,4 +145,6 @@ const fap_codec lf_codec_mikroc = {
     .reject_name = mikroc_reject_name,
     .frame_name = mikroc_frame_name,
     .missing = mikroc_missing,
+    .encode = mikroc_encode,
+    .max_frame = MIKROC_RS485_FRAME_MAX,
 };

@@ -163,6 +163,16 @@ static int one_vector(const char *obj, const char *end, void *ctx_)
             fprintf(stderr, "%s: got\n%swant\n%s", name, l->text, w->text);
         CHECK(strcmp(l->text, w->text) == 0);
         free(w);
+        /* the row's encoder writes the vector's frame from its fields */
+        unsigned fields[FAP_CODEC_MAX_FIELDS] = {0};
+        for (unsigned i = 0; i < v->c->n_fields; i++)
+            fields[i] = (unsigned)js_num(js_field(obj, end, v->p->keys[i]));
+        uint8_t enc[2048];
+        CHECK(v->c->max_frame <= sizeof enc);
+        CHECK_EQ(v->c->encode(enc, sizeof enc, fields, data, dn), fn);
+        CHECK_MEM(enc, frame, fn);
+        CHECK_EQ(v->c->encode(enc, v->c->max_frame - 1 < fn ? v->c->max_frame - 1 : fn - 1,
+                              fields, data, dn), 0);
     } else {
         js_string(js_field(obj, end, "reason"), reason, sizeof reason);
         char want[64];
@@ -193,7 +203,10 @@ static void test_table(void)
         CHECK(fap_codec_find(c->name) == c);
         CHECK(c->state_size > 0 && c->n_fields > 0 && c->n_fields <= FAP_CODEC_MAX_FIELDS);
         CHECK(c->init && c->feed && c->deadline && c->tick && c->finish && c->reject_name &&
-              c->frame_name && c->missing);
+              c->frame_name && c->missing && c->encode && c->max_frame > 0);
+        unsigned bad[FAP_CODEC_MAX_FIELDS] = {256, 256, 256, 256};
+        uint8_t out[2048];
+        CHECK_EQ(c->encode(out, sizeof out, bad, NULL, 0), 0);
         CHECK_EQ(strcmp(c->reject_name(FAP_CODEC_GARBAGE), "garbage"), 0);
         CHECK_EQ(strcmp(c->reject_name(FAP_CODEC_TRUNCATED), "truncated"), 0);
         CHECK_EQ(strcmp(c->reject_name(-12345), "?"), 0);
