@@ -30,11 +30,17 @@ void lf_codec_span_garbage(lf_codec_span *s, uint64_t upto, const lf_codec_sink 
     drop_to(s, s->base + n);
 }
 
-void lf_codec_span_push(lf_codec_span *s, uint8_t b, const lf_codec_sink *k)
+void lf_codec_span_push(lf_codec_span *s, const uint8_t *p, size_t n, uint64_t free_before,
+                        const lf_codec_sink *k)
 {
-    if (s->n == sizeof s->buf)              /* longer than any span: the front is garbage */
-        lf_codec_span_garbage(s, s->base + s->n / 2, k);
-    s->buf[s->n++] = b;
+    for (size_t i = 0; i < n; i++) {
+        if (s->n == sizeof s->buf) {
+            lf_codec_span_garbage(s, free_before, k);
+            if (s->n == sizeof s->buf)      /* longer than any span: never, by the bound */
+                lf_codec_span_garbage(s, s->base + s->n / 2, k);
+        }
+        s->buf[s->n++] = p[i];
+    }
 }
 
 /* [start, end) clipped to the held bytes, after reporting the garbage before it. */

@@ -30,8 +30,11 @@ typedef struct lf_codec_sink {
 } lf_codec_sink;
 
 void lf_codec_span_init(lf_codec_span *s, uint64_t base);
-/* Hold one more byte (its offset is base + n). */
-void lf_codec_span_push(lf_codec_span *s, uint8_t b, const lf_codec_sink *k);
+/* Hold n more bytes (the first at offset base + held); bytes before
+ * offset `free_before` start no frame and are reported as garbage when
+ * room is needed. */
+void lf_codec_span_push(lf_codec_span *s, const uint8_t *p, size_t n, uint64_t free_before,
+                        const lf_codec_sink *k);
 /* Report the held bytes before offset upto as one garbage run. */
 void lf_codec_span_garbage(lf_codec_span *s, uint64_t upto, const lf_codec_sink *k);
 /* Report [start, end) as a reject with code (garbage before it first). */

@@ -39,14 +39,16 @@ static void exec_report(exec_state *s, const lf_codec_sink *k)
     }
 }
 
-/* Bytes before this offset start no frame: outside a frame all but the
- * last byte (a DLE there may start one). */
+/* Bytes before this offset start no frame: outside a frame all but a
+ * last DLE (DLE STX may start one). */
 static uint64_t exec_held_from(const exec_state *s)
 {
     const lf_exec_scan *sc = &s->sc;
     if (lf_exec_rx_in_frame(&sc->st))
         return sc->start;
-    return sc->pos ? sc->pos - 1 : 0;
+    const lf_codec_span *sp = &s->span;
+    int dle = sp->n && sp->base + sp->n == sc->pos && sp->buf[sp->n - 1] == EXEC_ASYNC_DLE;
+    return sc->pos - (dle ? 1 : 0);
 }
 
 static void exec_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
@@ -57,8 +59,11 @@ static void exec_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
     const lf_codec_sink k = {on_frame, on_reject, ctx};
     while (n > 0) {
         size_t used = lf_exec_scan_feed(&s->sc, p, n);
-        for (size_t i = 0; i < used; i++)
-            lf_codec_span_push(&s->span, p[i], &k);
+        /* while pushing, the last byte is not held yet: keep it too */
+        uint64_t keep = lf_exec_rx_in_frame(&s->sc.st) ? s->sc.start : s->sc.pos - 1;
+        if (s->sc.st.Status != EXEC_ASYNC_NONE && s->sc.rep_start < keep)
+            keep = s->sc.rep_start;           /* the report below still needs its bytes */
+        lf_codec_span_push(&s->span, p, used, keep, &k);
         p += used;
         n -= used;
         if (s->sc.st.Status != EXEC_ASYNC_NONE)
@@ -79,8 +84,7 @@ static void exec_tick(void *state, int64_t now_ns, fap_codec_frame_cb on_frame,
     (void)now_ns;
     exec_state *s = state;
     const lf_codec_sink k = {on_frame, on_reject, ctx};
-    /* a quiet line: the byte held back outside a frame is garbage too */
-    lf_codec_span_garbage(&s->span, lf_exec_rx_in_frame(&s->sc.st) ? s->sc.start : s->sc.pos, &k);
+    lf_codec_span_garbage(&s->span, exec_held_from(s), &k);
 }
 
 static void exec_finish(void *state, fap_codec_frame_cb on_frame,

@@ -66,8 +66,10 @@ static void mikroc_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
     const lf_codec_sink k = {on_frame, on_reject, ctx};
     while (n > 0) {
         size_t used = lf_mikroc_scan_feed(&s->sc, p, n);
-        for (size_t i = 0; i < used; i++)
-            lf_codec_span_push(&s->span, p[i], &k);
+        uint64_t keep = mikroc_held_from(s);
+        if (s->sc.code != 0 && s->sc.rep_start < keep)
+            keep = s->sc.rep_start;           /* the report below still needs its bytes */
+        lf_codec_span_push(&s->span, p, used, keep, &k);
         p += used;
         n -= used;
         if (s->sc.code != 0)

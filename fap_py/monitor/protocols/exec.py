@@ -1,0 +1,46 @@
+"""The monitor's exec async plug-in: execAsyncByteIn from the C codec table."""
+from __future__ import annotations
+
+from typing import Dict, Optional, Tuple
+
+from ... import _codec, _protocols
+from ..._validate import U32, check_int
+from ..decoders import CodecDecoder, Decoder, Event, check_event
+
+NAME = "exec"
+FIELDS = ("node", "seq", "data")
+LEGACY = {"ExecDecoder": "decoder"}
+
+__all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
+
+
+def _fields(frame: _codec.Frame) -> Dict[str, object]:
+    return {"node": frame.fields["node"], "seq": frame.fields["seq"], "data": frame.data}
+
+
+def decoder(baud: int = 0) -> Decoder:
+    """exec async's receiver decoder (it has no inter-byte gap: ``baud`` is unused)."""
+    check_int(baud, "baud", 0, U32)
+    return CodecDecoder(NAME, fields=_fields)
+
+
+def summary(event: Event) -> str:
+    f = check_event(event, NAME).fields or {}
+    return f"node {f['node']:>3} seq {f['seq']:>3}"
+
+
+def label(event: Event) -> Optional[str]:
+    """exec async frames carry no message type."""
+    check_event(event, NAME)
+    return None
+
+
+def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:
+    """Request and answer carry the same node and sequence number: the frame that
+    repeats the pending request's (node, seq) answers it. A broadcast has no answer."""
+    f = check_event(event, NAME).fields or {}
+    node = f["node"]
+    if node == _protocols.get(NAME).broadcast:
+        return node, None, None
+    key = (node, f["seq"])
+    return node, "ans" if asked == key else "req", key

@@ -1,0 +1,42 @@
+"""The monitor's mikroC RS-485 plug-in: mikrocRS485_DecoderFeed from the C codec table."""
+from __future__ import annotations
+
+from typing import Dict, Optional, Tuple
+
+from ... import _codec
+from ..._validate import U32, check_int
+from ..decoders import CodecDecoder, Decoder, Event, check_event
+
+NAME = "mikroc"
+FIELDS = ("address", "from_master", "data")
+LEGACY = {"MikrocDecoder": "decoder"}
+
+__all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
+
+
+def _fields(frame: _codec.Frame) -> Dict[str, object]:
+    return {"address": frame.fields["address"], "from_master": bool(frame.fields["from_master"]),
+            "data": frame.data}
+
+
+def decoder(baud: int = 0) -> Decoder:
+    """mikroC's receiver decoder (it has no inter-byte gap: ``baud`` is unused)."""
+    check_int(baud, "baud", 0, U32)
+    return CodecDecoder(NAME, fields=_fields)
+
+
+def summary(event: Event) -> str:
+    f = check_event(event, NAME).fields or {}
+    return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
+
+
+def label(event: Event) -> Optional[str]:
+    """mikroC frames carry no message type."""
+    check_event(event, NAME)
+    return None
+
+
+def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:
+    """DATALEN's master bit tells a request from an answer; both carry the slave's address."""
+    f = check_event(event, NAME).fields or {}
+    return f["address"], "req" if f["from_master"] else "ans", f["address"]
