@@ -104,6 +104,12 @@ class _LiveNames(Sequence):
 PROTOCOLS: Sequence = _LiveNames()
 
 
+def dissector(protocol: str) -> str:
+    """The Wireshark dissector name (filter prefix) of ``protocol``'s fields."""
+    mod = plugin(protocol)
+    return str(getattr(mod, "DISSECTOR", _protocols.get(protocol).name))
+
+
 def fields() -> Dict[str, Tuple[str, ...]]:
     """Each protocol's good-frame fields in output order (the JSON schema), from its plug-in."""
     return {name: tuple(plugin(name).FIELDS) for name in monitor_protocols()}
@@ -390,4 +396,4 @@ class EventFilter:
 
 
 __all__ = ["GARBAGE_MAX", "HOLD_MAX", "NS_MAX", "PROTOCOLS", "CodecDecoder", "Decoder", "Event",
-           "EventFilter", "check_event", "fields", "make_decoder", "monitor_protocols", "plugin"]
+           "EventFilter", "check_event", "dissector", "fields", "make_decoder", "monitor_protocols", "plugin"]

@@ -12,6 +12,9 @@
 - ``pair(event, asked)``: ``(node, role, key)`` for the statistics: the node a good frame
   counts for (None: not a frame, e.g. a wake-up preamble), ``"req"``, ``"ans"`` or None,
   and the key an answer must match (``asked`` is the pending request's key, or None);
+- optionally ``DISSECTOR``: the Wireshark dissector's name and filter prefix in
+  ``dissectors/fap_monitor.lua`` (default: the protocol's name), whose fields must be
+  ``<DISSECTOR>.<field>`` for every field of ``FIELDS`` (a test checks it);
 - optionally ``LEGACY``: names that moved here from ``monitor.decoders`` (old -> new).
 
 docs/monitor.md, "Plug-ins", has the contract.

@@ -9,9 +9,11 @@ from ..decoders import CodecDecoder, Decoder, Event, check_event
 
 NAME = "exec"
 FIELDS = ("node", "seq", "data")
+#: the Wireshark dissector's name and filter prefix ("exec" is Wireshark's rexec)
+DISSECTOR = "execasync"
 LEGACY = {"ExecDecoder": "decoder"}
 
-__all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
+__all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "label", "pair", "summary"]
 
 
 def _fields(frame: _codec.Frame) -> Dict[str, object]:
