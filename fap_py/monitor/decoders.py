@@ -19,7 +19,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Sequence
 from types import ModuleType
-from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, overload
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, cast, overload
 
 from .. import _codec, _protocols
 from .._validate import U32, check_bool, check_bytes, check_int
@@ -100,8 +100,9 @@ class _LiveNames(Sequence):
         return repr(monitor_protocols())
 
 
-#: the protocols the monitor decodes (a live view of :func:`monitor_protocols`)
-PROTOCOLS: Sequence = _LiveNames()
+#: the protocols the monitor decodes (a live view of :func:`monitor_protocols`; typed as
+#: the tuple it stands in for: indexing, ``in``, iteration and ``+`` with a tuple work)
+PROTOCOLS: Tuple[str, ...] = cast(Tuple[str, ...], _LiveNames())
 
 
 def dissector(protocol: str) -> str:
@@ -247,10 +248,9 @@ class CodecDecoder(Decoder):
         self._fields: FieldsOf = fields or _plain_fields
 
     def _events(self, items: List[_codec.Item]) -> List[Event]:
-        name, conv, frame = self.name, self._fields, _codec.Frame
-        return [_ev(name, it.offset, it.raw, None, conv(it)) if type(it) is frame
-                else _ev(name, it.offset, it.raw, it.reason)  # type: ignore[union-attr]
-                for it in items]
+        name, conv = self.name, self._fields
+        return [_ev(name, it.offset, it.raw, None, conv(it)) if isinstance(it, _codec.Frame)
+                else _ev(name, it.offset, it.raw, it.reason) for it in items]
 
     def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
         return self._events(self._d.feed(data, now_ns))

@@ -34,7 +34,8 @@ def summary(event: Event) -> str:
 def label(event: Event) -> Optional[str]:
     """The message type (SEND_DATA, DATA, ...)."""
     f = check_event(event, NAME).fields or {}
-    return f.get("msg_name")  # type: ignore[return-value]
+    text = f.get("msg_name")
+    return text if isinstance(text, str) else None
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:

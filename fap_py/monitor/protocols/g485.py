@@ -164,7 +164,8 @@ def summary(event: Event) -> str:
 def label(event: Event) -> Optional[str]:
     """The packet type (User-Register-Write, ...)."""
     f = check_event(event, NAME).fields or {}
-    return f.get("packet")  # type: ignore[return-value]
+    text = f.get("packet")
+    return text if isinstance(text, str) else None
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:
