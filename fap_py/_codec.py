@@ -14,7 +14,7 @@ Private: the monitor reaches the table only through this module (docs/c-api.md,
 """
 from __future__ import annotations
 
-from typing import Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 from ._native import ffi, lib
 from ._validate import U32, check_bytes, check_int
@@ -52,6 +52,11 @@ class Reject:
 
 
 Item = Union[Frame, Reject]
+#: builds what a decoder returns for a good frame: (offset, raw, data, header field values
+#: in the row's order, message type name or None)
+FrameBuilder = Callable[[int, bytes, bytes, Tuple[int, ...], Optional[str]], Any]
+#: builds what a decoder returns for dropped bytes: (offset, raw, code, reason)
+RejectBuilder = Callable[[int, bytes, int, str], Any]
 
 
 class Codec:
@@ -76,10 +81,12 @@ class Codec:
             name = self._reasons[code] = ffi.string(self._c.reject_name(code)).decode()
         return name
 
-    def decoder(self, baud: int = 0, gap_ns: int = 0) -> "Decoder":
+    def decoder(self, baud: int = 0, gap_ns: int = 0, frame: Optional[FrameBuilder] = None,
+                reject: Optional[RejectBuilder] = None) -> "Decoder":
         """A fresh decoder; ``baud`` (0 unknown) and ``gap_ns`` (0: from the baud) set
-        the inter-byte gap where the receiver has one."""
-        return Decoder(self, baud, gap_ns)
+        the inter-byte gap where the receiver has one. ``frame`` / ``reject`` build what it
+        returns (default :class:`Frame` / :class:`Reject`)."""
+        return Decoder(self, baud, gap_ns, frame, reject)
 
     def encode(self, fields: Sequence[int], data: bytes = b"") -> bytes:
         """One frame with header ``fields`` (in :attr:`fields` order) and ``data``;
@@ -106,28 +113,38 @@ class Decoder:
     """A row's decoder on one stream: ``feed``, ``tick`` on a quiet line, ``finish`` at the end."""
 
     __slots__ = ("codec", "_state", "_out", "_handle", "_feed", "_tick", "_finish", "_deadline",
-                 "_names", "_frame_name", "__weakref__")
+                 "_n", "_frame_name", "_frame_names", "_make_frame", "_make_reject", "__weakref__")
 
-    def __init__(self, codec: Codec, baud: int = 0, gap_ns: int = 0) -> None:
+    def __init__(self, codec: Codec, baud: int = 0, gap_ns: int = 0,
+                 frame: Optional[FrameBuilder] = None, reject: Optional[RejectBuilder] = None) -> None:
         if not isinstance(codec, Codec):
             raise InvalidTypeError(f"codec must be a Codec, not {type(codec).__name__}")
         check_int(baud, "baud", 0, U32)
         check_int(gap_ns, "gap_ns", 0, NS_MAX)
+        for what, fn in (("frame", frame), ("reject", reject)):
+            if fn is not None and not callable(fn):
+                raise InvalidTypeError(f"{what} must be None or callable, not {type(fn).__name__}")
+        names = codec.fields
+        self._make_frame: FrameBuilder = frame or (
+            lambda off, raw, data, values, name: Frame(off, raw, data, dict(zip(names, values)), name))
+        self._make_reject: RejectBuilder = reject or (
+            lambda off, raw, code, reason: Reject(off, raw, code, reason))
         c = codec._c
         self.codec = codec
         self._state = ffi.new("uint8_t[]", c.state_size)
         c.init(self._state, baud, gap_ns)
-        self._out: List[Item] = []
+        self._out: List[Any] = []
         self._handle = ffi.new_handle(self)
         self._feed, self._tick, self._finish, self._deadline = c.feed, c.tick, c.finish, c.deadline
-        self._names = codec.fields
+        self._n = len(codec.fields)
         self._frame_name = c.frame_name
+        self._frame_names: Dict[Tuple[int, ...], Optional[str]] = {}   # by header fields
 
-    def _take(self) -> List[Item]:
+    def _take(self) -> List[Any]:
         out, self._out = self._out, []
         return out
 
-    def feed(self, data: bytes, now_ns: int = 0) -> List[Item]:
+    def feed(self, data: bytes, now_ns: int = 0) -> List[Any]:
         """Decode bytes (any bytes-like object) that arrived at ``now_ns``."""
         data = check_bytes(data, "data", 0, 2**62)
         check_int(now_ns, "now_ns", 0, NS_MAX)
@@ -140,28 +157,35 @@ class Decoder:
         d = self._deadline(self._state)
         return None if d == lib.FAP_CODEC_NEVER else int(d)
 
-    def tick(self, now_ns: int) -> List[Item]:
+    def tick(self, now_ns: int) -> List[Any]:
         """The line is quiet at ``now_ns``: the inter-byte gap, and garbage known so far."""
         check_int(now_ns, "now_ns", 0, NS_MAX)
         self._tick(self._state, now_ns, lib.fap_py_codec_frame, lib.fap_py_codec_reject,
                    self._handle)
         return self._take()
 
-    def finish(self) -> List[Item]:
+    def finish(self) -> List[Any]:
         """End of input: a held partial frame is "truncated"; offsets run on after it."""
         self._finish(self._state, lib.fap_py_codec_frame, lib.fap_py_codec_reject, self._handle)
         return self._take()
 
     def _on_frame(self, f: "ffi.CData") -> None:
-        name = self._frame_name(f)
-        fields = {k: f.field[i] for i, k in enumerate(self._names)}
-        self._out.append(Frame(f.offset, bytes(ffi.buffer(f.raw, f.raw_len)),
-                               bytes(ffi.buffer(f.data, f.data_len)) if f.data_len else b"",
-                               fields, ffi.string(name).decode() if name != ffi.NULL else None))
+        values = tuple(f.field[0:self._n])
+        try:
+            name = self._frame_names[values]
+        except KeyError:
+            if len(self._frame_names) > 4096:   # many distinct headers: keep it bounded
+                self._frame_names.clear()
+            c_name = self._frame_name(f)
+            name = self._frame_names[values] = \
+                ffi.string(c_name).decode() if c_name != ffi.NULL else None
+        self._out.append(self._make_frame(
+            f.offset, bytes(ffi.buffer(f.raw, f.raw_len)),
+            bytes(ffi.buffer(f.data, f.data_len)) if f.data_len else b"", values, name))
 
     def _on_reject(self, code: int, raw: "ffi.CData", n: int, offset: int) -> None:
-        self._out.append(Reject(offset, bytes(ffi.buffer(raw, n)), code,
-                                self.codec.reject_name(code)))
+        self._out.append(self._make_reject(offset, bytes(ffi.buffer(raw, n)), code,
+                                           self.codec.reject_name(code)))
 
 
 @ffi.def_extern()

@@ -52,20 +52,29 @@ def monitor_protocols() -> Tuple[str, ...]:
     return tuple(p.name for p in _protocols.all_protocols() if _plugin_of(p) is not None)
 
 
+#: plug-ins by the name they were asked for (the hot path: a lookup per record)
+_by_name: Dict[str, ModuleType] = {}
+
+
 def plugin(protocol: str) -> ModuleType:
     """The monitor plug-in of ``protocol`` (its name or an alias);
     InvalidValueError when the table has no such protocol or it has no plug-in."""
     if not isinstance(protocol, str):
         raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+    mod = _by_name.get(protocol)
+    if mod is not None:
+        return mod
     try:
         p = _protocols.get(protocol)
     except _protocols.UnknownProtocolError:
         raise InvalidValueError(f"protocol must be one of {', '.join(monitor_protocols())}, "
                                 f"not {protocol!r}") from None
-    mod = _plugin_of(p)
-    if mod is None:
+    found = _plugin_of(p)
+    if found is None:
         raise InvalidValueError(f"protocol {p.name!r} has no monitor plug-in")
-    return mod
+    if p in _protocols.PROTOCOLS:       # built-in rows never leave the table
+        _by_name[protocol] = found
+    return found
 
 
 class _LiveNames(Sequence):
@@ -217,14 +226,9 @@ class Decoder:
         return events
 
 
-#: a plug-in's conversion of a C codec frame into its monitor fields
-FieldsOf = Callable[[_codec.Frame], Dict[str, object]]
-
-
-def _plain_fields(frame: _codec.Frame) -> Dict[str, object]:
-    out: Dict[str, object] = dict(frame.fields)
-    out["data"] = frame.data
-    return out
+#: a plug-in's conversion of a C codec frame into its monitor fields:
+#: (header field values in the C row's order, data, message type name or None) -> fields
+FieldsOf = Callable[[Tuple[int, ...], bytes, Optional[str]], Dict[str, object]]
 
 
 class CodecDecoder(Decoder):
@@ -232,7 +236,7 @@ class CodecDecoder(Decoder):
     the protocol's receiver decoder from C, its frames and rejects as events.
 
     ``fields`` turns a codec frame into the plug-in's fields (default: the C
-    row's header fields and ``data``)."""
+    row's header fields by name, and ``data``)."""
 
     def __init__(self, protocol: str, baud: int = 0, gap_ns: int = 0,
                  fields: Optional[FieldsOf] = None) -> None:
@@ -243,26 +247,27 @@ class CodecDecoder(Decoder):
         if fields is not None and not callable(fields):
             raise InvalidTypeError(f"fields must be None or callable, not {type(fields).__name__}")
         plugin(protocol)                       # a protocol the monitor decodes
-        self.name = _protocols.get(protocol).name
-        self._d = _codec.find(self.name).decoder(baud, gap_ns)
-        self._fields: FieldsOf = fields or _plain_fields
-
-    def _events(self, items: List[_codec.Item]) -> List[Event]:
-        name, conv = self.name, self._fields
-        return [_ev(name, it.offset, it.raw, None, conv(it)) if isinstance(it, _codec.Frame)
-                else _ev(name, it.offset, it.raw, it.reason) for it in items]
+        name = self.name = _protocols.get(protocol).name
+        codec = _codec.find(name)
+        names = codec.fields
+        conv: FieldsOf = fields or (lambda values, data, _n: dict(zip(names, values), data=data))
+        self._d = codec.decoder(
+            baud, gap_ns,
+            frame=lambda off, raw, data, values, fname: _ev(name, off, raw, None,
+                                                            conv(values, data, fname)),
+            reject=lambda off, raw, _code, reason: _ev(name, off, raw, reason))
 
     def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        return self._events(self._d.feed(data, now_ns))
+        return self._d.feed(data, now_ns)
 
     def idle_deadline(self) -> Optional[int]:
         return self._d.deadline()
 
     def _idle(self, now_ns: int) -> List[Event]:
-        return self._events(self._d.tick(now_ns))
+        return self._d.tick(now_ns)
 
     def finish(self) -> List[Event]:
-        return self._events(self._d.finish())
+        return self._d.finish()
 
 
 def _check_events(events: object) -> List[Event]:

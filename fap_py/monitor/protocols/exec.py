@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from typing import Dict, Optional, Tuple
 
-from ... import _codec, _protocols
+from ... import _protocols
 from ..._validate import U32, check_int
 from ..decoders import CodecDecoder, Decoder, Event, check_event
 
@@ -13,11 +13,15 @@ FIELDS = ("node", "seq", "data")
 DISSECTOR = "execasync"
 LEGACY = {"ExecDecoder": "decoder"}
 
+#: the broadcast node (no answer), from the protocol table
+_BROADCAST = _protocols.get(NAME).broadcast
+
 __all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "label", "pair", "summary"]
 
 
-def _fields(frame: _codec.Frame) -> Dict[str, object]:
-    return {"node": frame.fields["node"], "seq": frame.fields["seq"], "data": frame.data}
+def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
+    node, seq = values
+    return {"node": node, "seq": seq, "data": data}
 
 
 def decoder(baud: int = 0) -> Decoder:
@@ -42,7 +46,7 @@ def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], obj
     repeats the pending request's (node, seq) answers it. A broadcast has no answer."""
     f = check_event(event, NAME).fields or {}
     node = f["node"]
-    if node == _protocols.get(NAME).broadcast:
+    if node == _BROADCAST:
         return node, None, None
     key = (node, f["seq"])
     return node, "ans" if asked == key else "req", key

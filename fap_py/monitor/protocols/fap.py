@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from typing import Dict, Optional, Tuple
 
-from ... import _codec
 from ..._validate import U32, check_int
 from ...fap_types import MASTER_ID
 from ..decoders import CodecDecoder, Decoder, Event, check_event
@@ -15,10 +14,9 @@ LEGACY = {"FapDecoder": "decoder"}
 __all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
 
 
-def _fields(frame: _codec.Frame) -> Dict[str, object]:
-    f = frame.fields
-    return {"msg": f["msg"], "msg_name": frame.name or str(f["msg"]), "dst": f["dst"],
-            "src": f["src"], "data": frame.data}
+def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
+    msg, dst, src = values
+    return {"msg": msg, "msg_name": name or str(msg), "dst": dst, "src": src, "data": data}
 
 
 def decoder(baud: int = 0, gap_ns: int = 0) -> Decoder:

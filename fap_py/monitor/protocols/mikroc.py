@@ -3,7 +3,6 @@ from __future__ import annotations
 
 from typing import Dict, Optional, Tuple
 
-from ... import _codec
 from ..._validate import U32, check_int
 from ..decoders import CodecDecoder, Decoder, Event, check_event
 
@@ -14,9 +13,9 @@ LEGACY = {"MikrocDecoder": "decoder"}
 __all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
 
 
-def _fields(frame: _codec.Frame) -> Dict[str, object]:
-    return {"address": frame.fields["address"], "from_master": bool(frame.fields["from_master"]),
-            "data": frame.data}
+def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
+    address, from_master = values
+    return {"address": address, "from_master": bool(from_master), "data": data}
 
 
 def decoder(baud: int = 0) -> Decoder:
