@@ -64,6 +64,31 @@ void lf_codec_span_reject(lf_codec_span *s, uint64_t start, uint64_t end, int co
     drop_to(s, start + n);
 }
 
+void lf_codec_span_end(lf_codec_span *s, int in_frame, uint64_t start, uint64_t pos,
+                       const lf_codec_sink *k)
+{
+    if (in_frame)
+        lf_codec_span_reject(s, start, pos, FAP_CODEC_TRUNCATED, k);
+    lf_codec_span_garbage(s, pos, k);
+}
+
+int64_t lf_codec_never(const void *state)
+{
+    (void)state;
+    return FAP_CODEC_NEVER;
+}
+
+const char *lf_codec_unnamed(const fap_codec_frame *f)
+{
+    (void)f;
+    return NULL;
+}
+
+const char *lf_codec_shared_name(int code)
+{
+    return code == FAP_CODEC_GARBAGE ? "garbage" : code == FAP_CODEC_TRUNCATED ? "truncated" : NULL;
+}
+
 void lf_codec_span_frame(lf_codec_span *s, fap_codec_frame *f, uint64_t end,
                          const lf_codec_sink *k)
 {

@@ -72,46 +72,23 @@ static void exec_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
     lf_codec_span_garbage(&s->span, exec_held_from(s), &k);
 }
 
-static int64_t exec_deadline(const void *state)
-{
-    (void)state;
-    return FAP_CODEC_NEVER;
-}
-
-static void exec_tick(void *state, int64_t now_ns, fap_codec_frame_cb on_frame,
-                      fap_codec_reject_cb on_reject, void *ctx)
-{
-    (void)now_ns;
-    exec_state *s = state;
-    const lf_codec_sink k = {on_frame, on_reject, ctx};
-    lf_codec_span_garbage(&s->span, exec_held_from(s), &k);
-}
+LF_CODEC_TICK_BY_FEED(exec)
 
 static void exec_finish(void *state, fap_codec_frame_cb on_frame,
                         fap_codec_reject_cb on_reject, void *ctx)
 {
     exec_state *s = state;
     const lf_codec_sink k = {on_frame, on_reject, ctx};
-    if (lf_exec_rx_in_frame(&s->sc.st))
-        lf_codec_span_reject(&s->span, s->sc.start, s->sc.pos, FAP_CODEC_TRUNCATED, &k);
-    lf_codec_span_garbage(&s->span, s->sc.pos, &k);
+    lf_codec_span_end(&s->span, lf_exec_rx_in_frame(&s->sc.st), s->sc.start, s->sc.pos, &k);
     memset(&s->sc.st, 0, sizeof s->sc.st);
 }
 
 static const char *exec_reject_name(int code)
 {
-    if (code == FAP_CODEC_GARBAGE)
-        return "garbage";
-    if (code == FAP_CODEC_TRUNCATED)
-        return "truncated";
-    const char *r = code > 0 && code < 256 ? lf_exec_status_reason(code) : NULL;
+    const char *r = lf_codec_shared_name(code);
+    if (!r && code > 0 && code < 256)
+        r = lf_exec_status_reason(code);
     return r ? r : "?";
-}
-
-static const char *exec_frame_name(const fap_codec_frame *f)
-{
-    (void)f;
-    return NULL;
 }
 
 static size_t exec_missing(const void *state)
@@ -131,19 +108,5 @@ static size_t exec_encode(uint8_t *out, size_t cap, const unsigned *field,
     return execAsyncBufferOut((byte)field[0], raw, out, (byte)len, (byte)field[1]);
 }
 
-const fap_codec lf_codec_exec = {
-    .name = "exec",
-    .state_size = sizeof(exec_state),
-    .n_fields = sizeof exec_fields / sizeof exec_fields[0],
-    .field_names = exec_fields,
-    .init = exec_init,
-    .feed = exec_feed,
-    .deadline = exec_deadline,
-    .tick = exec_tick,
-    .finish = exec_finish,
-    .reject_name = exec_reject_name,
-    .frame_name = exec_frame_name,
-    .missing = exec_missing,
-    .encode = exec_encode,
-    .max_frame = EXEC_ASYNC_MAX_FRAME,
-};
+const fap_codec lf_codec_exec =
+    LF_CODEC_ROW(exec, lf_codec_never, lf_codec_unnamed, EXEC_ASYNC_MAX_FRAME);

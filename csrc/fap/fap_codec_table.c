@@ -2,6 +2,7 @@
  * stream decoder (fap_frame.c) with its reject hook. The engine calls
  * lf_fap_decoder_* directly; this is the same decoder. */
 #include "fap_codec.h"
+#include "common/codec_span.h"
 #include "fap/fap_frame.h"
 
 typedef struct fap_state {
@@ -115,19 +116,4 @@ static size_t fap_encode(uint8_t *out, size_t cap, const unsigned *field,
     return lf_fap_encode(out, cap, field[0], field[1], field[2], data, len);
 }
 
-const fap_codec lf_codec_fap = {
-    .name = "fap",
-    .state_size = sizeof(fap_state),
-    .n_fields = sizeof fap_fields / sizeof fap_fields[0],
-    .field_names = fap_fields,
-    .init = fap_init,
-    .feed = fap_feed,
-    .deadline = fap_deadline,
-    .tick = fap_tick,
-    .finish = fap_finish,
-    .reject_name = fap_reject_name,
-    .frame_name = fap_frame_name,
-    .missing = fap_missing,
-    .encode = fap_encode,
-    .max_frame = LF_FAP_MAX_FRAME,
-};
+const fap_codec lf_codec_fap = LF_CODEC_ROW(fap, fap_deadline, fap_frame_name, LF_FAP_MAX_FRAME);

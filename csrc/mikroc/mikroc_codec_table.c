@@ -78,45 +78,23 @@ static void mikroc_feed(void *state, const uint8_t *p, size_t n, int64_t now_ns,
     lf_codec_span_garbage(&s->span, mikroc_held_from(s), &k);
 }
 
-static int64_t mikroc_deadline(const void *state)
-{
-    (void)state;
-    return FAP_CODEC_NEVER;
-}
-
-static void mikroc_tick(void *state, int64_t now_ns, fap_codec_frame_cb on_frame,
-                        fap_codec_reject_cb on_reject, void *ctx)
-{
-    (void)now_ns;
-    mikroc_state *s = state;
-    const lf_codec_sink k = {on_frame, on_reject, ctx};
-    lf_codec_span_garbage(&s->span, mikroc_held_from(s), &k);
-}
+LF_CODEC_TICK_BY_FEED(mikroc)
 
 static void mikroc_finish(void *state, fap_codec_frame_cb on_frame,
                           fap_codec_reject_cb on_reject, void *ctx)
 {
     mikroc_state *s = state;
     const lf_codec_sink k = {on_frame, on_reject, ctx};
-    if (lf_mikroc_scan_in_frame(&s->sc))
-        lf_codec_span_reject(&s->span, s->sc.start, s->sc.pos, FAP_CODEC_TRUNCATED, &k);
-    lf_codec_span_garbage(&s->span, s->sc.pos, &k);
+    lf_codec_span_end(&s->span, lf_mikroc_scan_in_frame(&s->sc), s->sc.start, s->sc.pos, &k);
     mikrocRS485_DecoderInit(&s->sc.d);
 }
 
 static const char *mikroc_reject_name(int code)
 {
-    if (code == FAP_CODEC_GARBAGE)
-        return "garbage";
-    if (code == FAP_CODEC_TRUNCATED)
-        return "truncated";
-    return code >= 2 && (size_t)(code - 2) < N_REASONS ? mikroc_reasons[code - 2] : "?";
-}
-
-static const char *mikroc_frame_name(const fap_codec_frame *f)
-{
-    (void)f;
-    return NULL;
+    const char *r = lf_codec_shared_name(code);
+    if (!r && code >= 2 && (size_t)(code - 2) < N_REASONS)
+        r = mikroc_reasons[code - 2];
+    return r ? r : "?";
 }
 
 static size_t mikroc_missing(const void *state)
@@ -134,19 +112,5 @@ static size_t mikroc_encode(uint8_t *out, size_t cap, const unsigned *field,
     return n > 0 ? (size_t)n : 0;
 }
 
-const fap_codec lf_codec_mikroc = {
-    .name = "mikroc",
-    .state_size = sizeof(mikroc_state),
-    .n_fields = sizeof mikroc_fields / sizeof mikroc_fields[0],
-    .field_names = mikroc_fields,
-    .init = mikroc_init,
-    .feed = mikroc_feed,
-    .deadline = mikroc_deadline,
-    .tick = mikroc_tick,
-    .finish = mikroc_finish,
-    .reject_name = mikroc_reject_name,
-    .frame_name = mikroc_frame_name,
-    .missing = mikroc_missing,
-    .encode = mikroc_encode,
-    .max_frame = MIKROC_RS485_FRAME_MAX,
-};
+const fap_codec lf_codec_mikroc =
+    LF_CODEC_ROW(mikroc, lf_codec_never, lf_codec_unnamed, MIKROC_RS485_FRAME_MAX);

@@ -46,7 +46,8 @@ def header(rec: Record) -> bytes:
         | (FLAG_TIME if rec.t is not None else 0)
     text: Optional[str] = rec.error
     if text is None and rec.fields:
-        text = plugin(rec.protocol).label(rec.event)
+        label = getattr(plugin(rec.protocol), "label", None)    # optional: a message type
+        text = label(rec.event) if label else None
     reason = (text or "").encode("ascii")[:255]
     port = 0xFF if rec.port is None else rec.port & 0xFF
     pcap_id = _protocols.get(rec.protocol).pcap_id

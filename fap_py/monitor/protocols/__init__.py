@@ -8,7 +8,8 @@
   table through :class:`~fap_py.monitor.decoders.CodecDecoder`, or the protocol's own
   Python parser);
 - ``summary(event)``: a good frame's addresses and message, for the human line;
-- ``label(event)``: the text a pcap record carries for a good frame (its message type), or None;
+- optionally ``label(event)``: the text a pcap record carries for a good frame (its message
+  type), or None; without it the text is empty;
 - ``pair(event, asked)``: ``(node, role, key)`` for the statistics: the node a good frame
   counts for (None: not a frame, e.g. a wake-up preamble), ``"req"``, ``"ans"`` or None,
   and the key an answer must match (``asked`` is the pending request's key, or None);

@@ -4,7 +4,6 @@ from __future__ import annotations
 from typing import Dict, Optional, Tuple
 
 from ... import _protocols
-from ..._validate import U32, check_int
 from ..decoders import CodecDecoder, Decoder, Event, check_event
 
 NAME = "exec"
@@ -16,7 +15,7 @@ LEGACY = {"ExecDecoder": "decoder"}
 #: the broadcast node (no answer), from the protocol table
 _BROADCAST = _protocols.get(NAME).broadcast
 
-__all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "label", "pair", "summary"]
+__all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "pair", "summary"]
 
 
 def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
@@ -26,19 +25,12 @@ def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[s
 
 def decoder(baud: int = 0) -> Decoder:
     """exec async's receiver decoder (it has no inter-byte gap: ``baud`` is unused)."""
-    check_int(baud, "baud", 0, U32)
-    return CodecDecoder(NAME, fields=_fields)
+    return CodecDecoder(NAME, baud, fields=_fields)
 
 
 def summary(event: Event) -> str:
     f = check_event(event, NAME).fields or {}
     return f"node {f['node']:>3} seq {f['seq']:>3}"
-
-
-def label(event: Event) -> Optional[str]:
-    """exec async frames carry no message type."""
-    check_event(event, NAME)
-    return None
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:

@@ -3,14 +3,13 @@ from __future__ import annotations
 
 from typing import Dict, Optional, Tuple
 
-from ..._validate import U32, check_int
 from ..decoders import CodecDecoder, Decoder, Event, check_event
 
 NAME = "mikroc"
 FIELDS = ("address", "from_master", "data")
 LEGACY = {"MikrocDecoder": "decoder"}
 
-__all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
+__all__ = ["FIELDS", "NAME", "decoder", "pair", "summary"]
 
 
 def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
@@ -20,19 +19,12 @@ def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[s
 
 def decoder(baud: int = 0) -> Decoder:
     """mikroC's receiver decoder (it has no inter-byte gap: ``baud`` is unused)."""
-    check_int(baud, "baud", 0, U32)
-    return CodecDecoder(NAME, fields=_fields)
+    return CodecDecoder(NAME, baud, fields=_fields)
 
 
 def summary(event: Event) -> str:
     f = check_event(event, NAME).fields or {}
     return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
-
-
-def label(event: Event) -> Optional[str]:
-    """mikroC frames carry no message type."""
-    check_event(event, NAME)
-    return None
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:

@@ -16,7 +16,7 @@ from toyproto import binding
 NAME = "toy"
 FIELDS = ("node", "reply", "data")
 
-__all__ = ["FIELDS", "NAME", "ToyDecoder", "decoder", "label", "pair", "summary"]
+__all__ = ["FIELDS", "NAME", "ToyDecoder", "decoder", "pair", "summary"]
 
 _HEADER = 3            # START, node, len: the length is known from here on
 _OVERHEAD = _HEADER + 1
@@ -83,11 +83,6 @@ def decoder(baud: int = 0) -> Decoder:
 def summary(event: Event) -> str:
     f = check_event(event, NAME).fields or {}
     return f"node {f['node']} {'reply' if f['reply'] else 'request'}"
-
-
-def label(event: Event) -> Optional[str]:
-    check_event(event, NAME)
-    return None
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:
