@@ -37,11 +37,9 @@ READ = 100                      # bytes per read at a 1 ms poll
 
 
 def fap_frame(msg: int, dst: int, src: int, data: bytes = b"") -> bytes:
-    from fap_py._native import ffi, lib
+    from fap_py import _codec
 
-    out = ffi.new("uint8_t[]", 1100)
-    n = lib.lf_fap_encode(out, 1100, msg, dst, src, data, len(data))
-    return bytes(ffi.buffer(out, n))
+    return _codec.find("fap").encode((msg, dst, src), data)
 
 
 def traffic(protocol: str) -> bytes:

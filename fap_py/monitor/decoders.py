@@ -1,11 +1,14 @@
-"""Protocol adapters: the receivers' own decoders turned into monitor events.
+"""Protocol decoders turned into monitor events, and the protocols' plug-ins.
 
-Every adapter feeds bytes to the codec the protocol's receiver uses (the C
-decoders through cffi for FAP, exec async and mikroC; the Python G485
-parser) and turns what it reports into :class:`Event` objects: a good frame
-with its fields, a bad frame with the codec's reason, or garbage. Nothing
-here knows a framing rule; the adapters only keep stream offsets so every
-event carries its raw bytes and where they lie in the stream.
+Every protocol the monitor knows has a plug-in, found by name through the
+protocol table (:mod:`fap_py._protocols`): ``<package>.monitor.protocols.<name>``
+holds its decoder, field list, summary text, request/reply pairing and pcap
+label (docs/monitor.md, "Plug-ins"). This module holds what they share: the
+:class:`Event` they report, the :class:`Decoder` interface, the one adapter
+over the C codec table (:class:`CodecDecoder`, for every protocol whose
+receiver decodes in C) and the :class:`EventFilter` that turns the events
+into records tiling the stream. Nothing here knows a framing rule or a
+protocol's name.
 
 A codec that rejects a candidate frame resumes one byte later (FAP, G485),
 so a bad frame's later bytes may be reported again; :class:`EventFilter`
@@ -13,17 +16,17 @@ drops those repeats and merges adjacent garbage runs.
 """
 from __future__ import annotations
 
-from typing import Callable, Dict, List, Optional, Tuple, cast
+import warnings
+from collections.abc import Sequence
+from types import ModuleType
+from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, cast, overload
 
-from .._native import ffi, lib
+from .. import _codec, _protocols
 from .._validate import U32, check_bool, check_bytes, check_int
 from ..errors import InvalidTypeError, InvalidValueError
-from ..g485 import codec as g485
-
-PROTOCOLS = ("fap", "exec", "mikroc", "g485")
 
 #: the largest ``now_ns`` (CLOCK_MONOTONIC ns, a C int64)
-NS_MAX = 2**63 - 1
+NS_MAX = _codec.NS_MAX
 #: the longest garbage record: a longer run of bytes outside any frame is
 #: reported in records of this size as it comes (docs/monitor.md)
 GARBAGE_MAX = 256
@@ -31,20 +34,95 @@ GARBAGE_MAX = 256
 #: good frame starts inside (longer than any frame of the four protocols)
 HOLD_MAX = 4096
 
-#: fields of each protocol's good frames, in output order (the JSON schema)
-FIELDS: Dict[str, Tuple[str, ...]] = {
-    "fap": ("msg", "msg_name", "dst", "src", "data"),
-    "exec": ("node", "seq", "data"),
-    "mikroc": ("address", "from_master", "data"),
-    "g485": ("address", "rw", "pid", "data", "packet", "device"),
-}
+#: the plug-in room of the monitor in the protocol table
+TOOL = "monitor"
 
-#: the G485 packet name of a wake-up preamble run (0xFF bytes before a request)
-G485_PREAMBLE = "Wake-up-Preamble"
+_plugins: Dict[_protocols.Protocol, Optional[ModuleType]] = {}
 
-#: FAP message names, from the C enum (LF_FAP_SEND_DATA -> "SEND_DATA")
-FAP_MSG_NAMES: Dict[int, str] = {
-    v: k[len("LF_FAP_"):] for v, k in ffi.typeof("enum lf_fap_msg").elements.items()}
+
+def _plugin_of(p: _protocols.Protocol) -> Optional[ModuleType]:
+    if p not in _plugins:
+        _plugins[p] = p.plugin(TOOL) if p.has_plugin(TOOL) else None
+    return _plugins[p]
+
+
+def monitor_protocols() -> Tuple[str, ...]:
+    """The protocols the monitor decodes: every protocol of the table with a monitor
+    plug-in, in table order (one added with ``_protocols.register`` included)."""
+    return tuple(p.name for p in _protocols.all_protocols() if _plugin_of(p) is not None)
+
+
+#: plug-ins by the name they were asked for (the hot path: a lookup per record)
+_by_name: Dict[str, ModuleType] = {}
+
+
+def plugin(protocol: str) -> ModuleType:
+    """The monitor plug-in of ``protocol`` (its name or an alias);
+    InvalidValueError when the table has no such protocol or it has no plug-in."""
+    if not isinstance(protocol, str):
+        raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+    mod = _by_name.get(protocol)
+    if mod is not None:
+        return mod
+    try:
+        p = _protocols.get(protocol)
+    except _protocols.UnknownProtocolError:
+        raise InvalidValueError(f"protocol must be one of {', '.join(monitor_protocols())}, "
+                                f"not {protocol!r}") from None
+    found = _plugin_of(p)
+    if found is None:
+        raise InvalidValueError(f"protocol {p.name!r} has no monitor plug-in")
+    if p in _protocols.PROTOCOLS:       # built-in rows never leave the table
+        _by_name[protocol] = found
+    return found
+
+
+class _LiveNames(Sequence):
+    """:data:`PROTOCOLS`: a live, read-only view of :func:`monitor_protocols` (a
+    protocol registered later is in it), usable where the tuple was."""
+
+    def __len__(self) -> int:
+        return len(monitor_protocols())
+
+    @overload
+    def __getitem__(self, i: int) -> str: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> Tuple[str, ...]: ...
+
+    def __getitem__(self, i: Union[int, slice]) -> Union[str, Tuple[str, ...]]:
+        return monitor_protocols()[i]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(monitor_protocols())
+
+    def __contains__(self, name: object) -> bool:
+        return name in monitor_protocols()
+
+    def __add__(self, other: Any) -> Tuple[str, ...]:
+        return monitor_protocols() + tuple(other)
+
+    def __radd__(self, other: Any) -> Tuple[str, ...]:
+        return tuple(other) + monitor_protocols()
+
+    def __repr__(self) -> str:
+        return repr(monitor_protocols())
+
+
+#: the protocols the monitor decodes (a live view of :func:`monitor_protocols`; typed as
+#: the tuple it stands in for: indexing, ``in``, iteration and ``+`` with a tuple work)
+PROTOCOLS: Tuple[str, ...] = cast(Tuple[str, ...], _LiveNames())
+
+
+def dissector(protocol: str) -> str:
+    """The Wireshark dissector name (filter prefix) of ``protocol``'s fields."""
+    mod = plugin(protocol)
+    return str(getattr(mod, "DISSECTOR", _protocols.get(protocol).name))
+
+
+def fields() -> Dict[str, Tuple[str, ...]]:
+    """Each protocol's good-frame fields in output order (the JSON schema), from its plug-in."""
+    return {name: tuple(plugin(name).FIELDS) for name in monitor_protocols()}
 
 
 class Event:
@@ -59,8 +137,10 @@ class Event:
     def __init__(self, protocol: str, offset: int, raw: bytes, error: Optional[str],
                  fields: Optional[Dict[str, object]] = None) -> None:
         """Checked: InvalidTypeError / InvalidValueError for a bad argument."""
-        if protocol not in PROTOCOLS:
-            raise InvalidValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, "
+        if protocol not in monitor_protocols():
+            if not isinstance(protocol, str):
+                raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+            raise InvalidValueError(f"protocol must be one of {', '.join(monitor_protocols())}, "
                                     f"not {protocol!r}")
         check_int(offset, "offset", 0, 2**64 - 1)
         raw = check_bytes(raw, "raw", 0, 2**62)
@@ -94,8 +174,21 @@ def _ev(protocol: str, offset: int, raw: bytes, error: Optional[str],
     return ev
 
 
+def check_event(event: Any, protocol: str) -> Event:
+    """``event`` if it is an :class:`Event` of ``protocol``; else InvalidTypeError /
+    InvalidValueError. For the plug-ins' public functions."""
+    if not isinstance(protocol, str):
+        raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+    if not isinstance(event, Event):
+        raise InvalidTypeError(f"event must be an Event, not {type(event).__name__}")
+    if event.protocol != protocol:
+        raise InvalidValueError(f"event must be a {protocol} event, not {event.protocol}")
+    return event
+
+
 class Decoder:
-    """Base of the adapters: ``feed`` bytes, ``idle`` on a quiet line, ``finish`` at the end."""
+    """The interface of the plug-ins' decoders: ``feed`` bytes, ``idle`` on a quiet
+    line, ``finish`` at the end. ``name`` is the protocol's one name."""
 
     name = ""
 
@@ -133,340 +226,48 @@ class Decoder:
         return events
 
 
-class _Spans:
-    """A window on the stream bytes so spans reported as offsets can be sliced."""
-
-    __slots__ = ("buf", "base")
-
-    def __init__(self) -> None:
-        self.buf = bytearray()
-        self.base = 0
-
-    def add(self, data: bytes) -> None:
-        self.buf += data
-
-    def get(self, start: int, end: int) -> bytes:
-        return bytes(self.buf[start - self.base:end - self.base])
-
-    def trim(self, keep_from: int) -> None:
-        k = keep_from - self.base
-        if k > 4096:
-            del self.buf[:k]
-            self.base = keep_from
+#: a plug-in's conversion of a C codec frame into its monitor fields:
+#: (header field values in the C row's order, data, message type name or None) -> fields
+FieldsOf = Callable[[Tuple[int, ...], bytes, Optional[str]], Dict[str, object]]
 
 
-class FapDecoder(Decoder):
-    """FAP: csrc/fap/fap_frame.c's stream decoder (as the engine feeds it)."""
+class CodecDecoder(Decoder):
+    """The monitor's one adapter over the C codec table (:mod:`fap_py._codec`):
+    the protocol's receiver decoder from C, its frames and rejects as events.
 
-    name = "fap"
+    ``fields`` turns a codec frame into the plug-in's fields (default: the C
+    row's header fields by name, and ``data``)."""
 
-    def __init__(self, baud: int = 0, gap_ns: int = 0) -> None:
+    def __init__(self, protocol: str, baud: int = 0, gap_ns: int = 0,
+                 fields: Optional[FieldsOf] = None) -> None:
+        if not isinstance(protocol, str):
+            raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
         check_int(baud, "baud", 0, U32)
         check_int(gap_ns, "gap_ns", 0, NS_MAX)
-        self._d = ffi.new("lf_fap_decoder *")
-        lib.lf_fap_decoder_init(self._d, gap_ns or lib.lf_fap_default_gap(baud))
-        self._out: List[Event] = []
-        self._handle = ffi.new_handle(self)
-        lib.lf_fap_decoder_on_reject(self._d, lib.fap_py_mon_fap_reject, self._handle)
-
-    def _frame(self, f: "ffi.CData") -> None:
-        data = bytes(ffi.buffer(f.data, f.len)) if f.len else b""
-        self._out.append(_ev("fap", f.offset, bytes(ffi.buffer(f.raw, f.raw_len)), None, {
-            "msg": f.msg, "msg_name": FAP_MSG_NAMES.get(f.msg, str(f.msg)),
-            "dst": f.dst, "src": f.src, "data": data}))
-
-    def _reject(self, reason: int, raw: "ffi.CData", n: int, offset: int) -> None:
-        name = ffi.string(lib.lf_fap_reject_name(reason)).decode()
-        self._out.append(_ev("fap", offset, bytes(ffi.buffer(raw, n)),
-                               name if reason != lib.LF_FAP_REJ_GARBAGE else "garbage"))
-
-    def _take(self) -> List[Event]:
-        out, self._out = self._out, []
-        return out
+        if fields is not None and not callable(fields):
+            raise InvalidTypeError(f"fields must be None or callable, not {type(fields).__name__}")
+        plugin(protocol)                       # a protocol the monitor decodes
+        name = self.name = _protocols.get(protocol).name
+        codec = _codec.find(name)
+        names = codec.fields
+        conv: FieldsOf = fields or (lambda values, data, _n: dict(zip(names, values), data=data))
+        self._d = codec.decoder(
+            baud, gap_ns,
+            frame=lambda off, raw, data, values, fname: _ev(name, off, raw, None,
+                                                            conv(values, data, fname)),
+            reject=lambda off, raw, _code, reason: _ev(name, off, raw, reason))
 
     def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        lib.lf_fap_decoder_feed(self._d, data, len(data), now_ns, lib.fap_py_mon_fap_frame,
-                                self._handle)
-        return self._take()
+        return self._d.feed(data, now_ns)
 
     def idle_deadline(self) -> Optional[int]:
-        return lib.lf_fap_decoder_deadline(self._d) if self._d.n else None
+        return self._d.deadline()
 
     def _idle(self, now_ns: int) -> List[Event]:
-        lib.lf_fap_decoder_tick(self._d, now_ns, lib.fap_py_mon_fap_frame, self._handle)
-        return self._take()
+        return self._d.tick(now_ns)
 
     def finish(self) -> List[Event]:
-        if not self._d.n:
-            return []
-        far = lib.lf_fap_decoder_deadline(self._d)
-        lib.lf_fap_decoder_tick(self._d, far, lib.fap_py_mon_fap_frame, self._handle)
-        return [_ev(e.protocol, e.offset, e.raw, "truncated") if e.error == "gap" else e
-                for e in self._take()]
-
-
-@ffi.def_extern()
-def fap_py_mon_fap_frame(ctx: "ffi.CData", f: "ffi.CData", now: int) -> None:
-    ffi.from_handle(ctx)._frame(f)
-
-
-@ffi.def_extern()
-def fap_py_mon_fap_reject(ctx: "ffi.CData", reason: int, raw: "ffi.CData", n: int,
-                          offset: int, now: int) -> None:
-    ffi.from_handle(ctx)._reject(reason, raw, n, offset)
-
-
-class _SpanDecoder(Decoder):
-    """Adapters over a C scan helper that reports spans [rep_start, rep_end)."""
-
-    def __init__(self) -> None:
-        self._spans = _Spans()
-        self._cursor = 0          # stream offset up to which everything was reported
-
-    def _garbage_to(self, out: List[Event], upto: int) -> None:
-        if upto > self._cursor:
-            out.append(_ev(self.name, self._cursor, self._spans.get(self._cursor, upto), "garbage"))
-        self._cursor = max(self._cursor, upto)
-
-    def _held_from(self) -> int:
-        """Stream offset where the partial frame the codec holds starts (else its position)."""
-        raise NotImplementedError
-
-    def _early_garbage(self, out: List[Event]) -> None:
-        """A long run outside any frame is reported now, not held: all of it but the
-        last byte (with the next one it may start a frame: exec's DLE STX)."""
-        upto = self._held_from() - 1
-        if upto - self._cursor >= GARBAGE_MAX:
-            self._garbage_to(out, upto)
-
-    def _idle(self, now_ns: int) -> List[Event]:
-        """These receivers have no gap rule; a quiet line only shows the garbage so far."""
-        out: List[Event] = []
-        self._garbage_to(out, self._held_from())
-        return out
-
-    def _report(self, out: List[Event], start: int, end: int, error: Optional[str],
-                fields: Optional[Dict[str, object]]) -> None:
-        self._garbage_to(out, start)
-        out.append(_ev(self.name, start, self._spans.get(start, end), error, fields))
-        self._cursor = end
-
-
-class ExecDecoder(_SpanDecoder):
-    """Exec async: execAsyncByteIn (csrc/execasync/codec.c) byte after byte, in C."""
-
-    name = "exec"
-
-    def __init__(self) -> None:
-        super().__init__()
-        self._s = ffi.new("lf_exec_scan *")
-        lib.lf_exec_scan_init(self._s)
-
-    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        s = self._s
-        self._spans.add(data)
-        out: List[Event] = []
-        pos, n = 0, len(data)
-        src = ffi.from_buffer(data)
-        while pos < n:
-            pos += lib.lf_exec_scan_feed(s, src + pos, n - pos)
-            st = s.st
-            if st.Status == lib.EXEC_ASYNC_NONE:
-                break
-            if st.Status == lib.EXEC_ASYNC_GOOD:
-                self._report(out, s.rep_start, s.rep_end, None, {
-                    "node": st.Node, "seq": st.SeqNo,
-                    "data": bytes(ffi.buffer(s.buf, st.Length))})
-            else:
-                reason = ffi.string(lib.lf_exec_status_reason(st.Status)).decode()
-                self._report(out, s.rep_start, s.rep_end, reason, None)
-        self._early_garbage(out)
-        self._trim()
-        return out
-
-    def _held_from(self) -> int:
-        s = self._s
-        return s.start if lib.lf_exec_rx_in_frame(ffi.addressof(s, "st")) else s.pos
-
-    def _trim(self) -> None:
-        keep = self._cursor
-        if lib.lf_exec_rx_in_frame(ffi.addressof(self._s, "st")):
-            keep = min(keep, self._s.start)
-        self._spans.trim(keep)
-
-    def finish(self) -> List[Event]:
-        out: List[Event] = []
-        s = self._s
-        if lib.lf_exec_rx_in_frame(ffi.addressof(s, "st")) and s.start >= self._cursor:
-            self._report(out, s.start, s.pos, "truncated", None)
-        self._garbage_to(out, s.pos)
-        return out
-
-
-class MikrocDecoder(_SpanDecoder):
-    """mikroC RS-485: mikrocRS485_DecoderFeed (csrc/mikroc/mikroc_codec.c), in C."""
-
-    name = "mikroc"
-
-    def __init__(self) -> None:
-        super().__init__()
-        self._s = ffi.new("lf_mikroc_scan *")
-        lib.lf_mikroc_scan_init(self._s)
-        self._master_flag = lib.MIKROC_RS485_DL_MASTER
-
-    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        s = self._s
-        self._spans.add(data)
-        out: List[Event] = []
-        pos, n = 0, len(data)
-        src = ffi.from_buffer(data)
-        frame_code = lib.MIKROC_RS485_FRAME
-        while pos < n:
-            pos += lib.lf_mikroc_scan_feed(s, src + pos, n - pos)
-            code = s.code
-            if code == 0:
-                break
-            s.code = 0
-            if code == frame_code:
-                f = s.f
-                self._report(out, s.rep_start, s.rep_end, None, {
-                    "address": f.address, "from_master": bool(f.datalen & self._master_flag),
-                    "data": bytes(f.data[0:f.count])})
-            else:
-                self._report(out, s.rep_start, s.rep_end, ffi.string(s.reason).decode(), None)
-        self._early_garbage(out)
-        keep = self._cursor
-        if lib.lf_mikroc_scan_in_frame(s):
-            keep = min(keep, s.start)
-        self._spans.trim(keep)
-        return out
-
-    def _held_from(self) -> int:
-        s = self._s
-        return s.start if lib.lf_mikroc_scan_in_frame(s) else s.pos
-
-    def finish(self) -> List[Event]:
-        out: List[Event] = []
-        s = self._s
-        if lib.lf_mikroc_scan_in_frame(s) and s.start >= self._cursor:
-            self._report(out, s.start, s.pos, "truncated", None)
-        self._garbage_to(out, s.pos)
-        return out
-
-
-#: G485 parser issues -> short reasons
-_G485_REASONS = {
-    g485.ParseIssue.GARBAGE: "garbage",
-    g485.ParseIssue.BAD_LENGTH: "length",
-    g485.ParseIssue.BAD_CHECK: "check",
-    g485.ParseIssue.UNKNOWN_PACKET: "packet",
-    g485.ParseIssue.STALE: "gap",
-}
-
-
-class G485Decoder(Decoder):
-    """G485: fap_py.g485.codec.Parser, the simulator's and master's parser."""
-
-    name = "g485"
-
-    def __init__(self, baud: int = 0, gap_ns: int = 0) -> None:
-        check_int(baud, "baud", 0, U32)
-        check_int(gap_ns, "gap_ns", 0, NS_MAX)
-        self._p = g485.Parser()
-        self._offset = 0          # stream offset of the parser's first held byte
-        # the G485 simulator's default idle timeout
-        self._gap = gap_ns or int(max(0.02, 50.0 / baud if baud else 0.02) * 1e9)
-        self._last = 0
-        self._spans = _Spans()
-        self._held: Optional[Event] = None  # garbage ending in 0xFF: a wake-up preamble?
-        self._asked: Optional[int] = None  # address of the last request (replies answer it)
-
-    def _expire(self, reason: str) -> List[Event]:
-        """The parser drops a stale partial byte by byte; report the partial once, whole."""
-        start, held = self._offset, self._p.buffered
-        events = self._events(self._p.expire())
-        if held:
-            whole = _ev("g485", start, self._spans.get(start, start + held), reason)
-            events = [whole] + [e for e in events if not (e.offset == start and e.error == "gap")]
-        return events
-
-    def _events(self, evs: list) -> List[Event]:
-        out: List[Event] = []
-        for ev in evs:
-            off = self._offset
-            if isinstance(ev, g485.Packet):
-                raw = ev.raw
-                out.append(_ev("g485", off, raw, None, {
-                    "address": ev.address, "rw": raw[2] & 1, "pid": ev.pid,
-                    "data": ev.data, "packet": ev.kind.value}))
-                self._offset += len(raw)
-                continue
-            reason = _G485_REASONS[ev.issue]
-            out.append(_ev("g485", off, ev.data, reason))
-            # a bad check resynchronises one byte after the candidate's start
-            self._offset += 1 if ev.issue is g485.ParseIssue.BAD_CHECK else len(ev.data)
-        return out
-
-    def _feed(self, data: bytes, now_ns: int = 0) -> List[Event]:
-        self._last = now_ns
-        self._spans.add(data)
-        out = self._events(self._p.feed(data))
-        self._spans.trim(self._offset)
-        return out
-
-    def idle_deadline(self) -> Optional[int]:
-        return self._last + self._gap if self._p.buffered else None
-
-    def _idle(self, now_ns: int) -> List[Event]:
-        if not self._p.buffered or now_ns < self._last + self._gap:
-            return []
-        return self._expire("gap")
-
-    def finish(self) -> List[Event]:
-        return self._expire("truncated")
-
-    def _refine(self, events: List[Event], final: bool = False) -> List[Event]:
-        """Up to four 0xFF bytes of garbage just before a request are its wake-up
-        preamble (master.py sends FF FF FF FF): one good record, not an error.
-        Replies carry the master's address (127): ``device`` names the device
-        asked by the last request."""
-        out: List[Event] = []
-        for ev in events:
-            held, self._held = self._held, None
-            if held is not None:
-                if _g485_request(ev) and held.end == ev.offset:
-                    n = min(len(held.raw) - len(held.raw.rstrip(b"\xff")),
-                            len(g485.WAKE_UP_PREAMBLE))
-                    if n < len(held.raw):
-                        out.append(_ev("g485", held.offset, held.raw[:-n], "garbage"))
-                    raw = held.raw[-n:]
-                    out.append(_ev("g485", held.end - n, raw, None, {
-                        "address": None, "rw": None, "pid": None, "data": raw,
-                        "packet": G485_PREAMBLE, "device": None}))
-                else:
-                    out.append(held)
-            if ev.error == "garbage" and ev.raw.endswith(b"\xff"):
-                self._held = ev
-                continue
-            f = ev.fields
-            if f is not None and len(ev.raw) > 2:
-                if ev.raw[2] == g485.SMA_R:
-                    f["device"] = self._asked
-                elif _g485_request(ev):
-                    self._asked = cast(int, f.get("address"))
-                    f["device"] = self._asked
-            out.append(ev)
-        if final and self._held is not None:
-            out.append(self._held)
-            self._held = None
-        return out
-
-
-def _g485_request(ev: Event) -> bool:
-    """A good G485 frame a device is addressed by (not a reply, not a preamble)."""
-    f = ev.fields
-    return f is not None and ev.error is None and len(ev.raw) > 2 and \
-        ev.raw[2] != g485.SMA_R and isinstance(f.get("address"), int)
+        return self._d.finish()
 
 
 def _check_events(events: object) -> List[Event]:
@@ -476,19 +277,26 @@ def _check_events(events: object) -> List[Event]:
 
 
 def make_decoder(protocol: str, baud: int = 0) -> Decoder:
-    """A fresh adapter for ``protocol`` (one of :data:`PROTOCOLS`)."""
-    factories: Dict[str, Callable[[], Decoder]] = {
-        "fap": lambda: FapDecoder(baud),
-        "exec": ExecDecoder,
-        "mikroc": MikrocDecoder,
-        "g485": lambda: G485Decoder(baud),
-    }
-    if not isinstance(protocol, str):
-        raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
-    if protocol not in factories:
-        raise InvalidValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+    """A fresh decoder for ``protocol`` (a name or alias of :data:`PROTOCOLS`), from its plug-in."""
+    mod = plugin(protocol)
     check_int(baud, "baud", 0, U32)
-    return factories[protocol]()
+    dec: Decoder = mod.decoder(baud)
+    return dec
+
+
+def __getattr__(name: str) -> Any:
+    """Names that moved into the plug-ins (``LEGACY`` of each: old name -> its name
+    there) still resolve here, with a DeprecationWarning; ``FIELDS`` is :func:`fields`."""
+    if name == "FIELDS":
+        return fields()
+    for proto in monitor_protocols():
+        mod = plugin(proto)
+        moved = getattr(mod, "LEGACY", {}).get(name)
+        if moved is not None:
+            warnings.warn(f"fap_py.monitor.decoders.{name} moved to {mod.__name__}.{moved}",
+                          DeprecationWarning, stacklevel=2)
+            return getattr(mod, moved)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 class EventFilter:
@@ -592,5 +400,5 @@ class EventFilter:
         return out
 
 
-__all__ = ["FIELDS", "G485_PREAMBLE", "GARBAGE_MAX", "HOLD_MAX", "PROTOCOLS", "Event",
-           "ExecDecoder", "FapDecoder", "G485Decoder", "MikrocDecoder", "make_decoder"]
+__all__ = ["GARBAGE_MAX", "HOLD_MAX", "NS_MAX", "PROTOCOLS", "CodecDecoder", "Decoder", "Event",
+           "EventFilter", "check_event", "dissector", "fields", "make_decoder", "monitor_protocols", "plugin"]

@@ -6,9 +6,8 @@ from typing import Dict, Optional, cast
 
 from .._validate import check_bytes
 from ..errors import InvalidTypeError
-from ..g485.codec import MASTER_ADDRESS
 from .core import T_MAX, Record, _check_time
-from .decoders import FIELDS, G485_PREAMBLE
+from .decoders import plugin
 
 
 def to_json(rec: Record) -> Dict[str, object]:
@@ -29,7 +28,7 @@ def to_json(rec: Record) -> Dict[str, object]:
         "frame": ev.raw.hex(),
     }
     fields = ev.fields
-    for name in FIELDS[ev.protocol]:
+    for name in plugin(ev.protocol).FIELDS:
         value = fields.get(name) if fields else None
         out[name] = value.hex() if isinstance(value, (bytes, bytearray)) else value
     return out
@@ -45,26 +44,6 @@ def printable(data: bytes) -> str:
     return "".join(chr(b) if 32 <= b < 127 else "." for b in data)
 
 
-def _who(rec: Record) -> str:
-    f = rec.fields or {}
-    p = rec.protocol
-    if p == "fap":
-        return f"{f['msg_name']:<9} {f['src']:>2} -> {f['dst']:<2}"
-    if p == "exec":
-        return f"node {f['node']:>3} seq {f['seq']:>3}"
-    if p == "mikroc":
-        return f"{'master ->' if f['from_master'] else 'slave  <-'} {f['address']:>3}"
-    if f["packet"] == G485_PREAMBLE:
-        return f"{f['packet']} master"
-    rw = "R" if f["rw"] else "W"
-    if f["address"] == MASTER_ADDRESS:      # a reply: from the device the last request asked
-        device = "?" if f.get("device") is None else f["device"]
-        who = f"{device} -> master"
-    else:
-        who = f"master -> {f['address']}"
-    return f"{f['packet']} {who} {rw} pid 0x{f['pid']:02x}"
-
-
 def human_line(rec: Record, t0: Optional[float] = None) -> str:
     """timestamp, sender port, protocol, addresses and message, payload hex |printable|."""
     if not isinstance(rec, Record):
@@ -75,8 +54,9 @@ def human_line(rec: Record, t0: Optional[float] = None) -> str:
     port = "  " if rec.port is None else f"p{rec.port}"
     if rec.ok:
         data = cast(bytes, (rec.fields or {}).get("data") or b"")
-        body = f"{_who(rec)}  [{len(data)}] {data.hex(' ')}  |{printable(data)}|" if data \
-            else f"{_who(rec)}  [0]"
+        who = plugin(rec.protocol).summary(rec.event)
+        body = f"{who}  [{len(data)}] {data.hex(' ')}  |{printable(data)}|" if data \
+            else f"{who}  [0]"
         return f"{t} {port} {rec.protocol:<6} {body}"
     return f"{t} {port} {rec.protocol:<6} !! {rec.error:<9} [{len(rec.raw)}] {rec.raw.hex(' ')}"
 

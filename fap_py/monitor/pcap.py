@@ -5,13 +5,15 @@ frame's bytes exactly as they were on the wire:
 
     offset  size  field
     0       1     version (1)
-    1       1     protocol: 1 fap, 2 exec async, 3 mikroC, 4 G485
+    1       1     protocol: its pcap id in the protocol table (fap_py._protocols:
+                  1 fap, 2 exec async, 3 mikroC, 4 G485)
     2       1     flags: bit 0 frame ok, bit 1 port known, bit 2 time known
     3       1     sender port (0xff when unknown)
     4       1     L, length of the text
     5       L     text, ASCII: a bad frame's error reason ("crc", "garbage",
                   ...); a good frame's message type name as the monitor
-                  decoded it (FAP msg_name, G485 packet), else empty
+                  decoded it (its plug-in's label: FAP msg_name, G485 packet),
+                  else empty
     5+L     ...   the frame
 
 Records without a time get the time of the previous one (0 at first).
@@ -19,15 +21,16 @@ Records without a time get the time of the previous one (0 at first).
 from __future__ import annotations
 
 import struct
-from typing import BinaryIO, Optional, cast
+from typing import BinaryIO, Optional
 
+from .. import _protocols
 from .._validate import check_bool
 from ..errors import InvalidTypeError, InvalidValueError
 from .core import Record
+from .decoders import plugin
 
 LINKTYPE = 147           # LINKTYPE_USER0 / DLT_USER0
 HEADER_VERSION = 1
-PROTOCOL_IDS = {"fap": 1, "exec": 2, "mikroc": 3, "g485": 4}
 FLAG_OK, FLAG_PORT, FLAG_TIME = 1, 2, 4
 SNAPLEN = 65535
 _GLOBAL = struct.Struct("<IHHiIII")
@@ -41,12 +44,14 @@ def header(rec: Record) -> bytes:
         raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
     flags = (FLAG_OK if rec.ok else 0) | (FLAG_PORT if rec.port is not None else 0) \
         | (FLAG_TIME if rec.t is not None else 0)
-    text = rec.error
+    text: Optional[str] = rec.error
     if text is None and rec.fields:
-        text = cast(Optional[str], rec.fields.get("msg_name") or rec.fields.get("packet"))
+        label = getattr(plugin(rec.protocol), "label", None)    # optional: a message type
+        text = label(rec.event) if label else None
     reason = (text or "").encode("ascii")[:255]
     port = 0xFF if rec.port is None else rec.port & 0xFF
-    return bytes((HEADER_VERSION, PROTOCOL_IDS[rec.protocol], flags, port, len(reason))) + reason
+    pcap_id = _protocols.get(rec.protocol).pcap_id
+    return bytes((HEADER_VERSION, pcap_id, flags, port, len(reason))) + reason
 
 
 class PcapWriter:
@@ -94,6 +99,17 @@ class PcapWriter:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def __getattr__(name: str) -> object:
+    """``PROTOCOL_IDS`` (deprecated): the pcap ids are the protocol table's."""
+    if name == "PROTOCOL_IDS":
+        import warnings
+
+        warnings.warn("fap_py.monitor.pcap.PROTOCOL_IDS: use fap_py._protocols.get(name).pcap_id",
+                      DeprecationWarning, stacklevel=2)
+        return {p.name: p.pcap_id for p in _protocols.all_protocols()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["LINKTYPE", "PcapWriter", "header"]

@@ -9,14 +9,7 @@ from typing import Any, Dict, List, Optional
 from .._validate import U32, check_int, check_seconds
 from ..errors import InvalidTypeError
 from .core import Record
-from .decoders import G485_PREAMBLE
-
-#: G485 packet types that answer a request
-_G485_REPLIES = frozenset({"User-Register-Read-Response", "Handshake-Response",
-                           "Get-Error-Word-Response"})
-#: FAP's master id (requests come from it) and exec async's broadcast node
-_FAP_MASTER = 0
-_EXEC_BROADCAST = 255
+from .decoders import plugin
 
 
 def _percentile(sorted_values: List[float], q: float) -> float:
@@ -69,26 +62,10 @@ class Stats:
         self._pending: Optional[tuple] = None     # (node, key, t_end) of the last request
 
     def _node_and_role(self, rec: Record) -> tuple:
-        """(node, 'req' | 'ans' | None, pairing key) of a good frame."""
-        f = rec.fields or {}
-        p = rec.protocol
-        if p == "fap":
-            if f["src"] == _FAP_MASTER:
-                return f["dst"], "req", f["dst"]
-            return f["src"], "ans", f["src"]
-        if p == "exec":
-            if f["node"] == _EXEC_BROADCAST:
-                return f["node"], None, None
-            pend = self._pending
-            if pend and pend[1] == (f["node"], f["seq"]):
-                return f["node"], "ans", (f["node"], f["seq"])
-            return f["node"], "req", (f["node"], f["seq"])
-        if p == "mikroc":
-            return f["address"], "req" if f["from_master"] else "ans", f["address"]
-        if f["packet"] in _G485_REPLIES:
-            device = f.get("device")
-            return (f["address"] if device is None else device), "ans", None
-        return f["address"], ("req" if f["address"] else None), None
+        """(node, 'req' | 'ans' | None, pairing key) of a good frame, from its
+        protocol's plug-in (node None: not a frame)."""
+        pend = self._pending
+        return plugin(rec.protocol).pair(rec.event, pend[1] if pend else None)
 
     def add(self, rec: Record) -> None:
         """Count one record (InvalidTypeError for anything but a :class:`Record`)."""
@@ -103,11 +80,11 @@ class Stats:
             self.errors[reason] += 1
             self.nodes["?"].errors[reason] += 1
             return
-        if rec.fields and rec.fields.get("packet") == G485_PREAMBLE:
-            return                        # wakes the devices: neither a frame nor an error
+        node, role, key = self._node_and_role(rec)
+        if node is None:
+            return                        # e.g. a wake-up preamble: neither a frame nor an error
         self.frames += 1
         self.frame_bytes += len(rec.raw)
-        node, role, key = self._node_and_role(rec)
         ns = self.nodes[str(node)]
         ns.frames += 1
         if role == "req":

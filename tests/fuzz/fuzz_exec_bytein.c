@@ -1,15 +1,47 @@
-/* execAsyncByteIn from a zero-filled state (as an interrupt routine's
+/* exec async's row of the codec table (fap_codec.h) over the input, whole
+ * and chunked (fuzz_codec.h: same reports, tiling the stream), its good
+ * frames exactly the ones execAsyncByteIn reports byte by byte; then
+ * execAsyncByteIn from a zero-filled state (as an interrupt routine's
  * static state), fed on after every true return, with a Buffer of exactly
  * BufferSize bytes on the heap (ASan sees any write past it).
  * Properties: a true return carries a known Status; Length never exceeds
  * the buffer; a GOOD frame re-encoded with execAsyncBufferOut decodes to
  * the identical frame (encode then decode is the identity), and the frame
  * the fuzzer built itself (second half of the input) always decodes GOOD. */
-#include "fuzz_util.h"
+#include "fuzz_codec.h"
 #include "exec_async.h"
+
+static fzc_log whole, chunked;
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
+    const fap_codec *c = fap_codec_find("exec");
+    PROPERTY(c != NULL && c->n_fields == 2);
+    fzc_decode(c, data, size, 0, 1, &whole);
+    fzc_decode(c, data, size, size ? data[0] : 1, 1, &chunked);
+    fzc_same(&whole, &chunked);
+    {   /* one table report per report of the receiver (and a truncated tail) */
+        struct execAsyncStateDef s0;
+        static byte b0[EXEC_ASYNC_MAX_DATA];
+        memset(&s0, 0, sizeof s0);
+        int k = 0;
+        for (size_t i = 0; i < size; i++) {
+            if (!execAsyncByteIn(data[i], &s0, b0))
+                continue;
+            PROPERTY(k < whole.n);
+            if (k < FZC_MAX) {
+                const fzc_ev *e = &whole.ev[k];
+                if (s0.Status == EXEC_ASYNC_GOOD)
+                    PROPERTY(e->code == 0 && e->field[0] == s0.Node && e->field[1] == s0.SeqNo &&
+                             e->data_len == s0.Length && !memcmp(e->data, b0, s0.Length));
+                else
+                    PROPERTY(e->code == s0.Status);
+            }
+            k++;
+        }
+        PROPERTY(whole.n == k || (whole.n == k + 1 && (k >= FZC_MAX ||
+                                                        whole.ev[k].code == FAP_CODEC_TRUNCATED)));
+    }
     fz f = {data, size};
     byte bufsize = fz_u8(&f);                 /* 0 = 255 */
     size_t cap = bufsize ? bufsize : 255;

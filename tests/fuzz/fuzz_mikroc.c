@@ -1,4 +1,6 @@
-/* mikroC RS-485: the decoder and the master and slave receive paths
+/* mikroC RS-485: its row of the codec table (fap_codec.h) over the input,
+ * whole and chunked (fuzz_codec.h: same reports, tiling the stream), one
+ * table report per report of the decoder; the decoder and the master and slave receive paths
  * (mikrocRS485_CtxReceiveByte, the vendor's byte-at-a-time interrupt
  * routine), on arbitrary bytes. Properties: a decoded frame re-encodes to
  * bytes that decode to the identical frame; encode then decode of the
@@ -6,8 +8,10 @@
  * buffers only ever get the flags 0 or 255 and a count 0..3; a slave
  * never stores a frame from a slave or for another (non-broadcast)
  * address. */
-#include "fuzz_util.h"
+#include "fuzz_codec.h"
 #include "mikroc_rs485.h"
+
+static fzc_log whole, chunked;
 
 static void decode_all(const uint8_t *p, size_t n, mikrocRS485_frame *last, int *frames)
 {
@@ -30,6 +34,12 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
 {
     if (size < 2)
         return 0;
+    const fap_codec *c = fap_codec_find("mikroc");
+    PROPERTY(c != NULL && c->n_fields == 2);
+    fzc_decode(c, data + 1, size - 1, 0, 1, &whole);
+    fzc_decode(c, data + 1, size - 1, data[0], 1, &chunked);
+    fzc_same(&whole, &chunked);
+    int k = 0;                         /* reports of the decoder below, in order */
     uint8_t slave_addr = data[0];
     mikrocRS485_ctx master, slave;
     mikrocRS485_CtxInitMaster(&master);
@@ -51,7 +61,18 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             sbuf[MIKROC_RS485_IDX_READY] = sbuf[MIKROC_RS485_IDX_ERROR] = 0;
         }
         mikrocRS485_frame fr;
-        if (mikrocRS485_DecoderFeed(&d, data[i], &fr) == MIKROC_RS485_FRAME) {
+        int r = mikrocRS485_DecoderFeed(&d, data[i], &fr);
+        if (r != MIKROC_RS485_MORE) {
+            PROPERTY(k < whole.n);
+            if (k < FZC_MAX)
+                PROPERTY((r == MIKROC_RS485_FRAME) == (whole.ev[k].code == 0));
+            if (k < FZC_MAX && r == MIKROC_RS485_FRAME)
+                PROPERTY(whole.ev[k].field[0] == fr.address &&
+                         whole.ev[k].field[1] == !!(fr.datalen & MIKROC_RS485_DL_MASTER) &&
+                         whole.ev[k].data_len == fr.count && !memcmp(whole.ev[k].data, fr.data, fr.count));
+            k++;
+        }
+        if (r == MIKROC_RS485_FRAME) {
             PROPERTY(fr.count <= 3 && !(fr.datalen & MIKROC_RS485_DL_FIXED));
             uint8_t out[MIKROC_RS485_FRAME_MAX];
             int from_master = !!(fr.datalen & MIKROC_RS485_DL_MASTER);
@@ -64,6 +85,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
                      back.datalen == fr.datalen && !memcmp(back.data, fr.data, fr.count));
         }
     }
+    PROPERTY(whole.n == k || (whole.n == k + 1 && (k >= FZC_MAX ||
+                                                    whole.ev[k].code == FAP_CODEC_TRUNCATED)));
     mikrocRS485_stats ms, ss;
     mikrocRS485_CtxGetStats(&master, &ms);
     mikrocRS485_CtxGetStats(&slave, &ss);

@@ -31,7 +31,7 @@ n_pages=$(ls "$mandir/man3" | wc -l)
 n_funcs=$(python3 "$srcdir/tools/gen_man3.py" --count "$srcdir"/include/fap.h "$srcdir"/include/fapx.h \
   "$srcdir"/include/fap_port.h "$srcdir"/include/exec_async.h "$srcdir"/include/exec_async_engine.h \
   "$srcdir"/include/mikroc_rs485.h "$srcdir"/include/fap_vbus.h "$srcdir"/include/fap_trace.h \
-  "$srcdir"/include/fap_version.h)
+  "$srcdir"/include/fap_version.h "$srcdir"/include/fap_codec.h)
 [ "$n_pages" -eq "$n_funcs" ] && [ "$n_funcs" -gt 100 ] || { echo "$n_pages man3 pages for $n_funcs functions"; exit 1; }
 passed=$((passed + 1))
 

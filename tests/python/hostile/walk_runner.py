@@ -210,6 +210,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
     from fap_py.g485.master import G485Master, ReplyWaiter
     from fap_py.g485.simulator import Simulator
     from fap_py.g485.transport import PortIO, SerialIO
+    from fap_py.monitor.decoders import CodecDecoder
     from fap_py.monitor.pcap import PcapWriter
     from fap_py.monitor.sources import LivePort
     from fap_py.port import Port
@@ -281,6 +282,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         "fap_py.bridge.bridge.Bridge": lambda: Bridge(bridge_config()),
         "fap_py.monitor.pcap.PcapWriter": lambda: PcapWriter(io.BytesIO()),
         "fap_py.monitor.sources.LivePort": lambda: LivePort(own(), 9600),
+        "fap_py.monitor.decoders.CodecDecoder": lambda: CodecDecoder("fap", 9600),
     }
 
 

@@ -11,7 +11,8 @@ from test_monitor_live import WAIT_S, start_monitor
 from test_monitor_wireshark import as_json_value, lua, tshark  # noqa: F401 - lua is a fixture
 
 from fap_py.g485 import G485Master, SimDevice, Simulator
-from fap_py.monitor.decoders import FIELDS, G485_PREAMBLE
+from fap_py.monitor.decoders import FIELDS
+from fap_py.monitor.protocols.g485 import PREAMBLE as G485_PREAMBLE
 from fap_py.vbus import read_capture
 
 BAUD = 115200            # above 28,800: the master sends the wake-up preamble

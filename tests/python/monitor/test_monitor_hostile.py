@@ -46,6 +46,7 @@ ACCEPTS: Dict[str, Callable[[Any], bool]] = {
     "final": lambda v: v is True, "flush": lambda v: v is True,
     "argv": lambda v: v is None,
     "directory": _path_like, "path": _path_like,
+    "asked": lambda v: True,     # a plug-in's pairing key: any value, only compared
 }
 
 
@@ -97,7 +98,7 @@ def good(tmp_path, monkeypatch) -> Dict[str, Any]:
         "final": False, "flush": False, "gap_ns": 0, "directory": str(tmp_path / "d"),
         "argv": ["--extcap-interfaces"], "fh": io.BytesIO(), "epoch": None, "t0": None,
         "stop": lambda: True, "deadline": lambda: None, "idle_s": 0.0, "rs485": None,
-        "fd": r, "path": str(cap),
+        "fd": r, "path": str(cap), "asked": None,
     }
     values["_live_path"] = bus.paths[1]
     yield values

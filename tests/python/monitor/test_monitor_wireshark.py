@@ -11,15 +11,12 @@ import pytest
 from monitor_helpers import json_records, need_tool, run_fap, stream
 from test_monitor_inputs import write_capture
 
-PROTOCOLS = ["fap", "exec", "mikroc", "g485"]
-#: JSON protocol name -> the dissector's filter prefix ("exec" is Wireshark's rexec)
-PREFIX = {"fap": "fap", "exec": "execasync", "mikroc": "mikroc", "g485": "g485"}
-FIELDS = {
-    "fap": ("msg", "msg_name", "dst", "src", "data"),
-    "exec": ("node", "seq", "data"),
-    "mikroc": ("address", "from_master", "data"),
-    "g485": ("address", "rw", "pid", "data", "packet", "device"),
-}
+from fap_py.monitor.decoders import dissector, fields, monitor_protocols
+
+PROTOCOLS = list(monitor_protocols())
+#: JSON protocol name -> the dissector's filter prefix (from the plug-ins)
+PREFIX = {p: dissector(p) for p in PROTOCOLS}
+FIELDS = fields()
 TSHARK_TIMEOUT = 120.0
 
 

@@ -1,0 +1,1 @@
+"""The toy protocol's monitor room (its plug-in is ``protocols/toy.py``)."""
