@@ -239,6 +239,31 @@ def is_exact_reply(chunk: bytes, prefix: bytes) -> bool:
             and sum(chunk) & 0xFF == FRAME_SUM)
 
 
+def reply_size(prefix: bytes) -> int:
+    """Bytes of the whole reply a :func:`reply_prefix` announces."""
+    return HEADER_SIZE + prefix[3]
+
+
+def prefix_pid(prefix: bytes) -> int:
+    """The PID (register, HPID or EPID) of the reply a :func:`reply_prefix` announces."""
+    return prefix[4]
+
+
+_REPLY_KIND = {HPID: PacketKind.HANDSHAKE_RESPONSE, EPID: PacketKind.ERROR_WORD_RESPONSE}
+
+
+def reply_packet(frame: bytes) -> Packet:
+    """The :class:`Packet` of a reply frame already checked against its prefix
+    (:func:`is_exact_reply` or the :class:`Parser`): no second classification."""
+    return Packet(_REPLY_KIND.get(frame[4], PacketKind.READ_RESPONSE), MASTER_ADDRESS, frame[4],
+                  frame[5:-1], frame[-1], frame)
+
+
+def frame_check(frame: bytes) -> int:
+    """The CHECK byte of an encoded frame (a request's MDOC/MDIC)."""
+    return frame[-1]
+
+
 def exact_packet(chunk: bytes) -> Optional[Packet]:
     """The packet if ``chunk`` is exactly one well-checked G485 frame, else None.
 
