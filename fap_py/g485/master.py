@@ -38,12 +38,12 @@ from .transaction import (  # noqa: F401  (COMMAND_REGISTER, ID_REGISTER, Flow, 
     Step,
     Transaction,
     Wait,
+    _ReplyWaiter,
     as_check,
     flag_arg,
     timeout_arg,
     whole_arg,
 )
-from .transaction import ReplyWaiter as _SessionReplyWaiter
 from .transport import IO, PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")
@@ -63,8 +63,9 @@ def flag(value: Any, what: str) -> bool:
     return flag_arg(value, what)
 
 
-class ReplyWaiter(_SessionReplyWaiter):
-    """Deprecated: :class:`fap_py.g485.transaction.ReplyWaiter` of ``master.session``."""
+class ReplyWaiter(_ReplyWaiter):
+    """Bytes in, the awaited reply frame out (or an error), for ``master``'s session: what a
+    :class:`~fap_py.g485.transaction.Transaction` uses inside (kept for callers of the old API)."""
 
     __slots__ = ()
 
@@ -184,6 +185,8 @@ class G485Master:
     def on_close(self, hook: Callable[[], None]) -> None:
         """Call ``hook()`` when :meth:`close` runs (from any thread): the asyncio driver
         ends its exchange in flight with it."""
+        if not callable(hook):
+            raise G485ValueError(f"hook must be callable, not {type(hook).__name__}")
         self._close_hooks.append(hook)
 
     def __enter__(self) -> "G485Master":

@@ -41,7 +41,7 @@ from typing import (
     Union,
 )
 
-from .._validate import check_bool, check_int, check_seconds
+from .._validate import check_baud, check_bool, check_int, check_seconds
 from . import codec
 from .codec import (
     EPID,
@@ -109,6 +109,11 @@ def whole_arg(value: Any, what: str, lo: int, hi: int) -> int:
 def flag_arg(value: Any, what: str) -> bool:
     """A bool, else a G485ValueError."""
     return check_bool(value, what, type_error=G485ValueError)
+
+
+def _clock(now: Any) -> float:
+    """A reading of the driver's monotonic clock: a finite number of seconds."""
+    return check_seconds(now, "now", lo=-1e18, hi=1e18, **_ERR)
 
 
 def _opt_timeout(timeout: Optional[float]) -> Optional[float]:
@@ -191,7 +196,7 @@ Action = Union[Send, Wait, Done, Fail]
 
 # -- the reply to one request ---------------------------------------------------------
 
-class ReplyWaiter:
+class _ReplyWaiter:
     """Bytes in, the awaited reply frame out (or an error): no I/O, no clock.
 
     ``feed(chunk)`` returns the whole reply frame, None while more is needed,
@@ -237,21 +242,21 @@ class ReplyWaiter:
                         log.debug("%s rx %s", s.name, ev.raw.hex(" "))
                     return ev.raw
                 # our own echo, another master, or a late reply to an abandoned request
-                s.count("ignored_frames")
+                s._count("ignored_frames")
                 if _debug():
                     log.debug("%s rx ignored %s: %s", s.name, ev.kind.value, ev.raw.hex(" "))
                 continue
             if _debug():
                 log.debug("%s rx discarded (%s, %s): %s", s.name, ev.issue.name, ev.detail, ev.data.hex(" "))
             if ev.issue is ParseIssue.BAD_CHECK:
-                s.count("frame_errors")
+                s._count("frame_errors")
                 raise CheckByteError(f"{s.name}: reply with bad check byte ({ev.detail}): "
                                      f"{ev.data.hex(' ')}", ev.data)
             self._junk += len(ev.data)
             self._problem = f"{ev.issue.value}: {ev.data.hex(' ')}"
         header = parser.pending_header()
         if header is not None and header[0] == codec.SMA_R and header[1] != self._length:
-            s.count("frame_errors")
+            s._count("frame_errors")
             raise UnexpectedReplyError(f"{s.name}: reply length byte {header[1]}, expected {self._length}")
         if self._junk + parser.buffered >= size:
             # a whole reply's worth of bytes but no reply: allow only a short idle gap
@@ -263,7 +268,7 @@ class ReplyWaiter:
         s = self._s
         buffered = s.parser.buffered
         if self._junk or buffered:
-            s.count("frame_errors")
+            s._count("frame_errors")
             return G485FrameError(f"{s.name}: incomplete or garbled reply ({self._junk + buffered} byte(s) "
                                   f"unexplained{'; ' + self._problem if self._problem else ''})")
         return NoResponseError(f"{s.name}: no reply within {timeout or s.timeout:.3f} s")
@@ -284,6 +289,11 @@ class Transaction:
 
     def __init__(self, session: "Session", make: Callable[..., Flow], args: Tuple[Any, ...],
                  retries: Optional[int], after: Optional[Callable[[], None]] = None) -> None:
+        if not isinstance(session, Session) or not callable(make) or type(args) is not tuple:
+            raise G485ValueError("a Transaction is made by a Session (session.read(...), ...)")
+        if after is not None and not callable(after):
+            raise G485ValueError(f"after must be callable, not {type(after).__name__}")
+        retries = _opt_retries(retries)
         self._s = session
         self._make = make
         self._args = args
@@ -293,7 +303,7 @@ class Transaction:
         self._prefix = b""
         self._timeout: Optional[float] = None
         self._deadline = 0.0
-        self._waiter: Optional[ReplyWaiter] = None
+        self._waiter: Optional[_ReplyWaiter] = None
         self._after = after
 
     @property
@@ -303,21 +313,27 @@ class Transaction:
 
     def start(self, now: float) -> Action:
         """The first action (counts the transaction)."""
-        self._s.count("transactions")
+        if type(now) is not float or now - now:
+            now = _clock(now)
+        self._s._count("transactions")
         self._flow = self._make(*self._args)
         return self._next(None, now)
 
     def written(self, now: float) -> Action:
         """A :class:`Send` without a reply (``size`` 0) was written."""
+        if type(now) is not float or now - now:
+            now = _clock(now)
         return self._next(None, now)
 
     def receive(self, chunk: bytes, now: float) -> Action:
         """Bytes read from the port since the last action."""
+        if type(now) is not float or now - now:
+            now = _clock(now)
         waiter = self._waiter
         if waiter is None:
             if is_exact_reply(chunk, self._prefix) and not _debug():
                 return self._next(reply_packet(chunk), now)  # the common case: no waiter object
-            waiter = self._waiter = ReplyWaiter(self._s, self._prefix)
+            waiter = self._waiter = _ReplyWaiter(self._s, self._prefix)
         try:
             raw = waiter.feed(chunk)
         except RETRYABLE_ERRORS as exc:
@@ -330,16 +346,19 @@ class Transaction:
 
     def expire(self, now: float) -> Action:
         """Nothing (more) came: a retry or the failure once ``now`` is past the deadline."""
+        if type(now) is not float or now - now:
+            now = _clock(now)
         if now < self._deadline:
             return Wait(self._waiter.wanted() if self._waiter else reply_size(self._prefix), self._deadline)
-        waiter = self._waiter or ReplyWaiter(self._s, self._prefix)
+        waiter = self._waiter or _ReplyWaiter(self._s, self._prefix)
         return self._failed(waiter.expired(self._timeout), now)
 
     def _next(self, reply: Optional[Packet], now: float) -> Action:
         """Hand ``reply`` to the flow: its next exchange, its result, or a retry."""
         self._waiter = None
         flow = self._flow
-        assert flow is not None, "transaction not started or already over"
+        if flow is None:
+            raise G485ValueError("transaction not started, or already over")
         try:
             frame, prefix, timeout = flow.send(reply)
         except StopIteration as done:
@@ -350,7 +369,7 @@ class Transaction:
         except RETRYABLE_ERRORS as exc:
             return self._failed(exc, now)
         s = self._s
-        wire = s.wire(frame)
+        wire = s._wire(frame)
         if prefix is None:
             return Send(wire, 0, now)
         self._prefix = prefix
@@ -366,9 +385,9 @@ class Transaction:
         self._attempt += 1
         if self._attempt >= self._tries:
             self._flow = None
-            s.after_failure(exc)
+            s._after_failure(exc)
             return Fail(exc)
-        s.recover(exc)
+        s._recover(exc)
         self._flow = self._make(*self._args)
         return self._next(None, now)
 
@@ -410,6 +429,9 @@ class Session:
 
     def attach(self, name: str, baudrate: int) -> None:
         """The port is open: its name (for messages) and line speed (wire times, wake-up)."""
+        if not isinstance(name, str):
+            raise G485ValueError(f"name must be a str, not {type(name).__name__}")
+        baudrate = check_baud(baudrate, **_ERR)
         self.name = name
         self.byte_time = 10.0 / baudrate
         self.wake_up = (baudrate > WAKE_UP_BAUD_THRESHOLD) if self._wake_up_arg is None else self._wake_up_arg
@@ -420,13 +442,13 @@ class Session:
         """The counters now (a frozen snapshot)."""
         return MasterStats(**self._counts)
 
-    def count(self, what: str) -> None:
+    def _count(self, what: str) -> None:
         """Add one to counter ``what`` (a :class:`MasterStats` field)."""
         self._counts[what] += 1
 
     # -- between transactions --------------------------------------------------------
 
-    def wire(self, frame: bytes) -> bytes:
+    def _wire(self, frame: bytes) -> bytes:
         """The bytes to put on the wire for ``frame`` (with the wake-up preamble when due)."""
         if self.wake_pending:
             self.wake_pending = False
@@ -445,25 +467,25 @@ class Session:
     def reopened(self) -> None:
         """The driver reopened the port."""
         self.gone = False
-        self.count("reopens")
+        self._count("reopens")
         self.wake_pending = self.wake_up
         log.info("%s reopened", self.name)
 
-    def after_failure(self, error: BaseException) -> None:
+    def _after_failure(self, error: BaseException) -> None:
         """After a failed attempt (retried or not): count a missing reply, maybe wake the
         device before the next packet, forget buffered bytes."""
         if isinstance(error, NoResponseError):
-            self.count("no_response")
+            self._count("no_response")
             if self.wake_up and self.wake_after_no_response:
                 self.wake_pending = True
         self.parser.clear()
 
-    def recover(self, error: BaseException) -> None:
+    def _recover(self, error: BaseException) -> None:
         """Between attempts: count the retry (and a failed check), then :meth:`after_failure`."""
-        self.count("retries")
+        self._count("retries")
         if isinstance(error, (HandshakeMismatchError, RereadMismatchError)):
-            self.count("check_mismatches")
-        self.after_failure(error)
+            self._count("check_mismatches")
+        self._after_failure(error)
         log.info("%s retry after: %s", self.name, error)
 
     def believed_check_byte(self, address: int) -> Optional[int]:
@@ -489,13 +511,13 @@ class Session:
                 self._read_plans[(address, register, count)] = plan
         mode = self.check if check is None else as_check(check, self.check)
         return Transaction(self, self._read_flow, (plan[0], plan[1], address, mode, _opt_timeout(timeout)),
-                           _opt_retries(retries))
+                           retries)
 
     def write(self, address: int, register: int, data: Data, check: Union[Check, str, None] = None,
               timeout: Optional[float] = None, retries: Optional[int] = None) -> Transaction:
         """User-Register-Write (address 0: broadcast, unchecked, no reply)."""
         request = codec.decode_frame(codec.encode_write(address, register, data))
-        timeout, retries = _opt_timeout(timeout), _opt_retries(retries)
+        timeout = _opt_timeout(timeout)
         mode = as_check(check, self.check)
         if address == codec.BROADCAST:
             return Transaction(self, self._broadcast_flow, (request.raw,), 0)
@@ -518,7 +540,7 @@ class Session:
         """Set (address 0: broadcast, unchecked, no reply)."""
         cmd = codec.set_command(command)
         frame = codec.encode_set(address, cmd)
-        timeout, retries = _opt_timeout(timeout), _opt_retries(retries)
+        timeout = _opt_timeout(timeout)
         mode = as_check(check, self.check)
         use_guard = self.set_guard if guard is None else flag_arg(guard, "guard")
         if address == codec.BROADCAST:
@@ -537,18 +559,18 @@ class Session:
         request = codec.encode_error_word_request(address)
         return Transaction(self, self._error_word_flow,
                            (request, address, as_check(check, self.check), _opt_timeout(timeout)),
-                           _opt_retries(retries))
+                           retries)
 
     def handshake(self, address: int, timeout: Optional[float] = None,
                   retries: Optional[int] = None) -> Transaction:
         """Handshake-Request; result: the device's SDOC/SDIC."""
         self._handshake_request(address)  # validates
-        return Transaction(self, self._handshake_flow, (address, _opt_timeout(timeout)), _opt_retries(retries))
+        return Transaction(self, self._handshake_flow, (address, _opt_timeout(timeout)), retries)
 
     def probe(self, address: int, timeout: Optional[float] = None, retries: Optional[int] = 0) -> Transaction:
         """One scan probe: read register 7 (ID); result: ``address`` when the device answers as itself."""
         return Transaction(self, self._scan_flow, (_address(address, "scan address"), _opt_timeout(timeout)),
-                           _opt_retries(retries))
+                           retries)
 
     def scan_addresses(self, addresses: Iterable[int]) -> List[int]:
         """The IDs to scan, checked."""
@@ -769,12 +791,12 @@ class Session:
             self.device_check[address] = reply.check
             if reply.data[0] == address:
                 return address
-            self.count("ignored_frames")
+            self._count("ignored_frames")
             log.info("%s scan: probe of %d answered with ID %d (a late reply): probing again",
                      self.name, address, reply.data[0])
         self.device_check.pop(address, None)
         raise UnexpectedReplyError(f"{self.name}: device {address} kept answering with another ID")
 
 
-__all__ = ["Action", "Check", "Done", "Fail", "Flow", "MasterStats", "ReplyWaiter", "Send", "Session", "Step",
+__all__ = ["Action", "Check", "Done", "Fail", "Flow", "MasterStats", "Send", "Session", "Step",
            "Transaction", "Wait", "as_check", "flag_arg", "timeout_arg", "whole_arg"]
