@@ -276,6 +276,24 @@ class _ReplyWaiter:
 
 # -- one transaction: its flow, the reply matching and the retries ----------------------
 
+class _ReadOnce:
+    """The flow of a read without check operation: one exchange. Not a generator, so the
+    commonest transaction builds no frame object and raises no StopIteration."""
+
+    __slots__ = ("step", "_address", "_device_check")
+
+    def __init__(self, request: bytes, prefix: bytes, timeout: Optional[float], address: int,
+                 device_check: Dict[int, int]) -> None:
+        self.step: Step = (request, prefix, timeout)
+        self._address = address
+        self._device_check = device_check
+
+    def done(self, reply: Packet) -> bytes:
+        """The reply came: remember the device's check byte, return the data."""
+        self._device_check[self._address] = reply.check
+        return reply.data
+
+
 class Transaction:
     """One master transaction with its retries, driven by events (see the module docstring).
 
@@ -287,7 +305,7 @@ class Transaction:
     __slots__ = ("_s", "_make", "_args", "_tries", "_attempt", "_flow", "_prefix", "_timeout", "_deadline",
                  "_waiter", "_after")
 
-    def __init__(self, session: "Session", make: Callable[..., Flow], args: Tuple[Any, ...],
+    def __init__(self, session: "Session", make: Callable[..., Union[Flow, "_ReadOnce"]], args: Tuple[Any, ...],
                  retries: Optional[int], after: Optional[Callable[[], None]] = None) -> None:
         if not isinstance(session, Session) or not callable(make) or type(args) is not tuple:
             raise G485ValueError("a Transaction is made by a Session (session.read(...), ...)")
@@ -299,7 +317,7 @@ class Transaction:
         self._args = args
         self._tries = (session.retries if retries is None else retries) + 1
         self._attempt = 0
-        self._flow: Optional[Flow] = None
+        self._flow: Union[Flow, _ReadOnce, None] = None
         self._prefix = b""
         self._timeout: Optional[float] = None
         self._deadline = 0.0
@@ -357,17 +375,23 @@ class Transaction:
         """Hand ``reply`` to the flow: its next exchange, its result, or a retry."""
         self._waiter = None
         flow = self._flow
-        if flow is None:
+        if isinstance(flow, _ReadOnce):  # the hot path: no generator, no StopIteration
+            if reply is not None:
+                self._flow = None
+                return Done(flow.done(reply))
+            frame, prefix, timeout = flow.step
+        elif flow is None:
             raise G485ValueError("transaction not started, or already over")
-        try:
-            frame, prefix, timeout = flow.send(reply)
-        except StopIteration as done:
-            self._flow = None
-            if self._after is not None:
-                self._after()
-            return Done(done.value)
-        except RETRYABLE_ERRORS as exc:
-            return self._failed(exc, now)
+        else:
+            try:
+                frame, prefix, timeout = flow.send(reply)
+            except StopIteration as done:
+                self._flow = None
+                if self._after is not None:
+                    self._after()
+                return Done(done.value)
+            except RETRYABLE_ERRORS as exc:
+                return self._failed(exc, now)
         s = self._s
         wire = s._wire(frame)
         if prefix is None:
@@ -510,6 +534,9 @@ class Session:
                     self._read_plans.clear()
                 self._read_plans[(address, register, count)] = plan
         mode = self.check if check is None else as_check(check, self.check)
+        if mode is Check.NONE:
+            return Transaction(self, _ReadOnce, (plan[0], plan[1], _opt_timeout(timeout), address,
+                                                 self.device_check), retries)
         return Transaction(self, self._read_flow, (plan[0], plan[1], address, mode, _opt_timeout(timeout)),
                            retries)
 
