@@ -708,22 +708,27 @@ class Session:
                 f"{self.name}: {what} to device {address} failed the handshake: "
                 f"master 0x{expected:02x}, device 0x{got:02x}", expected, got)
 
-    def _read_flow(self, request: bytes, prefix: bytes, address: int, mode: Check,
-                   timeout: Optional[float]) -> Flow:
+    def _checked_flow(self, request: bytes, prefix: bytes, address: int, mode: Check, what: str,
+                      timeout: Optional[float]) -> Flow:
+        """One request and its check operation (handshake, or the same request again
+        and the same data); returns the reply."""
         reply = yield (request, prefix, timeout)
         assert reply is not None
         self.device_check[address] = reply.check
         if mode is Check.HANDSHAKE:
-            yield from self._verify_flow(address, reply.check, "read", timeout)
+            yield from self._verify_flow(address, reply.check, what, timeout)
         elif mode is Check.REREAD:
             again = yield (request, prefix, timeout)
             assert again is not None
             self.device_check[address] = again.check
             if again.data != reply.data:
-                register = reply.register
-                raise RereadMismatchError(f"{self.name}: device {address} registers {register}.."
-                                          f"{register + len(reply.data) - 1} read {reply.data.hex(' ')} "
+                raise RereadMismatchError(f"{self.name}: device {address} {what}: {reply.data.hex(' ')}, "
                                           f"then {again.data.hex(' ')}")
+        return reply
+
+    def _read_flow(self, request: bytes, prefix: bytes, address: int, mode: Check,
+                   timeout: Optional[float]) -> Flow:
+        reply = yield from self._checked_flow(request, prefix, address, mode, "read", timeout)
         return reply.data
 
     def _guard_flow(self, address: int, mdoc: int, timeout: Optional[float]) -> Flow:
@@ -771,20 +776,9 @@ class Session:
                                           f"{bytes(want).hex(' ')}")
 
     def _error_word_flow(self, request: bytes, address: int, mode: Check, timeout: Optional[float]) -> Flow:
-        reply = yield (request, _ERROR_WORD_PREFIX, timeout)
-        assert reply is not None
-        self.device_check[address] = reply.check
-        word = reply.error_word
-        if mode is Check.HANDSHAKE:
-            yield from self._verify_flow(address, reply.check, "error-word read", timeout)
-        elif mode is Check.REREAD:
-            again = yield (request, _ERROR_WORD_PREFIX, timeout)
-            assert again is not None
-            self.device_check[address] = again.check
-            if again.error_word != word:
-                raise RereadMismatchError(f"{self.name}: device {address} error word read "
-                                          f"0x{word:04x} then 0x{again.error_word:04x}")
-        return word
+        reply = yield from self._checked_flow(request, _ERROR_WORD_PREFIX, address, mode, "error-word read",
+                                              timeout)
+        return reply.error_word
 
     def _set_flow(self, frame: bytes, address: int, answer_at: int, cmd: SetCommand, mode: Check,
                   use_guard: bool, timeout: Optional[float]) -> Flow:
