@@ -173,10 +173,13 @@ class Send(NamedTuple):
 
 
 class Wait(NamedTuple):
-    """Read up to ``size`` more bytes, waiting until ``deadline``."""
+    """Read up to ``size`` more bytes, waiting until ``deadline``. The bytes cannot all be
+    there before ``ready_at`` (their wire time at the line's baud rate): a driver may
+    sleep until then instead of waking up for every byte of a paced line."""
 
     size: int
     deadline: float
+    ready_at: float = 0.0
 
 
 class Done(NamedTuple):
@@ -360,7 +363,9 @@ class Transaction:
             return self._next(reply_packet(raw), now)
         if waiter.settle:
             self._deadline = min(self._deadline, now + waiter.settle)
-        return Wait(waiter.wanted(), self._deadline)
+        wanted = waiter.wanted()
+        # the last of them is on the wire (wanted - 1) byte times from now at the earliest
+        return Wait(wanted, self._deadline, now + (wanted - 1) * self._s.byte_time)
 
     def expire(self, now: float) -> Action:
         """Nothing (more) came: a retry or the failure once ``now`` is past the deadline."""
