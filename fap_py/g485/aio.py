@@ -25,7 +25,7 @@ from typing import Any, Callable, Iterable, Iterator, List, Optional, Tuple, Typ
 from ..errors import ClosedError, FapError, PortGoneError
 from .codec import Data, SetCommand
 from .errors import G485FrameError, G485ValueError, NoResponseError
-from .master import MIN_PAUSE, G485Master
+from .master import G485Master
 from .transaction import Action, Check, Done, Send, Transaction, Wait
 from .transport import IO, PortIO, PortSpec
 
@@ -59,7 +59,6 @@ class AsyncG485Master:
         self._future: Optional["asyncio.Future[Action]"] = None
         self._deadline = 0.0
         self._timer: Optional[asyncio.TimerHandle] = None
-        self._resume: Optional[asyncio.TimerHandle] = None  # reading again after a pause
         self._closed = False
         master.on_close(self._on_master_closed)
 
@@ -141,23 +140,11 @@ class AsyncG485Master:
         self._step(action)
 
     def _step(self, action: Action) -> None:
-        """More bytes wanted: keep waiting (maybe less long; not reading until the rest can
-        be there: one wake-up instead of one per byte of a paced line); anything else ends
-        the wait."""
-        if not isinstance(action, Wait):
+        """More bytes wanted: keep waiting (maybe less long); anything else ends the wait."""
+        if type(action) is Wait:
+            self._arm(action.deadline)
+        else:
             self._finish(action)
-            return
-        self._arm(action.deadline)
-        loop = self._running_loop()
-        until = min(action.ready_at, action.deadline)
-        if until - loop.time() >= MIN_PAUSE and self._watching >= 0:
-            self._unwatch()
-            self._resume = loop.call_at(until, self._on_resume)
-
-    def _on_resume(self) -> None:
-        self._resume = None
-        if self._tx is not None and not self._closed:
-            self._watch()  # level-triggered: what arrived meanwhile is read at once
 
     def _arm(self, deadline: float) -> None:
         """Wake up at ``deadline`` at the latest. One timer serves many exchanges: it is
@@ -202,8 +189,6 @@ class AsyncG485Master:
         try:
             while True:
                 if isinstance(action, Send):
-                    if self._watching < 0:  # after a pause or a failed port
-                        self._watch()
                     if isinstance(io, PortIO):  # discard stale input and write: one call into C
                         io.send_fresh(action.wire)
                     else:
@@ -240,7 +225,7 @@ class AsyncG485Master:
         loop = asyncio.get_running_loop()
         if self._loop is not loop or self._lock is None:
             self._unwatch()
-            self._timer = self._resume = None  # belonged to the old loop
+            self._timer = None  # belonged to the old loop
             self._loop = loop
             self._lock = asyncio.Lock()
         return self._lock
@@ -342,10 +327,9 @@ class AsyncG485Master:
             self._executor.shutdown(wait=True)
             return
         self._unwatch()
-        for handle in (self._timer, self._resume):
-            if handle is not None:
-                handle.cancel()
-        self._timer = self._resume = None
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
         self.master.close()
 
     async def __aenter__(self) -> "AsyncG485Master":

@@ -47,8 +47,6 @@ from .transaction import (  # noqa: F401  (COMMAND_REGISTER, ID_REGISTER, Flow, 
 from .transport import IO, PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485")
-#: shortest sleep through a reply's remaining wire time (s): below it, waking per chunk costs less
-MIN_PAUSE = 0.0002
 
 def seconds(value: Any, what: str = "timeout") -> float:
     """Deprecated alias of :func:`fap_py.g485.transaction.timeout_arg`."""
@@ -262,11 +260,7 @@ class G485Master:
                             continue
                         chunk = io.read_within(size, max(0.0, deadline - now()))
                 elif kind is Wait:
-                    size, deadline, ready_at = action
-                    pause = min(ready_at, deadline) - now()
-                    if pause >= MIN_PAUSE:  # sleep through the rest's wire time: one wake-up, not one a byte
-                        time.sleep(pause)
-                    chunk = io.read_some(size, deadline)
+                    chunk = io.read_some(action.size, action.deadline)
                 elif kind is Done:
                     return action.value
                 else:

@@ -173,13 +173,10 @@ class Send(NamedTuple):
 
 
 class Wait(NamedTuple):
-    """Read up to ``size`` more bytes, waiting until ``deadline``. The bytes cannot all be
-    there before ``ready_at`` (their wire time at the line's baud rate): a driver may
-    sleep until then instead of waking up for every byte of a paced line."""
+    """Read up to ``size`` more bytes, waiting until ``deadline``."""
 
     size: int
     deadline: float
-    ready_at: float = 0.0
 
 
 class Done(NamedTuple):
@@ -363,9 +360,7 @@ class Transaction:
             return self._next(reply_packet(raw), now)
         if waiter.settle:
             self._deadline = min(self._deadline, now + waiter.settle)
-        wanted = waiter.wanted()
-        # the last of them is on the wire (wanted - 1) byte times from now at the earliest
-        return Wait(wanted, self._deadline, now + (wanted - 1) * self._s.byte_time)
+        return Wait(waiter.wanted(), self._deadline)
 
     def expire(self, now: float) -> Action:
         """Nothing (more) came: a retry or the failure once ``now`` is past the deadline."""
