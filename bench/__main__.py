@@ -725,7 +725,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                 import paired as g485_paired  # bench/g485/paired.py
                 res["g485_paired"] = {}
                 res["g485_targets"] = [t.as_dict() for t in g485_paired.targets(
-                    [b for b in bauds if b >= 115200], max(5, rounds), res["g485_paired"])]
+                    [b for b in bauds if b >= 115200], results=res["g485_paired"])]
             except Exception as e:
                 log.warning("g485 paired: %s", e)
         bar.advance("codec throughput")

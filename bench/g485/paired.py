@@ -1,6 +1,6 @@
 """G485 against the bare Python floor, paired: the one G485 measurement of issue 24.
 
-Three clients take turns in short batches, each on its own paced virtual bus
+Three clients take turns in short batches (21 rounds by default), each on its own paced virtual bus
 (same baud, same pacing): the bare Python client against the canned
 responder (``bench_g485.py --serve canned``: no protocol at all, the floor),
 the blocking ``G485Master`` and the asyncio ``AsyncG485Master`` against
@@ -36,14 +36,14 @@ def _loadavg() -> str:
         return " ".join(f.read().split()[:3])
 
 
-def measure(baud: int, paced: bool = True, rounds: int = 5, batch: Optional[int] = None) -> Dict[str, Any]:
+def measure(baud: int, paced: bool = True, rounds: int = 21, batch: Optional[int] = None) -> Dict[str, Any]:
     """``rounds`` interleaved batches of the three clients; rates, CPU and ratios per round."""
     from fap_py.g485 import G485Master
     from fap_py.g485.aio import AsyncG485Master
     from fap_py.vbus import VirtualBus
 
-    if batch is None:  # about 0.2 s per batch at the bus's pace
-        batch = max(50, min(500, baud // 1000)) if paced else 200
+    if batch is None:  # about 0.05-0.1 s per batch at the bus's pace: short, so a load swing
+        batch = max(20, min(250, baud // 4000)) if paced else 100  # rarely splits a round
     me = [sys.executable, os.path.join(HERE, "bench_g485.py"), "--baud", str(baud)]
     pace = baud if paced else None
     load_before = _loadavg()
@@ -127,7 +127,7 @@ def report(res: Dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def targets(bauds: Sequence[int] = (115200, 1000000), rounds: int = 5,
+def targets(bauds: Sequence[int] = (115200, 1000000), rounds: int = 21,
             results: Optional[Dict[str, Any]] = None) -> List[Any]:
     """The issue-24 G485 targets as :class:`bench.targets.Target` rows (``results``: filled
     with the raw measurements per baud, for results.json)."""
