@@ -204,8 +204,8 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
     from fap_py.g485.codec import reply_prefix
     from fap_py.g485.device import SimDevice
     from fap_py.g485.master import G485Master, ReplyWaiter
-    from fap_py.g485.transaction import Session
     from fap_py.g485.simulator import Simulator
+    from fap_py.g485.transaction import Session
     from fap_py.g485.transport import PortIO, SerialIO
     from fap_py.monitor.pcap import PcapWriter
     from fap_py.monitor.sources import LivePort
