@@ -395,75 +395,12 @@ def run_one(args: argparse.Namespace, rnd: int, server_argv: List[str],
 
 
 def paired(args: argparse.Namespace) -> int:
-    """Short interleaved batches (sync master, async master, bare poll client) on their own buses:
-    a loaded machine slows all three alike within a batch pair, so the median ratios hold
-    where whole-run rates swing by 10x."""
-    from fap_py.g485 import G485Master
-    from fap_py.g485.aio import AsyncG485Master
-    from fap_py.vbus import VirtualBus
+    """The sync and async G485 masters and the bare poll client in interleaved batches, each on
+    its own bus: ``paired.py``, the measurement ``python -m bench`` reports as its G485 targets
+    (with ``--paced``, the same setup)."""
+    import paired as p
 
-    me = [sys.executable, os.path.abspath(__file__), "--baud", str(args.baud)]
-    with VirtualBus(ports=2, seed=1) as gbus, VirtualBus(ports=2, seed=2) as bbus:
-        sim = start_server([sys.executable, "-m", "fap_py", "g485", "sim", "--address", "1", "--baud",
-                            str(args.baud), "--port", gbus.paths[1]])
-        canned = start_server(me + ["--serve", "canned", bbus.paths[1]])
-        try:
-            master = G485Master(gbus.paths[0], args.baud, timeout=0.5, check="none")
-            amaster = AsyncG485Master(master=master)
-            bare, bare_close, _ = bare_client(bbus.paths[0], spin=False)
-            loop = asyncio.new_event_loop()
-
-            def sync_batch() -> None:
-                for _ in range(args.batch):
-                    master.read(1, 1, REGS)
-
-            async def async_reads() -> None:
-                for _ in range(args.batch):
-                    await amaster.read(1, 1, REGS)
-
-            def bare_batch() -> None:
-                for _ in range(args.batch):
-                    bare()
-
-            kinds = {"sync": sync_batch, "async": lambda: loop.run_until_complete(async_reads()),
-                     "bare": bare_batch}
-            for fn in kinds.values():
-                fn()  # warm up
-            rates: Dict[str, List[float]] = {k: [] for k in kinds}
-            cpus: Dict[str, List[float]] = {k: [] for k in kinds}
-            failed = 0
-            end = time.monotonic() + args.seconds
-            while time.monotonic() < end:
-                round_rates, round_cpus = {}, {}
-                try:
-                    for k, fn in kinds.items():
-                        c0, t0 = time.thread_time(), time.perf_counter()
-                        fn()
-                        dt, dc = time.perf_counter() - t0, time.thread_time() - c0
-                        round_rates[k], round_cpus[k] = args.batch / dt, dc / args.batch * 1e6
-                except Exception:  # a read that timed out spoils the round for everyone
-                    failed += 1
-                    continue
-                for k in kinds:
-                    rates[k].append(round_rates[k])
-                    cpus[k].append(round_cpus[k])
-            loop.close()
-            master.close()
-            bare_close()
-        finally:
-            for proc in (sim, canned):
-                proc.terminate()
-                proc.wait(5)
-    med = {k: sorted(v)[len(v) // 2] for k, v in rates.items()}
-    ratio_sb = sorted(s / b for s, b in zip(rates["sync"], rates["bare"]))
-    ratio_as = sorted(a / s for a, s in zip(rates["async"], rates["sync"]))
-    print(f"paired batches of {args.batch} reads, {len(rates['sync'])} rounds ({failed} dropped: a read "
-          f"failed), unpaced virtual bus, load {open('/proc/loadavg').read().split()[0]} at the end")
-    for k in kinds:
-        c = sorted(cpus[k])[len(cpus[k]) // 2]
-        print(f"  {k:6} median {med[k]:8.0f} reads/s   client CPU {c:6.1f} us/read")
-    print(f"  sync/bare  median of per-round ratios {ratio_sb[len(ratio_sb) // 2]:.2f}")
-    print(f"  async/sync median of per-round ratios {ratio_as[len(ratio_as) // 2]:.2f}")
+    print(p.report(p.measure(args.baud, args.paced, args.rounds, args.batch)))
     return 0
 
 
@@ -477,8 +414,9 @@ def main() -> int:
                                    "minimalmodbus,pymodbus-sync,pymodbus-async,bare-block,bare-spin")
     ap.add_argument("--paired", action="store_true",
                     help="interleaved short batches of the sync and async G485 masters and the bare poll "
-                         "client for --seconds: robust ratios on a loaded machine")
-    ap.add_argument("--batch", type=int, default=100, help="reads per batch with --paired")
+                         "client, --rounds of them: robust ratios on a loaded machine (with --paced: the "
+                         "measurement python -m bench reports)")
+    ap.add_argument("--batch", type=int, help="reads per batch with --paired (default: about 0.2 s of reads)")
     ap.add_argument("--serve", nargs=2, metavar=("KIND", "PATH"), help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.paired:

@@ -1,13 +1,14 @@
-"""asyncio front end of the G485 master: no worker thread.
+"""asyncio driver of the G485 master: no worker thread.
 
-The master's transactions are sans-I/O flows (:mod:`fap_py.g485.master`):
-each yields the exchanges it needs and is sent the replies back. Here the
-event loop drives them: the request is written (one short call into the
-port layer), the port's fd is watched with ``loop.add_reader`` for as long
-as the front end is open, every chunk read goes to the transaction's
-:class:`~fap_py.g485.master.ReplyWaiter`, and a loop timer raises the
-timeout. Timeouts, retries, checks, the wake-up preamble and the stale-input
-discard are the sync master's own code. A port without a file descriptor (a
+The transactions are sans-I/O (:mod:`fap_py.g485.transaction`): a
+:class:`~fap_py.g485.transaction.Transaction` says what to send and until
+when to wait, and is handed what arrives. Here the event loop performs
+that: the request is written (one short call into the port layer), the
+port's fd is watched with ``loop.add_reader`` for as long as the front end
+is open, every chunk read goes to the transaction, and a loop timer tells it
+when its deadline passed. Timeouts, retries, checks, the wake-up preamble
+and the reply matching are the transaction's, shared with the blocking
+:class:`~fap_py.g485.master.G485Master`. A port without a file descriptor (a
 pyserial object such as ``loop://``) falls back to one worker thread.
 
 A write into the port layer returns once the bytes are handed to the
@@ -19,13 +20,14 @@ from __future__ import annotations
 import asyncio
 import functools
 from concurrent.futures import ThreadPoolExecutor
-from typing import Any, Callable, Iterable, List, Optional, Tuple, TypeVar, Union
+from typing import Any, Callable, Iterable, Iterator, List, Optional, Tuple, TypeVar, Union
 
 from ..errors import ClosedError, FapError, PortGoneError
-from .codec import SetCommand
-from .errors import RETRYABLE_ERRORS, G485Error, G485FrameError, G485ValueError, NoResponseError
-from .master import Check, Data, Flow, G485Master, ReplyWaiter
-from .transport import PortSpec
+from .codec import Data, SetCommand
+from .errors import G485FrameError, G485ValueError, NoResponseError
+from .master import G485Master
+from .transaction import Action, Check, Done, Send, Transaction, Wait
+from .transport import IO, PortIO, PortSpec
 
 T = TypeVar("T")
 
@@ -47,20 +49,18 @@ class AsyncG485Master:
         elif not isinstance(master, G485Master):
             raise G485ValueError(f"master must be a G485Master, not {type(master).__name__}")
         self.master = master
-        self._fd = master.fd
         self._executor: Optional[ThreadPoolExecutor] = None
-        if self._fd is None:  # no fd to watch: one worker thread runs the blocking master
+        if master.fd is None:  # no fd to watch: one worker thread runs the blocking master
             self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="g485-aio")
         self._loop: Optional[asyncio.AbstractEventLoop] = None
         self._lock: Optional[asyncio.Lock] = None
         self._watching = -1  # the fd add_reader watches (-1: none)
-        self._waiter: Optional[ReplyWaiter] = None
-        self._future: Optional["asyncio.Future[bytes]"] = None
-        self._timeout: Optional[float] = None
+        self._tx: Optional[Transaction] = None  # the transaction awaiting bytes
+        self._future: Optional["asyncio.Future[Action]"] = None
         self._deadline = 0.0
         self._timer: Optional[asyncio.TimerHandle] = None
         self._closed = False
-        master._close_hooks.append(self._on_master_closed)
+        master.on_close(self._on_master_closed)
 
     def _on_master_closed(self) -> None:
         """The master was closed (here or from another thread): the exchange in
@@ -85,6 +85,11 @@ class AsyncG485Master:
         self._unwatch()
         self._finish(exc=exc)
 
+    def _running_loop(self) -> asyncio.AbstractEventLoop:
+        loop = self._loop
+        assert loop is not None, "used outside a transaction"
+        return loop
+
     # -- the reader: every chunk from the port -----------------------------------
 
     def _watch(self) -> None:
@@ -93,7 +98,7 @@ class AsyncG485Master:
             return
         if fd != self._watching:
             self._unwatch()
-            self._loop.add_reader(fd, self._on_readable)  # type: ignore[union-attr]
+            self._running_loop().add_reader(fd, self._on_readable)
             self._watching = fd
 
     def _unwatch(self) -> None:
@@ -102,27 +107,44 @@ class AsyncG485Master:
         self._watching = -1
 
     def _on_readable(self) -> None:
-        io = self.master._io
         try:
-            chunk = io.read_nowait(4096)  # type: ignore[union-attr]
+            chunk = self.master.io.read_nowait(4096)
         except FapError as exc:
             self._unwatch()  # a vanished port stays readable: do not spin on it
             self._finish(exc=exc)
             return
-        waiter = self._waiter
-        if not chunk or waiter is None:
+        tx = self._tx
+        if not chunk or tx is None:
             return  # nobody waits: stale input, discarded before the next request anyway
         try:
-            raw = waiter.feed(chunk)
-        except G485Error as exc:
+            action = tx.receive(chunk, self._running_loop().time())
+        except FapError as exc:
             self._finish(exc=exc)
             return
-        if raw is not None:
-            self._finish(raw)
-        elif waiter.settle:
-            deadline = min(self._deadline, self._loop.time() + waiter.settle)  # type: ignore[union-attr]
-            if deadline < self._deadline:
-                self._arm(deadline)
+        self._step(action)
+
+    def _on_timeout(self) -> None:
+        self._timer = None
+        tx = self._tx
+        if tx is None:
+            return  # armed for an exchange that is over
+        loop = self._running_loop()
+        if loop.time() < self._deadline:  # an early timer: wait on
+            self._timer = loop.call_at(self._deadline, self._on_timeout)
+            return
+        try:
+            action = tx.expire(loop.time())
+        except FapError as exc:
+            self._finish(exc=exc)
+            return
+        self._step(action)
+
+    def _step(self, action: Action) -> None:
+        """More bytes wanted: keep waiting (maybe less long); anything else ends the wait."""
+        if type(action) is Wait:
+            self._arm(action.deadline)
+        else:
+            self._finish(action)
 
     def _arm(self, deadline: float) -> None:
         """Wake up at ``deadline`` at the latest. One timer serves many exchanges: it is
@@ -134,105 +156,88 @@ class AsyncG485Master:
             if timer.when() <= deadline:
                 return
             timer.cancel()
-        self._timer = self._loop.call_at(deadline, self._on_timeout)  # type: ignore[union-attr]
+        self._timer = self._running_loop().call_at(deadline, self._on_timeout)
 
-    def _on_timeout(self) -> None:
-        self._timer = None
-        waiter = self._waiter
-        if waiter is None:
-            return  # armed for an exchange that is over
-        if self._loop.time() < self._deadline:  # type: ignore[union-attr]
-            self._timer = self._loop.call_at(self._deadline, self._on_timeout)  # type: ignore[union-attr]
-            return
-        self._finish(exc=waiter.expired(self._timeout))
-
-    def _finish(self, raw: Optional[bytes] = None, exc: Optional[BaseException] = None) -> None:
+    def _finish(self, action: Optional[Action] = None, exc: Optional[BaseException] = None) -> None:
         fut = self._future
         if fut is None or fut.done():
             return
-        self._waiter = None
-        if exc is not None:
-            fut.set_exception(exc)
+        self._tx = None
+        if action is not None:
+            fut.set_result(action)
         else:
-            fut.set_result(raw)  # type: ignore[arg-type]
+            fut.set_exception(exc or ClosedError(f"{self.master.name}: exchange abandoned"))
 
-    # -- driving the flows -----------------------------------------------------------
+    # -- the driver ------------------------------------------------------------------
 
-    async def _exchange(self, frame: bytes, prefix: Optional[bytes], timeout: Optional[float]) -> Optional[bytes]:
-        m = self.master
-        io = m._io
+    def _ready(self) -> IO:
+        if self._closed:
+            raise ClosedError(f"{self.master.name}: master closed")
+        gone = self.master.session.gone
+        io = self.master.ready_io()  # reopens a vanished port: the fd may be a new one
+        if gone:
+            self._unwatch()
         if self._watching < 0:  # first exchange, or after the port failed
             self._watch()
-        if m._fast_io:  # a late reply to an earlier request is not this one's: discard + write in C
-            io.send_fresh(m._wire(frame))  # type: ignore[union-attr]
-        else:
-            io.flush_input()  # type: ignore[union-attr]
-            io.write(m._wire(frame))  # type: ignore[union-attr]
-        if prefix is None:
-            return None
-        loop = self._loop
-        self._waiter = ReplyWaiter(m, prefix)
-        self._timeout = timeout
-        self._future = fut = loop.create_future()  # type: ignore[union-attr]
-        self._arm(loop.time() + m._reply_wait(prefix, timeout))  # type: ignore[union-attr]
+        return io
+
+    async def _drive(self, tx: Transaction) -> Any:
+        """Do what ``tx`` asks until it is done (the caller holds the lock)."""
+        loop = self._running_loop()
+        io = self._ready()
+        action: Action = tx.start(loop.time())
+        try:
+            while True:
+                if isinstance(action, Send):
+                    if isinstance(io, PortIO):  # discard stale input and write: one call into C
+                        io.send_fresh(action.wire)
+                    else:
+                        io.flush_input()
+                        io.write(action.wire)
+                    if not action.size:
+                        action = tx.written(loop.time())
+                        continue
+                    action = await self._reply(tx, action.deadline)
+                elif isinstance(action, Wait):
+                    action = await self._reply(tx, action.deadline)
+                elif isinstance(action, Done):
+                    return action.value
+                else:
+                    io.flush_input()
+                    raise action.error
+        except PortGoneError:
+            self.master.session.port_gone()
+            self._unwatch()
+            raise
+
+    async def _reply(self, tx: Transaction, deadline: float) -> Action:
+        """Wait for the reader or the timer to move ``tx`` on."""
+        self._tx = tx
+        self._future = fut = self._running_loop().create_future()
+        self._arm(deadline)
         try:
             return await fut
         finally:
-            self._waiter = None
+            self._tx = None
             self._future = None
-
-    async def _drive(self, flow: Flow) -> Any:
-        try:
-            step = next(flow)
-            while True:
-                step = flow.send(await self._exchange(*step))
-        except StopIteration as done:
-            return done.value
-
-    async def _run_locked(self, make_flow: Callable[..., Flow], retries: Optional[int], *args: Any) -> Any:
-        return await self._attempts(self._flow_attempt, retries, make_flow, *args)
-
-    async def _flow_attempt(self, make_flow: Callable[..., Flow], *args: Any) -> Any:
-        return await self._drive(make_flow(*args))
-
-    async def _attempts(self, attempt: Callable[..., Any], retries: Optional[int], *args: Any) -> Any:
-        """``await attempt(*args)`` until it succeeds or the retries are used up (the lock is held);
-        the bookkeeping between attempts is the sync master's."""
-        m = self.master
-        if m._io is None or m._io.closed or self._closed:
-            raise ClosedError(f"{m.name}: master closed")
-        if m._gone:
-            m._before()  # reopen: the fd may be a new one
-            self._unwatch()
-        m.stats.transactions += 1
-        tries = (m.retries if retries is None else retries) + 1
-        n = 0
-        while True:
-            try:
-                return await attempt(*args)
-            except RETRYABLE_ERRORS as exc:
-                n += 1
-                if n >= tries:
-                    m._after_failure(exc)
-                    raise
-                m._recover(exc)
-            except PortGoneError:
-                m._gone = True
-                self._unwatch()
-                raise
 
     def _begin(self) -> asyncio.Lock:
         loop = asyncio.get_running_loop()
-        if self._loop is not loop:
+        if self._loop is not loop or self._lock is None:
             self._unwatch()
             self._timer = None  # belonged to the old loop
             self._loop = loop
             self._lock = asyncio.Lock()
-        return self._lock  # type: ignore[return-value]
+        return self._lock
 
-    async def _run(self, make_flow: Callable[..., Flow], retries: Optional[int], *args: Any) -> Any:
+    async def _run(self, tx: Transaction) -> Any:
         async with self._begin():
-            return await self._run_locked(make_flow, retries, *args)
+            return await self._drive(tx)
+
+    async def _run_all(self, txs: Iterator[Transaction]) -> None:
+        async with self._begin():
+            for tx in txs:
+                await self._drive(tx)
 
     async def _call(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> T:
         """The fallback without an fd: the blocking master in the worker thread."""
@@ -248,23 +253,7 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(self.master.read, address, register, count, check=check, timeout=timeout,
                                     retries=retries)
-        m = self.master
-        if check is None and timeout is None and retries is None and m.check is Check.NONE:
-            plan = m._read_plans.get((address, register, count)) if type(address) is int else None
-            if plan is not None and plan[3] is register and plan[4] is count:
-                return await self._read_none(plan, address)  # the hot path: one exchange, no flow
-        make, r, *args = m._plan_read(address, register, count, check, timeout, retries)
-        return await self._run(make, r, *args)
-
-    async def _read_none(self, plan: Any, address: int) -> bytes:
-        """:meth:`G485Master._read_none` on the loop: no flow object."""
-        async with self._begin():
-            return await self._attempts(self._read_none_attempt, None, plan, address)
-
-    async def _read_none_attempt(self, plan: Any, address: int) -> bytes:
-        reply = await self._exchange(plan[0], plan[1], None)
-        self.master._device_check[address] = reply[-1]  # type: ignore[index]
-        return reply[5:-1]  # type: ignore[index]
+        return await self._run(self.master.session.read(address, register, count, check, timeout, retries))
 
     async def write(self, address: int, register: int, data: Data, *,
                     check: Union[Check, str, None] = None, timeout: Optional[float] = None,
@@ -273,9 +262,7 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(self.master.write, address, register, data, check=check,
                                     timeout=timeout, retries=retries)
-        (make, r, *args), after = self.master._plan_write(address, register, data, check, timeout, retries)
-        await self._run(make, r, *args)
-        after()
+        await self._run(self.master.session.write(address, register, data, check, timeout, retries))
 
     async def error_word(self, address: int, *, check: Union[Check, str, None] = None,
                          timeout: Optional[float] = None, retries: Optional[int] = None) -> int:
@@ -283,8 +270,7 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(self.master.error_word, address, check=check, timeout=timeout,
                                     retries=retries)
-        make, r, *args = self.master._plan_error_word(address, check, timeout, retries)
-        return await self._run(make, r, *args)
+        return await self._run(self.master.session.error_word(address, check, timeout, retries))
 
     async def set(self, address: int, command: Union[SetCommand, int, str], *,
                   check: Union[Check, str, None] = None, guard: Optional[bool] = None,
@@ -294,18 +280,15 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(self.master.set, address, command, check=check, guard=guard,
                                     timeout=timeout, retries=retries, factory_address=factory_address)
-        (make, r, *args), after = self.master._plan_set(address, command, check, guard, timeout, retries,
-                                                        factory_address)
-        await self._run(make, r, *args)
-        after()
+        await self._run(self.master.session.set(address, command, check, guard, timeout, retries,
+                                                factory_address))
 
     async def handshake(self, address: int, *, timeout: Optional[float] = None,
                         retries: Optional[int] = None) -> int:
         """See :meth:`G485Master.handshake`."""
         if self._executor is not None:
             return await self._call(self.master.handshake, address, timeout=timeout, retries=retries)
-        make, r, *args = self.master._plan_handshake(address, timeout, retries)
-        return await self._run(make, r, *args)
+        return await self._run(self.master.session.handshake(address, timeout, retries))
 
     async def scan(self, addresses: Iterable[int] = range(1, 127), *, timeout: Optional[float] = None,
                    retries: Optional[int] = 0) -> List[int]:
@@ -313,14 +296,11 @@ class AsyncG485Master:
         m = self.master
         if self._executor is not None:
             return await self._call(m.scan, addresses, timeout=timeout, retries=retries)
-        from .master import _retries_arg, _timeout_arg
-
-        items = m._scan_addresses(addresses)
-        timeout, retries = _timeout_arg(timeout), _retries_arg(retries)
+        s = m.session
         found = []
-        for address in items:
+        for tx in [s.probe(a, timeout, retries) for a in s.scan_addresses(addresses)]:
             try:
-                found.append(await self._run(m._scan_flow, retries, address, timeout))
+                found.append(await self._run(tx))
             except (NoResponseError, G485FrameError):
                 pass
         return found
@@ -333,27 +313,7 @@ class AsyncG485Master:
         if self._executor is not None:
             return await self._call(m.sync_write, list(writes), check=check, apply_repeats=apply_repeats,
                                     back_to_real_time=back_to_real_time)
-        items = m._sync_items(writes)
-        async with self._begin():
-            done: List[int] = []
-
-            async def do_set(address: int, cmd: SetCommand) -> None:
-                (make, r, *args), after = m._plan_set(address, cmd, check, None, None, None, None)
-                await self._run_locked(make, r, *args)
-                after()
-
-            for address, register, data in items:
-                if address not in done:
-                    await do_set(address, SetCommand.NON_REAL_TIME_WRITE)
-                    done.append(address)
-                (make, r, *args), after = m._plan_write(address, register, data, check, None, None)
-                await self._run_locked(make, r, *args)
-                after()
-            for _ in range(apply_repeats):
-                await do_set(0, SetCommand.APPLY_WRITES)
-            if back_to_real_time:
-                for address in done:
-                    await do_set(address, SetCommand.REAL_TIME_WRITE)
+        await self._run_all(m.session.sync_write(writes, check, apply_repeats, back_to_real_time))
 
     # -- lifetime ---------------------------------------------------------------------
 

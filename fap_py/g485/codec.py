@@ -239,6 +239,50 @@ def is_exact_reply(chunk: bytes, prefix: bytes) -> bool:
             and sum(chunk) & 0xFF == FRAME_SUM)
 
 
+def _prefix_of(prefix: bytes) -> bytes:
+    """``prefix`` if it is the 5 bytes of a :func:`reply_prefix` (one type test on the hot path)."""
+    if type(prefix) is not bytes:
+        prefix = _raw(prefix, "prefix")
+    if len(prefix) != len(START) + 3 or not prefix.startswith(START):
+        raise G485ValueError(f"prefix must be the 5 bytes of reply_prefix(), not {prefix!r}")
+    return prefix
+
+
+def _frame_of(frame: bytes) -> bytes:
+    """``frame`` if it is bytes of a whole frame's length (its LENGTH byte agrees)."""
+    if type(frame) is not bytes:
+        frame = _raw(frame, "frame")
+    if len(frame) < HEADER_SIZE + MIN_LENGTH or frame[3] + HEADER_SIZE != len(frame):
+        raise G485ValueError(f"not a whole G485 frame: {frame.hex(' ')}")
+    return frame
+
+
+def reply_size(prefix: bytes) -> int:
+    """Bytes of the whole reply a :func:`reply_prefix` announces."""
+    return HEADER_SIZE + _prefix_of(prefix)[3]
+
+
+def prefix_pid(prefix: bytes) -> int:
+    """The PID (register, HPID or EPID) of the reply a :func:`reply_prefix` announces."""
+    return _prefix_of(prefix)[4]
+
+
+_REPLY_KIND = {HPID: PacketKind.HANDSHAKE_RESPONSE, EPID: PacketKind.ERROR_WORD_RESPONSE}
+
+
+def reply_packet(frame: bytes) -> Packet:
+    """The :class:`Packet` of a reply frame already checked against its prefix
+    (:func:`is_exact_reply` or the :class:`Parser`): no second classification."""
+    frame = _frame_of(frame)
+    return Packet(_REPLY_KIND.get(frame[4], PacketKind.READ_RESPONSE), MASTER_ADDRESS, frame[4],
+                  frame[5:-1], frame[-1], frame)
+
+
+def frame_check(frame: bytes) -> int:
+    """The CHECK byte of an encoded frame (a request's MDOC/MDIC)."""
+    return _frame_of(frame)[-1]
+
+
 def exact_packet(chunk: bytes) -> Optional[Packet]:
     """The packet if ``chunk`` is exactly one well-checked G485 frame, else None.
 

@@ -25,7 +25,7 @@ from ..rs485 import RS485
 from .codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS, Discarded, Packet, Parser, exact_packet
 from .device import SimDevice
 from .errors import G485ValueError
-from .master import seconds, whole
+from .transaction import timeout_arg, whole_arg
 from .transport import PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485.sim")
@@ -50,13 +50,12 @@ class Simulator:
                 self.add(device)
         except TypeError:
             raise G485ValueError("devices must be an iterable of SimDevice") from None
-        self.idle_timeout = None if idle_timeout is None else seconds(idle_timeout, "idle_timeout")
+        idle = None if idle_timeout is None else timeout_arg(idle_timeout, "idle_timeout")
         self._io = open_io(port, baudrate, rs485=rs485, **serial_kwargs)
         self.name = self._io.name
         self.reopened = 0
         # silence after which a partial frame is dropped: 20 ms, or 5 characters at slow rates
-        if self.idle_timeout is None:
-            self.idle_timeout = max(0.02, 50.0 / self._io.baudrate)
+        self.idle_timeout: float = max(0.02, 50.0 / self._io.baudrate) if idle is None else idle
         self._parser = Parser()
         self._thread: Optional[threading.Thread] = None
         self._stop_r, self._stop_w = os.pipe()
@@ -76,7 +75,7 @@ class Simulator:
 
     def device(self, address: int) -> SimDevice:
         """The device currently answering at ``address`` (G485ValueError if none)."""
-        whole(address, "address", MIN_SLAVE_ADDRESS, MAX_SLAVE_ADDRESS)
+        whole_arg(address, "address", MIN_SLAVE_ADDRESS, MAX_SLAVE_ADDRESS)
         for d in self.devices:
             if d.address == address:
                 return d
@@ -151,7 +150,7 @@ class Simulator:
         parser = self._parser
         io = self._io
         while True:
-            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)  # type: ignore[operator]
+            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)
             if not ready:
                 self._dispatch(parser.expire())
                 continue
@@ -194,7 +193,7 @@ class Simulator:
 
     def _serve_generic(self) -> None:
         while not self._stopping:
-            deadline = time.monotonic() + (self.idle_timeout if self._parser.buffered else 0.05)  # type: ignore[operator]
+            deadline = time.monotonic() + (self.idle_timeout if self._parser.buffered else 0.05)
             data = self._io.read_some(4096, deadline)
             if data:
                 self._dispatch(self._parser.feed(data))

@@ -267,15 +267,29 @@ class SerialIO:
         self._check()
         if self.fd is not None:
             return self._read_fd(n) if self._poll.poll(0) else b""
+        ser = self._serial()
         try:
-            waiting = self.serial.in_waiting  # type: ignore[union-attr]
-            return self.serial.read(min(n, waiting)) if waiting else b""  # type: ignore[union-attr]
+            waiting = ser.in_waiting
+            return ser.read(min(n, waiting)) if waiting else b""
         except (serial.SerialException, OSError) as exc:
             raise PortError(getattr(exc, "errno", None) or errno.EIO, str(exc), self.name) from None
 
+    def _serial(self) -> "serial.SerialBase":
+        """The pyserial object (this adapter wraps one when it has no raw fd)."""
+        ser = self.serial
+        if ser is None:  # pragma: no cover - a raw fd never takes the pyserial branches
+            raise ClosedError(f"{self.name}: no pyserial object")
+        return ser
+
+    def _raw_fd(self) -> int:
+        fd = self.fd
+        if fd is None:  # pragma: no cover - a pyserial object never takes the fd branches
+            raise ClosedError(f"{self.name}: no file descriptor")
+        return fd
+
     def _read_fd(self, n: int) -> bytes:
         try:
-            data = os.read(self.fd, n)  # type: ignore[arg-type]
+            data = os.read(self._raw_fd(), n)
         except BlockingIOError:
             return b""
         except OSError as exc:
@@ -304,7 +318,7 @@ class SerialIO:
         self._check()
         if self.fd is None:
             try:
-                self.serial.write(data)  # type: ignore[union-attr]
+                self._serial().write(data)
             except (serial.SerialException, OSError) as exc:
                 raise PortError(getattr(exc, "errno", None) or errno.EIO, str(exc), self.name) from None
         else:
@@ -342,7 +356,7 @@ class SerialIO:
             if self.fd is not None:
                 termios.tcflush(self.fd, termios.TCIFLUSH)
             else:
-                self.serial.reset_input_buffer()  # type: ignore[union-attr]
+                self._serial().reset_input_buffer()
         except (OSError, termios.error, serial.SerialException):
             pass  # a socket or a vanished port: the next read reports it
 

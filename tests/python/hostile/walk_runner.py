@@ -209,6 +209,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
     from fap_py.g485.device import SimDevice
     from fap_py.g485.master import G485Master, ReplyWaiter
     from fap_py.g485.simulator import Simulator
+    from fap_py.g485.transaction import Session
     from fap_py.g485.transport import PortIO, SerialIO
     from fap_py.monitor.decoders import CodecDecoder
     from fap_py.monitor.pcap import PcapWriter
@@ -265,6 +266,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         "fap_py.g485.device.SimDevice": lambda: SimDevice(3),
         "fap_py.g485.master.ReplyWaiter": lambda: ReplyWaiter(
             G485Master(own(), timeout=0.01, retries=0, rs485=line), reply_prefix(8, 3)),
+        "fap_py.g485.transaction.Transaction": lambda: Session(timeout=0.01, retries=0).read(1, 8),
         "fap_py.g485.transport.PortIO": lambda: PortIO(own(), 115200, line),
         "fap_py.g485.transport.SerialIO": lambda: SerialIO("loop://", 115200),
         "fap_py.bridge.buses.FapAdapter": lambda: adapter(buses.FapAdapter, "fap", slaves=(5,)),
