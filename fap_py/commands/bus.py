@@ -118,7 +118,7 @@ class _Status:
         from rich.live import Live
 
         self.bus = bus
-        self.last = bus.stats()
+        self.last = bus.stats
         self.t = time.monotonic()
         self.tail = _CaptureTail(capture, len(bus.paths)) if capture else None
         self.prev = ([0] * len(bus.paths), [0] * len(bus.paths))
@@ -133,7 +133,7 @@ class _Status:
         from rich.console import Group
         from rich.table import Table
 
-        st, dt = self.bus.stats(), now - self.t
+        st, dt = self.bus.stats, now - self.t
         rate_in = (st.bytes_in - self.last.bytes_in) / dt
         rate_out = (st.bytes_out - self.last.bytes_out) / dt
         self.last, self.t = st, now
@@ -191,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
             finally:
                 if status is not None:
                     status.end()
-            st = bus.stats()
+            st = bus.stats
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)

@@ -226,7 +226,7 @@ def test_every_call_after_close_raises_closed(bus: VirtualBus) -> None:
     vb = VirtualBus(ports=2)
     vb.close()
     fm, fs = objs
-    calls = [lambda: fm.send(b"x", to=3), lambda: fm.recv(timeout=0), fm.stats, fm.fileno,
+    calls = [lambda: fm.send(b"x", to=3), lambda: fm.recv(timeout=0), lambda: fm.stats, fm.fileno,
              lambda: fm.add_slave(4), lambda: fm.is_active(3), lambda: fs.recv(timeout=0),
              lambda: em.transact(1, b"x"), lambda: em.broadcast(b""), lambda: em.next_seq(1),
              lambda: em.stats, em.reopen, lambda: em.set_timeout(0.1),
@@ -235,7 +235,7 @@ def test_every_call_after_close_raises_closed(bus: VirtualBus) -> None:
              lambda: asyncio.run(es.aserve(0.01)),
              lambda: mm.send(1, b""), lambda: mm.receive(0), lambda: mm.stats,
              lambda: asyncio.run(mm.areceive(0.01)), lambda: ms.send(b""), lambda: ms.receive(0),
-             lambda: vb.drop_next(0, 1), vb.stats, lambda: vb.silence(0, 0.1)]
+             lambda: vb.drop_next(0, 1), lambda: vb.stats, lambda: vb.silence(0, 0.1)]
     for call in calls:
         assert isinstance(expect_fap_error(call), ClosedError)
     for o in objs + [em, es, mm, ms, vb]:
