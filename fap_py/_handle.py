@@ -29,7 +29,7 @@ import select
 import threading
 import time
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Optional, Set, TypeVar
+from typing import Any, Callable, Dict, Iterator, Optional, TypeVar
 
 from .errors import ClosedError
 
@@ -78,7 +78,8 @@ class NativeHandle:
         self._users = 0                      # threads inside a C call on _h
         self._closing = False
         self._closer: Optional[int] = None   # the thread running close()
-        self._async_waits: Set["asyncio.Future[bool]"] = set()   # await_readable in flight
+        # await_readable in flight: each future and the fd its loop reads
+        self._async_waits: Dict["asyncio.Future[bool]", int] = {}
 
     # -- to be provided by subclasses ----------------------------------------
     def _release(self, h: Any) -> None:
@@ -239,9 +240,8 @@ class NativeHandle:
                 fut.set_result(True)
 
         loop.add_reader(fd, ready)
-        fut.fap_fd = fd  # type: ignore[attr-defined]
         with self._hlock:
-            self._async_waits.add(fut)
+            self._async_waits[fut] = fd
         timer = None if timeout is None else loop.call_later(timeout, _expire, fut)
         try:
             return await fut
@@ -249,8 +249,7 @@ class NativeHandle:
             if timer is not None:
                 timer.cancel()
             with self._hlock:
-                registered = fut in self._async_waits
-                self._async_waits.discard(fut)
+                registered = self._async_waits.pop(fut, None) is not None
             if registered and not loop.is_closed():
                 loop.remove_reader(fd)
 
@@ -258,14 +257,14 @@ class NativeHandle:
         """Before the fd is closed: unregister every await_readable, failing it
         with ClosedError (in its loop's thread; waits for that, at most 2 s)."""
         with self._hlock:
-            waits, self._async_waits = self._async_waits, set()
-        for fut in waits:
+            waits, self._async_waits = self._async_waits, {}
+        for fut, fd in waits.items():
             loop = fut.get_loop()
             done = threading.Event()
 
             def detach(fut: "asyncio.Future[bool]" = fut, done: threading.Event = done,
-                       loop: asyncio.AbstractEventLoop = loop) -> None:
-                loop.remove_reader(fut.fap_fd)  # type: ignore[attr-defined]
+                       loop: asyncio.AbstractEventLoop = loop, fd: int = fd) -> None:
+                loop.remove_reader(fd)
                 if not fut.done():
                     fut.set_exception(self._closed_error())
                 done.set()

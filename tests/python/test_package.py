@@ -4,6 +4,7 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import Dict, List, Set, Tuple
 
 import fap_py
 
@@ -139,29 +140,121 @@ def test_exec_master_defaults_are_the_c_engines(tmp_path: Path) -> None:
         assert m._retries == mo.retries
 
 
-def test_no_import_cycles_between_fap_py_modules() -> None:
+def _import_graph() -> Dict[str, Set[str]]:
+    """Every fap_py module (``pkgutil.walk_packages``: subpackages, private and compiled
+    modules included) -> the fap_py modules it imports anywhere in its text (at the
+    top, inside a function, under TYPE_CHECKING). ``from .x import name`` counts
+    ``x.name`` when that is a module, else ``x``."""
     import ast
+    import importlib.util
+    import pkgutil
 
-    pkg = Path(fap_py.__file__).resolve().parent
-    src = Path(__file__).resolve().parents[2] / "fap_py"
-    graph = {}
-    for f in src.glob("*.py"):
-        deps = set()
-        for node in ast.walk(ast.parse(f.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
-                deps.add(node.module.split(".")[0])
-        graph[f.stem] = deps
-    assert pkg.exists()
+    mods = {"fap_py"} | {i.name for i in pkgutil.walk_packages(fap_py.__path__, "fap_py.")}
 
-    def reach(a: str, seen: set) -> set:
-        for b in graph.get(a, ()):
-            if b not in seen:
-                seen.add(b)
-                reach(b, seen)
-        return seen
+    def owner(name: str) -> str:
+        while name not in mods:
+            name = name.rpartition(".")[0]
+        return name
 
-    cycles = [m for m in graph if m in reach(m, set())]
-    assert not cycles, cycles
+    graph: Dict[str, Set[str]] = {}
+    for mod in sorted(mods):
+        spec = importlib.util.find_spec(mod)
+        assert spec is not None and spec.origin, mod
+        graph[mod] = deps = set()
+        if not spec.origin.endswith(".py"):
+            continue                          # the compiled core: imports nothing of fap_py
+        package = mod if spec.submodule_search_locations else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(Path(spec.origin).read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                deps |= {owner(a.name) for a in node.names if a.name.split(".")[0] == "fap_py"}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[:len(package.split(".")) - node.level + 1]
+                    base = ".".join(up + ([node.module] if node.module else []))
+                if base.split(".")[0] != "fap_py":
+                    continue
+                deps |= {f"{base}.{a.name}" if f"{base}.{a.name}" in mods else owner(base)
+                         for a in node.names}
+        deps.discard(mod)
+    return graph
+
+
+def _cycles(graph: Dict[str, Set[str]]) -> List[Tuple[str, ...]]:
+    """The strongly connected groups of more than one module (Tarjan), each sorted."""
+    index: Dict[str, int] = {}
+    low: Dict[str, int] = {}
+    stack: List[str] = []
+    found: List[Tuple[str, ...]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(tuple(sorted(group)))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+#: Cycles this branch found in files other work owns, each with that work; the test
+#: fails when one is gone (delete it here) and when a new one appears. Empty it as
+#: those branches land: the goal is no cycle at all.
+KNOWN_CYCLES: Dict[Tuple[str, ...], str] = {
+    ("fap_py.commands._soak8bit", "fap_py.commands.soak"):
+        "the soak's move to fap_py/soak/ (issue 20) removes both files",
+    ("fap_py.g485.codec", "fap_py.g485.errors"):
+        "errors.py imports codec.describe_error_word lazily: G485's own work (issue 20)",
+    ("fap_py.bridge.bridge", "fap_py.bridge.metrics"):
+        "metrics.py imports Bridge for its type and bridge.py MetricsServer: the bridge's work",
+}
+
+
+def test_walk_finds_every_module_and_import() -> None:
+    graph = _import_graph()
+    for mod in ("fap_py._native", "fap_py.monitor.session", "fap_py.bridge.bridge",
+                "fap_py.g485.master", "fap_py.commands.monitor"):
+        assert mod in graph, mod
+    assert "fap_py._native" in graph["fap_py.errors"]               # a lazy import
+    assert "fap_py.monitor.session" in graph["fap_py.monitor.extcap"]
+    assert "fap_py.errors" in graph["fap_py.monitor.core"]           # from ..errors import
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [("a", "b", "c")]
+
+
+def test_no_import_cycles_between_fap_py_modules() -> None:
+    cycles = _cycles(_import_graph())
+    new = [c for c in cycles if c not in KNOWN_CYCLES]
+    assert not new, f"import cycles: {new}"
+    gone = [c for c in KNOWN_CYCLES if c not in cycles]
+    assert not gone, f"fixed: remove from KNOWN_CYCLES: {gone}"
+
+
+#: the command line: the only rooms that may import the command line
+FRONT_ENDS = ("fap_py.cli", "fap_py.commands", "fap_py.__main__")
+
+
+def test_no_library_room_imports_the_command_line() -> None:
+    def front(mod: str) -> bool:
+        return any(mod == f or mod.startswith(f + ".") for f in FRONT_ENDS)
+
+    upward = sorted(f"{mod} -> {dep}" for mod, deps in _import_graph().items() if not front(mod)
+                    for dep in deps if front(dep))
+    assert not upward, upward
 
 
 def test_public_import_paths_still_work() -> None:
