@@ -22,6 +22,7 @@ close() from another thread are noticed within one slice.
 """
 from __future__ import annotations
 
+import _thread
 import asyncio
 import logging
 import math
@@ -57,6 +58,23 @@ def slice_ms(deadline: Optional[float], longest_ms: Optional[int] = None) -> int
     if deadline is None:
         return cap
     return max(0, min(cap, math.ceil((deadline - time.monotonic()) * 1000)))
+
+
+class DeferredSigint:
+    """A Ctrl-C that landed inside a C callback on the main thread (the wire-trace
+    hook, :mod:`fap_py._trace`): raised there it would end in cffi, which prints and
+    drops it. The SIGINT guard sets :attr:`pending` instead; the C call that ran the
+    hook returns through :meth:`NativeHandle._call` (or ``_using``), which puts the
+    signal back with :func:`redeliver`, so the handler raises in the caller's code."""
+
+    pending = False
+
+
+def redeliver() -> None:
+    """Make a deferred Ctrl-C pending again (the handler then runs in this frame)."""
+    if DeferredSigint.pending:
+        DeferredSigint.pending = False
+        _thread.interrupt_main()
 
 
 class NativeHandle:
@@ -130,6 +148,8 @@ class NativeHandle:
                     self._users -= 1
                     if self._closing and not self._users:
                         self._idle.notify_all()
+            if DeferredSigint.pending:
+                redeliver()
 
     @contextmanager
     def _using(self) -> Iterator[Any]:
@@ -149,6 +169,8 @@ class NativeHandle:
                     self._users -= 1
                     if self._closing and not self._users:
                         self._idle.notify_all()
+            if DeferredSigint.pending:
+                redeliver()
 
     @property
     def closed(self) -> bool:

@@ -67,9 +67,13 @@ class _CaptureTail:
     """Per-port counts read from the bus's own ``--capture`` file as it grows
     (docs/vbus.md: one data line per transmission, paced, or per chunk the
     relay read, unpaced; ``collision``/``fault``/``overflow`` event lines),
-    at most :attr:`CHUNK` bytes a call so a fast bus cannot stall the view."""
+    at most :attr:`CHUNK` bytes a call so a fast bus cannot stall the view.
+    The complete lines are parsed by :func:`fap_py.vbus.iter_capture`, the
+    format's one parser; a line still being written waits for the next call."""
 
     CHUNK = 1 << 20
+    #: the events that count as a port's errors, and the field naming the port(s)
+    ERROR_EVENTS = ("collision", "fault", "overflow")
 
     def __init__(self, path: str, ports: int) -> None:
         self.file = open(path, "rb")
@@ -82,26 +86,20 @@ class _CaptureTail:
         self.file.close()
 
     def poll(self) -> None:
+        from ..vbus import CaptureEvent, CaptureRecord, iter_capture
+
         data = self.file.read(self.CHUNK)
         if not data:
             return
         *lines, self.rest = (self.rest + data).split(b"\n")
-        for line in lines:
-            if line.startswith(b"# "):
-                self._event(line.split()[1:])
-                continue
-            parts = line.split(b" ", 2)
-            if len(parts) == 3 and parts[1].isdigit() and int(parts[1]) < len(self.tx):
-                self.tx[int(parts[1])] += 1
-                self.bytes[int(parts[1])] += (len(parts[2]) + 1) // 3
-
-    def _event(self, words: List[bytes]) -> None:
-        if not words or words[0] not in (b"collision", b"fault", b"overflow"):
-            return
-        fields = dict(w.split(b"=", 1) for w in words[1:] if b"=" in w)
-        for port in (fields.get(b"ports") or fields.get(b"port") or b"").split(b","):
-            if port.isdigit() and int(port) < len(self.errors):
-                self.errors[int(port)] += 1
+        for item in iter_capture(line.decode("ascii", "replace") for line in lines):
+            if isinstance(item, CaptureRecord) and item.port < len(self.tx):
+                self.tx[item.port] += 1
+                self.bytes[item.port] += len(item.data)
+            elif isinstance(item, CaptureEvent) and item.kind in self.ERROR_EVENTS:
+                for port in (item.fields.get("ports") or item.fields.get("port") or "").split(","):
+                    if port.isdigit() and int(port) < len(self.errors):
+                        self.errors[int(port)] += 1
 
 
 class _Status:

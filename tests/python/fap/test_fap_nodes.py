@@ -316,7 +316,7 @@ def test_closed_node_raises_closed_error(bus: VirtualBus) -> None:
     m.close()
     m.close()                                  # idempotent
     assert m.closed and "closed" in repr(m)
-    for call in (lambda: m.send(b"x", to=1), lambda: m.recv(timeout=0), m.stats,
+    for call in (lambda: m.send(b"x", to=1), lambda: m.recv(timeout=0), lambda: m.stats,
                  lambda: m.add_slave(2), lambda: m.active_slaves, m.fileno,
                  lambda: m.wait_event(0)):
         with pytest.raises(ClosedError):
