@@ -13,7 +13,7 @@ import errno
 import logging
 import signal
 import sys
-from typing import IO, TYPE_CHECKING, Optional
+from typing import IO, TYPE_CHECKING, Callable, Optional
 
 from ._options import (
     EXIT_INTERRUPTED,
@@ -50,9 +50,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     """The monitor's options: input, decoder, outputs (the shared groups included)."""
     from fap_py.monitor.session import LIVE_BAUD, protocol_choice, protocol_choices
 
-    p.add_argument("--protocol", type=_choice(protocol_choice), default="auto",
-                   metavar="{" + ",".join(protocol_choices()) + "}",
-                   help="decoder; auto tries every protocol and reports which one locks on")
+    # choices for the help and shell completion; the type also takes an alias (execasync)
+    p.add_argument("--protocol", type=_choice(protocol_choice), choices=protocol_choices(),
+                   default="auto", help="decoder; auto tries every protocol and reports which one locks on")
     add_port_options(p, baud_default=None, port_required=False, rs485_default="none",
                      port_help="live serial port, opened receive-only (or give --raw, --capture, "
                      "or bytes on stdin)",
@@ -80,7 +80,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="no status lines on stderr (listening, auto lock); errors still")
 
 
-def _choice(convert):
+def _choice(convert: Callable[[str], str]) -> Callable[[str], str]:
     """An argparse type: ``convert``'s value, its error as a usage error naming the value."""
     def parse(text: str) -> str:
         from fap_py.errors import InvalidValueError

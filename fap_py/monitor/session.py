@@ -56,7 +56,13 @@ def protocol_choice(protocol: Any) -> str:
     included); UnknownProtocolError (an InvalidValueError) otherwise."""
     if isinstance(protocol, str) and protocol.strip().lower() == AUTO:
         return AUTO
-    return _protocols.get(protocol).name
+    if not isinstance(protocol, str):
+        raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
+    try:
+        return _protocols.get(protocol).name
+    except _protocols.UnknownProtocolError:
+        raise _protocols.UnknownProtocolError(
+            f"unknown protocol {protocol!r} (choose from {', '.join(protocol_choices())})") from None
 
 
 def _opt_path(value: Any, what: str) -> Optional[str]:
