@@ -204,6 +204,8 @@ class NativeHandle:
             with lock:
                 self._closer = None
                 self._idle.notify_all()
+            if DeferredSigint.pending:        # a Ctrl-C deferred out of a hook the close ran
+                redeliver()
         log.debug("%s closed", self._label())
 
     def __enter__(self: H) -> H:
