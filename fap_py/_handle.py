@@ -22,6 +22,7 @@ close() from another thread are noticed within one slice.
 """
 from __future__ import annotations
 
+import _thread
 import asyncio
 import logging
 import math
@@ -29,7 +30,7 @@ import select
 import threading
 import time
 from contextlib import contextmanager
-from typing import Any, Callable, Iterator, Optional, Set, TypeVar
+from typing import Any, Callable, Dict, Iterator, Optional, TypeVar
 
 from .errors import ClosedError
 
@@ -59,6 +60,23 @@ def slice_ms(deadline: Optional[float], longest_ms: Optional[int] = None) -> int
     return max(0, min(cap, math.ceil((deadline - time.monotonic()) * 1000)))
 
 
+class DeferredSigint:
+    """A Ctrl-C that landed inside a C callback on the main thread (the wire-trace
+    hook, :mod:`fap_py._trace`): raised there it would end in cffi, which prints and
+    drops it. The SIGINT guard sets :attr:`pending` instead; the C call that ran the
+    hook returns through :meth:`NativeHandle._call` (or ``_using``), which puts the
+    signal back with :func:`redeliver`, so the handler raises in the caller's code."""
+
+    pending = False
+
+
+def redeliver() -> None:
+    """Make a deferred Ctrl-C pending again (the handler then runs in this frame)."""
+    if DeferredSigint.pending:
+        DeferredSigint.pending = False
+        _thread.interrupt_main()
+
+
 class NativeHandle:
     """Lifetime of one C handle: counted use, idempotent close, context manager.
 
@@ -78,7 +96,8 @@ class NativeHandle:
         self._users = 0                      # threads inside a C call on _h
         self._closing = False
         self._closer: Optional[int] = None   # the thread running close()
-        self._async_waits: Set["asyncio.Future[bool]"] = set()   # await_readable in flight
+        # await_readable in flight: each future and the fd its loop reads
+        self._async_waits: Dict["asyncio.Future[bool]", int] = {}
 
     # -- to be provided by subclasses ----------------------------------------
     def _release(self, h: Any) -> None:
@@ -129,6 +148,8 @@ class NativeHandle:
                     self._users -= 1
                     if self._closing and not self._users:
                         self._idle.notify_all()
+            if DeferredSigint.pending:
+                redeliver()
 
     @contextmanager
     def _using(self) -> Iterator[Any]:
@@ -148,6 +169,8 @@ class NativeHandle:
                     self._users -= 1
                     if self._closing and not self._users:
                         self._idle.notify_all()
+            if DeferredSigint.pending:
+                redeliver()
 
     @property
     def closed(self) -> bool:
@@ -181,6 +204,8 @@ class NativeHandle:
             with lock:
                 self._closer = None
                 self._idle.notify_all()
+            if DeferredSigint.pending:        # a Ctrl-C deferred out of a hook the close ran
+                redeliver()
         log.debug("%s closed", self._label())
 
     def __enter__(self: H) -> H:
@@ -239,9 +264,8 @@ class NativeHandle:
                 fut.set_result(True)
 
         loop.add_reader(fd, ready)
-        fut.fap_fd = fd  # type: ignore[attr-defined]
         with self._hlock:
-            self._async_waits.add(fut)
+            self._async_waits[fut] = fd
         timer = None if timeout is None else loop.call_later(timeout, _expire, fut)
         try:
             return await fut
@@ -249,8 +273,7 @@ class NativeHandle:
             if timer is not None:
                 timer.cancel()
             with self._hlock:
-                registered = fut in self._async_waits
-                self._async_waits.discard(fut)
+                registered = self._async_waits.pop(fut, None) is not None
             if registered and not loop.is_closed():
                 loop.remove_reader(fd)
 
@@ -258,14 +281,14 @@ class NativeHandle:
         """Before the fd is closed: unregister every await_readable, failing it
         with ClosedError (in its loop's thread; waits for that, at most 2 s)."""
         with self._hlock:
-            waits, self._async_waits = self._async_waits, set()
-        for fut in waits:
+            waits, self._async_waits = self._async_waits, {}
+        for fut, fd in waits.items():
             loop = fut.get_loop()
             done = threading.Event()
 
             def detach(fut: "asyncio.Future[bool]" = fut, done: threading.Event = done,
-                       loop: asyncio.AbstractEventLoop = loop) -> None:
-                loop.remove_reader(fut.fap_fd)  # type: ignore[attr-defined]
+                       loop: asyncio.AbstractEventLoop = loop, fd: int = fd) -> None:
+                loop.remove_reader(fd)
                 if not fut.done():
                     fut.set_exception(self._closed_error())
                 done.set()

@@ -1,20 +1,39 @@
 """The one way fap_py publishes counters: a frozen dataclass built from the C struct. Private.
 
-Each stats dataclass (``fap_py.fap.Stats``, ``fap_py.execasync.MasterStats``
-...) names exactly the fields of its C struct; :func:`stats_from_c` copies
-them, and tests/python/test_package.py checks that the names match the C
-struct's, so a counter added in C cannot be forgotten in Python.
+The contract (docs/python.md, "Counters"): every node has a ``stats``
+*property* returning a frozen :class:`Counters` dataclass, a snapshot taken
+when the property is read. Each stats dataclass (``fap_py.fap.Stats``,
+``fap_py.execasync.MasterStats`` ...) names exactly the fields of its C
+struct; :func:`stats_from_c` copies them, and tests/python/test_package.py
+checks that the names match the C struct's, so a counter added in C cannot
+be forgotten in Python.
 """
 from __future__ import annotations
 
-from dataclasses import fields
-from typing import Any, Type, TypeVar
+import warnings
+from dataclasses import dataclass, fields
+from typing import Any, Dict, Type, TypeVar
 
-__all__ = ["stats_from_c"]
+__all__ = ["Counters", "stats_from_c"]
 
-T = TypeVar("T")
+C = TypeVar("C", bound="Counters")
 
 
-def stats_from_c(cls: Type[T], cdata: Any) -> T:
+@dataclass(frozen=True)
+class Counters:
+    """Base of every stats snapshot: frozen, compared and printed as a dataclass."""
+
+    def as_dict(self) -> Dict[str, Any]:
+        """The counters as a plain dict."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def __call__(self: C) -> C:
+        """``node.stats()``, the call form of before the property: the snapshot itself."""
+        warnings.warn(f"{type(self).__name__}: stats is a property now; read node.stats, "
+                      "not node.stats()", DeprecationWarning, stacklevel=2)
+        return self
+
+
+def stats_from_c(cls: Type[C], cdata: Any) -> C:
     """A stats dataclass filled from the C struct fields of the same names."""
-    return cls(**{f.name: int(getattr(cdata, f.name)) for f in fields(cls)})  # type: ignore[arg-type]
+    return cls(**{f.name: int(getattr(cdata, f.name)) for f in fields(cls)})

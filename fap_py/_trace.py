@@ -21,20 +21,20 @@ Ctrl-C: for exec async and mikroC the hook runs on the main thread, inside a
 C call. A ``KeyboardInterrupt`` raised there could not cross into C (cffi
 prints it and drops it, and the program went on). So while a hook is
 installed, SIGINT's Python handler is wrapped (:func:`_guard_sigint`, main
-thread only): a Ctrl-C that lands inside the hook is put back as pending once
-the hook has returned, and raised in the Python code that made the C call.
+thread only): a Ctrl-C that lands inside the hook is marked deferred
+(:class:`fap_py._handle.DeferredSigint`); the handle wrapper that made the C
+call puts it back as pending when that call returns, and the handler raises it
+in the Python code that made the call. No thread, no polling.
 """
 from __future__ import annotations
 
-import _thread
 import logging
 import signal
-import sys
 import threading
-import time
 from types import FrameType
 from typing import Any, Callable, Optional
 
+from ._handle import DeferredSigint
 from ._native import ffi, lib
 
 _DIRS = {lib.FAP_TRACE_RX: "rx", lib.FAP_TRACE_TX: "tx"}
@@ -67,9 +67,6 @@ class Tap:
                                  "wire_t_ns": int(f.t_ns), "wire_bytes": data})
 
 
-_MAIN: int = threading.main_thread().ident or 0
-
-
 @ffi.def_extern()
 def fap_py_trace(ctx: Any, f: Any) -> None:
     """The C trace hook: log the frame on its handle's logger."""
@@ -91,21 +88,6 @@ def _inside_hook(frame: Optional[FrameType]) -> bool:
     return False
 
 
-class _Redelivery:
-    """At most one helper thread putting a deferred Ctrl-C back."""
-
-    running = False
-
-
-def _redeliver() -> None:
-    """Put a deferred Ctrl-C back once the main thread has left the hook (it
-    is then in C, or in the Python code that called into C)."""
-    while _inside_hook(sys._current_frames().get(_MAIN)):
-        time.sleep(0.001)
-    _Redelivery.running = False
-    _thread.interrupt_main()
-
-
 class _SigintGuard:
     """SIGINT's Python handler, deferring a Ctrl-C that lands inside the hook."""
 
@@ -114,11 +96,9 @@ class _SigintGuard:
 
     def __call__(self, signum: int, frame: Optional[FrameType]) -> None:
         if _inside_hook(frame):
-            # raised here it would end in cffi; a helper thread makes it pending
-            # again once the hook has returned, and this handler raises it there
-            if not _Redelivery.running:
-                _Redelivery.running = True
-                threading.Thread(target=_redeliver, name="fap-sigint", daemon=True).start()
+            # raised here it would end in cffi: the C call's wrapper puts it back
+            # once the call has returned (NativeHandle._call), and it is raised there
+            DeferredSigint.pending = True
             return
         prev = self.previous
         if callable(prev):

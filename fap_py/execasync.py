@@ -37,7 +37,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 from . import _trace  # wire bytes on fap_py.wire.exec at DEBUG
 from ._handle import NativeHandle, deadline_of
 from ._native import ffi, lib
-from ._stats import stats_from_c
+from ._stats import Counters, stats_from_c
 from ._validate import check_bytes, check_int, check_path, check_seconds, timeout_ms
 from .errors import (
     ClosedError,
@@ -343,7 +343,7 @@ def _checked(name: str, kind: str, value: Any) -> Any:
 # ---- engine ---------------------------------------------------------------------
 
 @dataclass(frozen=True)
-class MasterStats:
+class MasterStats(Counters):
     """``execMasterStats``: counters since the master was opened."""
 
     transactions: int
@@ -359,7 +359,7 @@ class MasterStats:
 
 
 @dataclass(frozen=True)
-class SlaveStats:
+class SlaveStats(Counters):
     """``execSlaveStats``: counters since the slave was opened."""
 
     processed: int

@@ -272,8 +272,10 @@ class Node(NativeHandle):
         lib = self._lib
         return RS485Mode(self._call(lambda h: lib.fap_port_mode(lib.fapx_port(h))))
 
+    @property
     def stats(self) -> Stats:
-        """A snapshot of the engine's counters."""
+        """A snapshot of the engine's counters (``node.stats()``, the old call form, still
+        works and warns: :class:`~fap_py._stats.Counters`)."""
         st = self._ffi.new("fapx_stats *")
         self._call(self._lib.fapx_get_stats, st)
         return stats_from_c(Stats, st)

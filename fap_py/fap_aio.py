@@ -24,16 +24,12 @@ import asyncio
 import logging
 import threading
 from collections import deque
-from typing import Any, Deque, Optional
+from typing import Any, Deque, Optional, Protocol
 
 from ._handle import WAIT_SLICE
+from ._validate import check_timeout
 from .errors import ClosedError, FapError, FapTimeoutError, InvalidTypeError
 from .fap_types import Message, SlaveEvent
-
-try:
-    from typing import Protocol
-except ImportError:  # pragma: no cover - Python 3.7
-    from typing_extensions import Protocol  # type: ignore[assignment]
 
 
 class PumpedNode(Protocol):
@@ -220,7 +216,9 @@ class AsyncPump:
             fut.set_exception(FapTimeoutError(text))
 
     async def get_rx(self, timeout: Optional[float]) -> "Message":
-        """The next message: from the deque, else wait (the fd reader fills it)."""
+        """The next message: from the deque, else wait (the fd reader fills it) at most
+        ``timeout`` seconds (None: no limit): FapTimeoutError then."""
+        timeout = check_timeout(timeout)
         msg = self.take_rx()
         if msg is not None:
             return msg
@@ -228,7 +226,9 @@ class AsyncPump:
         return got
 
     async def get_event(self, timeout: Optional[float]) -> "SlaveEvent":
-        """The next engine event: from the deque, else wait (the fd reader fills it)."""
+        """The next engine event: from the deque, else wait (the fd reader fills it) at
+        most ``timeout`` seconds (None: no limit): FapTimeoutError then."""
+        timeout = check_timeout(timeout)
         ev = self.take_event()
         if ev is not None:
             return ev

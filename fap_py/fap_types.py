@@ -6,10 +6,11 @@ through cffi; nothing is typed again in Python.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, fields
-from typing import Dict, List
+from dataclasses import dataclass
+from typing import List
 
 from ._native import lib
+from ._stats import Counters
 
 __all__ = ["MASTER_ID", "MAX_ID", "MAX_DATA", "EventKind", "Message", "SlaveEvent", "Stats",
            "mask_ids"]
@@ -63,7 +64,7 @@ class SlaveEvent:
 
 
 @dataclass(frozen=True)
-class Stats:
+class Stats(Counters):
     """Counters of a node since it opened (``fapx_stats``)."""
 
     frames_tx: int           #: valid frames sent (all types)
@@ -92,10 +93,6 @@ class Stats:
     tx_to_inactive: int      #: master: DATA sent to a slave not active at the time
     tx_unconfirmed: int      #: master: DATA sent to a slave then marked inactive
     tx_abandoned: int        #: frames a close dropped because the line would not take them
-
-    def as_dict(self) -> Dict[str, int]:
-        """The counters as a plain dict."""
-        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 def mask_ids(mask: int) -> List[int]:

@@ -41,7 +41,7 @@ from typing import Any, List, Optional, Union
 from . import _trace  # wire bytes on fap_py.wire.mikroc at DEBUG
 from ._handle import NativeHandle, deadline_of, slice_ms
 from ._native import ffi, lib
-from ._stats import stats_from_c
+from ._stats import Counters, stats_from_c
 from ._validate import check_bool, check_bytes, check_int, check_path, check_timeout
 from .errors import (
     FapTimeoutError,
@@ -228,7 +228,7 @@ def decode(frame: bytes) -> Message:
 # ---- nodes on a port ------------------------------------------------------
 
 @dataclass(frozen=True)
-class NodeStats:
+class NodeStats(Counters):
     """Counters of a master or slave (``mikrocRS485_stats``)."""
 
     frames: int      #: frames delivered

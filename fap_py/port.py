@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
-from ._stats import stats_from_c
+from ._stats import Counters, stats_from_c
 from ._validate import check_bytes, check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
     ClosedError,
@@ -72,8 +72,8 @@ def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     return error_from_code(code, what, path)
 
 
-@dataclass
-class PortStats:
+@dataclass(frozen=True)
+class PortStats(Counters):
     """Counters of one port (``fap_port_stats``)."""
 
     tx_bytes: int = 0

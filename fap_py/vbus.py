@@ -28,7 +28,7 @@ from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
 from ._files import open_user_file
 from ._handle import NativeHandle
 from ._native import ffi, lib
-from ._stats import stats_from_c
+from ._stats import Counters, stats_from_c
 from ._validate import check_bool, check_int, check_path, check_seconds
 from .errors import FileError, InvalidTypeError, InvalidValueError, error_from_code
 
@@ -55,7 +55,7 @@ PathLike = Union[str, "os.PathLike[str]"]
 
 
 @dataclass(frozen=True)
-class VirtualBusStats:
+class VirtualBusStats(Counters):
     """Counters of a bus since it opened (``fap_vbus_stats``)."""
 
     bytes_in: int       #: bytes written by nodes
@@ -211,8 +211,10 @@ class VirtualBus(NativeHandle):
         with self._lock:
             _check(self._call(lib.fap_vbus_disconnect, p, ms), "disconnect")
 
+    @property
     def stats(self) -> VirtualBusStats:
-        """A snapshot of the bus counters."""
+        """A snapshot of the bus counters (``bus.stats()``, the old call form, still works
+        and warns: :class:`~fap_py._stats.Counters`)."""
         st = ffi.new("fap_vbus_stats *")
         self._call(lib.fap_vbus_get_stats, st)
         return stats_from_c(VirtualBusStats, st)

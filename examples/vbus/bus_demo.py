@@ -37,7 +37,7 @@ def main() -> int:
         master.write(b"\x11" * 10)          # both talk at once
         slave.write(b"\x22" * 10)
         print("sniffer during collision:", sniffer.read(20).hex(" "))
-        print("stats:", bus.stats())
+        print("stats:", bus.stats)
         for s in (master, slave, sniffer):
             s.close()
     cap = read_capture(capture)

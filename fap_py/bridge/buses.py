@@ -216,7 +216,7 @@ class BusAdapter:
         if self.engine is None:   # the port is not open (yet)
             return {}
         try:
-            return _stats(self.engine.stats() if callable(self.engine.stats) else self.engine.stats)
+            return _stats(self.engine.stats)   # every node: a stats property (docs/python.md)
         except FapError:
             return {}
 

@@ -73,7 +73,7 @@ def payload_class() -> Any:
     if _payload_class is not None:
         return _payload_class
     try:
-        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # type: ignore[import-untyped,unused-ignore]
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
     except ImportError:
         raise MissingDependencyError(SPARKPLUG_HINT) from None
     f = descriptor_pb2.FileDescriptorProto(name="fap_sparkplug_b.proto", package="org.eclipse.tahu.protobuf",

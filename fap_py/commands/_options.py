@@ -30,7 +30,7 @@ import sys
 import traceback
 from dataclasses import asdict, is_dataclass
 from enum import Enum
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple
+from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Tuple
 
 from ..errors import FapError, InvalidValueError
 
@@ -85,7 +85,7 @@ class Parser(argparse.ArgumentParser):
         kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
 
-    def error(self, message: str) -> "NoReturn":  # type: ignore[name-defined]  # noqa: F821
+    def error(self, message: str) -> NoReturn:
         sys.stderr.write(f"fap: error: {message} (see '{self.prog} --help')\n")
         sys.exit(EXIT_USAGE)
 

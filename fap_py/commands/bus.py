@@ -69,9 +69,13 @@ class _CaptureTail:
     """Per-port counts read from the bus's own ``--capture`` file as it grows
     (docs/vbus.md: one data line per transmission, paced, or per chunk the
     relay read, unpaced; ``collision``/``fault``/``overflow`` event lines),
-    at most :attr:`CHUNK` bytes a call so a fast bus cannot stall the view."""
+    at most :attr:`CHUNK` bytes a call so a fast bus cannot stall the view.
+    The complete lines are parsed by :func:`fap_py.vbus.iter_capture`, the
+    format's one parser; a line still being written waits for the next call."""
 
     CHUNK = 1 << 20
+    #: the events that count as a port's errors, and the field naming the port(s)
+    ERROR_EVENTS = ("collision", "fault", "overflow")
 
     def __init__(self, path: str, ports: int) -> None:
         self.file = open(path, "rb")
@@ -84,26 +88,20 @@ class _CaptureTail:
         self.file.close()
 
     def poll(self) -> None:
+        from ..vbus import CaptureEvent, CaptureRecord, iter_capture
+
         data = self.file.read(self.CHUNK)
         if not data:
             return
         *lines, self.rest = (self.rest + data).split(b"\n")
-        for line in lines:
-            if line.startswith(b"# "):
-                self._event(line.split()[1:])
-                continue
-            parts = line.split(b" ", 2)
-            if len(parts) == 3 and parts[1].isdigit() and int(parts[1]) < len(self.tx):
-                self.tx[int(parts[1])] += 1
-                self.bytes[int(parts[1])] += (len(parts[2]) + 1) // 3
-
-    def _event(self, words: List[bytes]) -> None:
-        if not words or words[0] not in (b"collision", b"fault", b"overflow"):
-            return
-        fields = dict(w.split(b"=", 1) for w in words[1:] if b"=" in w)
-        for port in (fields.get(b"ports") or fields.get(b"port") or b"").split(b","):
-            if port.isdigit() and int(port) < len(self.errors):
-                self.errors[int(port)] += 1
+        for item in iter_capture(line.decode("ascii", "replace") for line in lines):
+            if isinstance(item, CaptureRecord) and item.port < len(self.tx):
+                self.tx[item.port] += 1
+                self.bytes[item.port] += len(item.data)
+            elif isinstance(item, CaptureEvent) and item.kind in self.ERROR_EVENTS:
+                for port in (item.fields.get("ports") or item.fields.get("port") or "").split(","):
+                    if port.isdigit() and int(port) < len(self.errors):
+                        self.errors[int(port)] += 1
 
 
 class _Status:
@@ -120,7 +118,7 @@ class _Status:
         from rich.live import Live
 
         self.bus = bus
-        self.last = bus.stats()
+        self.last = bus.stats
         self.t = time.monotonic()
         self.tail = _CaptureTail(capture, len(bus.paths)) if capture else None
         self.prev = ([0] * len(bus.paths), [0] * len(bus.paths))
@@ -135,7 +133,7 @@ class _Status:
         from rich.console import Group
         from rich.table import Table
 
-        st, dt = self.bus.stats(), now - self.t
+        st, dt = self.bus.stats, now - self.t
         rate_in = (st.bytes_in - self.last.bytes_in) / dt
         rate_out = (st.bytes_out - self.last.bytes_out) / dt
         self.last, self.t = st, now
@@ -193,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
             finally:
                 if status is not None:
                     status.end()
-            st = bus.stats()
+            st = bus.stats
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)

@@ -87,7 +87,7 @@ class View:
         return time.monotonic() - self.t0
 
     def refresh(self, master: "Master") -> None:
-        self.stats = {label: node.stats() for label, node in self.nodes}
+        self.stats = {label: node.stats for label, node in self.nodes}
         self.active = master.active_slaves
         self.last_elapsed = self.elapsed()
 

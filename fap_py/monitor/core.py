@@ -2,7 +2,7 @@
 
 A source hands :class:`Monitor` chunks (bytes, when the first one was on
 the wire, how long a byte takes, which port sent them). The monitor feeds
-one decoder (or, for ``auto``, all four until one locks on), filters the
+one decoder (or, for ``auto``, every protocol's until one locks on), filters the
 events and stamps each with the time and sender of its first byte.
 """
 from __future__ import annotations
@@ -12,9 +12,10 @@ import logging
 import math
 from typing import Any, Dict, List, Optional
 
+from .. import _protocols
 from .._validate import U32, check_bytes, check_int
 from ..errors import InvalidTypeError, InvalidValueError
-from .decoders import NS_MAX, PROTOCOLS, Decoder, Event, EventFilter, make_decoder
+from .decoders import NS_MAX, Decoder, Event, EventFilter, make_decoder
 
 log = logging.getLogger(__name__)
 
@@ -132,20 +133,26 @@ class _Timeline:
 
 
 class Monitor:
-    """Decode one stream with one protocol, or ``auto``: try all four."""
+    """Decode one stream with one protocol, or ``auto``: try every protocol's decoder."""
 
     def __init__(self, protocol: str = "auto", baud: int = 0) -> None:
-        """``protocol``: one of PROTOCOLS or "auto"; ``baud``: the line rate (0 unknown).
+        """``protocol``: "auto" or a protocol's name or alias (the protocol table,
+        :mod:`fap_py._protocols`); ``baud``: the line rate (0 unknown).
 
         Raises InvalidTypeError / InvalidValueError for an unknown protocol or a
         baud outside 0..2**32-1.
         """
         if not isinstance(protocol, str):
             raise InvalidTypeError(f"protocol must be a str, not {type(protocol).__name__}")
-        if protocol != "auto" and protocol not in PROTOCOLS:
-            raise InvalidValueError(
-                f"protocol must be auto or one of {', '.join(PROTOCOLS)}, not {protocol!r}")
+        if protocol != "auto":
+            try:
+                protocol = _protocols.get(protocol).name
+            except InvalidValueError:
+                raise InvalidValueError(f"protocol must be auto or one of "
+                                        f"{', '.join(_protocols.names())}, not {protocol!r}") from None
         self.protocol = protocol
+        #: the decoders ``auto`` tries, in the table's order
+        self.candidates = _protocols.names()
         self.baud = check_int(baud, "baud", 0, U32)
         #: good frames seen by the decoder ``auto`` locked on when it locked
         self.lock_frames = 0
@@ -158,8 +165,8 @@ class Monitor:
         self._trials: Dict[str, Decoder] = {}
         self._trial_events: Dict[str, List[Event]] = {}
         if not self.locked:
-            self._trials = {p: make_decoder(p, baud) for p in PROTOCOLS}
-            self._trial_events = {p: [] for p in PROTOCOLS}
+            self._trials = {p: make_decoder(p, baud) for p in self.candidates}
+            self._trial_events = {p: [] for p in self.candidates}
 
     # -- auto ----------------------------------------------------------
     def _score(self, p: str) -> int:
@@ -171,9 +178,9 @@ class Monitor:
         no decoder found a frame is handed on as the first protocol's view of it
         (garbage, rejects) and the trials go on: noise before the traffic does not
         decide the protocol, and the trials' memory stays bounded."""
-        scores = {p: self._score(p) for p in PROTOCOLS}
-        best = max(PROTOCOLS, key=lambda p: scores[p])
-        others = max(scores[p] for p in PROTOCOLS if p != best)
+        scores = {p: self._score(p) for p in self.candidates}
+        best = max(self.candidates, key=lambda p: scores[p])
+        others = max((scores[p] for p in self.candidates if p != best), default=0)
         clear = scores[best] >= AUTO_LOCK_FRAMES and scores[best] > others
         window_full = self.bytes - self._window >= AUTO_GIVE_UP_BYTES
         if clear or at_end or (window_full and scores[best] > 0):
@@ -188,8 +195,8 @@ class Monitor:
         if not window_full:
             return []
         self._window = self.bytes
-        events = self._trial_events[PROTOCOLS[0]]
-        self._trial_events = {p: [] for p in PROTOCOLS}
+        events = self._trial_events[self.candidates[0]]
+        self._trial_events = {p: [] for p in self.candidates}
         return events
 
     def _decode(self, fn: str, *args: object, force: bool = False) -> List[Event]:

@@ -1,5 +1,5 @@
 """Where the monitor's bytes come from: a raw byte file, a virtual-bus
-capture, stdin or a live port opened receive-only through the C port layer.
+capture, stdin or a live port opened receive-only through :class:`fap_py.port.Port`.
 
 Each source is an iterator of :class:`Chunk`; a live port also yields
 ``None`` when the line was idle until the decoder's deadline, so the
@@ -10,12 +10,13 @@ from __future__ import annotations
 import os
 import select
 import time
+from dataclasses import replace
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
-from .._native import ffi, lib
 from .._validate import U32, check_baud, check_int, check_path, check_seconds
-from ..errors import ClosedError, InvalidTypeError, error_from_code
-from ..rs485 import RS485, RS485Mode, port_options
+from ..errors import ClosedError, InvalidTypeError
+from ..port import MAX_READ, Port, PortStats
+from ..rs485 import RS485, RS485Mode
 from ..vbus import CaptureFormatError, CaptureRecord, iter_capture_file
 
 #: bytes read at once: small enough that decoding one read takes well under
@@ -138,16 +139,15 @@ def _stream_chunks(fd: int, char_s: float, stop: Callable[[], bool]) -> Iterator
 
 
 class LivePort:
-    """A serial device opened receive-only (never transmits, RTS left alone).
+    """A serial device opened receive-only (never transmits, RTS left alone), through
+    :class:`fap_py.port.Port` (the package's one way to a device).
 
-    Opened through fap_port_open with rs485 mode ``none`` (unless told
-    otherwise) and the
+    Opened with RS-485 mode ``none`` (unless told otherwise) and the
     exclusive lock (TIOCEXCL + flock) on, so a port another program holds
-    is refused (-EBUSY) instead of being shared by accident.
+    is refused (PortBusyError) instead of being shared by accident.
     """
 
     def __init__(self, path: str, baud: int, rs485: Optional[RS485] = None) -> None:
-        self._port = ffi.NULL
         path = check_path(path, "path")
         baud = check_baud(baud, "baud")
         if rs485 is not None and not isinstance(rs485, RS485):
@@ -156,25 +156,27 @@ class LivePort:
         self.baud = baud
         # mode NONE by default; an explicit RS-485 mode (kernel, soft RTS)
         # keeps a transceiver whose driver enable is on RTS off the bus
-        opts = port_options(baud, rs485 if rs485 is not None else RS485(mode=RS485Mode.NONE))
-        opts.exclusive = 1
-        out = ffi.new("fap_port **")
-        code = lib.fap_port_open(out, os.fsencode(path), opts)
-        if code < 0:
-            raise error_from_code(code, f"cannot open {path} at {baud} baud", path)
-        self._port = out[0]
-        self._buf = ffi.new("uint8_t[]", READ_SIZE)
+        line = rs485 if rs485 is not None else RS485(mode=RS485Mode.NONE)
+        self._port = Port(path, baud, replace(line, exclusive=True))
+
+    @property
+    def stats(self) -> PortStats:
+        """The port's counters (bytes received, read errors ...)."""
+        return self._port.stats
 
     def close(self) -> None:
-        if self._port != ffi.NULL:
-            lib.fap_port_close(self._port)
-            self._port = ffi.NULL
+        self._port.close()
 
     def __enter__(self) -> "LivePort":
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    @staticmethod
+    def now_ns() -> int:
+        """The clock of the chunks' ``now_ns`` and of decoder deadlines (CLOCK_MONOTONIC)."""
+        return time.monotonic_ns()
 
     def chunks(self, deadline: Callable[[], Optional[int]], idle_s: Optional[float],
                stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
@@ -188,37 +190,33 @@ class LivePort:
         _check_stop(stop)
         if idle_s is not None:
             idle_s = check_seconds(idle_s, "idle_s")
-        if self._port == ffi.NULL:
+        if self._port.closed:
             raise ClosedError(f"{self.path}: closed")
         return self._chunks(deadline, idle_s, stop)
 
     def _chunks(self, deadline: Callable[[], Optional[int]], idle_s: Optional[float],
                 stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
         char_s = char_seconds(self.baud)
-        rt = lib.fap_port_rt_enter(self._port)   # --realtime: the reading thread (docs/realtime.md)
-        if rt < 0:
-            raise error_from_code(rt, f"real-time {self.path}", self.path)
-        last = lib.fap_port_now_ns()
+        idle_ns = None if idle_s is None else int(idle_s * 1e9)
+        last = time.monotonic_ns()
         while not stop():
-            now = lib.fap_port_now_ns()
+            now = time.monotonic_ns()
             wake = now + 200_000_000          # re-check stop() five times a second
             gap = deadline()
             if gap is not None:
                 wake = min(wake, gap)
-            if idle_s is not None:
-                wake = min(wake, last + int(idle_s * 1e9))
-            n = lib.fap_port_read(self._port, self._buf, READ_SIZE, max(wake, now))
-            if n < 0:
-                raise error_from_code(n, f"read {self.path}", self.path)
-            now = lib.fap_port_now_ns()
-            if n == 0:
+            if idle_ns is not None:
+                wake = min(wake, last + idle_ns)
+            data = self._port.read_until(MAX_READ, max(wake, now))
+            now = time.monotonic_ns()
+            if not data:
                 yield None
-                if idle_s is not None and now >= last + int(idle_s * 1e9):
+                if idle_ns is not None and now >= last + idle_ns:
                     return
                 continue
             last = now
             t = time.time()
-            yield Chunk(bytes(ffi.buffer(self._buf, n)), t - n * char_s, char_s, None, now)
+            yield Chunk(data, t - len(data) * char_s, char_s, None, now)
 
 
 __all__ = ["LivePort", "capture_file", "char_seconds", "raw_file", "stream"]

@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import random
 from collections import defaultdict
-from typing import Any, Dict, List, Optional
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Dict, List, Mapping, Optional
 
+from .._stats import Counters
 from .._validate import U32, check_int, check_seconds
 from ..errors import InvalidTypeError
 from .core import Record
@@ -122,6 +125,13 @@ class Stats:
                 "frame_bytes": self.frame_bytes,
                 "utilisation": None if util is None else round(util, 4), "nodes": nodes}
 
+    @property
+    def snapshot(self) -> "StatsSnapshot":
+        """The numbers of :meth:`summary` so far, frozen (the package's stats contract)."""
+        s = self.summary()
+        return StatsSnapshot(s["frames"], s["errors"], s["bytes"], s["frame_bytes"],
+                             s["utilisation"], s["nodes"])
+
     def footer(self) -> str:
         s = self.summary()
         errs = ", ".join(f"{k} {v}" for k, v in sorted(s["errors"].items())) or "none"
@@ -138,4 +148,30 @@ class Stats:
         return "\n".join(lines)
 
 
-__all__ = ["Stats"]
+@dataclass(frozen=True)
+class StatsSnapshot(Counters):
+    """:meth:`Stats.summary` frozen: what ``Session.stats`` returns. Bad values raise
+    InvalidTypeError / InvalidValueError; the mappings are read-only copies."""
+
+    frames: int
+    errors: Mapping[str, int]
+    bytes: int
+    frame_bytes: int
+    utilisation: Optional[float]
+    nodes: Mapping[str, Mapping[str, Any]]
+
+    def __post_init__(self) -> None:
+        for name in ("frames", "bytes", "frame_bytes"):
+            check_int(getattr(self, name), name, 0, 2**63)
+        if self.utilisation is not None:
+            check_seconds(self.utilisation, "utilisation", hi=1.0)   # a share: 0..1
+        for name in ("errors", "nodes"):
+            value = getattr(self, name)
+            if not isinstance(value, Mapping):
+                raise InvalidTypeError(f"{name} must be a mapping, not {type(value).__name__}")
+            frozen = {k: MappingProxyType(dict(v)) if isinstance(v, Mapping) else v
+                      for k, v in value.items()}
+            object.__setattr__(self, name, MappingProxyType(frozen))
+
+
+__all__ = ["Stats", "StatsSnapshot"]

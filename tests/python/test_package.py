@@ -4,6 +4,9 @@ from __future__ import annotations
 import subprocess
 import sys
 from pathlib import Path
+from typing import Dict, List, Set, Tuple
+
+import pytest
 
 import fap_py
 
@@ -140,29 +143,121 @@ def test_exec_master_defaults_are_the_c_engines(tmp_path: Path) -> None:
         assert m._retries == mo.retries
 
 
-def test_no_import_cycles_between_fap_py_modules() -> None:
+def _import_graph() -> Dict[str, Set[str]]:
+    """Every fap_py module (``pkgutil.walk_packages``: subpackages, private and compiled
+    modules included) -> the fap_py modules it imports anywhere in its text (at the
+    top, inside a function, under TYPE_CHECKING). ``from .x import name`` counts
+    ``x.name`` when that is a module, else ``x``."""
     import ast
+    import importlib.util
+    import pkgutil
 
-    pkg = Path(fap_py.__file__).resolve().parent
-    src = Path(__file__).resolve().parents[2] / "fap_py"
-    graph = {}
-    for f in src.glob("*.py"):
-        deps = set()
-        for node in ast.walk(ast.parse(f.read_text())):
-            if isinstance(node, ast.ImportFrom) and node.level == 1 and node.module:
-                deps.add(node.module.split(".")[0])
-        graph[f.stem] = deps
-    assert pkg.exists()
+    mods = {"fap_py"} | {i.name for i in pkgutil.walk_packages(fap_py.__path__, "fap_py.")}
 
-    def reach(a: str, seen: set) -> set:
-        for b in graph.get(a, ()):
-            if b not in seen:
-                seen.add(b)
-                reach(b, seen)
-        return seen
+    def owner(name: str) -> str:
+        while name not in mods:
+            name = name.rpartition(".")[0]
+        return name
 
-    cycles = [m for m in graph if m in reach(m, set())]
-    assert not cycles, cycles
+    graph: Dict[str, Set[str]] = {}
+    for mod in sorted(mods):
+        spec = importlib.util.find_spec(mod)
+        assert spec is not None and spec.origin, mod
+        graph[mod] = deps = set()
+        if not spec.origin.endswith(".py"):
+            continue                          # the compiled core: imports nothing of fap_py
+        package = mod if spec.submodule_search_locations else mod.rpartition(".")[0]
+        for node in ast.walk(ast.parse(Path(spec.origin).read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                deps |= {owner(a.name) for a in node.names if a.name.split(".")[0] == "fap_py"}
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[:len(package.split(".")) - node.level + 1]
+                    base = ".".join(up + ([node.module] if node.module else []))
+                if base.split(".")[0] != "fap_py":
+                    continue
+                deps |= {f"{base}.{a.name}" if f"{base}.{a.name}" in mods else owner(base)
+                         for a in node.names}
+        deps.discard(mod)
+    return graph
+
+
+def _cycles(graph: Dict[str, Set[str]]) -> List[Tuple[str, ...]]:
+    """The strongly connected groups of more than one module (Tarjan), each sorted."""
+    index: Dict[str, int] = {}
+    low: Dict[str, int] = {}
+    stack: List[str] = []
+    found: List[Tuple[str, ...]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            group = []
+            while True:
+                w = stack.pop()
+                group.append(w)
+                if w == v:
+                    break
+            if len(group) > 1:
+                found.append(tuple(sorted(group)))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return sorted(found)
+
+
+#: Cycles this branch found in files other work owns, each with that work; the test
+#: fails when one is gone (delete it here) and when a new one appears. Empty it as
+#: those branches land: the goal is no cycle at all.
+KNOWN_CYCLES: Dict[Tuple[str, ...], str] = {
+    ("fap_py.commands._soak8bit", "fap_py.commands.soak"):
+        "the soak's move to fap_py/soak/ (issue 20) removes both files",
+    ("fap_py.g485.codec", "fap_py.g485.errors"):
+        "errors.py imports codec.describe_error_word lazily: G485's own work (issue 20)",
+    ("fap_py.bridge.bridge", "fap_py.bridge.metrics"):
+        "metrics.py imports Bridge for its type and bridge.py MetricsServer: the bridge's work",
+}
+
+
+def test_walk_finds_every_module_and_import() -> None:
+    graph = _import_graph()
+    for mod in ("fap_py._native", "fap_py.monitor.session", "fap_py.bridge.bridge",
+                "fap_py.g485.master", "fap_py.commands.monitor"):
+        assert mod in graph, mod
+    assert "fap_py._native" in graph["fap_py.errors"]               # a lazy import
+    assert "fap_py.monitor.session" in graph["fap_py.monitor.extcap"]
+    assert "fap_py.errors" in graph["fap_py.monitor.core"]           # from ..errors import
+    assert _cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [("a", "b", "c")]
+
+
+def test_no_import_cycles_between_fap_py_modules() -> None:
+    cycles = _cycles(_import_graph())
+    new = [c for c in cycles if c not in KNOWN_CYCLES]
+    assert not new, f"import cycles: {new}"
+    gone = [c for c in KNOWN_CYCLES if c not in cycles]
+    assert not gone, f"fixed: remove from KNOWN_CYCLES: {gone}"
+
+
+#: the command line: the only rooms that may import the command line
+FRONT_ENDS = ("fap_py.cli", "fap_py.commands", "fap_py.__main__")
+
+
+def test_no_library_room_imports_the_command_line() -> None:
+    def front(mod: str) -> bool:
+        return any(mod == f or mod.startswith(f + ".") for f in FRONT_ENDS)
+
+    upward = sorted(f"{mod} -> {dep}" for mod, deps in _import_graph().items() if not front(mod)
+                    for dep in deps if front(dep))
+    assert not upward, upward
 
 
 def test_public_import_paths_still_work() -> None:
@@ -180,3 +275,76 @@ def test_public_import_paths_still_work() -> None:
                  "Stats", "InvalidTypeError", "NotMasterError", "SlaveExistsError",
                  "UnknownSlaveError", "FapError", "ClosedError"):
         assert getattr(importlib.import_module("fap_py"), name)
+
+
+# -- one stats contract: a property returning a frozen Counters snapshot -----------
+
+#: rooms whose counters other work brings under the contract (G485's master keeps
+#: a mutable attribute until its rework lands)
+STATS_ELSEWHERE = ("fap_py.g485",)
+
+
+def _classes_with_stats() -> List[type]:
+    import importlib
+    import inspect
+    import pkgutil
+
+    found = []
+    for info in pkgutil.walk_packages(fap_py.__path__, "fap_py."):
+        if info.name.startswith(STATS_ELSEWHERE + ("fap_py.commands", "fap_py.cli", "fap_py.__main__")):
+            continue
+        mod = importlib.import_module(info.name)
+        for _name, cls in inspect.getmembers(mod, inspect.isclass):
+            if cls.__module__ == info.name and "stats" in dir(cls):
+                found.append(cls)
+    return found
+
+
+def test_every_stats_is_a_property() -> None:
+    import inspect
+
+    classes = _classes_with_stats()
+    names = {f"{c.__module__}.{c.__qualname__}" for c in classes}
+    for must in ("fap_py.fap.Node", "fap_py.vbus.VirtualBus", "fap_py.execasync.Master",
+                 "fap_py.execasync.Slave", "fap_py.port.Port", "fap_py.monitor.sources.LivePort",
+                 "fap_py.monitor.session.Session"):
+        assert must in names, must
+    bad = [f"{c.__module__}.{c.__qualname__}" for c in classes
+           if not isinstance(inspect.getattr_static(c, "stats"), property)
+           and not c.__module__.startswith("fap_py.bridge")]   # Bridge.stats(bus): a report by name
+    assert not bad, bad
+
+
+def test_stats_are_frozen_snapshots_and_the_old_call_warns(tmp_path: Path) -> None:
+    import dataclasses
+    import warnings
+
+    from fap_py import execasync, fap, mikroc
+    from fap_py._stats import Counters
+    from fap_py.port import Port
+    from fap_py.rs485 import RS485, RS485Mode
+    from fap_py.vbus import VirtualBus
+
+    line = RS485(mode=RS485Mode.NONE)
+    with VirtualBus(ports=7) as bus:
+        p = bus.paths
+        nodes = [bus, fap.Master(p[0], slaves=[3], rs485=line), fap.Slave(p[1], id=3, rs485=line),
+                 execasync.Master(p[2], rs485=line),
+                 execasync.Slave(p[3], node=1, handler=bytes, rs485=line),
+                 mikroc.Master(p[4], rs485=line), mikroc.Slave(p[5], address=2, rs485=line),
+                 Port(p[6], rs485=line)]
+        try:
+            for node in nodes:
+                st = node.stats
+                assert isinstance(st, Counters) and dataclasses.is_dataclass(st), node
+                first = dataclasses.fields(st)[0].name
+                with pytest.raises(dataclasses.FrozenInstanceError):
+                    setattr(st, first, 1)
+                with warnings.catch_warnings(record=True) as seen:
+                    warnings.simplefilter("always")
+                    old = node.stats()                    # the call form of before
+                assert [w.category for w in seen] == [DeprecationWarning], node
+                assert type(old) is type(st) and old.as_dict().keys() == st.as_dict().keys()
+        finally:
+            for node in reversed(nodes):
+                node.close()

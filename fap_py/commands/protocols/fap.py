@@ -120,7 +120,7 @@ def _loop(args: argparse.Namespace, node: Any, to: int, data: Payloads, is_maste
             left = node.tx_pending
             opt.emit(args, {"event": "unsent", "frames": left},
                      f"{opt.plural(left, 'message')} still queued (not polled within {args.wait} s)")
-    st = node.stats()
+    st = node.stats
     opt.emit(args, {"event": "stats", **st.as_dict(),
                 **({"interrupted": True} if done.interrupted else {})},
              f"frames tx {st.frames_tx} rx {st.frames_rx}, DATA tx {st.data_tx} rx {st.data_rx}, "

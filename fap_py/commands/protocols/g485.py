@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from typing import Any, Callable, Dict, Tuple
+from typing import Any, Callable, Dict, Tuple, Union
 
 from fap_py import _protocols
 
@@ -199,13 +199,13 @@ def run_write(args: argparse.Namespace) -> int:
 
 
 def run_set(args: argparse.Namespace) -> int:
-    command: object = args.command
+    command: Union[int, str] = args.command
     try:
         command = int(args.command, 0)
     except ValueError:
         pass
     with _master(args) as m:
-        m.set(args.address, command)  # type: ignore[arg-type]
+        m.set(args.address, command)
     opt.emit(args, {"event": "set", "address": args.address, "set": args.command},
              f"set {args.command}: done")
     return 0

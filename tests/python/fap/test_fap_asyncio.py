@@ -188,7 +188,7 @@ def test_small_queue_backpressure_keeps_order(bus: VirtualBus) -> None:
             await until(lambda: master.rx_pending == 8, "frames missing")
             got = [(await master.arecv(timeout=WAIT)).data[0] for _ in range(8)]
             assert got == list(range(8))
-            assert master.stats().rx_dropped == 0 and pump.reading and not pump.paused
+            assert master.stats.rx_dropped == 0 and pump.reading and not pump.paused
             # 12 frames > 4 (Python) + 4 (C): the rest overflow in C, reported as events
             for i in range(12):
                 s.send(bytes([i]))
@@ -199,6 +199,6 @@ def test_small_queue_backpressure_keeps_order(bus: VirtualBus) -> None:
                 if ev.kind is EventKind.RX_OVERFLOW:
                     assert ev.id == 6
                     overflows += 1
-            assert master.stats().rx_dropped >= 4
+            assert master.stats.rx_dropped >= 4
 
     run(main())

@@ -64,7 +64,7 @@ def test_1024_byte_messages_both_ways(net: Net) -> None:
     # the engine publishes its counters when a transmit burst ends; flush()
     # returns after that point, so the snapshot holds the 3 DATA frames
     master.flush(timeout=WAIT)
-    st = master.stats()
+    st = master.stats
     assert st.data_tx == 3 and st.data_rx == 3 and st.crc_errors == 0
 
 
@@ -136,7 +136,7 @@ def test_slave_disappears_and_returns(bus: VirtualBus) -> None:
             assert back.recv(timeout=WAIT) == Message(0, b"welcome back")
             back.send(b"thanks")
             assert master.recv(timeout=WAIT) == Message(gone.id, b"thanks")
-            st = master.stats()
+            st = master.stats
             assert st.data_done_timeouts >= 1 and st.id_timeouts >= 1 and st.id_cycles >= 2
         finally:
             for s in slaves:
@@ -187,7 +187,7 @@ def test_stats_and_info(net: Net) -> None:
     slaves[0].recv(timeout=WAIT)
     slaves[0].send(b"pong")
     master.recv(timeout=WAIT)
-    st = master.stats()
+    st = master.stats
     assert isinstance(st, Stats)
     assert st.frames_tx > 0 and st.frames_rx > 0 and st.polls > 0 and st.cycles > 0
     assert st.as_dict()["frames_tx"] == st.frames_tx
@@ -223,12 +223,12 @@ def test_queue_full_raises_and_keeps_what_was_queued(bus: VirtualBus) -> None:
 ])
 def test_bad_destination_raises_before_c(net: Net, bad: object, exc: type) -> None:
     master, _ = net
-    before = master.stats().data_tx
+    before = master.stats.data_tx
     with pytest.raises(exc):
         master.send(b"x", to=bad)  # type: ignore[arg-type]
     with pytest.raises(exc):
         master.add_slave(bad)  # type: ignore[arg-type]
-    assert master.stats().data_tx == before and master.tx_pending == 0
+    assert master.stats.data_tx == before and master.tx_pending == 0
 
 
 def test_bad_data_raises_before_c(net: Net) -> None:
@@ -316,7 +316,7 @@ def test_closed_node_raises_closed_error(bus: VirtualBus) -> None:
     m.close()
     m.close()                                  # idempotent
     assert m.closed and "closed" in repr(m)
-    for call in (lambda: m.send(b"x", to=1), lambda: m.recv(timeout=0), m.stats,
+    for call in (lambda: m.send(b"x", to=1), lambda: m.recv(timeout=0), lambda: m.stats,
                  lambda: m.add_slave(2), lambda: m.active_slaves, m.fileno,
                  lambda: m.wait_event(0)):
         with pytest.raises(ClosedError):
@@ -419,7 +419,7 @@ def test_port_lost_and_reopened_events(bus: VirtualBus) -> None:
         master.wait_active([2], timeout=WAIT)
         s.send(b"back on the wire")
         assert master.recv(timeout=WAIT) == Message(2, b"back on the wire")
-        st = s.stats()
+        st = s.stats
         assert st.port_lost >= 1 and st.port_reopened >= 1
 
 

@@ -50,7 +50,7 @@ def test_exchange_across_processes(bus: VirtualBus) -> None:
         finally:
             codes = [p.quit() for p in procs]
         assert codes == [0, 0, 0]
-        st = master.stats()
+        st = master.stats
         assert st.data_rx >= 4 and st.crc_errors == 0 and st.framing_errors == 0
 
 

@@ -69,7 +69,7 @@ def test_fap_close_with_undrained_output(pty_pair: Tuple[int, str], reader: str)
     m = fap.Master(name, slaves=[5], rs485=LINE, tx_queue=64, id_answer_timeout=0.05)
     for _ in range(40):
         m.send(bytes(1000), to=5)
-    wait_for(lambda: m.stats().data_tx >= 2, "the data turn began")
+    wait_for(lambda: m.stats.data_tx >= 2, "the data turn began")
     t, got = in_thread(lambda: m.flush(timeout=None))
     took = timed_close(m)
     t.join(5)

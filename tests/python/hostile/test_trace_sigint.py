@@ -66,3 +66,21 @@ def test_cli_vv_ctrl_c_in_hook_exits_130(argv: list) -> None:
     """)
     assert r.returncode == 130, (r.returncode, r.stdout, r.stderr[-2000:])
     assert "Traceback" not in r.stderr, r.stderr[-2000:]
+
+
+def test_a_deferred_ctrl_c_is_raised_when_the_c_call_returns() -> None:
+    """The guard only marks a Ctrl-C that landed in the hook; the handle wrapper of the
+    C call that ran the hook raises it on the way out (no thread watching the stack)."""
+    import threading
+
+    from fap_py._handle import DeferredSigint
+    from fap_py.vbus import VirtualBus
+
+    threads = threading.active_count()
+    with VirtualBus(ports=2) as bus:
+        DeferredSigint.pending = True           # what _SigintGuard does inside the hook
+        with pytest.raises(KeyboardInterrupt):
+            bus.fileno()                        # any C call through NativeHandle._call
+        assert not DeferredSigint.pending
+        assert bus.stats.bytes_in == 0          # delivered once, the handle still usable
+    assert threading.active_count() == threads

@@ -11,18 +11,11 @@ bytes-like mismatches, except in :data:`EXPECTED_FAILURES`.
 """
 from __future__ import annotations
 
-import json
-import os
-import subprocess
-import sys
-from pathlib import Path
 from typing import Dict
 
 import pytest
 
 pytestmark = pytest.mark.timeout(600)
-
-RUNNER = Path(__file__).with_name("walk_runner.py")
 
 # Callables the walk may still find fault with, each with the reason its call
 # cannot be checked, as counts of findings by kind. ONLY fap_py.monitor and
@@ -33,13 +26,8 @@ EXPECTED_FAILURES: Dict[str, str] = {}
 
 
 @pytest.fixture(scope="module")
-def report(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    home = tmp_path_factory.mktemp("walk")
-    env = dict(os.environ, HOME=str(home), PYTHONDONTWRITEBYTECODE="1")
-    r = subprocess.run([sys.executable, str(RUNNER)], cwd=home, env=env, stdin=subprocess.DEVNULL,
-                       capture_output=True, text=True, timeout=540)
-    assert r.returncode == 0, r.stderr[-3000:]
-    return json.loads(r.stdout.strip().splitlines()[-1])
+def report(walk_report: dict) -> dict:
+    return walk_report
 
 
 def test_expected_failures_name_only_monitor_and_bridge() -> None:

@@ -390,6 +390,7 @@ def walk() -> Dict[str, Any]:
     calls = 0
     callables = 0
     modules = set()
+    walked: set = set()      # every callable called with bad values, by qualified name
 
     def note(where: str, param: str, value: Any, kind: str, detail: str) -> None:
         findings.append({"callable": where, "param": param, "value": show(value), "kind": kind,
@@ -413,6 +414,7 @@ def walk() -> Dict[str, Any]:
     def walk_callable(where: str, fn: Callable[..., Any], params: List[inspect.Parameter]) -> None:
         nonlocal callables, calls
         callables += 1
+        walked.add(where)
         for p in params:
             if p.kind in (p.VAR_POSITIONAL, p.VAR_KEYWORD):
                 continue
@@ -489,7 +491,7 @@ def walk() -> Dict[str, Any]:
                 walk_callable(f"{where}.{m}", bound, list(sig.parameters.values()))
         close_quietly(inst)
     return {"findings": findings, "calls": calls, "callables": callables,
-            "modules": sorted(modules), "excluded": EXCLUDED}
+            "modules": sorted(modules), "excluded": EXCLUDED, "walked": sorted(walked)}
 
 
 def main() -> None:

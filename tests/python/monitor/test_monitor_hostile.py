@@ -19,6 +19,7 @@ import pytest
 import fap_py.monitor as monitor_pkg
 from fap_py.errors import FapError, InvalidTypeError, InvalidValueError
 from fap_py.monitor import Event, Monitor, Record
+from fap_py.monitor.session import SessionConfig
 from fap_py.monitor.stats import Stats
 from fap_py.rs485 import RS485, RS485Mode
 from fap_py.vbus import VirtualBus
@@ -47,6 +48,12 @@ ACCEPTS: Dict[str, Callable[[Any], bool]] = {
     "argv": lambda v: v is None,
     "directory": _path_like, "path": _path_like,
     "asked": lambda v: True,     # a plug-in's pairing key: any value, only compared
+    # monitor.session: an input or output file is any path or None; the switches are bools
+    "device": lambda v: v is None or _path_like(v), "raw_file": lambda v: v is None or _path_like(v),
+    "capture_file": lambda v: v is None or _path_like(v),
+    "pcap_file": lambda v: v is None or _path_like(v),
+    "as_json": lambda v: v is True, "stats_only": lambda v: v is True, "quiet": lambda v: v is True,
+    "out": lambda v: v is None, "utilisation": lambda v: v is None,
 }
 
 
@@ -99,7 +106,11 @@ def good(tmp_path, monkeypatch) -> Dict[str, Any]:
         "argv": ["--extcap-interfaces"], "fh": io.BytesIO(), "epoch": None, "t0": None,
         "stop": lambda: True, "deadline": lambda: None, "idle_s": 0.0, "rs485": None,
         "fd": r, "path": str(cap), "asked": None,
+        "device": None, "raw_file": None, "capture_file": str(cap), "as_json": False,
+        "stats_only": False, "pcap_file": None, "quiet": True, "out": io.StringIO(),
+        "frames": 1, "errors": {"crc": 1}, "bytes": 4, "frame_bytes": 4, "utilisation": 0.5, "nodes": {"1": {"frames": 1}},
     }
+    values["config"] = SessionConfig(capture_file=str(cap), quiet=True)
     values["_live_path"] = bus.paths[1]
     yield values
     bus.close()

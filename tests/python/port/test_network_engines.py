@@ -213,7 +213,7 @@ def test_fap_survives_a_ser2net_restart(served: Tuple[VirtualBus, Ser2net],
         finally:
             traffic.close()
         lost = traffic.check()
-        st = master.stats()
+        st = master.stats
         print(f"resumed {resumed:.3f} s after ser2net's return, lost {lost} of {len(traffic.sent)}; "
               f"write_errors {st.write_errors} tx_unconfirmed {st.tx_unconfirmed} "
               f"tx_to_inactive {st.tx_to_inactive} tx_dropped {st.tx_dropped}")
@@ -221,7 +221,7 @@ def test_fap_survives_a_ser2net_restart(served: Tuple[VirtualBus, Ser2net],
         assert resumed < 5.0
         # both ends saw the server go and come back: counted like any vanished port
         for node in (master, slave):
-            st = node.stats()
+            st = node.stats
             assert st.port_lost >= 1 and st.port_reopened >= 1
 
 
@@ -251,7 +251,7 @@ def test_fap_through_a_resetting_jittery_proxy(served: Tuple[VirtualBus, Ser2net
         print(f"reconnect s: {[round(r, 3) for r in reconnects]}, "
               f"sent {len(traffic.sent)}, lost {lost}")
         assert max(reconnects) < 5.0
-        st = master.stats()
+        st = master.stats
         assert st.port_lost >= 3 and st.port_reopened >= 3     # every reset counted
         assert lost <= _counted_losses(st)
 

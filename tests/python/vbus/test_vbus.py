@@ -26,7 +26,7 @@ def test_bytes_reach_every_other_port_not_the_sender(open_nodes) -> None:
         # a later marker from port 1 is the first thing port 0 gets: no echo
         write_all(fds[1], b"M")
         assert read_exact(fds[0], 1) == b"M"
-        st = bus.stats()
+        st = bus.stats
         assert isinstance(st, VirtualBusStats)
         assert st.bytes_in == 5
         assert st.collisions == 0
@@ -61,7 +61,7 @@ def test_paced_frame_takes_its_wire_time(open_nodes) -> None:
         assert read_exact(b, 100, timeout=5) == frame
         elapsed = time.monotonic() - t0
         assert 0.095 <= elapsed < 5.0   # 104.2 ms ideal; loose on purpose
-        st = bus.stats()
+        st = bus.stats
         assert st.paced_bytes == 100
         assert 0.0 <= st.pace_late_mean_us <= st.pace_late_max_ns / 1000.0
 
@@ -75,7 +75,7 @@ def test_forced_collision_is_detected(tmp_path: Path, open_nodes) -> None:
         assert len(got) == 128
         assert got.count(0xEE) > 0 and got.count(0xDD) > 0   # bit-inverted
         assert set(got) <= {0x11, 0x22, 0xEE, 0xDD}
-        assert bus.stats().collisions == 1
+        assert bus.stats.collisions == 1
     cap = read_capture(tmp_path / "c.cap")
     [event] = cap.events_of("collision")
     assert event.fields == {"ports": "0,1"}
@@ -99,7 +99,7 @@ def test_drop_next_and_corrupt_next_are_exact(open_nodes) -> None:
         write_all(a, msg)
         got = read_exact(b, 10)
         assert [bin(x ^ y).count("1") for x, y in zip(got, msg)] == [1, 1, 1] + [0] * 7
-        st = bus.stats()
+        st = bus.stats
         assert (st.dropped, st.bit_errors) == (4, 3)
 
 
@@ -109,7 +109,7 @@ def _ber_run(seed: int, open_nodes) -> tuple:
         bus.set_fault(None, bit_error_rate=0.25)
         write_all(a, b"\x00" * 300)
         got = read_exact(b, 300)
-        return got, bus.stats().bit_errors
+        return got, bus.stats.bit_errors
 
 
 def test_seeded_bit_errors_reproduce(open_nodes) -> None:
@@ -155,7 +155,7 @@ def test_silence_and_disconnect(open_nodes) -> None:
             assert read_exact(fd, 4) == b"back"
         finally:
             os.close(fd)
-        assert bus.stats().disconnects == 1
+        assert bus.stats.disconnects == 1
 
 
 def test_capture_file_records_bytes_and_ports(tmp_path: Path, open_nodes) -> None:
@@ -220,6 +220,6 @@ def test_bad_arguments_and_closed_bus(tmp_path: Path) -> None:
     bus.close()
     bus.close()
     with pytest.raises(ClosedError):
-        bus.stats()
+        assert bus.stats is None
     with pytest.raises(FapError):
         bus.drop_next(0, 1)
