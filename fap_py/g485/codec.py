@@ -15,7 +15,15 @@ from __future__ import annotations
 import enum
 from typing import List, NamedTuple, Optional, Sequence, Tuple, Union
 
-from .errors import BroadcastReadError, CheckByteError, G485FrameError, G485ValueError, UnexpectedReplyError
+from .errors import (  # noqa: F401 - the codec's names since 0.1
+    BroadcastReadError,
+    CheckByteError,
+    ErrorBit,
+    G485FrameError,
+    G485ValueError,
+    UnexpectedReplyError,
+    describe_error_word,
+)
 
 START = b"\xff\xff"
 MASTER_ADDRESS = 127
@@ -54,36 +62,6 @@ class SetCommand(enum.IntEnum):
 
 
 _SET_VALUES = frozenset(int(c) for c in SetCommand)
-
-
-class ErrorBit(enum.IntFlag):
-    """Bits of the error word as this library defines them (the seed does not).
-
-    ERRL (bits 0..7) holds communication errors set by the simulator; ERRH
-    (bits 8..15) is left to the device's own (private) faults.
-    """
-
-    BAD_CHECK = 0x0001        # a packet for this device had a wrong check byte
-    MALFORMED = 0x0002        # unknown PID or a length that does not fit the PID
-    REGISTER_RANGE = 0x0004   # register / count outside 1..100
-    READ_ONLY = 0x0008        # write to a read-only register (1..5 or private R)
-    BAD_VALUE = 0x0010        # value refused (ID outside 1..126, ...)
-    EEPROM = 0x0020           # EEPROM (file) save or restore failed
-    BROADCAST_READ = 0x0040   # a read / error word / handshake sent to broadcast
-    DISCARDED = 0x0080        # a packet was discarded in bulk transmission mode
-
-
-def describe_error_word(word: int) -> str:
-    """Names of the bits set in ``word`` (a 16-bit error word; ``"none"`` for 0)."""
-    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
-        raise G485ValueError(f"an error word is an int 0..0xffff, not {word!r}")
-    if not word:
-        return "none"
-    names = [b.name for b in ErrorBit if word & b and b.name]
-    rest = word & ~sum(int(b) for b in ErrorBit)
-    if rest:
-        names.append(f"device-specific 0x{rest:04x}")
-    return ", ".join(str(n) for n in names)
 
 
 class PacketKind(enum.Enum):

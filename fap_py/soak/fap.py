@@ -59,7 +59,7 @@ def child(path: str, sid: int, baud: int, seed: int, rate: float, until: float) 
             except Exception:
                 pass
             if time.monotonic() - last >= 0.25:
-                say("T", json.dumps(s.stats().as_dict()))
+                say("T", json.dumps(s.stats.as_dict()))
                 last = time.monotonic()
 
 
@@ -183,7 +183,7 @@ def run(cfg: Config) -> Dict[str, Any]:
         last = now_got
         time.sleep(0.1)                  # polling a counter with a deadline
     stop.set()
-    mstats = master.stats().as_dict()
+    mstats = master.stats.as_dict()
     bstats = rig.close(master)
     return _report(rig, bstats, incs, sent, got, corrupt_at_master, events, plan, mstats)
 

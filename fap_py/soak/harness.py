@@ -319,7 +319,7 @@ class Rig:
             p.wait()
         for th in self.threads:
             th.join(timeout=2)
-        bstats = self.bus.stats()
+        bstats = self.bus.stats
         self.bus.close()
         return bstats
 

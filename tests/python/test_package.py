@@ -219,10 +219,6 @@ def _cycles(graph: Dict[str, Set[str]]) -> List[Tuple[str, ...]]:
 #: fails when one is gone (delete it here) and when a new one appears. Empty it as
 #: those branches land: the goal is no cycle at all.
 KNOWN_CYCLES: Dict[Tuple[str, ...], str] = {
-    ("fap_py.commands._soak8bit", "fap_py.commands.soak"):
-        "the soak's move to fap_py/soak/ (issue 20) removes both files",
-    ("fap_py.g485.codec", "fap_py.g485.errors"):
-        "errors.py imports codec.describe_error_word lazily: G485's own work (issue 20)",
     ("fap_py.bridge.bridge", "fap_py.bridge.metrics"):
         "metrics.py imports Bridge for its type and bridge.py MetricsServer: the bridge's work",
 }
