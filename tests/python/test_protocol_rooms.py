@@ -93,22 +93,26 @@ def protocol_literal_findings(path: pathlib.Path) -> List[str]:
 
 
 def _retyped_numbers() -> Set[str]:
-    nums = {str(P.get(n).default_baud) for n in P.names()}
-    for p in P.PROTOCOLS:
-        nums |= {str(p.node_max)}
-        if p.broadcast:
-            nums.add(str(p.broadcast))
-    return nums
+    """The numbers a tool must read from the table: default baud, top node addresses and
+    broadcast addresses. 0 and 255 are every byte's bounds and numbers under 100 are too
+    common to tell from a limit, except a protocol's top address (FAP's 31)."""
+    maxes = {p.node_max for p in P.PROTOCOLS}
+    nums = {p.default_baud for p in P.PROTOCOLS} | maxes
+    nums |= {p.broadcast for p in P.PROTOCOLS if p.broadcast is not None}
+    return {str(n) for n in nums if n not in (0, 255) and (n >= 100 or n in maxes)}
 
 
 def retyped_limit_findings(path: pathlib.Path) -> List[str]:
     """Decimal literals equal to a protocol's top address, broadcast address or default baud
-    (hex masks such as 0xFF are bytes, not limits, and pass)."""
+    (hex masks such as 0xFF are bytes, not limits, and pass; so does an exponent: 2**31)."""
     nums = _retyped_numbers()
     out = []
+    prev = None
     for tok in tokenize.generate_tokens(io.StringIO(path.read_text()).readline):
-        if tok.type == tokenize.NUMBER and tok.string in nums:
+        if tok.type == tokenize.NUMBER and tok.string in nums and not (prev and prev.string in ("**", "<<")):
             out.append(f"{path}:{tok.start[0]}: re-typed protocol number {tok.string}")
+        if tok.type not in (tokenize.NL, tokenize.COMMENT):
+            prev = tok
     return out
 
 
@@ -125,6 +129,6 @@ def test_tool_files_carry_no_retyped_limit():
 def test_the_guards_catch_what_they_guard(tmp_path):
     """The two scanners above find a switch, a list and a re-typed limit (so a pass means something)."""
     bad = tmp_path / "bad.py"
-    bad.write_text('if p == "exec":\n    pass\nPROTOS = ("fap", "g485")\nMAX = 126\nBAUD = 115200\nMASK = 0xFF\n')
+    bad.write_text('if p == "exec":\n    pass\nPROTOS = ("fap", "g485")\nMAX = 126\nBAUD = 115200\nMASK = 0xFF\nBIG = 2**31\nID = 31\n')
     assert len(protocol_literal_findings(bad)) == 2
-    assert [f.rsplit(" ", 1)[1] for f in retyped_limit_findings(bad)] == ["126", "115200"]
+    assert [f.rsplit(" ", 1)[1] for f in retyped_limit_findings(bad)] == ["126", "115200", "31"]
