@@ -80,8 +80,15 @@ class Sink(Protocol):
     def error(self, bus: str, node: int, tx_id: Optional[str], message: str) -> None: ...
 
 
+def _check_req(req: Any, key: Any) -> None:
+    if not isinstance(req, dict) or not isinstance(key, str):
+        raise InvalidTypeError(f"a tx request is a dict and its key a str, not {type(req).__name__}, "
+                               f"{type(key).__name__}")
+
+
 def hex_field(req: Dict[str, Any], key: str = "data") -> bytes:
     """``req[key]`` (a hex string, default empty) as bytes; TxError otherwise."""
+    _check_req(req, key)
     value = req.get(key, "")
     if not isinstance(value, str):
         raise TxError(f"{key} must be a hex string")
@@ -93,6 +100,7 @@ def hex_field(req: Dict[str, Any], key: str = "data") -> bytes:
 
 def int_field(req: Dict[str, Any], key: str, default: Any = ...) -> int:
     """``req[key]`` as an int (not a bool); TxError when missing without a default."""
+    _check_req(req, key)
     value = req.get(key, default)
     if value is ...:
         raise TxError(f"missing {key!r}")
@@ -210,7 +218,7 @@ class BusAdapter:
             return {}
 
     # -- tx ------------------------------------------------------------------------
-    def accepts(self, node: int) -> bool:
+    def _accepts(self, node: int) -> bool:
         """``node`` is an address a tx may go to: the protocol's node range or its broadcast."""
         p = self.proto
         return p.node_min <= node <= p.node_max or node == p.broadcast
@@ -219,7 +227,7 @@ class BusAdapter:
         """TxError unless ``node`` is a node number of this protocol and the bus runs."""
         if isinstance(node, bool) or not isinstance(node, int):
             raise InvalidTypeError(f"node must be an int, not {type(node).__name__}")
-        if not self.accepts(node):
+        if not self._accepts(node):
             p = self.proto
             extra = "" if p.broadcast is None else f" or {p.broadcast} (broadcast)"
             raise TxError(f"node {node} outside {p.node_min}..{p.node_max}{extra} for {p.name}")

@@ -20,12 +20,12 @@ from .._validate import check_int
 from ..errors import FapError, InvalidTypeError
 from ..fap import RS485, RS485Mode
 from ..rs485 import DEFAULT_BAUD
+from ._schema import BridgeConfigError, BridgeConfigTypeError
+from ._schema import done as _done
+from ._schema import in_range as _range
+from ._schema import pop as _pop
+from ._schema import show as _show
 from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
-from .schema import BridgeConfigError
-from .schema import done as _done
-from .schema import in_range as _range
-from .schema import pop as _pop
-from .schema import show as _show
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -35,10 +35,6 @@ else:  # pragma: no cover - Python < 3.11 only
 _RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
                 "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE, "gpio": RS485Mode.GPIO}
 _NODE_BYTE = 0xFF   #: a node number on a topic is one address byte, whatever the protocol
-
-
-class BridgeConfigTypeError(BridgeConfigError, InvalidTypeError):
-    """:func:`load` was given something that is not a path."""
 
 
 @dataclass(frozen=True)

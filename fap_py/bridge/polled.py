@@ -9,8 +9,8 @@ from typing import Any, Dict, Optional, Tuple
 
 from .. import _protocols
 from ..errors import FapError
+from ._schema import check_plugin_args, hex_bytes, id_list, pop
 from .buses import BusAdapter, TxError, hex_field
-from .schema import hex_bytes, id_list, pop
 
 __all__ = ["PolledOptions", "polled_options", "PolledAdapter"]
 
@@ -25,18 +25,19 @@ class PolledOptions:
 
 def polled_options(t: Dict[str, Any], where: str, role: str, proto: _protocols.Protocol) -> PolledOptions:
     """Take and check ``nodes`` (in the protocol's node range) and ``poll_data`` (hex)."""
+    check_plugin_args(t, where, role, proto)
     nodes = id_list(pop(t, "nodes", list, where, []), proto.node_min, proto.node_max, f"{where}.nodes")
     return PolledOptions(nodes, hex_bytes(t, "poll_data", where))
 
 
 class PolledAdapter(BusAdapter):
-    """A master that polls ``nodes``; a subclass gives :meth:`request` and :meth:`broadcast`."""
+    """A master that polls ``nodes``; a subclass gives ``_request`` and ``_broadcast``."""
 
-    def request(self, node: int, data: bytes) -> bytes:
+    def _request(self, node: int, data: bytes) -> bytes:
         """One request to ``node`` and its reply's data (raises the engine's FapError)."""
         raise NotImplementedError
 
-    def broadcast(self, data: bytes) -> None:
+    def _broadcast(self, data: bytes) -> None:
         """``data`` to every node (no reply)."""
         raise NotImplementedError
 
@@ -52,7 +53,7 @@ class PolledAdapter(BusAdapter):
         o = self.cfg.options
         for node in o.nodes:
             try:
-                reply = self._timed(node, self.request, node, o.poll_data)
+                reply = self._timed(node, self._request, node, o.poll_data)
             except FapError as exc:
                 self._polled(node, None, exc)
             else:
@@ -64,8 +65,8 @@ class PolledAdapter(BusAdapter):
             raise TxError(f"op {op!r}: a {self.proto.name} bus only sends")
         data = hex_field(req)
         if node == self.proto.broadcast:
-            self.broadcast(data)
+            self._broadcast(data)
             return {"data": ""}
-        reply = self._timed(node, self.request, node, data)
+        reply = self._timed(node, self._request, node, data)
         self.sink.state(self.cfg.name, node, True)
         return {"data": reply.hex()}

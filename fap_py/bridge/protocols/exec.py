@@ -24,9 +24,9 @@ class Adapter(PolledAdapter):
         c = self.cfg
         self.engine = Master(c.port, c.baud, timeout=c.timeout, retries=c.retries, rs485=c.rs485)
 
-    def request(self, node: int, data: bytes) -> bytes:
+    def _request(self, node: int, data: bytes) -> bytes:
         reply: bytes = self.engine.transact(node, data)
         return reply
 
-    def broadcast(self, data: bytes) -> None:
+    def _broadcast(self, data: bytes) -> None:
         self.engine.broadcast(data)

@@ -12,8 +12,8 @@ from typing import Any, Dict, List, Optional, Tuple
 from ... import _protocols
 from ...errors import FapError
 from ...fap import MASTER_ID
+from .._schema import check_plugin_args, id_list, in_range, pop
 from ..buses import BusAdapter, TxError, hex_field
-from ..schema import id_list, in_range, pop
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +37,7 @@ class Options:
 
 def options(t: Dict[str, Any], where: str, role: str, proto: _protocols.Protocol) -> Options:
     """Take and check a FAP bus's own keys out of ``t``."""
+    check_plugin_args(t, where, role, proto)
     rx_queue = in_range(pop(t, "rx_queue", int, where, RX_QUEUE), 1, 1 << 20, f"{where}.rx_queue")
     if role == "slave":
         return Options(id=in_range(pop(t, "id", int, where), proto.node_min, proto.node_max, f"{where}.id"),
@@ -57,8 +58,8 @@ class Adapter(BusAdapter):
 
     _wake: Optional[Tuple[int, int]] = None   # a pipe that wakes the reader at stop
 
-    def accepts(self, node: int) -> bool:
-        return node == MASTER_ID or super().accepts(node)   # a slave bus sends to the master
+    def _accepts(self, node: int) -> bool:
+        return node == MASTER_ID or super()._accepts(node)   # a slave bus sends to the master
 
     def configured_nodes(self) -> Tuple[int, ...]:
         o = self.cfg.options

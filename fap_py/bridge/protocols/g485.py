@@ -9,8 +9,8 @@ from typing import Any, Dict, List, Optional, Tuple
 from ... import _protocols
 from ...errors import FapError
 from ...g485.codec import MAX_REGISTER, MIN_REGISTER
+from .._schema import BridgeConfigError, check_plugin_args, done, in_range, pop, show
 from ..buses import BusAdapter, TxError, hex_field, int_field
-from ..schema import BridgeConfigError, done, in_range, pop, show
 
 __all__ = ["ROLES", "DEFAULT_TIMEOUT", "G485Device", "Options", "options", "Adapter"]
 
@@ -47,6 +47,7 @@ def _runs(d: Dict[str, Any], dw: str) -> Tuple[Tuple[int, int], ...]:
 
 def options(t: Dict[str, Any], where: str, role: str, proto: _protocols.Protocol) -> Options:
     """Take and check the ``device`` tables (address in the protocol's node range)."""
+    check_plugin_args(t, where, role, proto)
     devices: List[G485Device] = []
     for j, d in enumerate(pop(t, "device", list, where)):
         dw = f"{where}.device[{j}]"

@@ -23,9 +23,9 @@ class Adapter(PolledAdapter):
         c = self.cfg
         self.engine = Master(c.port, c.baud, rs485=c.rs485)
 
-    def request(self, node: int, data: bytes) -> bytes:
+    def _request(self, node: int, data: bytes) -> bytes:
         reply: bytes = self.engine.request(node, data, timeout=self.cfg.timeout).data
         return reply
 
-    def broadcast(self, data: bytes) -> None:
+    def _broadcast(self, data: bytes) -> None:
         self.engine.send(self.proto.broadcast, data)

@@ -25,9 +25,9 @@ class Adapter(PolledAdapter):
         c = self.cfg
         self.engine = Master(c.port, c.baud, timeout=c.timeout)
 
-    def request(self, node: int, data: bytes) -> bytes:
+    def _request(self, node: int, data: bytes) -> bytes:
         reply: bytes = self.engine.request(node, data)
         return reply
 
-    def broadcast(self, data: bytes) -> None:   # never called: the toy has no broadcast address
+    def _broadcast(self, data: bytes) -> None:   # never called: the toy has no broadcast address
         raise TxError("the toy protocol has no broadcast")

@@ -5,13 +5,30 @@ from __future__ import annotations
 
 from typing import Any, Dict, Tuple
 
-from ..errors import InvalidValueError
+from .._protocols import Protocol
+from ..errors import InvalidTypeError, InvalidValueError
 
-__all__ = ["BridgeConfigError", "show", "pop", "in_range", "done", "id_list", "hex_bytes"]
+__all__ = ["BridgeConfigError", "BridgeConfigTypeError", "show", "pop", "in_range", "done", "id_list",
+           "hex_bytes", "check_plugin_args"]
 
 
 class BridgeConfigError(InvalidValueError):
     """The bridge configuration is missing a key, has an unknown one, or a bad value."""
+
+
+class BridgeConfigTypeError(BridgeConfigError, InvalidTypeError):
+    """A configuration reader was handed something of the wrong type (not a path, not a table)."""
+
+
+def check_plugin_args(t: Any, where: Any, role: Any, proto: Any) -> None:
+    """What a plug-in's ``options(t, where, role, proto)`` is handed: a table (dict), the
+    bus's name for errors and its role (str), and the protocol's table row."""
+    if not isinstance(t, dict):
+        raise BridgeConfigTypeError(f"a bus table must be a dict, not {type(t).__name__}")
+    if not isinstance(where, str) or not isinstance(role, str):
+        raise BridgeConfigTypeError("where and role must be str")
+    if not isinstance(proto, Protocol):
+        raise BridgeConfigTypeError(f"proto must be a protocol table row, not {type(proto).__name__}")
 
 
 def show(value: Any, limit: int = 60) -> str:
