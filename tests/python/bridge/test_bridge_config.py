@@ -336,3 +336,30 @@ def test_optional_parts_without_their_dependency(tmp_path, table, module, hint):
                          cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert res.stderr.strip().splitlines()[-1] == f"fap: error: {hint}: pip install 'fap_py[bridge]'"
+
+
+def test_protocol_keys_live_in_the_plugins():
+    """Each protocol's own keys are its plug-in's (BusConfig.options); node ranges and the
+    FAP receive-queue depth are checked there; the old names still resolve, with a warning."""
+    import warnings
+
+    from fap_py.bridge import buses, config
+    from fap_py.bridge.protocols import fap as fap_plugin
+
+    ex_bus = {"name": "ex", "port": "/dev/ttyUSB1", "protocol": "execasync", "nodes": [1]}
+    cfg = from_dict({"broker": BROKER, "bus": [_bus(rx_queue=64), ex_bus]})
+    line1, ex = cfg.buses
+    assert line1.options == fap_plugin.Options(slaves=(1, 2), rx_queue=64) and ex.protocol == "exec"
+    assert from_dict({"broker": BROKER, "bus": [_bus()]}).buses[0].options.rx_queue == fap_plugin.RX_QUEUE
+    with pytest.raises(BridgeConfigError, match="rx_queue"):
+        from_dict({"broker": BROKER, "bus": [_bus(rx_queue=0)]})
+    with pytest.raises(BridgeConfigError, match="unknown key.*slaves"):   # a FAP key on an exec bus
+        from_dict({"broker": BROKER, "bus": [_bus(protocol="exec")]})
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert buses.ExecAsyncAdapter is get_protocol("exec").plugin("bridge").Adapter
+        assert config.G485Device is get_protocol("g485").plugin("bridge").G485Device
+        assert config.PROTOCOLS == ("fap", "exec", "mikroc", "g485")
+    assert len(seen) == 3 and all(issubclass(w.category, DeprecationWarning) for w in seen)
+    with pytest.raises(AttributeError):
+        buses.ModbusAdapter
