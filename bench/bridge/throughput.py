@@ -272,10 +272,8 @@ def bridge_run(baud: int, n_slaves: int, seconds: float, work: str,
         finally:
             for s in slaves:
                 s.close()
-            proc.terminate()
-            try:
-                proc.wait(40)
-            except subprocess.TimeoutExpired:
+            proc.terminate()   # SIGTERM: the bridge drains its outbox, goes offline, exits
+            if not _wait(lambda: proc.poll() is not None, 40):
                 proc.kill()
             if spy is not None:
                 spy.wait(30)
