@@ -48,7 +48,6 @@ from .errors import (
     FrameError,
     error_from_code,
 )
-from .rs485 import DEFAULT_BAUD as _DEFAULT_BAUD
 from .rs485 import RS485, port_options  # the line options every fap_py node takes
 
 __all__ = [
@@ -84,7 +83,7 @@ MAX_DATA: int = lib.MIKROC_RS485_MAX_DATA
 # Facts the tools read through fap_py._protocols (never re-typed in a tool).
 NODE_MIN: int = lib.MIKROC_RS485_ADDR_MIN       # any address byte a master may send to
 NODE_MAX: int = lib.MIKROC_RS485_ADDR_MAX
-DEFAULT_BAUD: int = _DEFAULT_BAUD
+DEFAULT_BAUD: int = 19200                       # the rate of the vendor's mikroC examples
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -357,7 +356,7 @@ class Master(_Node):
     """A mikroC master on a serial port: ``send`` to a slave, ``receive`` its
     reply. Runs the C master (``mikrocRS485_CtxInitMaster``)."""
 
-    def __init__(self, port_path: PathLike, baudrate: int = 19200, *,
+    def __init__(self, port_path: PathLike, baudrate: int = DEFAULT_BAUD, *,
                  rs485: Optional[RS485] = None) -> None:
         """Open ``port_path``. ``rs485`` holds the line options (direction
         mode, RTS, echo suppression, turnaround: :class:`fap_py.RS485`,
@@ -421,7 +420,7 @@ class Slave(_Node):
 
     _buffer_size = lib.MIKROC_RS485_SLAVE_BUFFER
 
-    def __init__(self, port_path: PathLike, baudrate: int = 19200, address: int = 1, *,
+    def __init__(self, port_path: PathLike, baudrate: int = DEFAULT_BAUD, address: int = 1, *,
                  rs485: Optional[RS485] = None) -> None:
         self.address = _check_address(address)
         super().__init__(port_path, baudrate, rs485)

@@ -28,6 +28,12 @@ in a broker restart) carries the same ``seq`` and is counted apart as
     python3 bench/bridge/soak.py --bench --duration 20          # throughput + latency, no restarts
 
 Needs paho-mqtt (``pip install 'fap_py[bridge]'``) and mosquitto.
+
+``--bench`` rates count from the first to the last arrival, so a stall of the bus
+itself (a frame lost on a loaded paced bus waits for FAP's recovery timers) counts
+against the bridge: the bridge's throughput target is measured by
+``python -m bench.bridge.throughput`` (README.md), which compares the bridge with what
+the bus delivered in the same window.
 """
 from __future__ import annotations
 

@@ -9,14 +9,22 @@ from __future__ import annotations
 import os
 import socket
 import sys
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
+from .. import _protocols
+from .._native import lib as _lib
 from .._validate import check_int
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
-from ..rs485 import parse_realtime
+from ..rs485 import DEFAULT_BAUD, parse_realtime
+from ._schema import BridgeConfigError, BridgeConfigTypeError
+from ._schema import done as _done
+from ._schema import in_range as _range
+from ._schema import pop as _pop
+from ._schema import show as _show
 from .files import CONFIG_MAX, SECRET_MAX, TLS_FILE_MAX, check_port, check_state_dir, read_bounded
 
 if sys.version_info >= (3, 11):
@@ -24,50 +32,43 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python < 3.11 only
     import tomli as tomllib
 
-PROTOCOLS = ("fap", "execasync", "g485", "mikroc")
 _RS485_MODES = {"auto": RS485Mode.AUTO, "kernel": RS485Mode.KERNEL,
                 "soft": RS485Mode.SOFT_RTS, "none": RS485Mode.NONE, "gpio": RS485Mode.GPIO}
-
-
-class BridgeConfigError(InvalidValueError):
-    """The bridge configuration is missing a key, has an unknown one, or a bad value."""
-
-
-class BridgeConfigTypeError(BridgeConfigError, InvalidTypeError):
-    """:func:`load` was given something that is not a path."""
-
-
-@dataclass(frozen=True)
-class G485Device:
-    """A G485 device and the register runs polled on it: ``[(first, count), ...]``."""
-
-    address: int
-    registers: Tuple[Tuple[int, int], ...]
+_NODE_BYTE = 0xFF   #: a node number on a topic is one address byte, whatever the protocol
 
 
 @dataclass(frozen=True)
 class BusConfig:
-    """One bus: a port, a protocol, a role and the nodes the bridge talks to."""
+    """One bus: a port, a protocol, a role, the line keys every protocol shares, and
+    ``options``: the protocol's own keys, checked by its plug-in
+    (``fap_py.bridge.protocols.<protocol>``, e.g. a FAP master's ``slaves``).
+
+    ``protocol`` is the protocol's one name (a file's alias, ``execasync``, is read as
+    ``exec``). The protocol's own keys also read as attributes, as before the plug-ins:
+    ``cfg.slaves`` is ``cfg.options.slaves``.
+    """
 
     name: str
     port: str
     protocol: str
     role: str = "master"
-    baud: int = 115200
+    # -- the line keys every protocol shares (one place: a new common key goes here) --
+    baud: int = DEFAULT_BAUD
     rs485: RS485 = field(default_factory=RS485)
-    timeout: float = 0.1           #: per transaction attempt (execasync, g485, mikroc)
+    timeout: float = 0.1           #: per transaction attempt (fap: how long a tx waits for queue room)
     retries: int = 2
-    id: int = 0                    #: fap slave: this bridge's slave ID
-    slaves: Tuple[int, ...] = ()   #: fap master: slaves to list
-    nodes: Tuple[int, ...] = ()    #: execasync/mikroc: nodes polled with poll_data
-    poll_data: Optional[bytes] = None
     poll_interval: float = 1.0
-    devices: Tuple[G485Device, ...] = ()
-    id_cycle: Optional[float] = None
-    data_done_timeout: Optional[float] = None
     reopen_interval: float = 5.0   #: seconds between attempts to open a port that failed
     homeassistant: bool = False    #: publish Home Assistant MQTT discovery for its nodes
     sparkplug: bool = False        #: its nodes are Sparkplug B devices (needs [sparkplug])
+    # -- the protocol's own keys (its plug-in's Options) --
+    options: Any = None
+
+    def __getattr__(self, name: str) -> Any:
+        options = self.__dict__.get("options")
+        if options is None or name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(options, name)
 
 
 @dataclass(frozen=True)
@@ -120,60 +121,20 @@ class BridgeConfig:
 
 def check_bus_node(bus: Any, node: Any) -> None:
     """InvalidTypeError / InvalidValueError unless ``bus`` is a bus name (str) and ``node``
-    a node number (0..255): what the bridge's per-node calls are handed."""
+    a node number (one address byte): what the bridge's per-node calls are handed."""
     if not isinstance(bus, str):
         raise InvalidTypeError(f"bus must be a str, not {type(bus).__name__}")
-    check_int(node, "node", 0, 255)
+    check_int(node, "node", 0, _NODE_BYTE)
 
 
-# -- checking helpers -----------------------------------------------------------
+# -- the common keys (a protocol's own keys are checked by its plug-in) --------------
 
-def _show(value: Any, limit: int = 60) -> str:
-    """A value for an error line: bounded (a 1 MB string or a 10,000-digit number is not echoed)."""
-    if isinstance(value, int) and not isinstance(value, bool) and value.bit_length() > 64:
-        return f"a {value.bit_length()}-bit integer"
-    try:
-        text = repr(value)
-    except ValueError:   # an int inside a list past Python's digit limit
-        text = f"a {type(value).__name__}"
-    return text if len(text) <= limit else text[:limit] + "..."
-
-
-def _pop(table: Dict[str, Any], key: str, kind: Any, where: str, default: Any = ...) -> Any:
-    if key not in table:
-        if default is ...:
-            raise BridgeConfigError(f"{where}: missing key {_show(key)}")
-        return default
-    value = table.pop(key)
-    ok = isinstance(value, kind) and not (isinstance(value, bool) and kind in (int, float, (int, float)))
-    if not ok:
-        name = kind.__name__ if isinstance(kind, type) else "/".join(k.__name__ for k in kind)
-        raise BridgeConfigError(f"{where}.{key}: expected {name}, got {_show(value)}")
-    if kind == (int, float) and isinstance(value, int) and abs(value) > 1e300:   # float() would overflow
-        raise BridgeConfigError(f"{where}.{key}: {_show(value)} is out of range")
-    return value
-
-
-def _range(value: Any, lo: float, hi: float, what: str) -> Any:
-    if not lo <= value <= hi:
-        raise BridgeConfigError(f"{what} must be in {lo}..{hi}, not {_show(value)}")
-    return value
-
-
-def _done(table: Dict[str, Any], where: str) -> None:
-    if table:
-        raise BridgeConfigError(f"{where}: unknown key(s) {', '.join(sorted(table))[:200]}")
-
-
-def _ids(values: Any, lo: int, hi: int, what: str) -> Tuple[int, ...]:
-    if not isinstance(values, list) or not all(isinstance(v, int) and not isinstance(v, bool)
-                                               for v in values):
-        raise BridgeConfigError(f"{what} must be a list of integers")
-    for v in values:
-        _range(v, lo, hi, what)
-    if len(set(values)) != len(values):
-        raise BridgeConfigError(f"{what} lists an ID twice: {_show(values)}")
-    return tuple(values)
+def _baud_rates() -> Tuple[int, ...]:
+    """The rates the C port layer accepts (its termios table, ascending, 0-terminated)."""
+    rates: list = []
+    while _lib.fap_port_baud_rate(len(rates)):
+        rates.append(int(_lib.fap_port_baud_rate(len(rates))))
+    return tuple(rates)
 
 
 def _rs485(t: Dict[str, Any], where: str) -> RS485:
@@ -218,19 +179,25 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
         raise BridgeConfigError(f"{where}.name {_show(name)}: empty or holds an MQTT wildcard or /")
     where = f"bus {_show(name)}"
     port = _pop(t, "port", str, where)
-    protocol = _pop(t, "protocol", str, where)
-    if protocol not in PROTOCOLS:
-        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(PROTOCOLS)}, not {_show(protocol)}")
+    text = _pop(t, "protocol", str, where)
+    try:
+        proto = _protocols.get(text)
+        plugin = proto.plugin("bridge")
+    except _protocols.UnknownProtocolError:
+        with_bridge = [p.name for p in _protocols.all_protocols() if p.has_plugin("bridge")]
+        raise BridgeConfigError(f"{where}.protocol must be one of {', '.join(with_bridge)}, "
+                                f"not {_show(text)}") from None
     role = _pop(t, "role", str, where, "master")
-    if role not in ("master", "slave") or (role == "slave" and protocol != "fap"):
-        raise BridgeConfigError(f"{where}.role {_show(role)}: only fap buses may be a slave")
-    kw: Dict[str, Any] = {"name": name, "port": port, "protocol": protocol, "role": role}
-    kw["baud"] = _range(_pop(t, "baud", int, where, 19200 if protocol == "mikroc" else 115200),
-                        50, 10_000_000, f"{where}.baud")
+    if role not in plugin.ROLES:
+        raise BridgeConfigError(f"{where}.role {_show(role)}: a {proto.name} bus is "
+                                f"{' or '.join(plugin.ROLES)}")
+    kw: Dict[str, Any] = {"name": name, "port": port, "protocol": proto.name, "role": role}
+    kw["baud"] = _pop(t, "baud", int, where, proto.default_baud)
+    if kw["baud"] not in _baud_rates():
+        raise BridgeConfigError(f"{where}.baud {_show(kw['baud'])} is not a rate the serial port layer "
+                                f"supports ({', '.join(map(str, _baud_rates()))})")
     kw["rs485"] = _rs485(t, where)   # every protocol opens its port through the C port layer
-    # fap: how long a tx waits for room in the engine's queue; others: per attempt
-    default_timeout = 1.0 if protocol == "fap" else 0.1
-    kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, default_timeout)),
+    kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, plugin.DEFAULT_TIMEOUT)),
                            0.001, 3600, f"{where}.timeout")
     kw["retries"] = _range(_pop(t, "retries", int, where, 2), 0, 1000, f"{where}.retries")
     kw["poll_interval"] = _range(float(_pop(t, "poll_interval", (int, float), where, 1.0)),
@@ -239,45 +206,17 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
     kw["sparkplug"] = _pop(t, "sparkplug", bool, where, False)
     kw["reopen_interval"] = _range(float(_pop(t, "reopen_interval", (int, float), where, 5.0)),
                                    0.01, 3600, f"{where}.reopen_interval")
-    if protocol == "fap" and role == "master":
-        kw["slaves"] = _ids(_pop(t, "slaves", list, where), 1, 31, f"{where}.slaves")
-        for key in ("id_cycle", "data_done_timeout"):
-            if key in t:
-                kw[key] = _range(float(_pop(t, key, (int, float), where)), 0.001, 3600, f"{where}.{key}")
-    elif protocol == "fap":
-        kw["id"] = _range(_pop(t, "id", int, where), 1, 31, f"{where}.id")
-    elif protocol in ("execasync", "mikroc"):
-        lo, hi = (1, 254) if protocol == "execasync" else (0, 255)
-        kw["nodes"] = _ids(_pop(t, "nodes", list, where, []), lo, hi, f"{where}.nodes")
-        data = _pop(t, "poll_data", str, where, None)
-        if data is not None:
-            try:
-                kw["poll_data"] = bytes.fromhex(data)
-            except ValueError:
-                raise BridgeConfigError(f"{where}.poll_data is not hex: {_show(data)}") from None
-    else:
-        devices = []
-        for j, d in enumerate(_pop(t, "device", list, where)):
-            dw = f"{where}.device[{j}]"
-            if not isinstance(d, dict):
-                raise BridgeConfigError(f"{dw} must be a table")
-            d = dict(d)
-            address = _range(_pop(d, "address", int, dw), 1, 126, f"{dw}.address")
-            runs = []
-            for run in _pop(d, "registers", list, dw, []):
-                if (not isinstance(run, list) or len(run) != 2
-                        or not all(isinstance(v, int) and not isinstance(v, bool) for v in run)):
-                    raise BridgeConfigError(f"{dw}.registers: each entry is [first, count], not {_show(run)}")
-                _range(run[0], 1, 100, f"{dw}.registers first")
-                _range(run[1], 1, 101 - run[0], f"{dw}.registers count")
-                runs.append((run[0], run[1]))
-            _done(d, dw)
-            devices.append(G485Device(address, tuple(runs)))
-        if len({d.address for d in devices}) != len(devices):
-            raise BridgeConfigError(f"{where}: a device address is listed twice")
-        kw["devices"] = tuple(devices)
+    kw["options"] = plugin.options(t, where, role, proto)   # the protocol's own keys
     _done(t, where)
     return BusConfig(**kw)
+
+
+def bus_from_dict(table: Mapping[str, Any], index: int = 0) -> BusConfig:
+    """One checked :class:`BusConfig` from a ``[[bus]]`` table (its common keys here, its
+    protocol's own keys by the protocol's plug-in)."""
+    if not isinstance(table, Mapping):
+        raise BridgeConfigError(f"bus[{index}] must be a table ([[bus]]), not {type(table).__name__}")
+    return _bus(dict(table), index)
 
 
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
@@ -361,7 +300,7 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     for i, b in enumerate(bus_tables):   # [[bus]] only: a list of lists is not a table
         if not isinstance(b, dict):
             raise BridgeConfigError(f"bus[{i}] must be a table ([[bus]]), not {type(b).__name__}")
-    buses = tuple(_bus(dict(b), i) for i, b in enumerate(bus_tables))
+    buses = tuple(bus_from_dict(b, i) for i, b in enumerate(bus_tables))
     names = [b.name for b in buses]
     if len(set(names)) != len(names):
         raise BridgeConfigError(f"bus names must differ: {_show(names)}")
@@ -464,6 +403,20 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
     return from_dict(data, os.path.dirname(os.path.abspath(path)))
 
 
+def __getattr__(name: str) -> Any:
+    """Deprecated names: ``G485Device`` lives in the G485 plug-in; ``PROTOCOLS`` is the
+    protocol table's names of the protocols with a bridge plug-in."""
+    if name == "G485Device":
+        warnings.warn("fap_py.bridge.config.G485Device moved to fap_py.bridge.protocols.g485",
+                      DeprecationWarning, stacklevel=2)
+        return _protocols.get("g485").plugin("bridge").G485Device
+    if name == "PROTOCOLS":
+        warnings.warn("fap_py.bridge.config.PROTOCOLS: use fap_py._protocols (every protocol with a "
+                      "bridge plug-in)", DeprecationWarning, stacklevel=2)
+        return tuple(p.name for p in _protocols.all_protocols() if p.has_plugin("bridge"))
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
-           "check_bus_node",
-           "G485Device", "SparkplugConfig", "PROTOCOLS", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]
+           "check_bus_node", "bus_from_dict",
+           "SparkplugConfig", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

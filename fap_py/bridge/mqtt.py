@@ -54,6 +54,10 @@ _FATAL_CONNACK = {4, 5, 134, 135, 138, 140}
 
 _PAYLOAD_MAX = 268_435_455   #: MQTT's largest packet (its remaining length field)
 _LOG_FIRST = 10   # refused publications logged one by one; after that every 1000th
+#: seconds the pump waits for a batch (a quarter of the in-flight window) before a round
+#: with less: under load one disk transaction and one read per batch, never per message;
+#: a lone publication goes at once (an empty window is always worth a round)
+PUMP_LINGER = 0.005
 
 
 def describe_connect_error(exc: Optional[BaseException], host: str, port: int) -> str:
@@ -153,6 +157,7 @@ class MqttLink:
         self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
+        self._batch = max(1, config.inflight // 4)   # rows per pump round under load
         self._pump_thread: Optional[threading.Thread] = None
 
     # -- lifetime ---------------------------------------------------------------
@@ -305,7 +310,10 @@ class MqttLink:
                 self._early[mid] = reason
             else:
                 self._acked_one(entry, reason)
-            self._cond.notify_all()
+            # wake the pump for a batch of acknowledgements, not for each one (one disk
+            # transaction per batch); the last one of a burst always wakes it
+            if len(self._acked) >= self._batch or not self._inflight:
+                self._cond.notify_all()
 
     def _acked_one(self, entry: Tuple[int, str], reason: Any) -> None:
         """Under ``_cond``: the broker answered publication ``entry``. A refusal (MQTT 5
@@ -358,14 +366,25 @@ class MqttLink:
             self._cond.notify_all()
 
     def _ready(self) -> bool:
-        return self._stopping or bool(self._acked) or (
-            self._connected and len(self._inflight) < self.config.inflight
-            and self.store.pending > len(self._inflight))
+        """A round is worth it: a batch of acknowledgements to delete, or room for a batch
+        of new rows (or for the last ones: the window is empty)."""
+        if self._stopping or len(self._acked) >= self._batch:
+            return True
+        room = self.config.inflight - len(self._inflight)
+        unsent = self.store.pending - len(self._inflight) - len(self._acked)
+        return self._connected and unsent > 0 and (room >= self._batch or not self._inflight)
+
+    def _work(self) -> bool:
+        """Anything at all to do (the pump's round after ``PUMP_LINGER``)."""
+        return bool(self._acked) or (self._connected and len(self._inflight) < self.config.inflight
+                                     and self.store.pending > len(self._inflight) + len(self._acked))
 
     def _pump(self) -> None:
         while True:
             with self._cond:
-                self._cond.wait_for(self._ready, 1.0)
+                # a batch now, or whatever there is after PUMP_LINGER (never a round per PUBACK)
+                if not self._cond.wait_for(self._ready, PUMP_LINGER) and not self._work():
+                    self._cond.wait_for(lambda: self._stopping or self._work(), 1.0)
                 if self._stopping:
                     return
                 room = self.config.inflight - len(self._inflight) if self._connected else 0

@@ -100,7 +100,7 @@ Metric = Tuple[str, int, Any]   # name, datatype, value (None: is_null)
 def encode(metrics: List[Metric], seq: Optional[int], ts_ms: Optional[int] = None,
            historical: bool = False) -> bytes:
     """A Sparkplug B payload; ``seq`` None for NDEATH (which has none)."""
-    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= 255):
+    if seq is not None and (isinstance(seq, bool) or not isinstance(seq, int) or not 0 <= seq <= 0xFF):
         raise InvalidValueError(f"seq must be 0..255 or None, not {seq!r:.40}")
     if not isinstance(metrics, (list, tuple)):
         raise InvalidTypeError(f"metrics must be a list of (name, datatype, value), not {type(metrics).__name__}")

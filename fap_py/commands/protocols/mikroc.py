@@ -20,16 +20,6 @@ if TYPE_CHECKING:  # pragma: no cover
 PROTOCOL = _protocols.get("mikroc")   # broadcast address: from the binding
 
 
-def _baud_default() -> int:
-    """The mikroC library's usual rate: the default of the binding's Master (the table's
-    ``default_baud`` is the package-wide rate, which the mikroC nodes do not default to)."""
-    import inspect
-
-    from fap_py.mikroc import Master
-
-    return int(inspect.signature(Master).parameters["baudrate"].default)
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = opt.add_command(sub, "mikroc", help="mikroC RS-485: master requests, a slave that answers",
                         example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203")
@@ -39,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         example="fap mikroc master --port /dev/ttyUSB0 --address 5 010203 --count 0 "
                         f"--interval 0.5\nfap mikroc master --port /dev/ttyUSB0 --address {PROTOCOL.broadcast} 01   "
                         "# broadcast, no reply")
-    opt.add_echo_option(opt.add_port_options(m, baud_default=_baud_default()))
+    opt.add_echo_option(opt.add_port_options(m, baud_default=PROTOCOL.default_baud))
     opt.add_link_options(m, timeout_default=0.2, retries_default=0)
     opt.add_output_options(m)
     m.add_argument("--address", type=opt.integer, required=True, help=f"slave address ({PROTOCOL.broadcast} = broadcast)")
@@ -49,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = opt.add_command(cmds, "slave", help="answer as a slave until interrupted",
                         example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
-    opt.add_echo_option(opt.add_port_options(s, baud_default=_baud_default()))
+    opt.add_echo_option(opt.add_port_options(s, baud_default=PROTOCOL.default_baud))
     opt.add_output_options(s)
     s.add_argument("--address", type=opt.integer, required=True, help="this slave's address")
     s.add_argument("--reply", type=reply_option(3), default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")

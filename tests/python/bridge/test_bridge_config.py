@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from fap_py._protocols import get as get_protocol
 from fap_py.bridge.config import BridgeConfigError, from_dict, load, parse_url
 from fap_py.errors import InvalidValueError
 from fap_py.fap import RS485, RS485Mode
@@ -90,7 +91,10 @@ protocol = "mikroc"
     assert ex.rs485 == RS485(mode=RS485Mode.AUTO, rts_active_high=True, delay_before_send_us=0,
                              delay_after_send_us=0, echo_suppression=False)   # the documented defaults
     assert ex.nodes == (5, 6) and ex.poll_data == b"\x01\x02"
-    assert mk.baud == 19200
+    assert ex.options.nodes == (5, 6) and line1.options.slaves == (1, 2, 3)   # the plug-ins' own keys
+    # "execasync" is an accepted alias: the bus's protocol is the one name
+    assert [b.protocol for b in cfg.buses] == ["fap", "fap", "g485", "exec", "mikroc"]
+    assert mk.baud == get_protocol("mikroc").default_baud   # the default baud comes from the protocol table
 
 
 @pytest.mark.parametrize("data, words", [
@@ -112,6 +116,12 @@ protocol = "mikroc"
     ({"broker": BROKER, "bus": [_bus(), _bus()]}, "differ"),
     ({"broker": BROKER, "bus": [_bus(name="bridge")]}, "bridge"),
     ({"broker": BROKER, "bus": [_bus(protocol="execasync", role="slave")]}, "slave"),
+    ({"broker": BROKER, "bus": [_bus(protocol="exec", role="slave")]}, "a exec bus is master"),
+    ({"broker": BROKER, "bus": [_bus(baud=12345)]}, "baud 12345 is not a rate"),
+    ({"broker": BROKER, "bus": [_bus(slaves=[get_protocol("fap").node_max + 1])]}, r"slaves must be in 1..31"),
+    ({"broker": BROKER, "bus": [_bus(protocol="exec", nodes=[get_protocol("exec").broadcast])]}, "nodes must be in"),
+    ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[{"address": get_protocol("g485").node_max + 1}])]},
+     "address must be in"),
     ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[{"address": 1, "registers": [[99, 5]]}])]},
      "count"),
     ({"broker": BROKER, "bus": [_bus(protocol="g485", device=[], rs485="maybe")]}, "rs485"),
@@ -138,7 +148,7 @@ def test_gpio_direction_mode():
 def test_shipped_example_parses():
     example = Path(__file__).resolve().parents[3] / "examples" / "bridge" / "bridge.toml"
     cfg = load(str(example))
-    assert [b.protocol for b in cfg.buses] == ["fap", "fap", "g485", "execasync", "mikroc"]
+    assert [b.protocol for b in cfg.buses] == ["fap", "fap", "g485", "exec", "mikroc"]
     valves = cfg.buses[2]
     assert valves.rs485.mode == RS485Mode.SOFT_RTS and valves.rs485.echo_suppression
     assert valves.rs485.delay_after_send_us == 1000
@@ -254,7 +264,7 @@ def _values():
 
     scalars = st.one_of(st.booleans(), st.integers(), st.integers(-2, 300), st.sampled_from([10**400, -10**400, 10**1000]),
                         st.floats(allow_nan=True, allow_infinity=True),
-                        st.sampled_from(["fap", "g485", "execasync", "mikroc", "master", "slave", "mqtt://h",
+                        st.sampled_from(["fap", "g485", "exec", "execasync", "mikroc", "master", "slave", "mqtt://h",
                                          "mqtts://h:1", "mqtt://[::1", "/dev/null", "/dev/zero", "5", "3.1.1",
                                          "127.0.0.1:0", "auto", "zz", ""]),
                         st.text(max_size=8))
@@ -326,3 +336,30 @@ def test_optional_parts_without_their_dependency(tmp_path, table, module, hint):
                          cwd=tmp_path)
     assert res.returncode == 2, res.stderr
     assert res.stderr.strip().splitlines()[-1] == f"fap: error: {hint}: pip install 'fap_py[bridge]'"
+
+
+def test_protocol_keys_live_in_the_plugins():
+    """Each protocol's own keys are its plug-in's (BusConfig.options); node ranges and the
+    FAP receive-queue depth are checked there; the old names still resolve, with a warning."""
+    import warnings
+
+    from fap_py.bridge import buses, config
+    from fap_py.bridge.protocols import fap as fap_plugin
+
+    ex_bus = {"name": "ex", "port": "/dev/ttyUSB1", "protocol": "execasync", "nodes": [1]}
+    cfg = from_dict({"broker": BROKER, "bus": [_bus(rx_queue=64), ex_bus]})
+    line1, ex = cfg.buses
+    assert line1.options == fap_plugin.Options(slaves=(1, 2), rx_queue=64) and ex.protocol == "exec"
+    assert from_dict({"broker": BROKER, "bus": [_bus()]}).buses[0].options.rx_queue == fap_plugin.RX_QUEUE
+    with pytest.raises(BridgeConfigError, match="rx_queue"):
+        from_dict({"broker": BROKER, "bus": [_bus(rx_queue=0)]})
+    with pytest.raises(BridgeConfigError, match="unknown key.*slaves"):   # a FAP key on an exec bus
+        from_dict({"broker": BROKER, "bus": [_bus(protocol="exec")]})
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always")
+        assert buses.ExecAsyncAdapter is get_protocol("exec").plugin("bridge").Adapter
+        assert config.G485Device is get_protocol("g485").plugin("bridge").G485Device
+        assert config.PROTOCOLS == ("fap", "exec", "mikroc", "g485")
+    assert len(seen) == 3 and all(issubclass(w.category, DeprecationWarning) for w in seen)
+    with pytest.raises(AttributeError):
+        getattr(buses, "ModbusAdapter")  # noqa: B009 (a name no plug-in has)

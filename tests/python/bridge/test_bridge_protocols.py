@@ -84,7 +84,7 @@ def test_execasync_master(broker, observer_factory, tmp_path):
 
     with VirtualBus(2) as bus, Slave(bus.paths[1], node=5, handler=lambda req: b"re:" + req.data).start():
         obs = observer_factory(broker.port)
-        buses = [{"name": "ex", "port": bus.paths[0], "protocol": "execasync", "nodes": [5],
+        buses = [{"name": "ex", "port": bus.paths[0], "protocol": "exec", "nodes": [5],
                   "poll_data": "7071", "poll_interval": 0.05, "timeout": 0.2, "retries": 1}]
         with Bridge(bridge_config(broker.port, str(tmp_path), buses)) as bridge:
             assert bridge.wait_connected(WAIT)

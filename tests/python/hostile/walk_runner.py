@@ -226,17 +226,18 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         def state(self, *a: Any) -> None: ...
         def error(self, *a: Any) -> None: ...
 
-    def adapter(cls: Any, protocol: str, **kw: Any) -> Any:
-        """A bus adapter on a bus of its own, not opened (so not running)."""
-        from fap_py.bridge.config import BusConfig
-        return cls(BusConfig(name="b", port=own(), protocol=protocol, **kw), Sink())
+    def adapter(protocol: str, **keys: Any) -> Any:
+        """A bus adapter (the protocol's bridge plug-in) on a bus of its own, not opened."""
+        from fap_py.bridge.config import bus_from_dict
+        return buses.make_adapter(bus_from_dict(dict({"name": "b", "port": own(), "protocol": protocol},
+                                                     **keys)), Sink())
 
     def bridge_config() -> Any:
         """A bridge on one bus of its own (not opened), a broker nobody listens on (never
         connected: nothing here starts), Sparkplug and Home Assistant on."""
-        from fap_py.bridge.config import BridgeConfig, BrokerConfig, BusConfig, SparkplugConfig
-        bus = BusConfig(name="b", port=own(), protocol="execasync", nodes=(1,),
-                        homeassistant=True, sparkplug=True)
+        from fap_py.bridge.config import BridgeConfig, BrokerConfig, SparkplugConfig, bus_from_dict
+        bus = bus_from_dict({"name": "b", "port": own(), "protocol": "exec", "nodes": [1],
+                             "homeassistant": True, "sparkplug": True})
         return BridgeConfig(broker=BrokerConfig(host="127.0.0.1", port=1, tls=False),
                             buses=(bus,), host="walk", state_dir=tempfile.mkdtemp(),
                             sparkplug=SparkplugConfig("g", "e"))
@@ -269,12 +270,11 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         "fap_py.g485.transaction.Transaction": lambda: Session(timeout=0.01, retries=0).read(1, 8),
         "fap_py.g485.transport.PortIO": lambda: PortIO(own(), 115200, line),
         "fap_py.g485.transport.SerialIO": lambda: SerialIO("loop://", 115200),
-        "fap_py.bridge.buses.FapAdapter": lambda: adapter(buses.FapAdapter, "fap", slaves=(5,)),
-        "fap_py.bridge.buses.ExecAsyncAdapter": lambda: adapter(buses.ExecAsyncAdapter,
-                                                                "execasync", nodes=(1,)),
-        "fap_py.bridge.buses.MikrocAdapter": lambda: adapter(buses.MikrocAdapter, "mikroc",
-                                                             nodes=(1,)),
-        "fap_py.bridge.buses.G485Adapter": lambda: adapter(buses.G485Adapter, "g485"),
+        "fap_py.bridge.protocols.fap.Adapter": lambda: adapter("fap", slaves=[5]),
+        "fap_py.bridge.protocols.exec.Adapter": lambda: adapter("exec", nodes=[1]),
+        "fap_py.bridge.protocols.mikroc.Adapter": lambda: adapter("mikroc", nodes=[1]),
+        "fap_py.bridge.protocols.g485.Adapter": lambda: adapter("g485", device=[]),
+        "fap_py.bridge.polled.PolledAdapter": lambda: adapter("exec", nodes=[1]),
         "fap_py.bridge.store.Store": lambda: Store(os.path.join(tempfile.mkdtemp(), "s.sqlite")),
         "fap_py.bridge.mqtt.MqttLink": lambda: MqttLink(bridge_config(), Store(
             os.path.join(tempfile.mkdtemp(), "s.sqlite")), lambda *a: None),
