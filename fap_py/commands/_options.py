@@ -33,6 +33,7 @@ from enum import Enum
 from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Tuple
 
 from ..errors import FapError, InvalidValueError
+from ..rs485 import DEFAULT_BAUD
 
 #: Exit codes of every ``fap`` command (docs/cli.md).
 EXIT_OK = 0           #: success
@@ -193,7 +194,7 @@ seconds = _nonneg_float
 count = _nonneg_int
 
 
-def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[int] = 115200,
+def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[int] = DEFAULT_BAUD,
                      port_required: bool = True, rs485_default: str = "auto",
                      port_help: str = "serial device (e.g. /dev/ttyUSB0, or a `fap bus` port)",
                      baud_help: str = "line speed, bit/s") -> argparse._ArgumentGroup:

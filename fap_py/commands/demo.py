@@ -24,13 +24,15 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Deque, Dict, List, Optional, Tuple
 
+from .. import _protocols
+from ..rs485 import DEFAULT_BAUD
 from ._options import EXIT_INTERRUPTED, add_command, add_output_options, baud, emit, seconds
 
 if TYPE_CHECKING:  # pragma: no cover
     from ..fap import Master, Slave
 
 PAYLOAD = 32                 #: bytes in every demo message (goodput = data_rx x PAYLOAD)
-SLAVE_IDS = (3, 7, 12, 18, 21, 25, 29, 31)
+SLAVE_IDS = (3, 7, 12, 18, 21, 25, 29, _protocols.get("fap").node_max)   # the top ID too
 TICK = 0.02                  #: seconds between traffic rounds
 # Protocol timing shortened for the demo (vendor defaults: 15 s, 1 s, 15 s).
 DEMO_TIMING = {"id_cycle": 0.2, "id_answer_timeout": 0.1, "data_done_timeout": 0.5}
@@ -53,7 +55,7 @@ def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None
                    f"{PLAIN_DURATION:g} otherwise)")
     p.add_argument("--slaves", metavar="N", type=int, choices=range(1, len(SLAVE_IDS) + 1),
                    default=3, help=f"number of slaves, 1..{len(SLAVE_IDS)}")
-    p.add_argument("--baud", metavar="N", type=baud, default=115200,
+    p.add_argument("--baud", metavar="N", type=baud, default=DEFAULT_BAUD,
                    help="line speed the nodes configure")
     p.add_argument("--paced", action="store_true",
                    help="the virtual bus delivers bytes at --baud (10 bits/byte) like a real "

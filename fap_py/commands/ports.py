@@ -16,6 +16,7 @@ import os
 from typing import Any, Dict, List
 
 from .. import sysfs_ports
+from ..rs485 import DEFAULT_BAUD
 from ._options import BusError, add_command, add_output_options, baud, count, emit, seconds
 
 #: where ports are looked up (tests point these at a fake tree)
@@ -41,7 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--check", metavar="PATH",
                    help="time the release of the direction line against the transceiver's echo "
                    "of a test pattern on PATH, and recommend a mode")
-    c.add_argument("--baud", metavar="N", type=baud, default=115200, help="--check: baud rate")
+    c.add_argument("--baud", metavar="N", type=baud, default=DEFAULT_BAUD, help="--check: baud rate")
     c.add_argument("--rs485", choices=("soft", "none"), default="soft",
                    help="--check: the mode to time (soft falls back to none on a port "
                    "without an RTS line)")
