@@ -44,7 +44,8 @@ import time
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
-from bench import syscalls  # perf probes
+from bench import issue24, syscalls  # issue-24 target rows, perf probes
+from bench.targets import Target, table
 
 log = logging.getLogger("bench")
 ROOT = Path(__file__).resolve().parent.parent
@@ -323,7 +324,8 @@ def measure_series(runner: Runner, kind: str, baud: int, rounds: int, seconds: f
         return {"error": "all runs failed"}
     out: Dict[str, Any] = {k: summary([r[k] for r in runs])
                            for k in ("rate", "client_us", "server_us", "client_load",
-                                     "client_wakeups", "server_wakeups") if k in runs[0]}
+                                     "client_wakeups", "server_wakeups", "client_syscalls",
+                                     "server_syscalls") if k in runs[0]}
     out["failed"] = sum(r["failed"] for r in runs)
     if baud:
         out["limit"] = limit(kind, baud)
@@ -344,7 +346,7 @@ def scale_series(runner: Runner, baud: int, rounds: int, seconds: float, quick: 
                                "cycles_per_s": summary([r["rate"] for r in runs]),
                                "master_load": summary([r["client_load"] for r in runs]),
                                "rss_kib_per_handle": summary([r["rss_kib_per_handle"] for r in runs])}
-    for slaves in ([1, 4] if quick else [1, 4, 16, 31]):
+    for slaves in ([1, 31] if quick else [1, 4, 16, 31]):
         runs = [runner.c_run("fap-poll", baud, seconds, ports=slaves + 1, slaves=slaves)
                 for _ in range(rounds)]
         res["slaves"][slaves] = {"cpu_us_per_cycle": summary([r["client_us"] for r in runs]),
@@ -460,8 +462,8 @@ def fmt(s: Dict[str, float], f: str = "{:.0f}") -> str:
 
 
 def targets(res: Dict[str, Any]) -> List[str]:
-    """The issue's targets, each checked against this run (a report, not an assertion)."""
-    L = ["## Targets (issue 16) in this run", ""]
+    """Issue 16's targets, each checked against this run (a report, not an assertion)."""
+    L = ["## Earlier targets (issue 16) in this run", ""]
 
     def line(ok: Optional[bool], text: str) -> None:
         L.append(f"- {'met' if ok else 'MISSED' if ok is not None else 'n/a'}: {text}")
@@ -522,11 +524,12 @@ def markdown(res: Dict[str, Any]) -> str:
         rows = res["paced"][str(baud)]
         L += [f"## Paced at {baud} baud", "",
               "| protocol / peer | exchanges/s | framing limit/s | efficiency | vs floor | "
-              "client µs/x | server µs/x | wake-ups/x client, server | turnaround p50 / p99 / max µs |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "client µs/x | server µs/x | wake-ups/x client, server | syscalls/x client, server | "
+              "turnaround p50 / p99 / max µs |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
         for kind, r in rows.items():
             if "error" in r:
-                L.append(f"| {label(kind)} | failed | | | | | | | |")
+                L.append(f"| {label(kind)} | failed | | | | | | | | |")
                 continue
             fr = floor_rate(kind, baud, rows)
             vs = f"{100 * r['rate']['median'] / fr:.1f} %" if fr else ""
@@ -534,9 +537,11 @@ def markdown(res: Dict[str, Any]) -> str:
             tas = f"{ta['p50']:.0f} / {ta['p99']:.0f} / {ta['max']:.0f}" if ta else ""
             wk = (f"{r['client_wakeups']['median']:.1f}, {r['server_wakeups']['median']:.1f}"
                   if "client_wakeups" in r else "")
+            sc = (f"{r['client_syscalls']['median']:.1f}, {r['server_syscalls']['median']:.1f}"
+                  if "client_syscalls" in r and "server_syscalls" in r else "")
             L.append(f"| {label(kind)} | {fmt(r['rate'])} | {r['limit']:.0f} | "
                      f"{fmt({k: 100 * v for k, v in r['efficiency'].items()}, '{:.1f}')} % | {vs} | "
-                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {tas} |")
+                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {sc} | {tas} |")
         L.append("")
     L += ["## Unpaced (as fast as the ptys go)", "",
           "| protocol / peer | exchanges/s | client µs/x | server µs/x |", "|---|---|---|---|"]
@@ -564,6 +569,12 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
                      f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
         L.append("")
+    L += ["## Targets of issue 24 in this run", "",
+          "Medians of the run's rounds; CPU ratios: this engine's CPU µs per exchange over "
+          "libmodbus's read, the same side, the same run. Load average before/after: "
+          f"{res['loadavg_before']} / {res.get('loadavg_after', '?')}.", "",
+          table([Target(**{k: v for k, v in t.items() if k != "met"})
+                 for t in res.get("targets", [])])]
     L += targets(res)
     if res.get("codec"):
         c, p = res["codec"]["c"], res["codec"]["python"]
@@ -716,6 +727,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--baseline", type=Path, metavar="BUILD_DIR",
                     help="also run the FAP, exec async and mikroC kinds with the bench_wire of "
                          "another build (e.g. of the previous commit), same bus, same run")
+    ap.add_argument("--skip-parts", action="store_true",
+                    help="leave out the other benches' issue-24 rows (G485, bridge, real-time): "
+                         "shown as not measured")
+    ap.add_argument("--readme", type=Path, metavar="RESULT_DIR", nargs="?", const=Path("latest"),
+                    help="measure nothing: regenerate README.md's benchmark section from a run's "
+                         "results.json (default: the newest bench/results/*)")
     ap.add_argument("--profile", action="store_true",
                     help="only the profile: per exchange and side, CPU, wake-ups and every "
                          "syscall by name (perf), C kinds at 115200 and 1 Mbaud")
@@ -723,6 +740,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="bench: %(message)s")
+    if args.readme:
+        from bench import readme
+        return readme.main(args.readme, ROOT)
     quick = args.quick
     rounds = args.rounds or (1 if quick else 3)
     seconds = args.seconds or (0.3 if quick else 1.5)
@@ -775,7 +795,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     # one step per measured cell; a rich bar on a terminal (stderr), nothing otherwise
     from fap_py.commands._node import Progress  # the installed fap_py (sys.path above)
 
-    steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 4
+    steps = len(bauds) * len(kinds) + len(kinds) + len(scale_bauds) + 5
     with Progress(steps, "bench", enabled=True) as bar:
         for baud in bauds:
             res["paced"][str(baud)] = {}
@@ -814,6 +834,9 @@ def main(argv: Optional[List[str]] = None) -> int:
             res["codec"] = codec_throughput(runner)
         except Exception as e:
             log.warning("codec throughput: %s", e)
+        bar.advance("issue-24 parts")
+        parts = issue24.part_rows(rounds, quick, skip=args.skip_parts)
+    res["targets"] = [t.as_dict() for t in issue24.own_rows(res) + parts]
     res["loadavg_after"] = loadavg()
     res["wall_s"] = time.monotonic() - t_start
     out.mkdir(parents=True, exist_ok=True)

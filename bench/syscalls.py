@@ -33,7 +33,7 @@ log = logging.getLogger("bench.syscalls")
 # period per event).
 DETAIL = ("read", "write", "epoll_wait", "epoll_pwait", "epoll_ctl", "timerfd_settime",
           "ioctl", "poll", "ppoll", "pselect6", "select", "futex", "clock_nanosleep",
-          "nanosleep", "fcntl", "clock_gettime", "sched_yield", "getrusage")
+          "nanosleep", "fcntl", "clock_gettime", "sched_yield", "getrusage", "epoll_pwait2")
 _PERF: Optional[bool] = None
 
 
