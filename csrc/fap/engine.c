@@ -359,6 +359,7 @@ typedef struct engine {
     lf_ns hold_until;             /* a frame is arriving: read it then (0: none) */
     unsigned baud;
     lf_rx_pace pace;              /* the link's observed pace, per frame */
+    int at_baud;                  /* the link was seen running at the port's baud */
     uint8_t rbuf[4096];
 } engine;
 
@@ -502,6 +503,28 @@ static int wait_events(engine *e, lf_ns deadline, uint32_t *port_ev)
     return timer_ev;
 }
 
+/* How long to hold after a piece of `fed` bytes, `missing` still due
+ * (port/rx_pacing.h). Once a frame's second piece showed the link running
+ * at the port's baud (not faster: a pty, a network, a bus paced above the
+ * port's rate), the next frames hold from their first piece at the baud's
+ * pace, the upper bound rx_pacing would use anyway: one wake-up less per
+ * frame. A hold that found its frame complete may have overslept (the link
+ * got faster, or the wake-up was late): the next frame observes again. */
+static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t missing,
+                       lf_ns now)
+{
+    lf_ns ct = lf_char_time_ns(e->baud);
+    if (held && missing == 0)
+        e->at_baud = 0;
+    lf_ns last = e->pace.t_last;
+    lf_ns observed = lf_rx_pace_hold(&e->pace, e->baud, frame_start, fed, missing, now);
+    if (frame_start && e->at_baud)
+        return lf_rx_hold_ct_ns(ct, missing);
+    if (!frame_start && !held && last > 0 && ct > 0)   /* a piece as the wire brought it */
+        e->at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)fed;
+    return observed;
+}
+
 /* Read what the port has and feed the decoder; then hold while the frame
  * is incomplete: sleep until all but its last byte can be in at the link's
  * observed pace (never past the gap deadline; port/rx_pacing.h). A hold
@@ -511,7 +534,8 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
     fapx *h = e->h;
     /* A hold ends at its time, or at any timer (state machine, gap): what
      * has arrived is fed before a timeout is judged. */
-    if (e->hold_until && (timer_ev || now >= e->hold_until)) {
+    int held = e->hold_until && (timer_ev || now >= e->hold_until);
+    if (held) {
         e->hold_until = 0;
         port_ev |= EPOLLIN;
     }
@@ -532,8 +556,7 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
         }
     }
     if (fed && !h->port_down) {
-        lf_ns hold = lf_rx_pace_hold(&e->pace, e->baud, frame_start, fed,
-                                     lf_fap_decoder_missing(&h->dec), now);
+        lf_ns hold = pace_hold(e, frame_start, held, fed, lf_fap_decoder_missing(&h->dec), now);
         e->hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
     } else if (h->port_down) {
         e->hold_until = 0;
