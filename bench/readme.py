@@ -27,7 +27,7 @@ def newest(results: Path) -> Path:
 
 def section(res: Dict[str, Any], rel: str, plots: bool = False) -> str:
     """The generated Markdown (no markers)."""
-    from bench.__main__ import markdown   # the runner's own tables, one format
+    from bench.__main__ import markdown  # the runner's own tables, one format
     from bench.targets import Target, table
 
     full = markdown(res)
