@@ -107,7 +107,7 @@ def part_rows(rounds: int, quick: bool, skip: bool = False,
         try:
             mod = importer(module)
         except ImportError as e:
-            rows += [Target(n, goal, None, 0.0, True, "", f"{module} not here ({e.name or e})")
+            rows += [Target(n, goal, None, 0.0, True, "", f"{module} not here: {e}")
                      for n in names]
             continue
         try:
