@@ -35,6 +35,7 @@ import importlib.util
 import json
 import logging
 import os
+import signal
 import socket
 import statistics
 import subprocess
@@ -42,6 +43,9 @@ import sys
 import time
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
+
+from bench import issue24, syscalls  # issue-24 target rows, perf probes
+from bench.targets import Target, table
 
 log = logging.getLogger("bench")
 ROOT = Path(__file__).resolve().parent.parent
@@ -161,6 +165,18 @@ def pct(values: List[float], q: float) -> float:
 
 # -- one exchange benchmark ------------------------------------------------------
 
+def wrap(probe: Optional[syscalls.Probe], argv: List[str]) -> List[str]:
+    return probe.wrap(argv) if probe else argv
+
+
+def wrapped_pid(pid: int, probe: Optional[syscalls.Probe]) -> int:
+    """The bench program's pid when perf runs it (perf's only child)."""
+    if not probe or not probe.on:
+        return pid
+    kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    return int(kids[0]) if kids else pid
+
+
 class Runner:
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
@@ -169,8 +185,10 @@ class Runner:
         self.tmp.mkdir(parents=True, exist_ok=True)
 
     def c_run(self, kind: str, baud: int, seconds: float, ports: int = 2, buses: int = 1,
-              slaves: int = 1, capture: bool = False) -> Dict[str, Any]:
-        """One C client/server run; returns rates, CPU and (paced) turnarounds."""
+              slaves: int = 1, capture: bool = False, probe: str = "count") -> Dict[str, Any]:
+        """One C client/server run; returns rates, CPU, syscalls per exchange
+        (``probe``: "count" totals, "detail" per syscall name, "" none; needs
+        perf) and (paced) turnarounds."""
         from fap_py.vbus import VirtualBus
 
         exe = self.exe
@@ -185,25 +203,44 @@ class Runner:
                                              capture=str(cap) if cap and b == 0 else None))
             client_paths = ",".join(bus.paths[0] for bus in with_buses)
             server_paths = ",".join(p for bus in with_buses for p in bus.paths[1:])
-            srv = subprocess.Popen([str(exe), "serve", kind, server_paths] + pace
-                                   + (["--same-id"] if buses > 1 else []),
-                                   stdout=subprocess.PIPE, text=True)
+            kinds = {"server": syscalls.Probe(detail=probe == "detail"),
+                     "client": syscalls.Probe(detail=probe == "detail")} if probe else {}
+            sp, cp = kinds.get("server"), kinds.get("client")
+            srv = subprocess.Popen(wrap(sp, [str(exe), "serve", kind, server_paths] + pace
+                                        + (["--same-id"] if buses > 1 else [])),
+                                   stdout=subprocess.PIPE, text=True,
+                                   pass_fds=sp.pass_fds if sp else ())
+            srv_pid = srv.pid
+            if sp:
+                sp.started()
             try:
                 if srv.stdout is None or srv.stdout.readline().strip() != "ready":
                     raise RuntimeError(f"bench_wire serve {kind} did not start")
-                cli = subprocess.Popen([str(exe), "client", kind, client_paths, "--seconds",
-                                        str(seconds), "--slaves", str(slaves)] + pace,
-                                       stdout=subprocess.PIPE, text=True)
+                srv_pid = wrapped_pid(srv.pid, sp)
+                cli = subprocess.Popen(wrap(cp, [str(exe), "client", kind, client_paths,
+                                                 "--seconds", str(seconds), "--slaves",
+                                                 str(slaves)] + pace),
+                                       stdout=subprocess.PIPE, text=True,
+                                       pass_fds=cp.pass_fds if cp else ())
+                if cp:
+                    cp.started()
                 assert cli.stdout is not None
                 if cli.stdout.readline().strip() != "measuring":
                     raise RuntimeError(f"bench_wire client {kind} failed")
-                s0, w0 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
+                for pr in kinds.values():
+                    pr.enable()
+                s0, w0 = proc_cpu(srv_pid), proc_wakeups(srv_pid)
                 res = json.loads(cli.stdout.readline())
-                s1, w1 = proc_cpu(srv.pid), proc_wakeups(srv.pid)
+                s1, w1 = proc_cpu(srv_pid), proc_wakeups(srv_pid)
+                if sp:
+                    sp.disable()
+                if cp:
+                    cp.ended()                  # the client exits: perf stops there
                 cli.wait(10)
             finally:
-                srv.terminate()
-                srv.wait(10)
+                os.kill(srv_pid, signal.SIGTERM)
+                srv.wait(60)                    # perf closes its counters
+            seen = {side: pr.result() for side, pr in kinds.items()}
         finally:
             for bus in with_buses:
                 bus.close()
@@ -212,6 +249,12 @@ class Runner:
                "server_us": (s1 - s0) / n * 1e6, "client_load": res["cpu_s"] / res["seconds"],
                "failed": res["failed"], "rss_kib_per_handle": res["rss_kib_per_handle"],
                "client_wakeups": res["wakeups"] / n, "server_wakeups": (w1 - w0) / n}
+        rate = max(out["rate"], 1e-9)
+        for side, per_s in seen.items():        # perf's window, per exchange
+            if per_s:
+                out[f"{side}_syscalls"] = per_s["syscalls"] / rate
+                if probe == "detail":
+                    out[f"{side}_by_syscall"] = {k: v / rate for k, v in per_s.items()}
         if cap:
             out["turnaround_us"] = turnarounds(cap, baud)
             cap.unlink(missing_ok=True)
@@ -281,7 +324,8 @@ def measure_series(runner: Runner, kind: str, baud: int, rounds: int, seconds: f
         return {"error": "all runs failed"}
     out: Dict[str, Any] = {k: summary([r[k] for r in runs])
                            for k in ("rate", "client_us", "server_us", "client_load",
-                                     "client_wakeups", "server_wakeups") if k in runs[0]}
+                                     "client_wakeups", "server_wakeups", "client_syscalls",
+                                     "server_syscalls") if k in runs[0]}
     out["failed"] = sum(r["failed"] for r in runs)
     if baud:
         out["limit"] = limit(kind, baud)
@@ -302,13 +346,51 @@ def scale_series(runner: Runner, baud: int, rounds: int, seconds: float, quick: 
                                "cycles_per_s": summary([r["rate"] for r in runs]),
                                "master_load": summary([r["client_load"] for r in runs]),
                                "rss_kib_per_handle": summary([r["rss_kib_per_handle"] for r in runs])}
-    for slaves in ([1, 4] if quick else [1, 4, 16, 31]):
+    for slaves in ([1, 31] if quick else [1, 4, 16, 31]):
         runs = [runner.c_run("fap-poll", baud, seconds, ports=slaves + 1, slaves=slaves)
                 for _ in range(rounds)]
         res["slaves"][slaves] = {"cpu_us_per_cycle": summary([r["client_us"] for r in runs]),
                                  "cycles_per_s": summary([r["rate"] for r in runs]),
                                  "master_load": summary([r["client_load"] for r in runs])}
     return res
+
+
+PROFILE_KINDS = ("bare", "fap-poll", "fap-data", "exec", "mikroc", "modbus")
+
+
+def profile(runner: Runner, kinds: List[str], bauds: List[int], rounds: int,
+            seconds: float) -> Dict[str, Any]:
+    """Per exchange, each side: CPU µs, wake-ups and every syscall by name
+    (perf stat's per-syscall tracepoints), median of ``rounds`` runs."""
+    out: Dict[str, Any] = {}
+    for baud in bauds:
+        for kind in [k for k in PROFILE_KINDS if k in kinds]:
+            runs = [runner.c_run(kind, baud, seconds, probe="detail") for _ in range(rounds)]
+            row: Dict[str, Any] = {k: statistics.median(r[k] for r in runs)
+                                   for k in ("rate", "client_us", "server_us",
+                                             "client_wakeups", "server_wakeups")}
+            for side in ("client", "server"):
+                names = {n for r in runs for n in r.get(f"{side}_by_syscall", {})}
+                row[side] = {n: statistics.median(r.get(f"{side}_by_syscall", {}).get(n, 0.0)
+                                                  for r in runs) for n in sorted(names)}
+            out[f"{kind}@{baud}"] = row
+    return out
+
+
+def profile_markdown(prof: Dict[str, Any]) -> str:
+    L = ["| exchange | side | CPU µs | wake-ups | syscalls | by syscall (per exchange) |",
+         "|---|---|---|---|---|---|"]
+    for key, row in prof.items():
+        kind, baud = key.split("@")
+        for side in ("client", "server"):
+            by = row[side]
+            total = by.get("syscalls", 0.0)
+            names = sorted(((v, n) for n, v in by.items() if n != "syscalls" and v >= 0.05),
+                           reverse=True)
+            L.append(f"| {label(kind)} @ {baud} | {side} | {row[side + '_us']:.0f} | "
+                     f"{row[side + '_wakeups']:.1f} | {total:.1f} | "
+                     + ", ".join(f"{n} {v:.2g}" for v, n in names) + " |")
+    return "\n".join(L) + "\n"
 
 
 def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
@@ -380,8 +462,8 @@ def fmt(s: Dict[str, float], f: str = "{:.0f}") -> str:
 
 
 def targets(res: Dict[str, Any]) -> List[str]:
-    """The issue's targets, each checked against this run (a report, not an assertion)."""
-    L = ["## Targets (issue 16) in this run", ""]
+    """Issue 16's targets, each checked against this run (a report, not an assertion)."""
+    L = ["## Earlier targets (issue 16) in this run", ""]
 
     def line(ok: Optional[bool], text: str) -> None:
         L.append(f"- {'met' if ok else 'MISSED' if ok is not None else 'n/a'}: {text}")
@@ -445,11 +527,12 @@ def markdown(res: Dict[str, Any]) -> str:
         rows = res["paced"][str(baud)]
         L += [f"## Paced at {baud} baud", "",
               "| protocol / peer | exchanges/s | framing limit/s | efficiency | vs floor | "
-              "client µs/x | server µs/x | wake-ups/x client, server | turnaround p50 / p99 / max µs |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "client µs/x | server µs/x | wake-ups/x client, server | syscalls/x client, server | "
+              "turnaround p50 / p99 / max µs |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
         for kind, r in rows.items():
             if "error" in r:
-                L.append(f"| {label(kind)} | failed | | | | | | | |")
+                L.append(f"| {label(kind)} | failed | | | | | | | | |")
                 continue
             fr = floor_rate(kind, baud, rows)
             vs = f"{100 * r['rate']['median'] / fr:.1f} %" if fr else ""
@@ -457,9 +540,11 @@ def markdown(res: Dict[str, Any]) -> str:
             tas = f"{ta['p50']:.0f} / {ta['p99']:.0f} / {ta['max']:.0f}" if ta else ""
             wk = (f"{r['client_wakeups']['median']:.1f}, {r['server_wakeups']['median']:.1f}"
                   if "client_wakeups" in r else "")
+            sc = (f"{r['client_syscalls']['median']:.1f}, {r['server_syscalls']['median']:.1f}"
+                  if "client_syscalls" in r and "server_syscalls" in r else "")
             L.append(f"| {label(kind)} | {fmt(r['rate'])} | {r['limit']:.0f} | "
                      f"{fmt({k: 100 * v for k, v in r['efficiency'].items()}, '{:.1f}')} % | {vs} | "
-                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {tas} |")
+                     f"{fmt(r['client_us'])} | {fmt(r['server_us'])} | {wk} | {sc} | {tas} |")
         L.append("")
     L += ["## Unpaced (as fast as the ptys go)", "",
           "| protocol / peer | exchanges/s | client µs/x | server µs/x |", "|---|---|---|---|"]
@@ -487,6 +572,12 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
                      f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
         L.append("")
+    L += ["## Targets of issue 24 in this run", "",
+          "Medians of the run's rounds; CPU ratios: this engine's CPU µs per exchange over "
+          "libmodbus's read, the same side, the same run. Load average before/after: "
+          f"{res['loadavg_before']} / {res.get('loadavg_after', '?')}.", "",
+          table([Target(**{k: v for k, v in t.items() if k != "met"})
+                 for t in res.get("targets", [])])]
     L += targets(res)
     if res.get("codec"):
         c, p = res["codec"]["c"], res["codec"]["python"]
@@ -639,10 +730,22 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--baseline", type=Path, metavar="BUILD_DIR",
                     help="also run the FAP, exec async and mikroC kinds with the bench_wire of "
                          "another build (e.g. of the previous commit), same bus, same run")
+    ap.add_argument("--skip-parts", action="store_true",
+                    help="leave out the other benches' issue-24 rows (G485, bridge, real-time): "
+                         "shown as not measured")
+    ap.add_argument("--readme", type=Path, metavar="RESULT_DIR", nargs="?", const=Path("latest"),
+                    help="measure nothing: regenerate README.md's benchmark section from a run's "
+                         "results.json (default: the newest bench/results/*)")
+    ap.add_argument("--profile", action="store_true",
+                    help="only the profile: per exchange and side, CPU, wake-ups and every "
+                         "syscall by name (perf), C kinds at 115200 and 1 Mbaud")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="progress on stderr")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="bench: %(message)s")
+    if args.readme:
+        from bench import readme
+        return readme.main(args.readme, ROOT)
     quick = args.quick
     rounds = args.rounds or (1 if quick else 3)
     seconds = args.seconds or (0.3 if quick else 1.5)
@@ -675,6 +778,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         args.baseline = args.baseline.resolve()
         at = kinds.index("mikroc") + 1 if "mikroc" in kinds else len(kinds)
         kinds[at:at] = [BASE + k for k in ("fap-poll", "fap-data", "exec", "mikroc") if k in kinds]
+    if args.profile:
+        if not syscalls.have_perf():
+            print("bench: --profile needs perf (apt-get install linux-perf)", file=sys.stderr)
+            return 3
+        prof = profile(runner, kinds, [115200, 1000000], rounds, seconds)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "profile.json").write_text(json.dumps({"loadavg": loadavg(), "profile": prof},
+                                                     indent=1))
+        print(f"load average {loadavg()}\n\n" + profile_markdown(prof))
+        return 0
     bauds = [115200] if quick else [9600, 115200, 1000000]
     scale_bauds = [115200] if quick else [115200, 1000000]
     t_start = time.monotonic()
@@ -733,6 +846,9 @@ def main(argv: Optional[List[str]] = None) -> int:
             res["codec"] = codec_throughput(runner)
         except Exception as e:
             log.warning("codec throughput: %s", e)
+        bar.advance("issue-24 parts")
+        parts = issue24.part_rows(rounds, quick, skip=args.skip_parts)
+    res["targets"] = [t.as_dict() for t in issue24.own_rows(res) + parts]
     res["loadavg_after"] = loadavg()
     res["wall_s"] = time.monotonic() - t_start
     out.mkdir(parents=True, exist_ok=True)

@@ -114,14 +114,21 @@ static int send_attempt(execMaster *m)
     if (t->attempt > 0)
         LF_STAT_INC(m->stats.retries);
     memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
-    lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
-    ssize_t w = fap_port_write(m->port, m->txbuf, m->txlen);
+    lf_ns t_write = lf_now_ns();
+    lf_exec_tap_abandon(&m->tap, &m->trace, t_write);
+    /* Written, not drained (fap_port_send: the port still drains where RTS
+     * or echo need it): a request is followed by its reply, no tcdrain per
+     * transaction. The reply window starts when the frame can have left,
+     * its wire time after the write began, not earlier. */
+    ssize_t w = fap_port_send(m->port, m->txbuf, m->txlen);
+    lf_ns now = lf_now_ns();
     lf_trace_emit(&m->trace, FAP_TRACE_TX, w == (ssize_t)m->txlen ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
-                  lf_now_ns(), m->txbuf, m->txlen);
+                  now, m->txbuf, m->txlen);
     if (w < 0)
         return (int)w;
     LF_STAT_INC(m->stats.tx_frames);
-    lf_exec_mtx_sent(t, lf_now_ns());
+    lf_ns end = t_write + (lf_ns)m->txlen * lf_char_time_ns(fap_port_baud(m->port));
+    lf_exec_mtx_sent(t, end > now ? end : now);
     return 0;
 }
 

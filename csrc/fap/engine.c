@@ -246,8 +246,12 @@ static void drain_outbox(fapx *h)
             pthread_mutex_unlock(&h->lock);
             break;
         }
+        lf_ns t_write = lf_now_ns();
         if (!h->port_down) {
-            ssize_t r = fap_port_write(h->port, o->buf, o->len);
+            /* A DATA frame is drained (fapx_flush: transmitted); the
+             * protocol's own frames only written: no tcdrain per poll. */
+            ssize_t r = o->msg == LF_FAP_DATA ? fap_port_write(h->port, o->buf, o->len)
+                                              : fap_port_send(h->port, o->buf, o->len);
             if (r == -ECANCELED) {        /* the stop's grace period ran out */
                 lf_trace_emit(&h->trace, FAP_TRACE_TX, FAP_TRACE_TX_FAILED, lf_now_ns(),
                               o->buf, o->len);
@@ -267,8 +271,7 @@ static void drain_outbox(fapx *h)
                     refresh_port_counts(h);
             } else {
                 h->ec.write_errors++;
-                if (r == -EIO || r == -ENXIO || r == -ENODEV || r == -EBADF ||
-                    r == FAP_PORT_ECLOSED || r == -EPIPE)
+                if (fap_port_error_is_gone((int)r))
                     port_lost(h, lf_now_ns());
             }
         } else {
@@ -276,7 +279,14 @@ static void drain_outbox(fapx *h)
         }
         if (o->msg == LF_FAP_DATA)
             wrote_data = 1;
+        /* Not drained: the frame ends on the wire no sooner than its wire
+         * time after the write began (reply windows start there). */
         lf_ns now = lf_now_ns();
+        if (o->msg != LF_FAP_DATA) {
+            lf_ns end = t_write + (lf_ns)o->len * lf_char_time_ns(fap_port_baud(h->port));
+            if (end > now)
+                now = end;
+        }
         if (h->mode == FAPX_MASTER)
             lf_fap_master_sent(&h->m, now);
         else
@@ -334,14 +344,27 @@ static lf_ns min_ns(lf_ns a, lf_ns b)
     return a < b ? a : b;
 }
 
+/* epoll_pwait2 takes a nanosecond timeout: the engine's deadlines need no
+ * timerfd_settime (nor a timerfd read) at all. glibc >= 2.35 has it; an
+ * older kernel answers ENOSYS and the engine falls back to the timerfd. */
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 35))
+#define LF_HAVE_EPOLL_PWAIT2 1
+#endif
 
-void *lf_fapx_engine_main(void *arg)
-{
-    fapx *h = arg;
-    /* The real-time option (port_rt.c), checked by the open: applied to
-     * this thread; a refusal now is counted in the port's rt_refused. */
-    (void)fap_port_rt_enter(h->port);
+/* The engine loop's own state (engine thread only). */
+typedef struct engine {
+    fapx *h;
+    int reg_port;                 /* port fd registered in epoll_fd (-1: none) */
+    lf_ns hold_until;             /* a frame is arriving: read it then (0: none) */
+    unsigned baud;
+    lf_rx_pace pace;              /* the link's observed pace, per frame */
+    int at_baud;                  /* the link was seen running at the port's baud */
     uint8_t rbuf[4096];
+} engine;
+
+/* Timing, decoder and state machine from the handle's options. */
+static void engine_init(engine *e, fapx *h)
+{
     lf_ns now = lf_now_ns();
     lf_fap_timing t = {
         .idc = us_ns(h->o.idc_us),
@@ -365,145 +388,229 @@ void *lf_fapx_engine_main(void *arg)
     memset(h->applied_epoch, 0, sizeof h->applied_epoch);
     h->armed = -1;
     arm_timer(h, LF_NEVER);
-    /* epoll rather than poll(): the sets stay registered, so a wake-up
-     * does not re-scan and re-queue on every fd (latency per cycle). */
-    int ep = h->epoll_fd;             /* wake and timer fds registered at create */
-    struct epoll_event ee;
-    int reg_port = -1;                /* port fd currently registered */
-    uint32_t reg_events = 0;          /* its epoll events (0 while holding) */
-    lf_ns hold_until = 0;             /* a frame is arriving: read it then */
-    unsigned baud = fap_port_baud(h->port);
-    lf_rx_pace pace = {0};            /* the link's observed pace, per frame */
+    memset(e, 0, sizeof *e);
+    e->h = h;
+    e->reg_port = -1;
+    e->baud = fap_port_baud(h->port);
+}
 
-    for (;;) {
-        now = lf_now_ns();
-        pthread_mutex_lock(&h->lock);
-        if (h->stop) {
-            pthread_mutex_unlock(&h->lock);
-            break;
-        }
-        int kick = h->tx_kick;
-        h->tx_kick = 0;
-        uint32_t want = h->want_listed;
-        uint8_t epoch[32];
-        memcpy(epoch, h->add_epoch, sizeof epoch);
+/* The application's requests (stop, queued data, slave list), under the
+ * lock; 1: stop. */
+static int take_requests(fapx *h, lf_ns now)
+{
+    pthread_mutex_lock(&h->lock);
+    if (h->stop) {
         pthread_mutex_unlock(&h->lock);
-        if (h->mode == FAPX_MASTER)
-            apply_list(h, want, epoch, now);
-        if (kick && h->mode == FAPX_MASTER)
-            lf_fap_master_tx_queued(&h->m, now);
-
-        drain_outbox(h);
-
-        int want_port = h->port_down ? -1 : fap_port_fd(h->port);
-        if (!h->port_down && want_port < 0)
-            port_lost(h, lf_now_ns());    /* the port layer found it gone */
-
-        lf_ns sm_dl = h->mode == FAPX_MASTER ? lf_fap_master_deadline(&h->m)
-                                             : lf_fap_slave_deadline(&h->s);
-        lf_ns deadline = min_ns(sm_dl, lf_fap_decoder_deadline(&h->dec));
-        if (h->port_down)
-            deadline = min_ns(deadline, h->reopen_at);
-        if (hold_until)
-            deadline = min_ns(deadline, hold_until);
-        arm_timer(h, deadline);
-
-        if (want_port != reg_port) {
-            if (reg_port >= 0)
-                epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);   /* may be gone: fine */
-            ee.events = EPOLLIN;
-            ee.data.u32 = LF_FAPX_TAG_PORT;
-            if (want_port >= 0 && epoll_ctl(ep, EPOLL_CTL_ADD, want_port, &ee) < 0 &&
-                errno != EEXIST)
-                want_port = -1;       /* try again next round */
-            reg_port = want_port;
-            reg_events = EPOLLIN;
-        }
-        /* Holding: the rest of the frame cannot be in before hold_until, so
-         * the port must not wake us for each piece of it. */
-        uint32_t want_events = hold_until ? 0 : EPOLLIN;
-        if (reg_port >= 0 && want_events != reg_events) {
-            ee.events = want_events;
-            ee.data.u32 = LF_FAPX_TAG_PORT;
-            if (epoll_ctl(ep, EPOLL_CTL_MOD, reg_port, &ee) == 0)
-                reg_events = want_events;
-        }
-
-        struct epoll_event evs[3];
-        int ne = epoll_wait(ep, evs, 3, -1);
-        if (ne < 0) {
-            /* EINTR, or ENOMEM under memory pressure: never give up the
-             * bus; back off a moment so an error cannot spin */
-            if (errno != EINTR)
-                lf_sleep_until(lf_now_ns() + LF_NS_PER_MS);
-            continue;
-        }
-        now = lf_now_ns();
-        uint64_t cnt;
-        uint32_t port_ev = 0;
-        int timer_ev = 0;
-        for (int i = 0; i < ne; i++) {
-            if (evs[i].data.u32 == LF_FAPX_TAG_WAKE) {
-                if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
-            } else if (evs[i].data.u32 == LF_FAPX_TAG_TIMER) {
-                if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
-                h->armed = -1;        /* expired: arm again next time */
-                timer_ev = 1;
-            } else {
-                port_ev = evs[i].events;
-            }
-        }
-        /* A hold ends at its time, or at any timer (state machine, gap):
-         * what has arrived is fed before a timeout is judged. */
-        int forced = hold_until && (timer_ev || now >= hold_until);
-        if (forced) {
-            hold_until = 0;
-            port_ev |= EPOLLIN;
-        }
-        size_t fed = 0;
-        int frame_start = lf_fap_decoder_missing(&h->dec) == 0;   /* for the pace */
-        if (port_ev && !h->port_down) {
-            for (int rounds = 0; rounds < 4; rounds++) {
-                ssize_t n = fap_port_read(h->port, rbuf, sizeof rbuf, 0);
-                if (n > 0) {
-                    lf_fap_decoder_feed(&h->dec, rbuf, (size_t)n, now, on_frame, h);
-                    fed += (size_t)n;
-                }
-                /* fap_port_read reports "no data" as 0, never -EAGAIN or -EINTR */
-                if (n < 0 || (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
-                    port_lost(h, now);    /* hung up: a 0-byte read would spin */
-                if (n < (ssize_t)sizeof rbuf)
-                    break;
-            }
-        }
-        /* Bytes came and the frame is not complete: sleep until all but its
-         * last byte can be in at the link's observed pace (never past the
-         * gap deadline; port/rx_pacing.h). A hold that brought nothing
-         * means the wire stalled: watch the port again. */
-        if (fed && !h->port_down) {
-            lf_ns hold = lf_rx_pace_hold(&pace, baud, frame_start, fed,
-                                         lf_fap_decoder_missing(&h->dec), now);
-            hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
-        } else if (h->port_down) {
-            hold_until = 0;
-        }
-        if (h->port_down && reg_port >= 0) {
-            /* the fd is closed or dead: unregister it now, so a reopened
-             * port that gets the same number is registered again */
-            epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);
-            reg_port = -1;
-        }
-        try_reopen(h, now);
-        lf_fap_decoder_tick(&h->dec, now, on_frame, h);
-        if (h->mode == FAPX_MASTER && now >= lf_fap_master_deadline(&h->m))
-            lf_fap_master_on_timer(&h->m, now);
+        return 1;
     }
-    if (reg_port >= 0)                /* a restarted engine registers it again */
-        epoll_ctl(ep, EPOLL_CTL_DEL, reg_port, NULL);
+    int kick = h->tx_kick;
+    h->tx_kick = 0;
+    uint32_t want = h->want_listed;
+    uint8_t epoch[32];
+    memcpy(epoch, h->add_epoch, sizeof epoch);
+    pthread_mutex_unlock(&h->lock);
+    if (h->mode == FAPX_MASTER) {
+        apply_list(h, want, epoch, now);
+        if (kick)
+            lf_fap_master_tx_queued(&h->m, now);
+    }
+    return 0;
+}
+
+/* Keep the port fd in epoll_fd: registered once per open (and again after
+ * a reopen), never per frame. */
+static void watch_port(engine *e)
+{
+    fapx *h = e->h;
+    int want = h->port_down ? -1 : fap_port_fd(h->port);
+    if (!h->port_down && want < 0)
+        port_lost(h, lf_now_ns());    /* the port layer found it gone */
+    if (want == e->reg_port)
+        return;
+    if (e->reg_port >= 0)
+        epoll_ctl(h->epoll_fd, EPOLL_CTL_DEL, e->reg_port, NULL);   /* may be gone: fine */
+    struct epoll_event ee = { .events = EPOLLIN, .data.u32 = LF_FAPX_TAG_PORT };
+    if (want >= 0 && epoll_ctl(h->epoll_fd, EPOLL_CTL_ADD, want, &ee) < 0 && errno != EEXIST)
+        want = -1;                    /* try again next round */
+    e->reg_port = want;
+}
+
+/* The nearest deadline: state machine, decoder gap, port reopen, hold. */
+static lf_ns next_deadline(const engine *e)
+{
+    const fapx *h = e->h;
+    lf_ns dl = h->mode == FAPX_MASTER ? lf_fap_master_deadline(&h->m)
+                                      : lf_fap_slave_deadline(&h->s);
+    dl = min_ns(dl, lf_fap_decoder_deadline(&h->dec));
+    if (h->port_down)
+        dl = min_ns(dl, h->reopen_at);
+    if (e->hold_until)
+        dl = min_ns(dl, e->hold_until);
+    return dl;
+}
+
+/* Sleep until an fd is ready or the deadline. Holding, the port is not in
+ * the set waited on (hold_epoll_fd): the rest of the frame cannot be in
+ * before hold_until, so its pieces must not wake us. Returns 1 if the
+ * deadline passed, 0 if not, -1 if the wait failed; *port_ev: the port's
+ * events. */
+static int wait_events(engine *e, lf_ns deadline, uint32_t *port_ev)
+{
+    fapx *h = e->h;
+    int ep = e->hold_until ? h->hold_epoll_fd : h->epoll_fd;
+    struct epoll_event evs[3];
+    int ne = -1;
+#ifdef LF_HAVE_EPOLL_PWAIT2
+    if (!h->no_pwait2) {
+        struct timespec ts, *tp = NULL;
+        if (deadline != LF_NEVER) {
+            lf_ns left = deadline - lf_now_ns();
+            ts = lf_ns_to_timespec(left > 0 ? left : 0);
+            tp = &ts;
+        }
+        ne = epoll_pwait2(ep, evs, 3, tp, NULL);
+        if (ne < 0 && errno == ENOSYS)
+            h->no_pwait2 = 1;
+    }
+#else
+    h->no_pwait2 = 1;
+#endif
+    if (h->no_pwait2) {
+        arm_timer(h, deadline);
+        ne = epoll_wait(ep, evs, 3, -1);
+    }
+    if (ne < 0) {
+        /* EINTR, or ENOMEM under memory pressure: never give up the bus;
+         * back off a moment so an error cannot spin */
+        if (errno != EINTR)
+            lf_sleep_until(lf_now_ns() + LF_NS_PER_MS);
+        return -1;
+    }
+    uint64_t cnt;
+    int timer_ev = ne == 0;           /* epoll_pwait2's timeout */
+    for (int i = 0; i < ne; i++) {
+        if (evs[i].data.u32 == LF_FAPX_TAG_WAKE) {
+            if (read(h->wake_fd, &cnt, sizeof cnt) < 0) { /* spurious: nothing to do */ }
+        } else if (evs[i].data.u32 == LF_FAPX_TAG_TIMER) {
+            if (read(h->timer_fd, &cnt, sizeof cnt) < 0) { /* raced with a re-arm */ }
+            h->armed = -1;            /* expired: arm again next time */
+            timer_ev = 1;
+        } else {
+            *port_ev = evs[i].events;
+        }
+    }
+    return timer_ev;
+}
+
+/* How long to hold after a piece of `fed` bytes, `missing` still due
+ * (port/rx_pacing.h). Once a frame's second piece showed the link running
+ * at the port's baud (not faster: a pty, a network, a bus paced above the
+ * port's rate), the next frames hold from their first piece at the baud's
+ * pace, the upper bound rx_pacing would use anyway: one wake-up less per
+ * frame. A hold that found its frame complete may have overslept (the link
+ * got faster, or the wake-up was late): the next frame observes again. */
+static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t missing,
+                       lf_ns now)
+{
+    lf_ns ct = lf_char_time_ns(e->baud);
+    if (held && missing == 0)
+        e->at_baud = 0;
+    lf_ns last = e->pace.t_last;
+    lf_ns observed = lf_rx_pace_hold(&e->pace, e->baud, frame_start, fed, missing, now);
+    if (frame_start && e->at_baud)
+        return lf_rx_hold_ct_ns(ct, missing);
+    if (!frame_start && !held && last > 0 && ct > 0)   /* a piece as the wire brought it */
+        e->at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)fed;
+    return observed;
+}
+
+/* Read what the port has and feed the decoder; then hold while the frame
+ * is incomplete: sleep until all but its last byte can be in at the link's
+ * observed pace (never past the gap deadline; port/rx_pacing.h). A hold
+ * that brought nothing means the wire stalled: watch the port again. */
+static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
+{
+    fapx *h = e->h;
+    /* A hold ends at its time, or at any timer (state machine, gap): what
+     * has arrived is fed before a timeout is judged. */
+    int held = e->hold_until && (timer_ev || now >= e->hold_until);
+    if (held) {
+        e->hold_until = 0;
+        port_ev |= EPOLLIN;
+    }
+    size_t fed = 0;
+    int frame_start = lf_fap_decoder_missing(&h->dec) == 0;   /* for the pace */
+    if (port_ev && !h->port_down) {
+        for (int rounds = 0; rounds < 4; rounds++) {
+            ssize_t n = fap_port_read(h->port, e->rbuf, sizeof e->rbuf, 0);
+            if (n > 0) {
+                lf_fap_decoder_feed(&h->dec, e->rbuf, (size_t)n, now, on_frame, h);
+                fed += (size_t)n;
+            }
+            /* fap_port_read reports "no data" as 0, never -EAGAIN or -EINTR */
+            if (n < 0 || (n == 0 && rounds == 0 && (port_ev & (EPOLLHUP | EPOLLERR))))
+                port_lost(h, now);    /* hung up: a 0-byte read would spin */
+            if (n < (ssize_t)sizeof e->rbuf)
+                break;
+        }
+    }
+    if (fed && !h->port_down) {
+        lf_ns hold = pace_hold(e, frame_start, held, fed, lf_fap_decoder_missing(&h->dec), now);
+        e->hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
+    } else if (h->port_down) {
+        e->hold_until = 0;
+    }
+}
+
+/* After the wait: a lost port out of the set, reopen, gap and state
+ * machine timers. */
+static void run_timers(engine *e, lf_ns now)
+{
+    fapx *h = e->h;
+    if (h->port_down && e->reg_port >= 0) {
+        /* the fd is closed or dead: unregister it now, so a reopened
+         * port that gets the same number is registered again */
+        epoll_ctl(h->epoll_fd, EPOLL_CTL_DEL, e->reg_port, NULL);
+        e->reg_port = -1;
+    }
+    try_reopen(h, now);
+    lf_fap_decoder_tick(&h->dec, now, on_frame, h);
+    if (h->mode == FAPX_MASTER && now >= lf_fap_master_deadline(&h->m))
+        lf_fap_master_on_timer(&h->m, now);
+}
+
+static void engine_finish(engine *e)
+{
+    fapx *h = e->h;
+    if (e->reg_port >= 0)             /* a restarted engine registers it again */
+        epoll_ctl(h->epoll_fd, EPOLL_CTL_DEL, e->reg_port, NULL);
     pthread_mutex_lock(&h->lock);
     publish_locked(h);
     h->exited = 1;                    /* lf_fapx_stop's grace wait ends */
     pthread_cond_broadcast(&h->cond);
     pthread_mutex_unlock(&h->lock);
+}
+
+/* The engine thread: one turn per wake-up. */
+void *lf_fapx_engine_main(void *arg)
+{
+    fapx *h = arg;
+    /* The real-time option (port_rt.c), checked by the open: applied to
+     * this thread; a refusal now is counted in the port's rt_refused. */
+    (void)fap_port_rt_enter(h->port);
+    engine e;
+    engine_init(&e, h);
+    while (!take_requests(h, lf_now_ns())) {
+        drain_outbox(h);
+        watch_port(&e);
+        uint32_t port_ev = 0;
+        int timer_ev = wait_events(&e, next_deadline(&e), &port_ev);
+        if (timer_ev < 0)
+            continue;
+        lf_ns now = lf_now_ns();
+        read_port(&e, port_ev, timer_ev, now);
+        run_timers(&e, now);
+    }
+    engine_finish(&e);
     return NULL;
 }

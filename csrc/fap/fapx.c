@@ -64,7 +64,7 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
         return -ENOMEM;
     h->o = o;
     h->mode = -1;
-    h->wake_fd = h->notify_fd = h->timer_fd = h->epoll_fd = h->cancel_fd = -1;
+    h->wake_fd = h->notify_fd = h->timer_fd = h->epoll_fd = h->hold_epoll_fd = h->cancel_fd = -1;
     int err = -ENOMEM;
     if (lf_ring_init(&h->rx, o.rx_depth, sizeof(lf_fapx_item)) ||
         lf_ring_init(&h->tx, o.tx_depth, sizeof(lf_fapx_item)) ||
@@ -74,21 +74,28 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     h->notify_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     h->timer_fd = timerfd_create(CLOCK_MONOTONIC, TFD_CLOEXEC | TFD_NONBLOCK);
     h->epoll_fd = epoll_create1(EPOLL_CLOEXEC);
+    h->hold_epoll_fd = epoll_create1(EPOLL_CLOEXEC);
     h->cancel_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
     if (h->wake_fd < 0 || h->notify_fd < 0 || h->timer_fd < 0 || h->epoll_fd < 0 ||
-        h->cancel_fd < 0) {
+        h->hold_epoll_fd < 0 || h->cancel_fd < 0) {
         err = -errno;
         goto fail;
     }
-    struct epoll_event ee = { .events = EPOLLIN, .data.u32 = LF_FAPX_TAG_WAKE };
-    if (epoll_ctl(h->epoll_fd, EPOLL_CTL_ADD, h->wake_fd, &ee) < 0) {
-        err = -errno;
-        goto fail;
-    }
-    ee.data.u32 = LF_FAPX_TAG_TIMER;
-    if (epoll_ctl(h->epoll_fd, EPOLL_CTL_ADD, h->timer_fd, &ee) < 0) {
-        err = -errno;
-        goto fail;
+    /* Two sets for the handle's life: the engine waits in epoll_fd (wake,
+     * timer, port) and, while a frame's bytes are held back, in
+     * hold_epoll_fd (wake, timer): no epoll_ctl per frame. */
+    for (int i = 0; i < 2; i++) {
+        int ep = i ? h->hold_epoll_fd : h->epoll_fd;
+        struct epoll_event ee = { .events = EPOLLIN, .data.u32 = LF_FAPX_TAG_WAKE };
+        if (epoll_ctl(ep, EPOLL_CTL_ADD, h->wake_fd, &ee) < 0) {
+            err = -errno;
+            goto fail;
+        }
+        ee.data.u32 = LF_FAPX_TAG_TIMER;
+        if (epoll_ctl(ep, EPOLL_CTL_ADD, h->timer_fd, &ee) < 0) {
+            err = -errno;
+            goto fail;
+        }
     }
     pthread_condattr_t ca;
     pthread_condattr_init(&ca);
@@ -114,6 +121,7 @@ fail:
     if (h->notify_fd >= 0) close(h->notify_fd);
     if (h->timer_fd >= 0) close(h->timer_fd);
     if (h->epoll_fd >= 0) close(h->epoll_fd);
+    if (h->hold_epoll_fd >= 0) close(h->hold_epoll_fd);
     if (h->cancel_fd >= 0) close(h->cancel_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);
@@ -214,6 +222,7 @@ void lf_fapx_destroy_stats(fapx *h, fapx_stats *final)
     close(h->notify_fd);
     close(h->timer_fd);
     close(h->epoll_fd);
+    close(h->hold_epoll_fd);
     close(h->cancel_fd);
     lf_ring_free(&h->rx);
     lf_ring_free(&h->tx);

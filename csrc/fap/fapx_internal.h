@@ -57,6 +57,7 @@ struct fapx {
     int notify_fd;                /* eventfd: readable while rx/ev pending */
     int timer_fd;                 /* timerfd, CLOCK_MONOTONIC absolute */
     int epoll_fd;                 /* the engine waits here (wake, timer, port) */
+    int hold_epoll_fd;            /* ... or here while a frame is held (wake, timer) */
     int cancel_fd;                /* eventfd: readable = abandon the write in
                                      progress (stop grace period over) */
     pthread_t thread;
@@ -70,6 +71,7 @@ struct fapx {
     int port_down;
     lf_ns reopen_at;
     lf_ns armed;                  /* timerfd deadline currently armed */
+    int no_pwait2;                /* epoll_pwait2 missing (kernel < 5.11): the timerfd */
     lf_engine_counts ec;
 };
 

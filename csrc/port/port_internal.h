@@ -62,6 +62,8 @@ struct fap_port {
     int gone_err;                 /* <0: device vanished (or reopen failed) */
     int busy;                     /* read/write calls currently using conn.fd */
     int64_t last_rx_ns;           /* CLOCK_MONOTONIC of the last received byte */
+    int rx_empty;                 /* the last read left nothing queued (atomic;
+                                     port_io.c: poll before the next read) */
     fap_port_stats stats;
     const int *cancel_fd;         /* readable: every wait ends with -ECANCELED
                                      (lf_port_open_cancellable); NULL: none */

@@ -18,6 +18,8 @@ static ssize_t read_some(fap_port *p, int fd, void *buf, size_t n)
 {
     for (;;) {
         ssize_t r = p->be->read(p->ctx, fd, buf, n);
+        /* fewer bytes than room, or none: the kernel queue is empty now */
+        __atomic_store_n(&p->rx_empty, r < (ssize_t)n, __ATOMIC_RELAXED);
         if (r > 0)
             return r;
         if (r == 0)
@@ -418,7 +420,14 @@ ssize_t fap_port_read(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
 {
     if (!p || (!buf && n))
         return -EINVAL;
-    return port_read(p, buf, n, deadline_ns, 0);
+    /* The last read emptied the queue and the caller will wait: the bytes
+     * it waits for are most likely not there yet, so poll first (2
+     * syscalls when they come) instead of a read failing with EAGAIN, a
+     * poll, then the read (3). Otherwise (deadline 0, or input may be
+     * queued) read first. */
+    int poll_first = __atomic_load_n(&p->rx_empty, __ATOMIC_RELAXED) &&
+                     deadline_ns > lf_now_ns();
+    return port_read(p, buf, n, deadline_ns, poll_first);
 }
 
 int fap_port_flush(fap_port *p)

@@ -1,0 +1,120 @@
+"""The targets of issue 24, as :class:`bench.targets.Target` rows from one run.
+
+The runner's own measurements give the CPU ratios against libmodbus, the idle
+FAP master and fap_py against the C API (:func:`own_rows`). The other parts
+of the issue live in modules other benches own (G485, the bridge, the
+real-time option): each exposes ``targets(rounds=...)`` returning rows and is
+imported by name (:data:`PARTS`), so the runner works before they exist;
+a missing or failing part shows as "not measured" with the reason.
+"""
+from __future__ import annotations
+
+import importlib
+import logging
+from typing import Any, Callable, Dict, List, Optional, Tuple
+
+from bench.targets import Target
+
+log = logging.getLogger("bench.issue24")
+
+# (module, what it measures, the rows' names when it is missing)
+PARTS: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (
+    ("bench.g485.paired", "G485 sync >= 95 % of the bare Python responder, asyncio >= 90 % of sync",
+     ("g485-115200", "g485-1000000")),
+    ("bench.bridge.throughput", "bridge forwards >= 95 % of the bus's messages/s, 0 lost, 0 duplicated",
+     ("bridge-forward-115200", "bridge-forward-1000000")),
+    ("bench.realtime", "real-time option: p99 turnaround <= 1 ms at 115200 with two CPU hogs",
+     ("realtime-p99-115200",)),
+)
+CPU_KINDS = ("fap-poll", "exec", "mikroc")
+CPU_RATIO = 0.5          # CPU per exchange <= 0.5x libmodbus's read, each side
+IDLE_LOAD = 1.0          # % of a core, idle FAP master at 115200
+PY_SHARE = 70.0          # fap_py round trips/s, % of the C API's
+
+
+def _med(row: Dict[str, Any], key: str) -> Optional[float]:
+    v = row.get(key)
+    return v["median"] if isinstance(v, dict) and "median" in v else None
+
+
+def cpu_rows(res: Dict[str, Any]) -> List[Target]:
+    """FAP poll cycle, exec async and mikroC against libmodbus's read, client
+    and server, paced 115200 and 1 Mbaud: the ratio of CPU µs per exchange."""
+    rows = []
+    for baud in ("115200", "1000000"):
+        paced = res.get("paced", {}).get(baud, {})
+        mb = paced.get("modbus", {})
+        for kind in CPU_KINDS:
+            r = paced.get(kind, {})
+            for side in ("client", "server"):
+                mine, peer = _med(r, f"{side}_us"), _med(mb, f"{side}_us")
+                value = mine / peer if mine is not None and peer else None
+                sc_m, sc_p = _med(r, f"{side}_syscalls"), _med(mb, f"{side}_syscalls")
+                wk_m, wk_p = _med(r, f"{side}_wakeups"), _med(mb, f"{side}_wakeups")
+                note = ""
+                if value is not None:
+                    note = f"{mine:.0f} vs {peer:.0f} µs/x"
+                    if wk_m is not None and wk_p is not None:
+                        note += f"; wake-ups {wk_m:.1f} vs {wk_p:.1f}"
+                    if sc_m is not None and sc_p is not None:
+                        note += f"; syscalls {sc_m:.1f} vs {sc_p:.1f}"
+                elif not mb:
+                    note = "libmodbus not measured in this run"
+                rows.append(Target(f"cpu-{kind}-{baud}-{side}",
+                                   f"{side} CPU/exchange <= {CPU_RATIO}x libmodbus read",
+                                   value, CPU_RATIO, False, "x", note))
+    return rows
+
+
+def idle_rows(res: Dict[str, Any]) -> List[Target]:
+    """Idle FAP master (slaves with nothing to send, in another process) at
+    115200 with 1 and with 31 slaves: % of a core."""
+    slaves = {str(k): v for k, v in res.get("scale", {}).get("115200", {}).get("slaves", {}).items()}
+    rows = []
+    for n in ("1", "31"):
+        r = slaves.get(n, {})
+        load = _med(r, "master_load")
+        cyc = _med(r, "cycles_per_s")
+        cpu = _med(r, "cpu_us_per_cycle")
+        note = f"{cyc:.0f} poll cycles/s, {cpu:.1f} µs/cycle" if cyc is not None and cpu is not None else ""
+        rows.append(Target(f"idle-master-{n}-slaves", f"idle FAP master < {IDLE_LOAD:g} % of a core at 115200",
+                           None if load is None else 100 * load, IDLE_LOAD, False, "%", note))
+    return rows
+
+
+def python_rows(res: Dict[str, Any]) -> List[Target]:
+    """fap_py round trips/s as a share of the C API's on the same link."""
+    r = (res.get("python") or {}).get("round-trip", {})
+    c, p = r.get("c_rate"), r.get("py_rate")
+    value = 100 * p / c if c and p else None
+    note = f"{p:.0f} vs {c:.0f} round trips/s" if value is not None else ""
+    return [Target("fap_py-round-trips", f"fap_py round trips/s >= {PY_SHARE:g} % of the C API's",
+                   value, PY_SHARE, True, "%", note)]
+
+
+def own_rows(res: Dict[str, Any]) -> List[Target]:
+    return cpu_rows(res) + idle_rows(res) + python_rows(res)
+
+
+def part_rows(rounds: int, quick: bool, skip: bool = False,
+              importer: Callable[[str], Any] = importlib.import_module) -> List[Target]:
+    """Every other part's rows, or "not measured" rows saying why."""
+    rows: List[Target] = []
+    for module, goal, names in PARTS:
+        if skip:
+            rows += [Target(n, goal, None, 0.0, True, "", "skipped (--skip-parts)") for n in names]
+            continue
+        try:
+            mod = importer(module)
+        except ImportError as e:
+            rows += [Target(n, goal, None, 0.0, True, "", f"{module} not here: {e}")
+                     for n in names]
+            continue
+        try:
+            got = mod.targets(rounds=1 if quick else rounds)
+            rows += [t for t in got if isinstance(t, Target) or hasattr(t, "met")]
+        except Exception as e:       # one part failing must not lose the others
+            log.warning("%s.targets failed: %s", module, e)
+            rows += [Target(n, goal, None, 0.0, True, "", f"{module}.targets failed: {e}")
+                     for n in names]
+    return rows
