@@ -76,30 +76,12 @@ def native_version() -> str:
 __version__ = "0.1.0"
 
 __all__ = [
-    "BusCollisionError",
-    "ClosedError",
-    "FapError",
-    "FapTimeoutError",
-    "FrameError",
-    "InvalidValueError",
-    "NotInitialisedError",
-    "PortBusyError",
-    "PortError",
-    "PortGoneError",
-    "RealTimeError",
-    "QueueFullError",
-    "native_version",
-    "EventKind",
-    "InvalidTypeError",
-    "Master",
-    "Message",
-    "NotMasterError",
-    "RS485",
-    "RS485Mode",
-    "Slave",
-    "SlaveEvent",
-    "SlaveExistsError",
-    "Stats",
-    "UnknownSlaveError",
-    "__version__",
+    # the one exception hierarchy (fap_py.errors)
+    "FapError", "InvalidValueError", "InvalidTypeError", "NotMasterError", "SlaveExistsError",
+    "UnknownSlaveError", "NotInitialisedError", "QueueFullError", "ClosedError", "FapTimeoutError",
+    "FrameError", "BusCollisionError", "PortError", "PortBusyError", "PortGoneError", "RealTimeError",
+    # the classes over the C core, imported on first use (_LAZY)
+    "Master", "Slave", "EventKind", "Message", "SlaveEvent", "Stats", "RS485", "RS485Mode",
+    # this module's own
+    "native_version", "__version__",
 ]

@@ -32,7 +32,7 @@ import threading
 import time
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
 
 from . import _trace  # wire bytes on fap_py.wire.exec at DEBUG
 from ._handle import NativeHandle, deadline_of
@@ -374,6 +374,22 @@ class SlaveStats(Counters):
     rx_frames: int
 
 
+_C = TypeVar("_C", bound=Counters)
+
+
+def _reopen(handle: "Union[Master, Slave]", port_of: Callable[[Any], Any]) -> None:
+    """fap_port_reopen on the port under a master's or a slave's handle."""
+    with handle._using() as h:
+        _raise_for(lib.fap_port_reopen(port_of(h)), "reopen", handle.path)
+
+
+def _stats(handle: "Union[Master, Slave]", cls: Type[_C], ctype: str, get: Callable[..., Any]) -> _C:
+    """A snapshot of a master's or a slave's counters: ``get(handle, ctype)`` as ``cls``."""
+    st = ffi.new(ctype)
+    handle._call(get, st)
+    return stats_from_c(cls, st)
+
+
 class Master(NativeHandle):
     """Exec async master on one port.
 
@@ -558,8 +574,8 @@ class Master(NativeHandle):
 
     def reopen(self) -> None:
         """Open the device again (after it vanished: a USB unplug, say)."""
-        with self._lock, self._using() as m:
-            _raise_for(lib.fap_port_reopen(lib.execMasterPort(m)), "reopen", self.path)
+        with self._lock:
+            _reopen(self, lib.execMasterPort)
 
     def reset_sequence(self) -> None:
         """Start again from sequence number 0 for every node (a master restart)."""
@@ -569,9 +585,7 @@ class Master(NativeHandle):
     @property
     def stats(self) -> MasterStats:
         """A snapshot of the counters (``execMasterStats``)."""
-        st = ffi.new("execMasterStats *")
-        self._call(lib.execMasterGetStats, st)
-        return stats_from_c(MasterStats, st)
+        return _stats(self, MasterStats, "execMasterStats *", lib.execMasterGetStats)
 
     def close(self) -> None:
         """Close the port (waits for a transaction in progress). Idempotent."""
@@ -668,12 +682,7 @@ class Slave(NativeHandle):
 
     def _interrupt(self) -> None:
         # execSlaveStop is one eventfd write: serve() calls in other threads return at once
-        h = self._h
-        if h is not None:
-            lib.execSlaveStop(h)
-        thread = self._thread
-        if thread is not None and thread is not threading.current_thread():
-            thread.join()
+        self.stop()
 
     def _release(self, h: Any) -> None:
         lib.execSlaveClose(h)
@@ -769,15 +778,12 @@ class Slave(NativeHandle):
 
     def reopen(self) -> None:
         """Open the device again after it vanished (serve() raised PortError)."""
-        with self._using() as s:
-            _raise_for(lib.fap_port_reopen(lib.execSlavePort(s)), "reopen", self.path)
+        _reopen(self, lib.execSlavePort)
 
     @property
     def stats(self) -> SlaveStats:
         """A snapshot of the counters (``execSlaveStats``)."""
-        st = ffi.new("execSlaveStats *")
-        self._call(lib.execSlaveGetStats, st)
-        return stats_from_c(SlaveStats, st)
+        return _stats(self, SlaveStats, "execSlaveStats *", lib.execSlaveGetStats)
 
     def close(self) -> None:
         """Stop serving (also serve() calls in other threads) and close the port. Idempotent."""

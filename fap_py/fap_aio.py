@@ -24,7 +24,7 @@ import asyncio
 import logging
 import threading
 from collections import deque
-from typing import Any, Deque, Optional, Protocol
+from typing import Any, Callable, Deque, Optional, Protocol
 
 from ._handle import WAIT_SLICE
 from ._validate import check_timeout
@@ -187,8 +187,14 @@ class AsyncPump:
         """Messages moved to Python and not taken yet."""
         return len(self.rx)
 
-    async def _wait(self, waiters: Deque["asyncio.Future[Any]"], queue: Deque[Any],
-                    timeout: Optional[float], what: str) -> Any:
+    async def _next(self, take: Callable[[], Any], waiters: Deque["asyncio.Future[Any]"],
+                    queue: Deque[Any], timeout: Optional[float], what: str) -> Any:
+        """``take()``'s item, else wait for the fd reader to hand one to a future in
+        ``waiters`` at most ``timeout`` seconds (None: no limit): FapTimeoutError then."""
+        timeout = check_timeout(timeout)
+        item = take()
+        if item is not None:
+            return item
         if self.stopped:
             raise self.node._closed_error()
         fut = self.loop.create_future()
@@ -218,21 +224,14 @@ class AsyncPump:
     async def get_rx(self, timeout: Optional[float]) -> "Message":
         """The next message: from the deque, else wait (the fd reader fills it) at most
         ``timeout`` seconds (None: no limit): FapTimeoutError then."""
-        timeout = check_timeout(timeout)
-        msg = self.take_rx()
-        if msg is not None:
-            return msg
-        got: "Message" = await self._wait(self.rx_waiters, self.rx, timeout, "arecv")
+        got: "Message" = await self._next(self.take_rx, self.rx_waiters, self.rx, timeout, "arecv")
         return got
 
     async def get_event(self, timeout: Optional[float]) -> "SlaveEvent":
         """The next engine event: from the deque, else wait (the fd reader fills it) at
         most ``timeout`` seconds (None: no limit): FapTimeoutError then."""
-        timeout = check_timeout(timeout)
-        ev = self.take_event()
-        if ev is not None:
-            return ev
-        got: "SlaveEvent" = await self._wait(self.ev_waiters, self.ev, timeout, "await_event")
+        got: "SlaveEvent" = await self._next(self.take_event, self.ev_waiters, self.ev, timeout,
+                                             "await_event")
         return got
 
     # -- shutdown -----------------------------------------------------------------

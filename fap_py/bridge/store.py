@@ -19,6 +19,7 @@ import time
 from contextlib import contextmanager
 from typing import Iterator, List, Optional, Tuple
 
+from .._closing import Closing
 from .._validate import U32, check_bool, check_bytes, check_int, check_path, check_seconds
 from ..errors import InvalidTypeError, PortError
 
@@ -70,7 +71,7 @@ def _errno_of(exc: sqlite3.Error) -> int:
     return errno.ENOSPC if code == 13 or "full" in str(exc) else errno.EIO   # 13: SQLITE_FULL
 
 
-class Store:
+class Store(Closing):
     """The outbox and the seen-id set in one sqlite3 file (thread-safe)."""
 
     def __init__(self, path: str, queue_max: int = 100_000, seen_max: int = 10_000) -> None:
@@ -210,11 +211,6 @@ class Store:
         with self._lock:
             self._db.close()
 
-    def __enter__(self) -> "Store":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def now_iso(t: Optional[float] = None) -> str:

@@ -15,15 +15,7 @@ import signal
 import sys
 from typing import IO, TYPE_CHECKING, Callable, Optional
 
-from ._options import (
-    EXIT_INTERRUPTED,
-    UsageError,
-    add_command,
-    add_output_options,
-    add_port_options,
-    rs485_from_args,
-    seconds,
-)
+from . import _options as opt  # as the protocol rooms use it
 
 if TYPE_CHECKING:  # pragma: no cover
     from fap_py.monitor.session import SessionConfig
@@ -53,7 +45,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     # choices for the help and shell completion; the type also takes an alias (execasync)
     p.add_argument("--protocol", type=_choice(protocol_choice), choices=protocol_choices(),
                    default="auto", help="decoder; auto tries every protocol and reports which one locks on")
-    add_port_options(p, baud_default=None, port_required=False, rs485_default="none",
+    opt.add_port_options(p, baud_default=None, port_required=False, rs485_default="none",
                      port_help="live serial port, opened receive-only (or give --raw, --capture, "
                      "or bytes on stdin)",
                      baud_help=f"line rate: opens --port at it ({LIVE_BAUD} if not given); sets the "
@@ -66,9 +58,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--follow", action="store_true",
                    help="live port: keep reading until interrupted (else stop after --idle "
                         "seconds of silence)")
-    p.add_argument("--idle", type=seconds, default=2.0, metavar="S",
+    p.add_argument("--idle", type=opt.seconds, default=2.0, metavar="S",
                    help="live port without --follow: stop after this much silence, seconds")
-    add_output_options(p)
+    opt.add_output_options(p)
     p.add_argument("--stats", action="store_true",
                    help="print only the statistics (frames, errors per node, reply times)")
     p.add_argument("--pcap", metavar="FILE", help="also write every frame to this pcap file")
@@ -94,7 +86,7 @@ def _choice(convert: Callable[[str], str]) -> Callable[[str], str]:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = add_command(sub, "monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
+    p = opt.add_command(sub, "monitor", help="decode a bus: FAP, exec async, mikroC, G485; JSON, pcap",
                     description=DESCRIPTION, example=EXAMPLE)
     add_arguments(p)
     p.set_defaults(func=run)
@@ -124,13 +116,13 @@ def _run(args: argparse.Namespace) -> int:
         wrote = True
     given = [name for name in ("port", "raw", "capture") if getattr(args, name)]
     if len(given) > 1:
-        raise UsageError(f"give one input, not {' and '.join('--' + n for n in given)}")
+        raise opt.UsageError(f"give one input, not {' and '.join('--' + n for n in given)}")
     if wrote and not given:
         return 0
     if args.follow and not args.port:
-        raise UsageError("--follow needs --port")
+        raise opt.UsageError("--follow needs --port")
     if not given and sys.stdin.isatty():
-        raise UsageError("no input: give --port, --raw or --capture, or pipe bytes to stdin")
+        raise opt.UsageError("no input: give --port, --raw or --capture, or pipe bytes to stdin")
     return monitor(args)
 
 
@@ -140,7 +132,7 @@ def config_from_args(args: argparse.Namespace) -> "SessionConfig":
 
     return SessionConfig(
         protocol=args.protocol, device=args.port, raw_file=args.raw, capture_file=args.capture,
-        baud=args.baud or 0, rs485=rs485_from_args(args) if args.port else None,
+        baud=args.baud or 0, rs485=opt.rs485_from_args(args) if args.port else None,
         idle_s=None if args.follow else args.idle, as_json=bool(args.json),
         stats_only=bool(args.stats), pcap_file=args.pcap, quiet=bool(args.quiet))
 
@@ -152,7 +144,7 @@ def monitor(args: argparse.Namespace, out: Optional[IO[str]] = None) -> int:
     from fap_py.monitor.session import Session
 
     ended_by = Session(config_from_args(args), out).run()
-    return EXIT_INTERRUPTED if ended_by == signal.SIGINT else 0
+    return opt.EXIT_INTERRUPTED if ended_by == signal.SIGINT else 0
 
 
 __all__ = ["add_arguments", "monitor", "register", "run"]

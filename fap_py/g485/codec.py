@@ -346,30 +346,37 @@ def encode_read_response(register: int, data: Data) -> bytes:
     return _frame(SMA_R, register, payload)
 
 
+def _pid_request(address: int, pid: int, what: str) -> bytes:
+    """A read of one special PID (handshake, error word) from one device."""
+    _check_address(address, broadcast_ok=False, what=what)
+    return _frame((address << 1) | 1, pid)
+
+
+def _pid_response(pid: int, value: int, size: int, what: str, top: str) -> bytes:
+    """The answer to :func:`_pid_request`: ``value`` in ``size`` bytes, high byte first."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 1 << (8 * size):
+        raise G485ValueError(f"{what} {value} outside 0..{top}")
+    return _frame(SMA_R, pid, value.to_bytes(size, "big"))
+
+
 def encode_handshake_request(address: int) -> bytes:
     """Handshake-Request."""
-    _check_address(address, broadcast_ok=False, what="a handshake")
-    return _frame((address << 1) | 1, HPID)
+    return _pid_request(address, HPID, "a handshake")
 
 
 def encode_handshake_response(value: int) -> bytes:
     """Handshake-Response carrying the slave's SDOC/SDIC."""
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFF:
-        raise G485ValueError(f"handshake value {value} outside 0..255")
-    return _frame(SMA_R, HPID, bytes((value,)))
+    return _pid_response(HPID, value, 1, "handshake value", "255")
 
 
 def encode_error_word_request(address: int) -> bytes:
     """Get-Error-Word-Request."""
-    _check_address(address, broadcast_ok=False, what="an error-word read")
-    return _frame((address << 1) | 1, EPID)
+    return _pid_request(address, EPID, "an error-word read")
 
 
 def encode_error_word_response(word: int) -> bytes:
     """Get-Error-Word-Response, ERRH first."""
-    if isinstance(word, bool) or not isinstance(word, int) or not 0 <= word <= 0xFFFF:
-        raise G485ValueError(f"error word {word} outside 0..0xffff")
-    return _frame(SMA_R, EPID, bytes((word >> 8, word & 0xFF)))
+    return _pid_response(EPID, word, 2, "error word", "0xffff")
 
 
 def encode_set(address: int, command: Union[SetCommand, int, str]) -> bytes:

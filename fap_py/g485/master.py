@@ -18,6 +18,7 @@ import threading
 import time
 from typing import Any, Callable, Iterable, Iterator, List, Optional, Tuple, Union
 
+from .._closing import Closing
 from .._validate import MAX_TIMEOUT  # noqa: F401  (kept importable: now the package's ~24 days, was 3,600 s)
 from ..errors import ClosedError, PortGoneError
 from ..rs485 import RS485
@@ -86,7 +87,7 @@ def _option(name: str, check: Callable[[Any], Any], doc: str) -> Any:
     return property(get, put, doc=doc)
 
 
-class G485Master:
+class G485Master(Closing):
     """The System-Master (address 127) on one port.
 
     :param port: a device path (opened through libfap's port layer, with an
@@ -188,12 +189,6 @@ class G485Master:
         if not callable(hook):
             raise G485ValueError(f"hook must be callable, not {type(hook).__name__}")
         self._close_hooks.append(hook)
-
-    def __enter__(self) -> "G485Master":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     def __del__(self) -> None:
         try:

@@ -186,6 +186,13 @@ def check_event(event: Any, protocol: str) -> Event:
     return event
 
 
+def _text_field(event: Any, protocol: str, key: str) -> Optional[str]:
+    """Field ``key`` of a ``protocol`` event if it is a str, else None (a plug-in's
+    ``label``: the message or packet type)."""
+    text = (check_event(event, protocol).fields or {}).get(key)
+    return text if isinstance(text, str) else None
+
+
 class Decoder:
     """The interface of the plug-ins' decoders: ``feed`` bytes, ``idle`` on a quiet
     line, ``finish`` at the end. ``name`` is the protocol's one name."""

@@ -24,6 +24,7 @@ import struct
 from typing import BinaryIO, Optional
 
 from .. import _protocols
+from .._closing import Closing
 from .._validate import check_bool
 from ..errors import InvalidTypeError, InvalidValueError
 from .core import Record
@@ -54,7 +55,7 @@ def header(rec: Record) -> bytes:
     return bytes((HEADER_VERSION, pcap_id, flags, port, len(reason))) + reason
 
 
-class PcapWriter:
+class PcapWriter(Closing):
     """Writes records to a pcap file (a context manager)."""
 
     def __init__(self, fh: BinaryIO, epoch: Optional[float] = None) -> None:
@@ -94,11 +95,6 @@ class PcapWriter:
     def close(self) -> None:
         self._fh.flush()
 
-    def __enter__(self) -> "PcapWriter":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def __getattr__(name: str) -> object:

@@ -13,6 +13,7 @@ import time
 from dataclasses import replace
 from typing import BinaryIO, Callable, Iterator, NamedTuple, Optional
 
+from .._closing import Closing
 from .._validate import U32, check_baud, check_int, check_path, check_seconds
 from ..errors import ClosedError, InvalidTypeError
 from ..port import MAX_READ, Port, PortStats
@@ -138,7 +139,7 @@ def _stream_chunks(fd: int, char_s: float, stop: Callable[[], bool]) -> Iterator
         yield Chunk(data, now - len(data) * char_s, char_s, None, time.monotonic_ns())
 
 
-class LivePort:
+class LivePort(Closing):
     """A serial device opened receive-only (never transmits, RTS left alone), through
     :class:`fap_py.port.Port` (the package's one way to a device).
 
@@ -167,11 +168,6 @@ class LivePort:
     def close(self) -> None:
         self._port.close()
 
-    def __enter__(self) -> "LivePort":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @staticmethod
     def now_ns() -> int:

@@ -1,7 +1,7 @@
 """The monitor's exec async plug-in: execAsyncByteIn from the C codec table."""
 from __future__ import annotations
 
-from typing import Dict, Optional, Tuple
+from typing import Optional, Tuple
 
 from ... import _protocols
 from ..decoders import CodecDecoder, Decoder, Event, check_event
@@ -18,14 +18,9 @@ _BROADCAST = _protocols.get(NAME).broadcast
 __all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "pair", "summary"]
 
 
-def _fields(values: Tuple[int, ...], data: bytes, name: Optional[str]) -> Dict[str, object]:
-    node, seq = values
-    return {"node": node, "seq": seq, "data": data}
-
-
 def decoder(baud: int = 0) -> Decoder:
     """exec async's receiver decoder (it has no inter-byte gap: ``baud`` is unused)."""
-    return CodecDecoder(NAME, baud, fields=_fields)
+    return CodecDecoder(NAME, baud)   # the C row's fields (node, seq) and data, as they are
 
 
 def summary(event: Event) -> str:

@@ -5,7 +5,7 @@ from typing import Dict, Optional, Tuple
 
 from ..._validate import U32, check_int
 from ...fap_types import MASTER_ID
-from ..decoders import CodecDecoder, Decoder, Event, check_event
+from ..decoders import CodecDecoder, Decoder, Event, _text_field, check_event
 
 NAME = "fap"
 FIELDS = ("msg", "msg_name", "dst", "src", "data")
@@ -31,9 +31,7 @@ def summary(event: Event) -> str:
 
 def label(event: Event) -> Optional[str]:
     """The message type (SEND_DATA, DATA, ...)."""
-    f = check_event(event, NAME).fields or {}
-    text = f.get("msg_name")
-    return text if isinstance(text, str) else None
+    return _text_field(event, NAME, "msg_name")
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:

@@ -8,7 +8,7 @@ from typing import List, Optional, Tuple, cast
 
 from ..._validate import U32, check_int
 from ...g485 import codec as g485
-from ..decoders import NS_MAX, Decoder, Event, _ev, check_event
+from ..decoders import NS_MAX, Decoder, Event, _ev, _text_field, check_event
 
 NAME = "g485"
 FIELDS = ("address", "rw", "pid", "data", "packet", "device")
@@ -163,9 +163,7 @@ def summary(event: Event) -> str:
 
 def label(event: Event) -> Optional[str]:
     """The packet type (User-Register-Write, ...)."""
-    f = check_event(event, NAME).fields or {}
-    text = f.get("packet")
-    return text if isinstance(text, str) else None
+    return _text_field(event, NAME, "packet")
 
 
 def pair(event: Event, asked: object = None) -> Tuple[object, Optional[str], object]:
