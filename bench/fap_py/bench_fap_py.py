@@ -59,6 +59,7 @@ class Result:
     wall_s: float
     cpu_s: float
     received: int = -1     #: stream: messages the slave got (-1: all, by construction)
+    polls: int = -1        #: the master's SEND_DATA turns in the window (-1: not counted)
 
     @property
     def rate(self) -> float:
@@ -115,7 +116,7 @@ def run_c(exe: Path, paths: List[str], mode: str, count: int, size: int) -> Resu
         raise SystemExit(f"bench_fapx_c {cmode} failed: {proc.stderr.strip()}")
     f = dict(re.findall(r"(\w+)=(\S+)", proc.stdout))
     return Result(mode, size, "C (fapx)", count, float(f["wall_s"]), float(f["cpu_s"]),
-                  int(f["received"]))
+                  int(f["received"]), int(f.get("polls", -1)) if cmode != "calls" else -1)
 
 
 # -- the Python side -----------------------------------------------------------------
@@ -179,6 +180,7 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
             wall, cpu = _measure(calls)
         return Result(mode, size, "Python (fap_py)", count, wall, cpu)
     master, slave = _pair(paths)
+    polls0 = master.stats.polls
     try:
         if mode == "round-trip":
             def rt() -> None:
@@ -215,8 +217,9 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
             got = receiver[0].received
             if got < count:
                 wall -= 2.0                 # the final 2 s of silence
-            return Result(mode, size, "Python (fap_py)", count, wall, cpu, got)
-        return Result(mode, size, api, count, wall, cpu)
+            return Result(mode, size, "Python (fap_py)", count, wall, cpu, got,
+                          master.stats.polls - polls0)
+        return Result(mode, size, api, count, wall, cpu, polls=master.stats.polls - polls0)
     finally:
         slave.close()
         master.close()
