@@ -425,7 +425,10 @@ class Node(NativeHandle):
 
     # -- events ------------------------------------------------------------
     def _ev_c(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]:
-        ev = self._ffi.new("fapx_event *")
+        try:
+            ev = self._tls.ev
+        except AttributeError:       # first event read in this thread: its own buffer
+            ev = self._tls.ev = self._ffi.new("fapx_event *")
         if wait_ms is None:
             code = self._call(self._lib.fapx_event_get, ev)
         else:
