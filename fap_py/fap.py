@@ -151,6 +151,10 @@ def _deadline(timeout: Optional[float]) -> Optional[float]:
     return deadline_of(None if timeout is None else _seconds(timeout, "timeout"))
 
 
+#: A whole WAIT_SLICE in ms: the slice of a wait without a deadline.
+_SLICE_MS = slice_ms(None)
+
+
 def _slice_ms(deadline: Optional[float]) -> int:
     """Milliseconds for the next wait inside C: at most WAIT_SLICE."""
     return slice_ms(deadline)
@@ -167,6 +171,7 @@ class Node(NativeHandle):
     """
 
     _mode: int = -1
+    _dests: "frozenset[int]" = frozenset()   # valid send() destinations (subclasses)
 
     def __init__(self, port: PathLike, baudrate: int = 115200, *, node_id: int,
                  id_cycle: Optional[float] = None,
@@ -311,8 +316,10 @@ class Node(NativeHandle):
             QueueFullError: the transmit queue is (still) full.
             ClosedError: the node is (or got) closed.
         """
-        dest = self._check_dest(to)
-        payload = _payload(data)
+        # Hot path: an int destination already known valid and a bytes payload
+        # skip the general checks (which raise the specific errors otherwise).
+        dest = to if type(to) is int and to in self._dests else self._check_dest(to)
+        payload = data if type(data) is bytes and 0 < len(data) <= MAX_DATA else _payload(data)
         if timeout == 0.0:
             code = self._call(self._lib.fapx_tx, dest, payload, len(payload))
         else:
@@ -361,14 +368,13 @@ class Node(NativeHandle):
         try:
             buf, src = self._tls.rx
         except AttributeError:       # first receive in this thread: its own buffers
-            buf, src = self._tls.rx = (ffi.new("unsigned char[]", MAX_DATA),
-                                       ffi.new("unsigned *"))
+            buf, src = self._tls.rx = (ffi.new("char[]", MAX_DATA), ffi.new("unsigned *"))
         if wait_ms is None:
             n = self._call(lib.fapx_rx, buf, MAX_DATA, src)
         else:
             n = self._call(lib.fapx_rx_wait, buf, MAX_DATA, src, wait_ms)
         if n >= 0:
-            msg = Message(int(src[0]), ffi.buffer(buf, n)[:])
+            msg = Message(src[0], ffi.unpack(buf, n))   # char[]: unpack gives bytes
             if log.isEnabledFor(logging.DEBUG):   # per message: no label built for nothing
                 log.debug("%s: received %d bytes from %d", self._label(), n, msg.source)
             return msg
@@ -388,14 +394,14 @@ class Node(NativeHandle):
             ClosedError: the node is (or got) closed.
             KeyboardInterrupt: Ctrl-C while waiting.
         """
-        deadline = _deadline(timeout)
+        deadline = None if timeout is None else _deadline(timeout)
         while True:
             pump = self._pump
             if pump is not None:
                 msg = pump.take_rx()
                 if msg is not None:
                     return msg
-            msg = self._rx_c(_slice_ms(deadline))
+            msg = self._rx_c(_SLICE_MS if deadline is None else _slice_ms(deadline))
             if msg is not None:
                 return msg
             if deadline is not None and time.monotonic() >= deadline:
@@ -419,7 +425,10 @@ class Node(NativeHandle):
 
     # -- events ------------------------------------------------------------
     def _ev_c(self, wait_ms: Optional[int]) -> Optional[SlaveEvent]:
-        ev = self._ffi.new("fapx_event *")
+        try:
+            ev = self._tls.ev
+        except AttributeError:       # first event read in this thread: its own buffer
+            ev = self._tls.ev = self._ffi.new("fapx_event *")
         if wait_ms is None:
             code = self._call(self._lib.fapx_event_get, ev)
         else:
@@ -578,6 +587,9 @@ class Master(Node):
             self.close()
             raise
 
+    #: The IDs a master sends to (send()'s fast path; _check_dest says why others fail).
+    _dests = frozenset(range(1, MAX_ID + 1))
+
     def _check_dest(self, to: Any) -> int:
         return _int(to, "to (a slave ID)", 1, MAX_ID)
 
@@ -667,6 +679,7 @@ class Slave(Node):
     def __init__(self, port: PathLike, baudrate: int = 115200, *, id: int,
                  **options: Any) -> None:
         super().__init__(port, baudrate, node_id=_slave_id(id, "id"), **options)
+        self._dests = frozenset(range(MAX_ID + 1)) - {self.id}
 
     def _check_dest(self, to: Any) -> int:
         dest = _int(to, "to (a node ID)", 0, MAX_ID)

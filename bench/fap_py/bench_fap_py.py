@@ -24,6 +24,12 @@ Run (needs fap_py installed; builds the C side with meson unless given)::
 With ``--baud`` the bus is paced at that rate (10 bits/byte) and the table
 also shows the wire's limit; unpaced, the wire costs nearly nothing and
 the numbers show the software alone.
+
+``polls/msg`` is the master's SEND_DATA turns per message over the window:
+on the unpaced bus the master polls back to back, so a round trip that
+waits for a slow (or descheduled) application thread spans more turns, and
+every turn costs both engines wake-ups and CPU (bench/README.md, "fap_py
+per message").
 """
 from __future__ import annotations
 
@@ -59,6 +65,7 @@ class Result:
     wall_s: float
     cpu_s: float
     received: int = -1     #: stream: messages the slave got (-1: all, by construction)
+    polls: int = -1        #: the master's SEND_DATA turns in the window (-1: not counted)
 
     @property
     def rate(self) -> float:
@@ -115,7 +122,7 @@ def run_c(exe: Path, paths: List[str], mode: str, count: int, size: int) -> Resu
         raise SystemExit(f"bench_fapx_c {cmode} failed: {proc.stderr.strip()}")
     f = dict(re.findall(r"(\w+)=(\S+)", proc.stdout))
     return Result(mode, size, "C (fapx)", count, float(f["wall_s"]), float(f["cpu_s"]),
-                  int(f["received"]))
+                  int(f["received"]), int(f.get("polls", -1)) if cmode != "calls" else -1)
 
 
 # -- the Python side -----------------------------------------------------------------
@@ -179,6 +186,7 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
             wall, cpu = _measure(calls)
         return Result(mode, size, "Python (fap_py)", count, wall, cpu)
     master, slave = _pair(paths)
+    polls0 = master.stats.polls
     try:
         if mode == "round-trip":
             def rt() -> None:
@@ -215,8 +223,9 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
             got = receiver[0].received
             if got < count:
                 wall -= 2.0                 # the final 2 s of silence
-            return Result(mode, size, "Python (fap_py)", count, wall, cpu, got)
-        return Result(mode, size, api, count, wall, cpu)
+            return Result(mode, size, "Python (fap_py)", count, wall, cpu, got,
+                          master.stats.polls - polls0)
+        return Result(mode, size, api, count, wall, cpu, polls=master.stats.polls - polls0)
     finally:
         slave.close()
         master.close()
@@ -244,7 +253,7 @@ def wire_rate(mode: str, size: int, baud: int) -> Optional[float]:
 
 def print_table(results: List[Result], baud: int) -> None:
     head = (f"{'mode':<20}{'size':>6}  {'API':<17}{'msgs/s':>11}{'us/msg':>10}"
-            f"{'CPU us/msg':>12}{'Py/C CPU':>10}{'lost':>7}")
+            f"{'CPU us/msg':>12}{'Py/C CPU':>10}{'lost':>7}{'polls/msg':>11}")
     print(head)
     print("-" * len(head))
     base: Dict[Tuple[str, int], Result] = {}
@@ -256,7 +265,8 @@ def print_table(results: List[Result], baud: int) -> None:
         ratio = "" if c is None or r is c or c.cpu_s <= 0 else f"{r.cpu_s / c.cpu_s:.2f}x"
         print(f"{r.mode:<20}{r.size:>6}  {r.api:<17}{r.rate:>11,.0f}"
               f"{r.wall_s / r.count * 1e6:>10.1f}{r.cpu_s / r.count * 1e6:>12.2f}{ratio:>10}"
-              f"{r.count - r.received if r.received >= 0 else 0:>7}")
+              f"{r.count - r.received if r.received >= 0 else 0:>7}"
+              f"{r.polls / r.count if r.polls >= 0 else float('nan'):>11.2f}")
     wire_baud = baud or 115200
     print(f"\nthe wire's limit at {wire_baud} baud (10 bits/byte"
           f"{'' if baud else '; for reference: this bus is unpaced'}):")

@@ -12,8 +12,9 @@
  *           on an empty queue, on a slave handle no master polls.
  * Prints one line: "mode=.. count=.. size=.. wall_s=.. cpu_s=.. received=.."
  * where cpu_s is this process's user+system time (every thread: engines
- * included) and received what the slave got (stream: an overloaded,
- * unpaced virtual bus drops bytes a slow reader does not take). */
+ * included), received what the slave got (stream: an overloaded,
+ * unpaced virtual bus drops bytes a slow reader does not take) and polls
+ * the master's SEND_DATA turns over the window (0 in calls mode). */
 #include <errno.h>
 #include <pthread.h>
 #include <stdio.h>
@@ -114,6 +115,9 @@ int main(int argc, char **argv)
         data[i] = (unsigned char)(i * 7);
     double w0, c0, w1, c1;
     long received = count;
+    fapx_stats st0, st1;          /* the master's: poll cycles per message */
+    memset(&st0, 0, sizeof st0);
+    memset(&st1, 0, sizeof st1);
 
     if (strcmp(mode, "calls") == 0) {
         fapx_options o;
@@ -156,6 +160,7 @@ int main(int argc, char **argv)
         pthread_mutex_init(&arg.lock, NULL);
         pthread_cond_init(&arg.cond, NULL);
         pthread_t th;
+        fapx_get_stats(m, &st0);
         w0 = wall_s();
         c0 = cpu_s();
         pthread_create(&th, NULL, slave_thread, &arg);
@@ -183,14 +188,16 @@ int main(int argc, char **argv)
         pthread_join(th, NULL);
         w1 = wall_s();
         c1 = cpu_s();
+        fapx_get_stats(m, &st1);
         received = arg.received;
         if (received < count)     /* the 2 s of silence are not transfer time */
             w1 -= 2.0;
         fapx_close(s);
         fapx_close(m);
     }
-    printf("mode=%s count=%ld size=%zu wall_s=%.6f cpu_s=%.6f received=%ld\n",
-           mode, count, size, w1 - w0, c1 - c0, received);
+    printf("mode=%s count=%ld size=%zu wall_s=%.6f cpu_s=%.6f received=%ld polls=%llu\n",
+           mode, count, size, w1 - w0, c1 - c0, received,
+           (unsigned long long)(st1.polls - st0.polls));
     free(data);
     free(back);
     return 0;
