@@ -593,16 +593,22 @@ class Master(Node):
     def _check_dest(self, to: Any) -> int:
         return _int(to, "to (a slave ID)", 1, MAX_ID)
 
+    def _slave_call(self, fn: Any, id: int, what: str) -> "tuple[int, int]":
+        """``fn(handle, id)`` for one slave ID (checked first): (the ID, C's non-negative
+        result); a negative result raises the matching error."""
+        sid = _slave_id(id)
+        code = self._call(fn, sid)
+        if code < 0:
+            raise _error(code, what, detail=f"id {sid}")
+        return sid, code
+
     def add_slave(self, id: int) -> None:
         """List slave ``id``; it starts inactive and is queried after the current data cycle.
 
         Raises:
             SlaveExistsError: already listed.
         """
-        sid = _slave_id(id)
-        code = self._call(self._lib.fapx_add_slave, sid)
-        if code < 0:
-            raise _error(code, "add_slave", detail=f"id {sid}")
+        sid = self._slave_call(self._lib.fapx_add_slave, id, "add_slave")[0]
         log.info("master: slave %d listed", sid)
 
     def remove_slave(self, id: int) -> None:
@@ -611,19 +617,12 @@ class Master(Node):
         Raises:
             UnknownSlaveError: not listed.
         """
-        sid = _slave_id(id)
-        code = self._call(self._lib.fapx_remove_slave, sid)
-        if code < 0:
-            raise _error(code, "remove_slave", detail=f"id {sid}")
+        sid = self._slave_call(self._lib.fapx_remove_slave, id, "remove_slave")[0]
         log.info("master: slave %d removed", sid)
 
     def is_active(self, id: int) -> bool:
         """Whether listed slave ``id`` answers (UnknownSlaveError if not listed)."""
-        sid = _slave_id(id)
-        code = self._call(self._lib.fapx_slave_active, sid)
-        if code < 0:
-            raise _error(code, "is_active", detail=f"id {sid}")
-        return bool(code)
+        return bool(self._slave_call(self._lib.fapx_slave_active, id, "is_active")[1])
 
     @property
     def slaves(self) -> List[int]:

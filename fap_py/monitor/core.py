@@ -42,6 +42,11 @@ def _check_time(value: Any, what: str, lo: float, hi: float) -> float:
     return v
 
 
+def _from_event(name: str) -> Any:
+    """A read-only attribute of a Record that is its event's attribute ``name``."""
+    return property(lambda self: getattr(self.event, name), doc=f"The event's ``{name}``.")
+
+
 class Record:
     """A decoder event placed on the timeline."""
 
@@ -61,25 +66,12 @@ class Record:
         self.t_end = t_end
         self.port = port
 
-    @property
-    def protocol(self) -> str:
-        return self.event.protocol
-
-    @property
-    def ok(self) -> bool:
-        return self.event.error is None
-
-    @property
-    def error(self) -> Optional[str]:
-        return self.event.error
-
-    @property
-    def raw(self) -> bytes:
-        return self.event.raw
-
-    @property
-    def fields(self) -> Optional[Dict[str, object]]:
-        return self.event.fields
+    # what the decoder said, read through from the event (one rule: the event holds it)
+    protocol: str = _from_event("protocol")
+    ok: bool = _from_event("ok")
+    error: Optional[str] = _from_event("error")
+    raw: bytes = _from_event("raw")
+    fields: Optional[Dict[str, object]] = _from_event("fields")
 
 
 class _Timeline:
