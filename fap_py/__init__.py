@@ -10,6 +10,7 @@ import importlib
 import logging
 from typing import TYPE_CHECKING, Any, List
 
+from . import _protocols
 from .errors import (
     BusCollisionError,
     ClosedError,
@@ -47,8 +48,9 @@ _LAZY = {
 }
 
 
-_SUBMODULES = ("fap", "fap_types", "fap_aio", "fap_classic", "rs485", "execasync", "mikroc",
-               "vbus", "g485")
+# the protocols' binding modules come from the protocol table (fap_py._protocols)
+_SUBMODULES = ("fap_types", "fap_aio", "fap_classic", "rs485", "vbus") + tuple(
+    p.binding.rsplit(".", 1)[1] for p in _protocols.PROTOCOLS)
 
 
 def __getattr__(name: str) -> Any:

@@ -37,7 +37,7 @@ from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to
     PortGoneError,
     error_from_code,
 )
-from .rs485 import RS485, RS485Mode, port_options
+from .rs485 import DEFAULT_BAUD, RS485, RS485Mode, port_options
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class Port(NativeHandle):
 
     _kind = "port"
 
-    def __init__(self, path: PathLike, baudrate: int = 115200, rs485: Optional[RS485] = None) -> None:
+    def __init__(self, path: PathLike, baudrate: int = DEFAULT_BAUD, rs485: Optional[RS485] = None) -> None:
         super().__init__()
         if not isinstance(path, (str, bytes, os.PathLike)):
             raise InvalidTypeError(f"path must be a str or path, not {type(path).__name__}")

@@ -31,6 +31,8 @@ from fap_py.cli import build_parser
 MISSING = "/nonexistent/fap-random-argv"
 #: options that name something to open: forced to MISSING at the end of the line
 OPENS = ("--port", "--raw", "--capture", "--config")
+# never drawn: --help/--version end at once; --debug prints a failure's traceback on purpose
+NOT_DRAWN = ("--help", "--version", "--debug")
 #: commands that run until Ctrl-C (or for seconds) when their arguments are valid
 LONG_RUNNING = {("bus",), ("demo",), ("soak",)}
 HOSTILE = ["", "-", "--", "0", "-1", "1", "7", "255", "256", "65536", "99999999999999999999", "1e999",
@@ -45,7 +47,7 @@ def _leaves(parser: argparse.ArgumentParser, path: Tuple[str, ...] = ()) -> Dict
     subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
     if not subs:
         out[path] = sorted(s for a in parser._actions for s in a.option_strings
-                           if s.startswith("--") and s not in ("--help", "--version"))
+                           if s.startswith("--") and s not in NOT_DRAWN)
         return out
     for sub in subs:
         for name, child in sub.choices.items():
