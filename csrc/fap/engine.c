@@ -472,13 +472,14 @@ static int wait_events(engine *e, lf_ns deadline, uint32_t *port_ev)
         if (ne < 0 && errno == ENOSYS)
             h->no_pwait2 = 1;
     }
-#else
-    h->no_pwait2 = 1;
-#endif
     if (h->no_pwait2) {
         arm_timer(h, deadline);
         ne = epoll_wait(ep, evs, 3, -1);
     }
+#else
+    arm_timer(h, deadline);           /* no epoll_pwait2 in this libc: the timerfd */
+    ne = epoll_wait(ep, evs, 3, -1);
+#endif
     if (ne < 0) {
         /* EINTR, or ENOMEM under memory pressure: never give up the bus;
          * back off a moment so an error cannot spin */

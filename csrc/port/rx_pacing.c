@@ -51,7 +51,6 @@ static lf_ns pace_now(const fap_port *p)
 static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t want,
                          int64_t deadline_ns)
 {
-    ssize_t r;
     unsigned baud = fap_port_baud(p);
     lf_rx_pace pace = {0};
     lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, pace_now(p));
@@ -69,7 +68,7 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
                 p->be->sleep_until(p->ctx, until);
         }
         /* the first time: the next piece as the fd brings it, to see the pace */
-        r = fap_port_read(p, (uint8_t *)buf + got, n - got, observed ? 0 : deadline_ns);
+        ssize_t r = fap_port_read(p, (uint8_t *)buf + got, n - got, observed ? 0 : deadline_ns);
         if (r <= 0)
             break;                    /* stalled or failed: report what we have */
         got += (size_t)r;
