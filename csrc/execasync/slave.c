@@ -122,7 +122,9 @@ static int send_last_reply(execSlave *s)
     /* counted before the write: once the master has the reply, the count
      * already shows it */
     LF_STAT_INC(s->stats.replies);
-    ssize_t w = fap_port_write(s->port, s->last_frame, s->last_len);
+    /* not drained (the port still drains for soft RTS or echo): nothing
+     * here waits for the last bit, the next wait is for the next request */
+    ssize_t w = fap_port_send(s->port, s->last_frame, s->last_len);
     lf_trace_emit(&s->trace, FAP_TRACE_TX,
                   w == (ssize_t)s->last_len ? FAP_TRACE_OK : FAP_TRACE_TX_FAILED,
                   lf_now_ns(), s->last_frame, s->last_len);
