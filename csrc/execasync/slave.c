@@ -46,6 +46,7 @@ struct execSlave {
     lf_exec_tap tap;                   /* raw bytes of the request in progress */
     size_t cur_len;                    /* bytes of the frame in progress so far */
     size_t last_req;                   /* bytes of the last frame received */
+    int at_baud;                       /* the link keeps the baud's pace (rx_pacing.h) */
 };
 
 void execSlaveOptionsInit(execSlaveOptions *o)
@@ -219,7 +220,8 @@ static int wait_input(execSlave *s, lf_ns deadline)
     size_t want = lf_exec_rx_missing(&s->rx);
     if (s->last_req > s->cur_len && s->last_req - s->cur_len > want)
         want = s->last_req - s->cur_len;
-    ssize_t r = lf_port_read_frame(s->port, s->pending, PENDING_SIZE, want, deadline);
+    ssize_t r = lf_port_read_frame_kept(s->port, s->pending, PENDING_SIZE, want, deadline,
+                                        &s->at_baud);
     if (r <= 0)
         return (int)r;
     s->pos = 0;

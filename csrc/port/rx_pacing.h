@@ -82,6 +82,15 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
 ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns);
 
+/* lf_port_read_frame keeping the pace from one frame to the next (the FAP
+ * engine's rule): *at_baud set, the rest is held from the first bytes at
+ * the baud's pace without waiting for a second piece; a hold that woke on
+ * time and found all `want` bytes in clears it (the link may be faster);
+ * a second piece as the wire brought it sets it when the link ran at the
+ * baud (not faster). */
+ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
+                                int64_t deadline_ns, int *at_baud);
+
 /* fap_port_read whose deadline holds to the nanosecond, for short waits
  * that are part of the wire timing (the exec slave watching the line
  * through its turnaround delay): the port's poll counts whole
