@@ -85,8 +85,9 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
         lf_ns now = pace_now(p);
         if (at_baud && !observed && last > 0 && ct > 0)   /* a piece as the wire brought it */
             *at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)r;
-        else if (at_baud && trusted && got >= want && now - until <= ct)
-            *at_baud = 0;             /* all in at a hold that woke on time: maybe faster */
+        else if (at_baud && trusted && got >= want && lf_now_ns() - until <= ct)
+            *at_baud = 0;             /* all in at a hold that woke on time (the
+                                       * sleep's clock): the link may be faster */
         hold = lf_rx_pace_hold(&pace, baud, 0, (size_t)r, want > got ? want - got : 0, now);
         if (observed && until >= deadline_ns)
             break;
