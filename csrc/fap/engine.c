@@ -526,7 +526,7 @@ static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t 
     if (frame_start && e->at_baud)
         return lf_rx_hold_ct_ns(ct, missing);
     if (!frame_start && !held && last > 0 && ct > 0)   /* a piece as the wire brought it */
-        e->at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)fed;
+        e->at_baud = lf_rx_at_baud(now - last, ct, fed);
     return observed;
 }
 

@@ -27,6 +27,11 @@ lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing)
     return hold >= HOLD_MIN_NS ? hold : 0;
 }
 
+int lf_rx_at_baud(lf_ns gap, lf_ns ct, size_t n)
+{
+    return gap * 10 >= ct * 7 * (lf_ns)n;
+}
+
 lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t missing,
                       lf_ns now)
 {
@@ -84,7 +89,7 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
         got += (size_t)r;
         lf_ns now = pace_now(p);
         if (at_baud && !observed && last > 0 && ct > 0)   /* a piece as the wire brought it */
-            *at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)r;
+            *at_baud = lf_rx_at_baud(now - last, ct, (size_t)r);
         else if (at_baud && trusted && got >= want && lf_now_ns() - until <= ct)
             *at_baud = 0;             /* all in at a hold that woke on time (the
                                        * sleep's clock): the link may be faster */

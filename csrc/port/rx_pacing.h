@@ -42,6 +42,10 @@ lf_ns lf_rx_hold_ns(unsigned baud, size_t missing);
 /* The same for a character time ct (ns per byte) instead of a baud. */
 lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing);
 
+/* n bytes that came `gap` ns after the previous piece ran at the baud's
+ * character time ct, not faster (within 30 %: a wake-up is never early). */
+int lf_rx_at_baud(lf_ns gap, lf_ns ct, size_t n);
+
 /* The observed pace of one frame, for engines that read the frame's
  * pieces themselves (the FAP engine's epoll loop). */
 typedef struct lf_rx_pace {
