@@ -12,6 +12,7 @@
 #include "port/rx_pacing.h"
 #include <errno.h>
 #include <sys/epoll.h>
+#include <sys/prctl.h>
 #include <string.h>
 #include <unistd.h>
 
@@ -359,6 +360,7 @@ typedef struct engine {
     unsigned baud;
     lf_rx_pace pace;              /* the link's observed pace, per frame */
     int at_baud;                  /* the link was seen running at the port's baud */
+    lf_ns held_to;                /* when the last hold was due to end (0: none) */
     uint8_t rbuf[4096];
 } engine;
 
@@ -514,14 +516,18 @@ static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t 
                        lf_ns now)
 {
     lf_ns ct = lf_char_time_ns(e->baud);
-    if (held && missing == 0)
+    /* Complete at a hold's end: the link outran the baud, unless the
+     * wake-up itself came late by more than a character time (a loaded
+     * machine): then the frame had all the time it needed at the baud,
+     * and observing again would only cost the next frame a wake-up. */
+    if (held && missing == 0 && now - e->held_to <= ct)
         e->at_baud = 0;
     lf_ns last = e->pace.t_last;
     lf_ns observed = lf_rx_pace_hold(&e->pace, e->baud, frame_start, fed, missing, now);
     if (frame_start && e->at_baud)
         return lf_rx_hold_ct_ns(ct, missing);
     if (!frame_start && !held && last > 0 && ct > 0)   /* a piece as the wire brought it */
-        e->at_baud = (now - last) * 10 >= ct * 7 * (lf_ns)fed;
+        e->at_baud = lf_rx_at_baud(now - last, ct, fed);
     return observed;
 }
 
@@ -536,6 +542,7 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
      * has arrived is fed before a timeout is judged. */
     int held = e->hold_until && (timer_ev || now >= e->hold_until);
     if (held) {
+        e->held_to = e->hold_until;
         e->hold_until = 0;
         port_ev |= EPOLLIN;
     }
@@ -599,6 +606,11 @@ void *lf_fapx_engine_main(void *arg)
     /* The real-time option (port_rt.c), checked by the open: applied to
      * this thread; a refusal now is counted in the port's rt_refused. */
     (void)fap_port_rt_enter(h->port);
+#ifdef PR_SET_TIMERSLACK
+    /* A hold's end is wire timing: without this the kernel may defer the
+     * wake-up by the default 50 us slack, and a late hold is a late frame. */
+    (void)prctl(PR_SET_TIMERSLACK, 1UL, 0UL, 0UL, 0UL);
+#endif
     engine e;
     engine_init(&e, h);
     while (!take_requests(h, lf_now_ns())) {

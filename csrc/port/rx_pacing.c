@@ -27,6 +27,11 @@ lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing)
     return hold >= HOLD_MIN_NS ? hold : 0;
 }
 
+int lf_rx_at_baud(lf_ns gap, lf_ns ct, size_t n)
+{
+    return gap * 10 >= ct * 7 * (lf_ns)n;
+}
+
 lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t missing,
                       lf_ns now)
 {
@@ -49,12 +54,20 @@ static lf_ns pace_now(const fap_port *p)
 
 /* Steps 2-4 of lf_port_read_paced: got > 0 bytes are in buf already. */
 static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t want,
-                         int64_t deadline_ns)
+                         int64_t deadline_ns, int *at_baud)
 {
     unsigned baud = fap_port_baud(p);
+    lf_ns ct = lf_char_time_ns(baud);
     lf_rx_pace pace = {0};
-    lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, pace_now(p));
-    int observed = 0;
+    lf_ns t0 = pace_now(p);
+    lf_ns hold = lf_rx_pace_hold(&pace, baud, 1, got, want > got ? want - got : 0, t0);
+    int observed = 0, trusted = 0;
+    if (at_baud && *at_baud && ct > 0) {
+        /* the last frame showed the link at the baud: hold from here */
+        hold = lf_rx_hold_ct_ns(ct, want > got ? want - got : 0);
+        observed = trusted = 1;
+        pace.t_last = t0;
+    }
     while (got < want) {
         lf_ns until = deadline_ns;
         if (observed) {
@@ -68,12 +81,18 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
                 p->be->sleep_until(p->ctx, until);
         }
         /* the first time: the next piece as the fd brings it, to see the pace */
+        lf_ns last = pace.t_last;
         ssize_t r = fap_port_read(p, (uint8_t *)buf + got, n - got, observed ? 0 : deadline_ns);
         if (r <= 0)
             break;                    /* stalled or failed: report what we have */
         got += (size_t)r;
-        hold = lf_rx_pace_hold(&pace, baud, 0, (size_t)r, want > got ? want - got : 0,
-                               pace_now(p));
+        lf_ns now = pace_now(p);
+        if (at_baud && !observed && last > 0 && ct > 0)   /* a piece as the wire brought it */
+            *at_baud = lf_rx_at_baud(now - last, ct, (size_t)r);
+        else if (at_baud && trusted && got >= want && lf_now_ns() - until <= ct)
+            *at_baud = 0;             /* all in at a hold that woke on time (the
+                                       * sleep's clock): the link may be faster */
+        hold = lf_rx_pace_hold(&pace, baud, 0, (size_t)r, want > got ? want - got : 0, now);
         if (observed && until >= deadline_ns)
             break;
         observed = 1;
@@ -83,7 +102,7 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
 
 /* bound_rest: the rest no longer than its wire time (lf_port_read_frame). */
 static ssize_t read_paced(fap_port *p, void *buf, size_t n, size_t want, int64_t deadline_ns,
-                          int bound_rest)
+                          int bound_rest, int *at_baud)
 {
     if (!p || (!buf && n))
         return -EINVAL;
@@ -94,19 +113,26 @@ static ssize_t read_paced(fap_port *p, void *buf, size_t n, size_t want, int64_t
         return r;
     int64_t rest = bound_rest ? lf_now_ns() + (int64_t)want * lf_char_time_ns(fap_port_baud(p))
                               : deadline_ns;
-    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns);
+    return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns,
+                     at_baud);
 }
 
 ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns)
 {
-    return read_paced(p, buf, n, want, deadline_ns, 0);
+    return read_paced(p, buf, n, want, deadline_ns, 0, NULL);
 }
 
 ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns)
 {
-    return read_paced(p, buf, n, want, deadline_ns, 1);
+    return read_paced(p, buf, n, want, deadline_ns, 1, NULL);
+}
+
+ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
+                                int64_t deadline_ns, int *at_baud)
+{
+    return read_paced(p, buf, n, want, deadline_ns, 1, at_baud);
 }
 
 ssize_t lf_port_read_until(fap_port *p, void *buf, size_t n, int64_t deadline_ns)

@@ -42,6 +42,10 @@ lf_ns lf_rx_hold_ns(unsigned baud, size_t missing);
 /* The same for a character time ct (ns per byte) instead of a baud. */
 lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing);
 
+/* n bytes that came `gap` ns after the previous piece ran at the baud's
+ * character time ct, not faster (within 30 %: a wake-up is never early). */
+int lf_rx_at_baud(lf_ns gap, lf_ns ct, size_t n);
+
 /* The observed pace of one frame, for engines that read the frame's
  * pieces themselves (the FAP engine's epoll loop). */
 typedef struct lf_rx_pace {
@@ -81,6 +85,15 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
  * Same returns. */
 ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns);
+
+/* lf_port_read_frame keeping the pace from one frame to the next (the FAP
+ * engine's rule): *at_baud set, the rest is held from the first bytes at
+ * the baud's pace without waiting for a second piece; a hold that woke on
+ * time and found all `want` bytes in clears it (the link may be faster);
+ * a second piece as the wire brought it sets it when the link ran at the
+ * baud (not faster). */
+ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
+                                int64_t deadline_ns, int *at_baud);
 
 /* fap_port_read whose deadline holds to the nanosecond, for short waits
  * that are part of the wire timing (the exec slave watching the line

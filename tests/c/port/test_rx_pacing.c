@@ -377,9 +377,38 @@ static void test_mikroc_missing(void)
     CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[n - 1], &f), MIKROC_RS485_FRAME);
 }
 
+/* lf_port_read_frame_kept: a frame at the baud's pace sets at_baud; the
+ * next frame then holds from its first piece (one poll, no wait for a
+ * second piece); a link 10x faster makes the trusted hold find its frame
+ * complete on time, which clears at_baud (the next frame observes). */
+static void test_frame_kept_pace(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    uint8_t buf[64];
+    int at_baud = 0;
+    script(&w, 15, 0);
+    ssize_t r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    CHECK(r >= 11 && r <= 15);
+    CHECK_EQ(w.polls, 2);                            /* the first piece, the second */
+    CHECK_EQ(at_baud, 1);
+    script(&w, 15, 0);
+    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    CHECK(r >= 11 && r <= 15);
+    CHECK_EQ(w.polls, 1);                            /* the first piece only */
+    CHECK(w.sleeps >= 1);
+    CHECK_EQ(at_baud, 1);
+    script_at(&w, 15, CT / 10);
+    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    CHECK_EQ(r, 15);
+    CHECK_EQ(at_baud, 0);
+    close_fake(&w, p);
+}
+
 UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_all_there_read_at_once),
           UNIT(test_paced_frame_one_sleep), UNIT(test_fast_link_short_hold),
-          UNIT(test_slow_link_baud_bounds_hold), UNIT(test_pace_hold),
+          UNIT(test_slow_link_baud_bounds_hold), UNIT(test_pace_hold), UNIT(test_frame_kept_pace),
           UNIT(test_deadline_caps_sleep),
           UNIT(test_stalled_wire_returns), UNIT(test_no_sleep_cases),
           UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing))
