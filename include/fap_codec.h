@@ -4,7 +4,7 @@
  * with llhttp's shape: feed bytes and the time they arrived, and the codec
  * calls back with every good frame and every run of bytes it dropped.
  * There is no second decoder here: each entry wraps the scanner its
- * engine uses (csrc/fap/fap_frame.c, execAsyncByteIn, the mikroC
+ * engine uses (csrc/fap/codec.c, execAsyncByteIn, the mikroC
  * decoder), so a monitor, a fuzzer or a test sees exactly what a receiver
  * sees. The engines still call their scanners directly (no indirection
  * on their hot path). docs/c-api.md, "Codec table", has the rules.

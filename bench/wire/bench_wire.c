@@ -22,7 +22,7 @@
  * bytes echoed), mikroc (mikroC RS-485, 3 bytes echoed), modbus (libmodbus
  * RTU read of 10 holding registers; only when built with libmodbus). */
 #include "exec_async_engine.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 #include "fap_port.h"
 #include "fapx.h"
 #include "mikroc_rs485.h"

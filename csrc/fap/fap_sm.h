@@ -14,7 +14,7 @@
 #define LF_FAP_SM_H
 #include <stdint.h>
 #include "common/mono_clock.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 
 typedef struct lf_fap_timing {
     lf_ns idc;          /* ID cycle period while a slave is inactive (15 s) */

@@ -7,9 +7,9 @@
 #include <stdint.h>
 #include "fapx.h"
 #include "fap_port.h"
-#include "fap/fap_frame.h"
-#include "fap/master.h"
-#include "fap/slave.h"
+#include "fap/codec.h"
+#include "fap/sm_master.h"
+#include "fap/sm_slave.h"
 #include "fap/ring.h"
 #include "common/trace.h"
 

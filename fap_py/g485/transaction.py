@@ -1,6 +1,6 @@
 """G485 master transactions, sans-I/O: bytes and ``now`` in, frames to send, deadlines and results out.
 
-The shape is h11's ``Connection`` (or ``csrc/execasync/seq_logic.c``): no
+The shape is h11's ``Connection`` (or ``csrc/execasync/sm_seq.c``): no
 file descriptor, no clock, no thread. A :class:`Session` holds what one
 master knows between transactions (options, the check byte each device
 should hold, the wake-up preamble due, counters) and makes a

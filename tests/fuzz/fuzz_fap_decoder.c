@@ -6,7 +6,7 @@
  * properties every row keeps (fuzz_codec.h). */
 #include "fuzz_codec.h"
 #include "common/crc16.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 
 static fzc_log whole, chunked, again;
 

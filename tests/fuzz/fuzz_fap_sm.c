@@ -6,9 +6,9 @@
  * itself or past ID 31; deadlines never lie in the past of a finished
  * timer call. */
 #include "fuzz_util.h"
-#include "fap/fap_frame.h"
-#include "fap/master.h"
-#include "fap/slave.h"
+#include "fap/codec.h"
+#include "fap/sm_master.h"
+#include "fap/sm_slave.h"
 
 typedef struct q { uint8_t dst; uint16_t len; uint8_t data[LF_FAP_MAX_DATA]; } q;
 static q txq[16];

@@ -14,7 +14,7 @@
 #include "fap_vbus.h"
 #include "fapx.h"
 #include "mikroc_rs485.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 
 #define MAX_REC 64
 

@@ -5,7 +5,7 @@
 #include <limits.h>
 
 #include "execasync/codec_internal.h"
-#include "execasync/seq_logic.h"
+#include "execasync/sm_seq.h"
 #include "unit.h"
 
 static struct execAsyncStateDef frame(byte status, byte node, byte seq)

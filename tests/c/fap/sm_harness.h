@@ -2,8 +2,8 @@
  * deliveries and events, and a log of transmitted frames. */
 #ifndef FAP_SM_HARNESS_H
 #define FAP_SM_HARNESS_H
-#include "fap/master.h"
-#include "fap/slave.h"
+#include "fap/sm_master.h"
+#include "fap/sm_slave.h"
 #include "unit.h"
 #include <errno.h>
 

@@ -1,6 +1,6 @@
 /* FAP codec: byte-exact against vectors/fap.json, any chunking, resync
  * after garbage and bad frames, inter-byte gap, both marker spellings. */
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 #include "fap_vectors.h"
 #include "unit.h"
 

@@ -1,7 +1,7 @@
 /* The FAP decoder's rejection reports (for fap monitor): every invalid
  * vector is reported with its reason and raw bytes, offsets are stream
  * offsets, good frames carry their raw bytes, a stale partial is a GAP. */
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 #include "fap_vectors.h"
 #include "unit.h"
 

@@ -1,6 +1,6 @@
 /* lf_mikroc_scan (fap monitor's view of mikrocRS485_DecoderFeed): spans
  * and short reasons of good and bad frames. */
-#include "mikroc/mikroc_scan.h"
+#include "mikroc/codec.h"
 #include "unit.h"
 
 static void feed_all(lf_mikroc_scan *s, const uint8_t *p, size_t n, int *codes, const char **why,

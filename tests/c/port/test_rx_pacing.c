@@ -14,7 +14,7 @@
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 #include "fap_port.h"
 #include "mikroc/mikroc_internal.h"
 #include "port/port_backend.h"

@@ -1,5 +1,5 @@
 /* Sans-I/O sequence-number logic of the exec async master and slave. */
-#include "seq_logic.h"
+#include "execasync/sm_seq.h"
 
 #include <errno.h>
 

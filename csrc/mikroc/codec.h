@@ -1,6 +1,6 @@
 /* A monitor's view of the mikroC decoder: mikrocRS485_DecoderFeed over a
  * byte run, with the stream span of each reported frame (good or bad) and
- * a short reason. Sans-I/O; the receiver's rules stay in mikroc_codec.c. */
+ * a short reason. Sans-I/O; the receiver's rules stay in mikroc/codec.c. */
 #ifndef LF_MIKROC_SCAN_H
 #define LF_MIKROC_SCAN_H
 #include <stddef.h>

@@ -1,5 +1,5 @@
 /* mikroC RS-485 node on a fap_port: Send writes a frame, Receive/Poll read
- * bytes and feed the sans-I/O node (mikroc_node.c). */
+ * bytes and feed the sans-I/O node (mikroc/sm_node.c). */
 #include <errno.h>
 #include <stdint.h>
 

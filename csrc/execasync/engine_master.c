@@ -1,4 +1,4 @@
-/* Exec async master: the thin I/O layer around seq_logic's transaction
+/* Exec async master: the thin I/O layer around sm_seq's transaction
  * machine. Sends on the port, feeds received bytes to execAsyncByteIn,
  * lets lf_exec_mtx decide between waiting, resending and giving up.
  * begin_locked/step_locked/finish are the transaction, written once:
@@ -15,7 +15,7 @@
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
-#include "execasync/seq_logic.h"
+#include "execasync/sm_seq.h"
 #include "execasync/stop_signal.h"
 #include "execasync/stats_atomic.h"
 #include "port/port_cancel.h"
@@ -139,7 +139,7 @@ static int finish(execMaster *m, int err, byte *reply, word reply_cap, word *rep
     if (err)
         lf_exec_tap_abandon(&m->tap, &m->trace, lf_now_ns());
     /* Never reuse seq (the slave may have processed it and only the replies
-     * were lost); after a failure restart the node at 0 (seq_logic.h). */
+     * were lost); after a failure restart the node at 0 (execasync/sm_seq.h). */
     lf_exec_mseq_finish(&m->seq, m->t.node, m->t.seq, err == 0);
     if (!err) {
         LF_STAT_INC(m->stats.replies);
@@ -185,7 +185,7 @@ static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
 }
 
 /* Read what comes until wait_until (0 = only what is queued), decode it,
- * and let seq_logic decide: reply (0), wait more (EXEC_MASTER_MORE), resend
+ * and let sm_seq decide: reply (0), wait more (EXEC_MASTER_MORE), resend
  * (done here, then EXEC_MASTER_MORE) or give up (its error). An error ends
  * nothing here: the caller passes it to finish(). Lock held, busy. */
 static int step_locked(execMaster *m, int64_t wait_until)

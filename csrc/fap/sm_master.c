@@ -10,7 +10,7 @@
  *   the next data cycle (back to back while a slave is active); with no
  *   active slave and no queued data the master idles until idc, an added
  *   slave or queued data. */
-#include "fap/master.h"
+#include "fap/sm_master.h"
 #include <errno.h>
 #include <string.h>
 

@@ -1,4 +1,4 @@
-/* Exec async slave: the thin I/O layer around seq_logic (the sequence
+/* Exec async slave: the thin I/O layer around sm_seq (the sequence
  * rule and the reply window, "a message that arrives while we transmit").
  * Receives on the port, feeds execAsyncByteIn, calls the application's
  * handler in the serving thread, sends (or resends) the reply. Every wait
@@ -19,7 +19,7 @@
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
-#include "execasync/seq_logic.h"
+#include "execasync/sm_seq.h"
 #include "execasync/stats_atomic.h"
 #include "port/port_cancel.h"
 #include "port/rx_pacing.h"

@@ -4,7 +4,7 @@
 #include <string.h>
 
 #include "mikroc_rs485.h"
-#include "mikroc/mikroc_scan.h"
+#include "mikroc/codec.h"
 #include "mikroc/mikroc_internal.h"
 
 #define START MIKROC_RS485_START_BYTE

@@ -1,11 +1,11 @@
-/* FAP frame encoder and streaming decoder. See fap_frame.h.
+/* FAP frame encoder and streaming decoder. See fap/codec.h.
  *
  * The decoder keeps at most one candidate frame in its buffer, always
  * starting at buf[0]. A rejected candidate (bad size, msg, CRC or a stale
  * partial) loses only its FIRST byte: the search resumes at the next byte,
  * never after the claimed size, so a damaged frame cannot swallow a good
  * frame that follows it. */
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 #include "common/crc16.h"
 #include "fap_trace.h"
 #include <string.h>

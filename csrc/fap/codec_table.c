@@ -1,9 +1,9 @@
 /* FAP's row of the codec table (include/fap_codec.h): the engine's own
- * stream decoder (fap_frame.c) with its reject hook. The engine calls
+ * stream decoder (fap/codec.c) with its reject hook. The engine calls
  * lf_fap_decoder_* directly; this is the same decoder. */
 #include "fap_codec.h"
 #include "common/codec_span.h"
-#include "fap/fap_frame.h"
+#include "fap/codec.h"
 
 typedef struct fap_state {
     lf_fap_decoder d;

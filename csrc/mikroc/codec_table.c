@@ -7,7 +7,7 @@
 #include "fap_codec.h"
 #include "common/codec_span.h"
 #include "mikroc/mikroc_internal.h"
-#include "mikroc/mikroc_scan.h"
+#include "mikroc/codec.h"
 
 typedef struct mikroc_state {
     lf_mikroc_scan sc;

@@ -3,7 +3,7 @@
  * frames (to the master or other slaves) while the send budget lasts, then
  * DATA_DONE (what is left waits for the next turn). DATA addressed to it is
  * delivered; every other frame is ignored. */
-#include "fap/slave.h"
+#include "fap/sm_slave.h"
 #include <string.h>
 
 void lf_fap_slave_init(lf_fap_slave *s, unsigned id, const lf_fap_timing *t, const lf_fap_io *io)
