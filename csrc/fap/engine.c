@@ -11,8 +11,10 @@
 #include "port/port_net.h"
 #include "port/rx_pacing.h"
 #include <errno.h>
+#include <linux/time_types.h>   /* struct __kernel_timespec */
 #include <sys/epoll.h>
 #include <sys/prctl.h>
+#include <sys/syscall.h>
 #include <string.h>
 #include <unistd.h>
 
@@ -346,10 +348,23 @@ static lf_ns min_ns(lf_ns a, lf_ns b)
 }
 
 /* epoll_pwait2 takes a nanosecond timeout: the engine's deadlines need no
- * timerfd_settime (nor a timerfd read) at all. glibc >= 2.35 has it; an
- * older kernel answers ENOSYS and the engine falls back to the timerfd. */
-#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 35))
+ * timerfd_settime (nor a timerfd read) at all. Called as a raw syscall, not
+ * through glibc's wrapper (2.35+): the library then runs on an older glibc
+ * too (a manylinux_2_34 wheel may not need a newer symbol), and a kernel
+ * older than 5.11 answers ENOSYS: the engine falls back to the timerfd. The
+ * timeout is the kernel's own 64-bit timespec on every architecture. */
+#if defined(SYS_epoll_pwait2)
 #define LF_HAVE_EPOLL_PWAIT2 1
+static int lf_epoll_pwait2(int ep, struct epoll_event *evs, int n, lf_ns timeout)
+{
+    struct __kernel_timespec ts, *tp = NULL;
+    if (timeout != LF_NEVER) {
+        ts.tv_sec = timeout / LF_NS_PER_S;
+        ts.tv_nsec = timeout % LF_NS_PER_S;
+        tp = &ts;
+    }
+    return (int)syscall(SYS_epoll_pwait2, ep, evs, n, tp, NULL, (size_t)0);
+}
 #endif
 
 /* The engine loop's own state (engine thread only). */
@@ -464,13 +479,13 @@ static int wait_events(engine *e, lf_ns deadline, uint32_t *port_ev)
     int ne = -1;
 #ifdef LF_HAVE_EPOLL_PWAIT2
     if (!h->no_pwait2) {
-        struct timespec ts, *tp = NULL;
+        lf_ns left = LF_NEVER;
         if (deadline != LF_NEVER) {
-            lf_ns left = deadline - lf_now_ns();
-            ts = lf_ns_to_timespec(left > 0 ? left : 0);
-            tp = &ts;
+            left = deadline - lf_now_ns();
+            if (left < 0)
+                left = 0;
         }
-        ne = epoll_pwait2(ep, evs, 3, tp, NULL);
+        ne = lf_epoll_pwait2(ep, evs, 3, left);
         if (ne < 0 && errno == ENOSYS)
             h->no_pwait2 = 1;
     }
