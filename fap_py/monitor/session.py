@@ -133,6 +133,7 @@ class Session:
         self._monitor: Optional[Monitor] = None
         self._stopped: List[int] = []      # the signals received
         self._writing = False              # an output write is under way (it may block)
+        self._timed = False                # our handlers are installed (main thread): a timer may end a write
 
     @property
     def stats(self) -> StatsSnapshot:
@@ -155,6 +156,13 @@ class Session:
             self._writing = False
             raise _OutputStuck()
 
+    def _begin_write(self) -> None:
+        """An output write starts. After a signal it may not block for good: a reader
+        that stopped reading gets STUCK_S, then the write is abandoned (_OutputStuck)."""
+        self._writing = True
+        if self._stopped and self._timed:
+            signal.setitimer(signal.ITIMER_REAL, STUCK_S)
+
     def run(self) -> int:
         """Read the input to its end (or a signal); 0, or the signal that ended it
         (``signal.SIGINT`` / ``SIGTERM``). Open errors raise (PortError, FileError,
@@ -163,6 +171,7 @@ class Session:
         if threading.current_thread() is threading.main_thread():   # Python's rule for handlers
             old = {sig: signal.signal(sig, self._on_signal) for sig in (signal.SIGTERM, signal.SIGINT)}
             old[signal.SIGALRM] = signal.signal(signal.SIGALRM, self._on_alarm)
+            self._timed = True
         try:
             self._run()
         finally:
@@ -240,15 +249,25 @@ class Session:
             if pcap:
                 pcap.close()
                 pcap._fh.close()
-        if stuck:
-            if cfg.quiet:
-                return
-            out = sys.stderr
         self._stats.bytes = mon.bytes
+        if not stuck:
+            try:
+                self._begin_write()
+                self._summary(out, writer)
+                return
+            except _OutputStuck:         # a signal, then a reader that stopped reading
+                _drop_output(out, None)
+            finally:
+                self._writing = False
+        if not cfg.quiet:
+            self._summary(sys.stderr, writer)
+
+    def _summary(self, out: IO[str], writer: "_Writer") -> None:
+        cfg, mon = self.config, self._monitor
         writer.announce()
         if cfg.as_json and cfg.stats_only:
             summary = self._stats.summary()
-            summary["protocol"] = mon.locked
+            summary["protocol"] = None if mon is None else mon.locked
             out.write(json.dumps({"stats": summary}) + "\n")
         elif not cfg.as_json:
             out.write(self._stats.footer() + "\n")
@@ -283,7 +302,7 @@ class _Writer:
     def emit(self, out: IO[str], recs: List[Record]) -> None:
         session, cfg, pcap = self.session, self.session.config, self.pcap
         self.announce()
-        session._writing = not session._stopped
+        session._begin_write()
         try:
             for rec in recs:
                 session._stats.add(rec)

@@ -291,3 +291,50 @@ def test_signal_ends_a_monitor_whose_reader_stopped_reading(sig, rc):
     proc.stdout.close()
     assert proc.returncode == rc
     assert b"-- 0 frames, errors: garbage" in err
+
+
+@pytest.mark.parametrize("sig,rc", [(signal.SIGTERM, 0), (signal.SIGINT, 130)])
+def test_a_signal_while_reading_ends_the_monitor_even_if_its_output_is_full(tmp_path, sig, rc):
+    """The signal lands while the monitor waits for input (not in a write), holding a
+    partial frame; the last record's write (the frame, truncated) and the summary's then
+    meet a full pipe nobody reads: abandoned after STUCK_S, the summary goes to stderr and
+    the monitor ends."""
+    fifo = tmp_path / "in"
+    os.mkfifo(fifo)
+    r_out, w_out = os.pipe()
+    os.set_blocking(w_out, False)
+    try:
+        while True:                               # fill the output pipe to the brim
+            os.write(w_out, b"x" * 4096)
+    except BlockingIOError:
+        pass
+    os.set_blocking(w_out, True)
+    proc = subprocess.Popen(fap_cmd() + ["monitor", "--protocol", "g485", "--raw", str(fifo)],
+                            stdin=subprocess.DEVNULL, stdout=w_out, stderr=subprocess.PIPE)
+    os.close(w_out)
+    feed = os.open(fifo, os.O_WRONLY)             # the monitor's open of the fifo returns
+    os.write(feed, b"\xff\xff\x02")               # a G485 frame's start: held until the end
+    try:
+        deadline = time.monotonic() + WAIT_S
+        while True:                               # wait until it waits for input
+            try:
+                wchan = Path(f"/proc/{proc.pid}/wchan").read_text()
+            except OSError:
+                wchan = "0"
+            if any(w in wchan for w in ("poll", "select", "pipe_read", "wait")) or wchan == "0":
+                break
+            assert time.monotonic() < deadline, "the monitor never waited for input"
+            select.select([], [], [], 0.01)
+        select.select([], [], [], 0.3)            # it is well inside its read loop
+        proc.send_signal(sig)
+        try:
+            _out, err = proc.communicate(timeout=WAIT_S)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            pytest.fail("the monitor stopped while reading did not end: its summary write blocked")
+    finally:
+        os.close(feed)
+        os.close(r_out)
+    assert proc.returncode == rc
+    assert b"frames" in err or b"bytes" in err    # the summary, on stderr
