@@ -10,14 +10,28 @@ from __future__ import annotations
 import errno
 import logging
 import threading
-from typing import TYPE_CHECKING, Any, Iterator, List
+from typing import Any, Iterator, List, Protocol
 
 from ..errors import InvalidTypeError, InvalidValueError, PortError
 from .buses import REPLY_BUCKETS
 from .mqtt import MissingDependencyError
 
-if TYPE_CHECKING:   # pragma: no cover
-    from .bridge import Bridge
+
+class MetricsSource(Protocol):
+    """What the collector reads of a bridge (:class:`fap_py.bridge.Bridge` is one).
+    A protocol, not an import of Bridge: bridge.py imports this module."""
+
+    buses: Any
+    link: Any
+    store: Any
+    not_stored: Any
+    tx_refused: Any
+    duplicates: Any
+
+    def node_states(self) -> Any: ...
+
+
+_SOURCE_ATTRS = ("buses", "link", "store", "not_stored", "tx_refused", "duplicates", "node_states")
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +44,7 @@ _NEUTRAL = ("crc_errors", "timeouts", "retries", "collisions")
 class BridgeCollector:
     """A prometheus_client collector over one :class:`~fap_py.bridge.Bridge`."""
 
-    def __init__(self, bridge: "Bridge") -> None:
+    def __init__(self, bridge: MetricsSource) -> None:
         self.bridge = bridge
 
     def describe(self) -> List[Any]:
@@ -117,10 +131,9 @@ class BridgeCollector:
 class MetricsServer:
     """The HTTP endpoint (prometheus_client's server on its own registry)."""
 
-    def __init__(self, bridge: "Bridge", host: str, port: int) -> None:
-        from .bridge import Bridge
-
-        if not isinstance(bridge, Bridge) or not isinstance(host, str) or isinstance(port, bool) \
+    def __init__(self, bridge: MetricsSource, host: str, port: int) -> None:
+        if not all(hasattr(bridge, a) for a in _SOURCE_ATTRS) or not isinstance(host, str) \
+                or isinstance(port, bool) \
                 or not isinstance(port, int):
             raise InvalidTypeError("MetricsServer(bridge: Bridge, host: str, port: int)")
         if not 0 <= port <= 65535:

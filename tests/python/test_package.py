@@ -219,8 +219,6 @@ def _cycles(graph: Dict[str, Set[str]]) -> List[Tuple[str, ...]]:
 #: fails when one is gone (delete it here) and when a new one appears. Empty it as
 #: those branches land: the goal is no cycle at all.
 KNOWN_CYCLES: Dict[Tuple[str, ...], str] = {
-    ("fap_py.bridge.bridge", "fap_py.bridge.metrics"):
-        "metrics.py imports Bridge for its type and bridge.py MetricsServer: the bridge's work",
 }
 
 
