@@ -9,6 +9,17 @@ sequence order, at most ``inflight`` unacknowledged at a time, only while
 connected, and deletes a row when its PUBACK arrives. Rows paho had sent
 when the connection dropped are re-sent by paho itself after the reconnect
 (with the DUP flag), before any newer row: order holds across outages.
+
+Probing: a broker may close the connection instead of (or right after)
+refusing a publication; mosquitto 2.0 does so for an ACL denial, and the
+PUBACKs it had queued for the rows before it are lost with the socket.
+paho then re-sends the same rows in one burst at every reconnect and the
+bridge never gets past them. After :data:`PROBE_AFTER` losses in a row with
+rows in flight and no PUBACK between them, the pump takes those rows back
+from paho and sends them one at a time; a row that is alone in flight when
+the connection drops :data:`PROBE_STRIKES` times is counted as refused
+(reason :data:`DROPPED_REASON`), logged, and leaves the outbox like any
+refused row. Probing ends once every row that was in flight is settled.
 """
 from __future__ import annotations
 
@@ -58,6 +69,23 @@ _LOG_FIRST = 10   # refused publications logged one by one; after that every 100
 #: with less: under load one disk transaction and one read per batch, never per message;
 #: a lone publication goes at once (an empty window is always worth a round)
 PUMP_LINGER = 0.005
+#: losses of the connection in a row, each with rows in flight and no PUBACK between
+#: them, before the pump probes (sends one row at a time)
+PROBE_AFTER = 2
+#: losses of the connection while one row was alone in flight before that row counts as
+#: refused: a network outage rarely hits the same lone row three times in a row
+PROBE_STRIKES = 3
+#: the ``broker.refused`` key of a row the broker never acknowledged but always dropped
+#: the connection on
+DROPPED_REASON = "Connection closed on this publication"
+
+
+class _Dropped:
+    """The reason given to a row counted as refused by probing (no PUBACK came)."""
+    is_failure = True
+
+    def __str__(self) -> str:
+        return DROPPED_REASON
 
 
 def describe_connect_error(exc: Optional[BaseException], host: str, port: int) -> str:
@@ -157,7 +185,12 @@ class MqttLink:
         self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
+        self._handed_gen = 0                  # bumped when probing lowers _last_handed
         self._batch = max(1, config.inflight // 4)   # rows per pump round under load
+        self._lost_in_flight = 0              # losses in a row with rows in flight, no PUBACK since
+        self._probe_until = 0                 # probing while a row up to this seq is unsettled
+        self._strikes: Dict[int, int] = {}    # seq -> losses while it was alone in flight
+        self._take_back_mids: List[int] = []  # paho mids to drop from paho's session at CONNACK
         self._pump_thread: Optional[threading.Thread] = None
 
     # -- lifetime ---------------------------------------------------------------
@@ -267,6 +300,9 @@ class MqttLink:
             return
         self._failures = 0
         self.last_error = None
+        if self._take_back_mids:
+            mids, self._take_back_mids = self._take_back_mids, []
+            self._take_back(mids)
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
         client.publish(self.status_topic, b"online", qos=1, retain=True)
@@ -282,12 +318,18 @@ class MqttLink:
                 log.exception("after connect")
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        mids: List[int] = []
         with self._cond:
             was = self._connected
             self._connected = self._subscribed = False
             if was:
                 self.disconnects += 1
+                if self._inflight and not self._stopping:
+                    mids = self._lost_with_rows()
             self._cond.notify_all()
+        # taken back from paho at the next CONNACK, before paho re-sends: here paho may be
+        # iterating its queue (a failed re-send reports the loss from inside that loop)
+        self._take_back_mids.extend(mids)
         if was and not self._stopping:
             log.warning("lost the broker (%s); reconnecting with backoff", reason)
         elif not was and not self._stopping and getattr(reason, "is_failure", False):
@@ -310,6 +352,7 @@ class MqttLink:
                 self._early[mid] = reason
             else:
                 self._acked_one(entry, reason)
+                self._settled(entry[0])
             # wake the pump for a batch of acknowledgements, not for each one (one disk
             # transaction per batch); the last one of a burst always wakes it
             if len(self._acked) >= self._batch or not self._inflight:
@@ -328,6 +371,57 @@ class MqttLink:
             if n <= _LOG_FIRST or n % 1000 == 0:
                 log.error("broker refused publication seq %d on %s: %s (%d refused so far)",
                           seq, topic, reason, n)
+
+    def _settled(self, seq: int) -> None:
+        """Under ``_cond``: row ``seq`` got its answer: the losses before it were not its fault."""
+        self._lost_in_flight = 0
+        self._strikes.pop(seq, None)
+        if self._probe_until and seq >= self._probe_until:
+            log.info("probing done: every row in flight at the losses is settled")
+            self._probe_until = 0
+            self._cond.notify_all()
+
+    def _lost_with_rows(self) -> List[int]:
+        """Under ``_cond``, on a lost connection with rows in flight: count the loss, strike a
+        lone row while probing (refused at the last strike), start probing after
+        :data:`PROBE_AFTER` losses. Returns the paho mids to take back from paho."""
+        self._lost_in_flight += 1
+        if self._probe_until:
+            if len(self._inflight) == 1:
+                (mid, entry), = self._inflight.items()
+                n = self._strikes[entry[0]] = self._strikes.get(entry[0], 0) + 1
+                if n >= PROBE_STRIKES:
+                    del self._inflight[mid]
+                    self._acked_one(entry, _Dropped())
+                    self._settled(entry[0])
+                    return [mid]
+            return []
+        if self._lost_in_flight < PROBE_AFTER:
+            return []
+        seqs = sorted(seq for seq, _ in self._inflight.values())
+        log.warning("the broker closed the connection %d times with rows %d..%d in flight and "
+                    "no acknowledgement: sending them one at a time", self._lost_in_flight,
+                    seqs[0], seqs[-1])
+        self._probe_until = seqs[-1]
+        self._last_handed = seqs[0] - 1      # the pump hands them again, one by one
+        self._handed_gen += 1
+        mids = list(self._inflight)
+        self._inflight.clear()
+        return mids
+
+    def _take_back(self, mids: List[int]) -> None:
+        """Drop ``mids`` from paho's session so paho does not re-send them at the reconnect.
+        paho 2.x has no public call for it; its queue is ``_out_messages`` under
+        ``_out_message_mutex`` (taken here without ``_cond``: paho calls us holding it), and
+        this runs from ``on_connect``, which paho calls before its re-send loop."""
+        out = getattr(self.client, "_out_messages", None)
+        lock = getattr(self.client, "_out_message_mutex", None)
+        if out is None or lock is None:   # another paho: it re-sends them, the rows stay counted
+            log.warning("cannot take rows back from this paho-mqtt; they are re-sent as a burst")
+            return
+        with lock:
+            for mid in mids:
+                out.pop(mid, None)
 
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         handler = self.extra.get(msg.topic)
@@ -365,18 +459,28 @@ class MqttLink:
         with self._cond:
             self._cond.notify_all()
 
+    @property
+    def _window(self) -> int:
+        """Rows that may be in flight: one while probing."""
+        return 1 if self._probe_until else self.config.inflight
+
+    @property
+    def probing(self) -> bool:
+        """The pump sends one row at a time (see the module's docstring)."""
+        return bool(self._probe_until)
+
     def _ready(self) -> bool:
         """A round is worth it: a batch of acknowledgements to delete, or room for a batch
         of new rows (or for the last ones: the window is empty)."""
         if self._stopping or len(self._acked) >= self._batch:
             return True
-        room = self.config.inflight - len(self._inflight)
+        room = self._window - len(self._inflight)
         unsent = self.store.pending - len(self._inflight) - len(self._acked)
         return self._connected and unsent > 0 and (room >= self._batch or not self._inflight)
 
     def _work(self) -> bool:
         """Anything at all to do (the pump's round after ``PUMP_LINGER``)."""
-        return bool(self._acked) or (self._connected and len(self._inflight) < self.config.inflight
+        return bool(self._acked) or (self._connected and len(self._inflight) < self._window
                                      and self.store.pending > len(self._inflight) + len(self._acked))
 
     def _pump(self) -> None:
@@ -387,7 +491,7 @@ class MqttLink:
                     self._cond.wait_for(lambda: self._stopping or self._work(), 1.0)
                 if self._stopping:
                     return
-                room = self.config.inflight - len(self._inflight) if self._connected else 0
+                room = self._window - len(self._inflight) if self._connected else 0
             try:
                 self._pump_once(room)
             except StoreError as exc:   # a disk that fails a read: try again next round
@@ -400,16 +504,27 @@ class MqttLink:
         if room <= 0:
             return
         qos = self.config.qos
-        for seq, topic, payload, retain in self.store.after(self._last_handed, room):
+        with self._cond:
+            # rows answered but not yet deleted, or in paho's hands: never handed twice
+            skip = set(self._acked) | {seq for seq, _ in self._inflight.values()}
+            start, gen = self._last_handed, self._handed_gen
+        for seq, topic, payload, retain in self.store.after(start, room + len(skip)):
+            if seq in skip:
+                continue
+            if room <= 0:
+                break
+            room -= 1
             props = None
             if self.v5:   # the consumer's dedup key without parsing the payload
                 props = self._props[0](self._props[1].PUBLISH)
                 props.UserProperty = [("host", self.config.host), ("seq", str(seq))]
             # paho keeps what it could not send (even QoS 0) and sends it on reconnect
             info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
-            self._last_handed = seq
             with self._cond:
                 if info.mid in self._early:
                     self._acked_one((seq, topic), self._early.pop(info.mid))
                 else:
                     self._inflight[info.mid] = (seq, topic)
+                if gen != self._handed_gen:   # probing took rows back meanwhile: start again
+                    return
+                self._last_handed = max(self._last_handed, seq)
