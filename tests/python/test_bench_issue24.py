@@ -124,3 +124,25 @@ def test_readme_section_replaced_between_markers(tmp_path: Path) -> None:
     doc.write_text("no markers\n")
     with pytest.raises(ValueError):
         readme.regenerate(doc, run, tmp_path)
+
+
+def test_a_missed_cpu_ratio_names_its_floor():
+    """A miss says what the floor of the cost is, computed from the same run: the fewest
+    wake-ups the wire allows (1 for a client, 2 for a server) at this side's cost per wake-up."""
+    from bench import issue24
+
+    paced = {"115200": {
+        "modbus": {"client_us": {"median": 100.0}, "server_us": {"median": 100.0},
+                   "client_wakeups": {"median": 10.0}, "server_wakeups": {"median": 10.0}},
+        "fap-poll": {"client_us": {"median": 80.0}, "client_wakeups": {"median": 4.0},
+                     "server_us": {"median": 80.0}, "server_wakeups": {"median": 2.0}}}}
+    rows = {t.name: t for t in issue24.cpu_rows({"paced": paced})}
+    client, server = rows["cpu-fap-poll-115200-client"], rows["cpu-fap-poll-115200-server"]
+    assert client.met is False and "floor 1 wake-up/x at ~20 µs each" in client.note
+    assert "0.20x libmodbus, reachable: 3.0 wake-ups/x above it" in client.note
+    assert server.met is False and "floor 2 wake-ups/x at ~40 µs each = ~80 µs/x" in server.note
+    assert "below that floor" in server.note
+    idle = issue24.idle_rows({"paced": paced, "scale": {"115200": {"slaves": {"1": {
+        "master_load": {"median": 0.02}, "cycles_per_s": {"median": 400.0},
+        "cpu_us_per_cycle": {"median": 50.0}}}}}})
+    assert "= 0.80 % at these cycles/s" in idle[0].note      # 400/s x 20 µs
