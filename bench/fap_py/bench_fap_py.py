@@ -38,13 +38,14 @@ import asyncio
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from fap_py import FapTimeoutError, Master, Slave
 
@@ -231,6 +232,84 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
         master.close()
 
 
+# -- the one measurement of the target: interleaved pairs ---------------------------
+
+#: The three round-trip runs of one pair (asyncio is Python's too; its ratio is to C).
+PAIR_APIS = ("c", "py", "aio")
+
+
+def _loadavg() -> str:
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def paired(exe: Path, paths: List[str], pairs: int = 7, count: int = 1000,
+           size: int = 16) -> Dict[str, Any]:
+    """Round trips through C and fap_py, interleaved on one bus: the measurement of
+    issue 24's fap_py target (``python -m bench`` and ``--paired`` both call this).
+
+    One pair is a C run, a fap_py run and a fap_py asyncio run of ``count`` round
+    trips each, back to back on the same bus, their order rotated from pair to pair
+    (so neither side always runs first after a pause); a load swing between pairs
+    moves both sides of a pair alike, so the median of the per-pair ratios holds
+    where the rates of whole runs swing (bench/README-pyfap.md). Each run also
+    reports the master's poll turns per round trip, the unit the unpaced bus
+    quantises a round trip in.
+    """
+    runs: Dict[str, Callable[[], Result]] = {
+        "c": lambda: run_c(exe, paths, "round-trip", count, size),
+        "py": lambda: run_py(paths, "round-trip", count, size),
+        "aio": lambda: run_py(paths, "round-trip asyncio", count, size),
+    }
+    load_before = _loadavg()
+    got: List[Dict[str, Result]] = []
+    for i in range(max(1, pairs)):
+        order = PAIR_APIS[i % 3:] + PAIR_APIS[:i % 3]
+        got.append({api: runs[api]() for api in order})
+    load_after = _loadavg()
+
+    def col(api: str, fn: Callable[[Result], float]) -> List[float]:
+        return [fn(p[api]) for p in got]
+
+    per_pair = [{api: {"rate": p[api].rate, "polls": p[api].polls / p[api].count,
+                       "cpu_us": p[api].cpu_s / p[api].count * 1e6} for api in PAIR_APIS}
+                for p in got]
+    ratio = [p["py"].rate / p["c"].rate for p in got]
+    aio_ratio = [p["aio"].rate / p["c"].rate for p in got]
+    return {
+        "pairs": len(got), "count": count, "size": size,
+        "load_before": load_before, "load_after": load_after,
+        "ratio": statistics.median(ratio), "ratio_min": min(ratio), "ratio_max": max(ratio),
+        "aio_ratio": statistics.median(aio_ratio),
+        "rate": {api: statistics.median(col(api, lambda r: r.rate)) for api in PAIR_APIS},
+        "polls": {api: statistics.median(col(api, lambda r: r.polls / r.count))
+                  for api in PAIR_APIS},
+        "cpu_us": {api: statistics.median(col(api, lambda r: r.cpu_s / r.count * 1e6))
+                   for api in PAIR_APIS},
+        "per_pair": per_pair,
+    }
+
+
+def paired_report(res: Dict[str, Any]) -> str:
+    """The pairs and their medians, for a terminal."""
+    names = {"c": "C", "py": "fap_py", "aio": "asyncio"}
+    L = [f"fap_py vs C round trips ({res['size']} B, unpaced bus): {res['pairs']} interleaved "
+         f"pairs of {res['count']} round trips; load average {res['load_before']} -> "
+         f"{res['load_after']}",
+         f"{'pair':>4}  " + "".join(f"{names[a] + ' /s':>13}{'polls/msg':>10}" for a in PAIR_APIS)
+         + f"{'Py/C':>7}"]
+    for i, p in enumerate(res["per_pair"], 1):
+        L.append(f"{i:>4}  " + "".join(f"{p[a]['rate']:>13,.0f}{p[a]['polls']:>10.2f}"
+                                      for a in PAIR_APIS)
+                 + f"{p['py']['rate'] / p['c']['rate']:>7.2f}")
+    L.append("  med " + "".join(f"{res['rate'][a]:>13,.0f}{res['polls'][a]:>10.2f}"
+                               for a in PAIR_APIS) + f"{res['ratio']:>7.2f}")
+    L.append(f"median per-pair ratio fap_py/C {res['ratio']:.2f} (range {res['ratio_min']:.2f}"
+             f"-{res['ratio_max']:.2f}), asyncio/C {res['aio_ratio']:.2f}; CPU us per round trip "
+             + ", ".join(f"{names[a]} {res['cpu_us'][a]:.0f}" for a in PAIR_APIS))
+    return "\n".join(L)
+
+
 # -- report ------------------------------------------------------------------------
 
 def median(repeat: int, run: Callable[[], Result]) -> Result:
@@ -287,10 +366,21 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--c-bench", type=Path, help="bench_fapx_c executable (default: build it)")
     ap.add_argument("--build-dir", type=Path, default=Path("/tmp/fap_py-bench-build"),
                     help="meson build dir for the C side (default %(default)s)")
+    ap.add_argument("--paired", type=int, metavar="PAIRS", nargs="?", const=7, default=0,
+                    help="only the target's measurement: PAIRS (default 7) interleaved C / "
+                         "fap_py / asyncio round-trip runs on one unpaced bus, median per-pair "
+                         "ratio (what python -m bench reports)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     exe = args.c_bench or build_c_bench(args.build_dir)
     count = args.count
+    if args.paired:
+        bus = BusProcess(2, 0)
+        try:
+            print(paired_report(paired(exe, bus.paths, args.paired, min(count, 1000), sizes[0])))
+        finally:
+            bus.close()
+        return 0
     bus = BusProcess(2, args.baud)
     results: List[Result] = []
     try:
