@@ -133,18 +133,19 @@ class NativeHandle:
         entries, backward jumps and after calls, and there is none between
         ``+= 1`` and ``entered = True``, nor between ``finally`` and ``-= 1``.
         """
+        lock = self._hlock     # (locals: this runs around every C call of the message path)
         entered = False
         try:
-            with self._hlock:
-                if self._closing or self._h is None:
+            with lock:
+                h = self._h
+                if self._closing or h is None:
                     raise self._closed_error()
                 self._users += 1
                 entered = True
-                h = self._h
             return fn(h, *args)
         finally:
             if entered:
-                with self._hlock:
+                with lock:
                     self._users -= 1
                     if self._closing and not self._users:
                         self._idle.notify_all()

@@ -162,11 +162,11 @@ class _SlaveThread(threading.Thread):
                 if self.echo:
                     raise
                 return
+            if self.echo:   # the echo first: the count is the bench's, not the round trip's
+                self.slave.send(msg.data, msg.source, timeout=None)
             with self.progress:
                 self.received += 1
                 self.progress.notify()
-            if self.echo:
-                self.slave.send(msg.data, msg.source, timeout=None)
 
 
 def _measure(fn: Callable[[], None]) -> Tuple[float, float]:
