@@ -36,6 +36,7 @@ import math
 import os
 import threading
 import time
+from asyncio import get_running_loop as _running_loop
 from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
@@ -543,8 +544,14 @@ class Node(NativeHandle):
     async def arecv(self, timeout: Optional[float] = None) -> Message:
         """``await``-able :meth:`recv`, driven by the notification fd (no thread, no polling)."""
         if timeout is not None:
-            _seconds(timeout, "timeout")
-        return await self._aio().get_rx(timeout)
+            timeout = _seconds(timeout, "timeout")
+        pump = self._pump
+        if pump is None or pump.stopped or self._closing or pump.loop is not _running_loop():
+            pump = self._aio()       # attach (or re-attach) to this loop; raises once closed
+        msg = pump.take_rx()         # already moved to Python: no future, no coroutine
+        if msg is not None:
+            return msg
+        return await pump.get_rx(timeout)
 
     def __aiter__(self) -> AsyncIterator[Message]:
         """``async for msg in node``: messages until the node is closed."""
