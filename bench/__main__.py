@@ -411,8 +411,9 @@ def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
     out: Dict[str, Any] = {}
     try:
         n = 200 if quick else 1000
-        pr = fp.paired(exe, bus.paths, pairs=5 if quick else 9, count=n, size=16)
-        common = {"pairs": pr["pairs"], "count": n, "load_before": pr["load_before"],
+        pr = fp.paired(exe, bus.paths, pairs=5 if quick else 11, count=n, size=16)
+        common = {"pairs": pr["pairs"], "dropped": len(pr["dropped"]), "count": n,
+                  "load_before": pr["load_before"],
                   "load_after": pr["load_after"], "c_polls": pr["polls"]["c"]}
         out["round-trip"] = dict(
             common, c_rate=pr["rate"]["c"], py_rate=pr["rate"]["py"], c_cpu_us=pr["cpu_us"]["c"],

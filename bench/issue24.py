@@ -89,7 +89,8 @@ def python_rows(res: Dict[str, Any]) -> List[Target]:
     c, p = r.get("c_rate"), r.get("py_rate")
     if r.get("ratio") is not None:
         value: Optional[float] = 100 * r["ratio"]
-        note = (f"median of {r['pairs']} interleaved pairs (range {100 * r['ratio_min']:.0f}-"
+        void = f", {r['dropped']} void (a frame lost)" if r.get("dropped") else ""
+        note = (f"median of {r['pairs']} interleaved pairs{void} (range {100 * r['ratio_min']:.0f}-"
                 f"{100 * r['ratio_max']:.0f} %); median {p:.0f} vs {c:.0f} round trips/s; "
                 f"master poll turns per round trip {r['py_polls']:.2f} vs {r['c_polls']:.2f}; "
                 f"load {r['load_before']} -> {r['load_after']}")
