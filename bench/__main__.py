@@ -410,8 +410,8 @@ def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
     bus = fp.BusProcess(2, 0)
     out: Dict[str, Any] = {}
     try:
-        n = 200 if quick else 1000
-        pr = fp.paired(exe, bus.paths, pairs=5 if quick else 11, count=n, size=16)
+        n = 200 if quick else fp.PAIR_COUNT
+        pr = fp.paired(exe, bus.paths, pairs=7 if quick else fp.PAIRS, count=n, size=16)
         common = {"pairs": pr["pairs"], "dropped": len(pr["dropped"]), "count": n,
                   "load_before": pr["load_before"],
                   "load_after": pr["load_after"], "c_polls": pr["polls"]["c"]}
@@ -420,8 +420,8 @@ def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
             py_cpu_us=pr["cpu_us"]["py"], py_polls=pr["polls"]["py"], ratio=pr["ratio"],
             ratio_min=pr["ratio_min"], ratio_max=pr["ratio_max"],
             ratios=[p["py"]["rate"] / p["c"]["rate"] for p in pr["per_pair"]])
-        calls = [(fp.run_c(exe, bus.paths, "calls", n * 10, 16),
-                  fp.run_py(bus.paths, "calls", n * 10, 16)) for _ in range(3)]
+        calls = [(fp.run_c(exe, bus.paths, "calls", 10000, 16),
+                  fp.run_py(bus.paths, "calls", 10000, 16)) for _ in range(3)]
         out["calls"] = {"c_rate": statistics.median(c.rate for c, _ in calls),
                         "py_rate": statistics.median(p.rate for _, p in calls),
                         "c_cpu_us": statistics.median(c.cpu_s / c.count * 1e6 for c, _ in calls),

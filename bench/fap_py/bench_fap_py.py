@@ -236,6 +236,11 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
 
 #: The three round-trip runs of one pair (asyncio is Python's too; its ratio is to C).
 PAIR_APIS = ("c", "py", "aio")
+#: Pairs and round trips per run of the target's measurement: many short pairs
+#: (~0.1 s a run) keep both sides of a pair inside one load regime; on this
+#: 2-core box at load 4-8, 25 x 300 gave medians within +-0.04 run to run where
+#: 11 x 1000 moved by +-0.25 (bench/README-pyfap.md).
+PAIRS, PAIR_COUNT = 25, 300
 
 
 def _loadavg() -> str:
@@ -243,7 +248,7 @@ def _loadavg() -> str:
         return " ".join(f.read().split()[:3])
 
 
-def paired(exe: Path, paths: List[str], pairs: int = 7, count: int = 1000,
+def paired(exe: Path, paths: List[str], pairs: int = PAIRS, count: int = PAIR_COUNT,
            size: int = 16, baud: int = 0) -> Dict[str, Any]:
     """Round trips through C and fap_py, interleaved on one bus: the measurement of
     issue 24's fap_py target (``python -m bench`` and ``--paired`` both call this).
@@ -368,7 +373,7 @@ def print_table(results: List[Result], baud: int) -> None:
 
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--count", type=int, default=2000, help="messages per run (default 2000)")
+    ap.add_argument("--count", type=int, help=f"messages per run (default 2000; --paired {PAIR_COUNT})")
     ap.add_argument("--sizes", default="16,1024", help="message sizes, comma separated")
     ap.add_argument("--baud", type=int, default=0, help="pace the bus at this rate (default unpaced)")
     ap.add_argument("--repeat", type=int, default=3,
@@ -376,21 +381,21 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--c-bench", type=Path, help="bench_fapx_c executable (default: build it)")
     ap.add_argument("--build-dir", type=Path, default=Path("/tmp/fap_py-bench-build"),
                     help="meson build dir for the C side (default %(default)s)")
-    ap.add_argument("--paired", type=int, metavar="PAIRS", nargs="?", const=7, default=0,
-                    help="only the target's measurement: PAIRS (default 7) interleaved C / "
+    ap.add_argument("--paired", type=int, metavar="PAIRS", nargs="?", const=PAIRS, default=0,
+                    help=f"only the target's measurement: PAIRS (default {PAIRS}) interleaved C / "
                          "fap_py / asyncio round-trip runs on one unpaced bus, median per-pair "
                          "ratio (what python -m bench reports)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     exe = args.c_bench or build_c_bench(args.build_dir)
-    count = args.count
+    count = args.count or 2000
     if args.paired:     # the target's measurement: unpaced unless --baud is given
         bus = BusProcess(2, args.baud)
-        if args.baud:       # a few seconds per run at the wire's pace
+        count = args.count or PAIR_COUNT
+        if args.baud:       # about a second per run at the wire's pace
             count = min(count, max(20, int((wire_rate("round-trip", sizes[0], args.baud) or 100))))
         try:
-            print(paired_report(paired(exe, bus.paths, args.paired, min(count, 1000), sizes[0],
-                                       args.baud)))
+            print(paired_report(paired(exe, bus.paths, args.paired, count, sizes[0], args.baud)))
         finally:
             bus.close()
         return 0
