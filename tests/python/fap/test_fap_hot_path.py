@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pickle
+import threading
 import time
 from typing import List, Tuple
 
@@ -12,6 +13,7 @@ import pytest
 from conftest import WAIT
 
 from fap_py import (
+    ClosedError,
     FapTimeoutError,
     InvalidTypeError,
     InvalidValueError,
@@ -99,3 +101,36 @@ def test_send_with_a_timeout_longer_than_a_slice(bus: VirtualBus) -> None:
         with pytest.raises(QueueFullError):
             s.send(b"2", timeout=Seconds(0.01))
         assert s.tx_pending == 1
+
+
+def test_close_racing_busy_callers_frees_once_and_fails_them_cleanly(bus: VirtualBus) -> None:
+    # the counted use (NativeHandle._call) takes no lock: four threads call into C
+    # back to back while close() runs; none may touch the freed handle (a crash),
+    # each ends with ClosedError, none is left counted in
+    s = Slave(bus.paths[1], id=6, tx_queue=1 << 16)
+    counts = [0] * 4
+    warmed = threading.Barrier(len(counts) + 1)
+    errors: List[BaseException] = []
+
+    def hammer(i: int) -> None:
+        calls = (lambda: s.send(b"x", 0), s.recv_nowait, lambda: s.tx_pending, lambda: s.stats)
+        try:
+            while True:
+                calls[counts[i] % len(calls)]()
+                counts[i] += 1
+                if counts[i] == 200:
+                    warmed.wait(WAIT)
+        except ClosedError:
+            return
+        except BaseException as exc:   # anything else is a defect
+            errors.append(exc)
+
+    threads = [threading.Thread(target=hammer, args=(i,)) for i in range(len(counts))]
+    for t in threads:
+        t.start()
+    warmed.wait(WAIT)                  # every thread is calling in a loop now
+    s.close()
+    for t in threads:
+        t.join(WAIT)
+    assert not any(t.is_alive() for t in threads) and errors == []
+    assert s._users == 0 and s.final_stats is not None and min(counts) >= 200
