@@ -30,7 +30,7 @@ import select
 import threading
 import time
 from contextlib import contextmanager
-from typing import Any, Callable, Dict, Iterator, List, Optional, TypeVar
+from typing import Any, Callable, Dict, Iterator, Optional, TypeVar
 
 from .errors import ClosedError
 
@@ -93,9 +93,9 @@ class NativeHandle:
         self._h: Any = None
         self._hlock = threading.Lock()
         self._idle = threading.Condition(self._hlock)
-        # one token per call inside C on _h (see _call: appended and removed
-        # without the lock, each a single atomic list operation under the GIL)
-        self._inside: List[object] = []
+        # one token per call inside C on _h (see _call: added and removed
+        # without the lock, each a single atomic dict operation under the GIL)
+        self._inside: Dict[object, None] = {}
         self._closing = False
         self._closer: Optional[int] = None   # the thread running close()
         # await_readable in flight: each future and the fd its loop reads
@@ -130,30 +130,27 @@ class NativeHandle:
     def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(handle, *args)`` with this call counted in as a user.
 
-        The count is a list of tokens, one per call inside C, appended and
+        The count is a dict of tokens, one per call inside C, added and
         removed without taking the lock (it ran around every C call of the
-        message path; each list operation is atomic under the GIL, which
+        message path; each dict operation is atomic under the GIL, which
         fap_py's abi3 extension always has). The order makes it safe against
-        :meth:`close`: a call appends its token *before* it reads
-        ``_closing``, close sets ``_closing`` *before* it waits for the list
-        to empty, so either close sees the token and waits, or the call sees
-        ``_closing`` and never touches the handle. An asynchronous exception
-        (KeyboardInterrupt) cannot leave a token behind: the append is inside
-        the ``try`` and ``finally`` removes the token if it is there.
+        :meth:`close`: a call adds its token *before* it reads ``_closing``,
+        close sets ``_closing`` *before* it waits for the dict to empty, so
+        either close sees the token and waits, or the call sees ``_closing``
+        and never touches the handle. An asynchronous exception
+        (KeyboardInterrupt) cannot leave a token behind: the add is inside
+        the ``try`` and ``finally`` pops the token if it is there.
         """
         inside = self._inside
         tok = object()
         try:
-            inside.append(tok)
+            inside[tok] = None
             h = self._h
             if self._closing or h is None:
                 raise self._closed_error()
             return fn(h, *args)
-        finally:
-            try:                 # here, not in _left(): a signal may land at a function's entry
-                inside.remove(tok)
-            except ValueError:   # interrupted before the append
-                pass
+        finally:   # (one C call, here: a signal may land at a Python function's entry)
+            inside.pop(tok, None)
             if self._closing or DeferredSigint.pending:
                 self._left()
 
@@ -177,16 +174,13 @@ class NativeHandle:
         inside = self._inside
         tok = object()
         try:
-            inside.append(tok)
+            inside[tok] = None
             h = self._h
             if self._closing or h is None:
                 raise self._closed_error()
             yield h
-        finally:
-            try:                 # here, not in _left(): a signal may land at a function's entry
-                inside.remove(tok)
-            except ValueError:   # interrupted before the append
-                pass
+        finally:   # (one C call, here: a signal may land at a Python function's entry)
+            inside.pop(tok, None)
             if self._closing or DeferredSigint.pending:
                 self._left()
 
