@@ -394,22 +394,41 @@ def profile_markdown(prof: Dict[str, Any]) -> str:
 
 
 def python_overhead(args: argparse.Namespace, quick: bool) -> Dict[str, Any]:
-    """fap_py against the C API on one unpaced bus (bench/fap_py)."""
+    """fap_py against the C API on one unpaced bus (bench/fap_py).
+
+    Round trips (issue 24's target) are interleaved C / fap_py / asyncio runs,
+    the median of the per-pair ratios (``bench_fap_py.paired``, the same
+    measurement as ``bench_fap_py.py --paired``); each row also carries the
+    master's poll turns per round trip and the load average. ``calls`` (the
+    binding's cost per call, no wire) is the median of 3 interleaved pairs.
+    """
+    import statistics
+
     import bench_fap_py as fp
 
     exe = args.build_dir / "bench" / "fap_py" / "bench_fapx_c"
     bus = fp.BusProcess(2, 0)
     out: Dict[str, Any] = {}
     try:
-        n = 200 if quick else 1000
-        for mode in ("round-trip", "calls"):
-            cnt = n if mode != "calls" else n * 10
-            c = fp.run_c(exe, bus.paths, mode, cnt, 16)
-            p = fp.run_py(bus.paths, mode, cnt, 16)
-            out[mode] = {"c_rate": c.rate, "py_rate": p.rate,
-                         "c_cpu_us": c.cpu_s / c.count * 1e6, "py_cpu_us": p.cpu_s / p.count * 1e6}
-        a = fp.run_py(bus.paths, "round-trip asyncio", n, 16)
-        out["round-trip asyncio"] = {"py_rate": a.rate, "py_cpu_us": a.cpu_s / a.count * 1e6}
+        n = 200 if quick else fp.PAIR_COUNT
+        pr = fp.paired(exe, bus.paths, pairs=7 if quick else fp.PAIRS, count=n, size=16)
+        common = {"pairs": pr["pairs"], "dropped": len(pr["dropped"]), "count": n,
+                  "load_before": pr["load_before"],
+                  "load_after": pr["load_after"], "c_polls": pr["polls"]["c"]}
+        out["round-trip"] = dict(
+            common, c_rate=pr["rate"]["c"], py_rate=pr["rate"]["py"], c_cpu_us=pr["cpu_us"]["c"],
+            py_cpu_us=pr["cpu_us"]["py"], py_polls=pr["polls"]["py"], ratio=pr["ratio"],
+            ratio_min=pr["ratio_min"], ratio_max=pr["ratio_max"],
+            ratios=[p["py"]["rate"] / p["c"]["rate"] for p in pr["per_pair"]])
+        calls = [(fp.run_c(exe, bus.paths, "calls", 10000, 16),
+                  fp.run_py(bus.paths, "calls", 10000, 16)) for _ in range(3)]
+        out["calls"] = {"c_rate": statistics.median(c.rate for c, _ in calls),
+                        "py_rate": statistics.median(p.rate for _, p in calls),
+                        "c_cpu_us": statistics.median(c.cpu_s / c.count * 1e6 for c, _ in calls),
+                        "py_cpu_us": statistics.median(p.cpu_s / p.count * 1e6 for _, p in calls)}
+        out["round-trip asyncio"] = dict(
+            common, py_rate=pr["rate"]["aio"], py_cpu_us=pr["cpu_us"]["aio"],
+            py_polls=pr["polls"]["aio"], ratio=pr["aio_ratio"])
     finally:
         bus.close()
     return out

@@ -93,7 +93,9 @@ class NativeHandle:
         self._h: Any = None
         self._hlock = threading.Lock()
         self._idle = threading.Condition(self._hlock)
-        self._users = 0                      # threads inside a C call on _h
+        # one token per call inside C on _h (see _call: added and removed
+        # without the lock, each a single atomic dict operation under the GIL)
+        self._inside: Dict[object, None] = {}
         self._closing = False
         self._closer: Optional[int] = None   # the thread running close()
         # await_readable in flight: each future and the fd its loop reads
@@ -126,51 +128,61 @@ class NativeHandle:
         return ClosedError(f"{self._label()} is closed")
 
     def _call(self, fn: Callable[..., Any], *args: Any) -> Any:
-        """``fn(handle, *args)`` with this thread counted in as a user.
+        """``fn(handle, *args)`` with this call counted in as a user.
 
-        Laid out so that an asynchronous exception (KeyboardInterrupt) cannot
-        leave the count wrong: Python runs signal handlers only at function
-        entries, backward jumps and after calls, and there is none between
-        ``+= 1`` and ``entered = True``, nor between ``finally`` and ``-= 1``.
+        The count is a dict of tokens, one per call inside C, added and
+        removed without taking the lock (it ran around every C call of the
+        message path; each dict operation is atomic under the GIL, which
+        fap_py's abi3 extension always has). The order makes it safe against
+        :meth:`close`: a call adds its token *before* it reads ``_closing``,
+        close sets ``_closing`` *before* it waits for the dict to empty, so
+        either close sees the token and waits, or the call sees ``_closing``
+        and never touches the handle. An asynchronous exception
+        (KeyboardInterrupt) cannot leave a token behind: the add is inside
+        the ``try`` and ``finally`` pops the token if it is there.
         """
-        entered = False
+        inside = self._inside
+        tok = object()
         try:
-            with self._hlock:
-                if self._closing or self._h is None:
-                    raise self._closed_error()
-                self._users += 1
-                entered = True
-                h = self._h
+            inside[tok] = None
+            h = self._h
+            if self._closing or h is None:
+                raise self._closed_error()
             return fn(h, *args)
-        finally:
-            if entered:
-                with self._hlock:
-                    self._users -= 1
-                    if self._closing and not self._users:
-                        self._idle.notify_all()
-            if DeferredSigint.pending:
-                redeliver()
+        finally:   # (one C call, here: a signal may land at a Python function's entry)
+            inside.pop(tok, None)
+            if self._closing or DeferredSigint.pending:
+                self._left()
+
+    def _left(self) -> None:
+        """After a counted use: wake a waiting close() (which also looks every
+        WAIT_SLICE), put back a deferred Ctrl-C."""
+        if self._closing:
+            with self._hlock:
+                self._idle.notify_all()
+        if DeferredSigint.pending:
+            redeliver()
+
+    @property
+    def _users(self) -> int:
+        """Calls inside C on the handle now (for tests and diagnostics)."""
+        return len(self._inside)
 
     @contextmanager
     def _using(self) -> Iterator[Any]:
         """``with self._using() as h:`` the handle, counted in like :meth:`_call`."""
-        entered = False
+        inside = self._inside
+        tok = object()
         try:
-            with self._hlock:
-                if self._closing or self._h is None:
-                    raise self._closed_error()
-                self._users += 1
-                entered = True
-                h = self._h
+            inside[tok] = None
+            h = self._h
+            if self._closing or h is None:
+                raise self._closed_error()
             yield h
-        finally:
-            if entered:
-                with self._hlock:
-                    self._users -= 1
-                    if self._closing and not self._users:
-                        self._idle.notify_all()
-            if DeferredSigint.pending:
-                redeliver()
+        finally:   # (one C call, here: a signal may land at a Python function's entry)
+            inside.pop(tok, None)
+            if self._closing or DeferredSigint.pending:
+                self._left()
 
     @property
     def closed(self) -> bool:
@@ -194,7 +206,7 @@ class NativeHandle:
             self._interrupt()
             self._detach_async_waits()
             with lock:
-                while self._users:            # they leave within WAIT_SLICE
+                while self._inside:           # they leave within WAIT_SLICE
                     self._idle.wait(WAIT_SLICE)
                 # Forget the handle first: an interrupt before _release leaks
                 # it, one after cannot free it twice.

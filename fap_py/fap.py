@@ -36,13 +36,14 @@ import math
 import os
 import threading
 import time
+from asyncio import get_running_loop as _running_loop
 from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
 from ._native import ffi as _ffi
 from ._native import lib as _lib
 from ._stats import stats_from_c
-from ._validate import check_baud, check_bytes, check_int, check_path, check_seconds
+from ._validate import MAX_TIMEOUT, check_baud, check_bytes, check_int, check_path, check_seconds
 from .errors import (
     ClosedError,
     FapError,
@@ -57,7 +58,17 @@ from .errors import (
 )
 from .fap_aio import AsyncPump
 from .fap_classic import classic_check
-from .fap_types import MASTER_ID, MAX_DATA, MAX_ID, EventKind, Message, SlaveEvent, Stats, mask_ids
+from .fap_types import (
+    MASTER_ID,
+    MAX_DATA,
+    MAX_ID,
+    EventKind,
+    Message,
+    SlaveEvent,
+    Stats,
+    _new_message,
+    mask_ids,
+)
 from .rs485 import DEFAULT_BAUD, RS485, RS485Mode, line_options, port_options
 
 # Facts the tools read through fap_py._protocols (never re-typed in a tool).
@@ -158,6 +169,31 @@ _SLICE_MS = slice_ms(None)
 def _slice_ms(deadline: Optional[float]) -> int:
     """Milliseconds for the next wait inside C: at most WAIT_SLICE."""
     return slice_ms(deadline)
+
+
+def _first_wait(timeout: Optional[float]) -> "tuple[Optional[float], int]":
+    """(deadline, ms of the first wait inside C) of a blocking call's ``timeout``.
+
+    The hot path of recv() and send(): a plain int or float in range is taken as
+    it is (no call to the general check, no clock arithmetic beyond one
+    ``monotonic()``); anything else (bool, NaN, inf, negative, too long, a
+    string) goes through the general check, which raises the specific error.
+    """
+    if timeout is None:
+        return None, _SLICE_MS
+    if not ((type(timeout) is float or type(timeout) is int) and 0 <= timeout <= MAX_TIMEOUT):
+        timeout = _seconds(timeout, "timeout")
+    first = _SLICE_MS if timeout >= WAIT_SLICE else math.ceil(timeout * 1000)
+    return time.monotonic() + timeout, first
+
+
+# The C calls of the message path, looked up once (each is an attribute lookup
+# on the cffi module otherwise): a round trip runs four of them.
+_fapx_tx, _fapx_tx_wait = _lib.fapx_tx, _lib.fapx_tx_wait
+_fapx_rx, _fapx_rx_wait = _lib.fapx_rx, _lib.fapx_rx_wait
+_unpack = _ffi.unpack
+_ETIMEDOUT, _EAGAIN = -_errno.ETIMEDOUT, -_errno.EAGAIN
+_DEBUG = logging.DEBUG
 
 
 # -- nodes --------------------------------------------------------------------
@@ -321,20 +357,21 @@ class Node(NativeHandle):
         dest = to if type(to) is int and to in self._dests else self._check_dest(to)
         payload = data if type(data) is bytes and 0 < len(data) <= MAX_DATA else _payload(data)
         if timeout == 0.0:
-            code = self._call(self._lib.fapx_tx, dest, payload, len(payload))
+            code = self._call(_fapx_tx, dest, payload, len(payload))
         else:
-            deadline = _deadline(timeout)
+            deadline, wait_ms = _first_wait(timeout)
             while True:
-                code = self._call(self._lib.fapx_tx_wait, dest, payload, len(payload),
-                                  _slice_ms(deadline))
-                if code != -_errno.ETIMEDOUT:
+                code = self._call(_fapx_tx_wait, dest, payload, len(payload), wait_ms)
+                if code != _ETIMEDOUT:
                     break
-                if deadline is not None and time.monotonic() >= deadline:
-                    code = -_errno.EAGAIN        # still full: QueueFullError
-                    break
+                if deadline is not None:
+                    if time.monotonic() >= deadline:
+                        code = _EAGAIN           # still full: QueueFullError
+                        break
+                    wait_ms = _slice_ms(deadline)
         if code < 0:
             raise _error(code, "send")
-        if log.isEnabledFor(logging.DEBUG):
+        if log.isEnabledFor(_DEBUG):
             log.debug("%s: queued %d bytes for %d", self._label(), len(payload), dest)
 
     def flush(self, timeout: Optional[float] = None) -> None:
@@ -364,21 +401,20 @@ class Node(NativeHandle):
 
     def _rx_c(self, wait_ms: Optional[int]) -> Optional[Message]:
         """One fapx_rx / fapx_rx_wait call: a message, or None on -EAGAIN/-ETIMEDOUT."""
-        ffi, lib = self._ffi, self._lib
         try:
             buf, src = self._tls.rx
         except AttributeError:       # first receive in this thread: its own buffers
-            buf, src = self._tls.rx = (ffi.new("char[]", MAX_DATA), ffi.new("unsigned *"))
+            buf, src = self._tls.rx = (_ffi.new("char[]", MAX_DATA), _ffi.new("unsigned *"))
         if wait_ms is None:
-            n = self._call(lib.fapx_rx, buf, MAX_DATA, src)
+            n = self._call(_fapx_rx, buf, MAX_DATA, src)
         else:
-            n = self._call(lib.fapx_rx_wait, buf, MAX_DATA, src, wait_ms)
+            n = self._call(_fapx_rx_wait, buf, MAX_DATA, src, wait_ms)
         if n >= 0:
-            msg = Message(src[0], ffi.unpack(buf, n))   # char[]: unpack gives bytes
-            if log.isEnabledFor(logging.DEBUG):   # per message: no label built for nothing
+            msg = _new_message(src[0], _unpack(buf, n))   # char[]: unpack gives bytes
+            if log.isEnabledFor(_DEBUG):   # per message: no label built for nothing
                 log.debug("%s: received %d bytes from %d", self._label(), n, msg.source)
             return msg
-        if n in (-_errno.EAGAIN, -_errno.ETIMEDOUT):
+        if n == _EAGAIN or n == _ETIMEDOUT:
             return None
         raise _error(n, "recv")
 
@@ -394,18 +430,20 @@ class Node(NativeHandle):
             ClosedError: the node is (or got) closed.
             KeyboardInterrupt: Ctrl-C while waiting.
         """
-        deadline = None if timeout is None else _deadline(timeout)
+        deadline, wait_ms = _first_wait(timeout)
         while True:
             pump = self._pump
             if pump is not None:
                 msg = pump.take_rx()
                 if msg is not None:
                     return msg
-            msg = self._rx_c(_SLICE_MS if deadline is None else _slice_ms(deadline))
+            msg = self._rx_c(wait_ms)
             if msg is not None:
                 return msg
-            if deadline is not None and time.monotonic() >= deadline:
-                raise FapTimeoutError(f"recv: no message within {timeout} s")
+            if deadline is not None:
+                if time.monotonic() >= deadline:
+                    raise FapTimeoutError(f"recv: no message within {timeout} s")
+                wait_ms = _slice_ms(deadline)
 
     def __iter__(self) -> Iterator[Message]:
         """Received messages, forever; the iteration ends when the node is closed."""
@@ -506,8 +544,14 @@ class Node(NativeHandle):
     async def arecv(self, timeout: Optional[float] = None) -> Message:
         """``await``-able :meth:`recv`, driven by the notification fd (no thread, no polling)."""
         if timeout is not None:
-            _seconds(timeout, "timeout")
-        return await self._aio().get_rx(timeout)
+            timeout = _seconds(timeout, "timeout")
+        pump = self._pump
+        if pump is None or pump.stopped or self._closing or pump.loop is not _running_loop():
+            pump = self._aio()       # attach (or re-attach) to this loop; raises once closed
+        msg = pump.take_rx()         # already moved to Python: no future, no coroutine
+        if msg is not None:
+            return msg
+        return await pump.get_rx(timeout)
 
     def __aiter__(self) -> AsyncIterator[Message]:
         """``async for msg in node``: messages until the node is closed."""
@@ -692,4 +736,4 @@ class Slave(Node):
 
         See :meth:`Node.send`.
         """
-        super().send(data, to, timeout)
+        Node.send(self, data, to, timeout)   # not super(): one object less per message

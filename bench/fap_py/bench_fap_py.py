@@ -38,15 +38,16 @@ import asyncio
 import os
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
-from fap_py import FapTimeoutError, Master, Slave
+from fap_py import FapError, FapTimeoutError, Master, Slave
 
 REPO = Path(__file__).resolve().parents[2]
 # FAP has no flow control and the unpaced virtual bus drops what a slow
@@ -161,11 +162,11 @@ class _SlaveThread(threading.Thread):
                 if self.echo:
                     raise
                 return
+            if self.echo:   # the echo first: the count is the bench's, not the round trip's
+                self.slave.send(msg.data, msg.source, timeout=None)
             with self.progress:
                 self.received += 1
                 self.progress.notify()
-            if self.echo:
-                self.slave.send(msg.data, msg.source, timeout=None)
 
 
 def _measure(fn: Callable[[], None]) -> Tuple[float, float]:
@@ -231,6 +232,99 @@ def run_py(paths: List[str], mode: str, count: int, size: int) -> Result:
         master.close()
 
 
+# -- the one measurement of the target: interleaved pairs ---------------------------
+
+#: The three round-trip runs of one pair (asyncio is Python's too; its ratio is to C).
+PAIR_APIS = ("c", "py", "aio")
+#: Pairs and round trips per run of the target's measurement: many short pairs
+#: (~0.1 s a run) keep both sides of a pair inside one load regime; on this
+#: 2-core box at load 4-8, 25 x 300 gave medians within +-0.04 run to run where
+#: 11 x 1000 moved by +-0.25 (bench/README-pyfap.md).
+PAIRS, PAIR_COUNT = 25, 300
+
+
+def _loadavg() -> str:
+    with open("/proc/loadavg") as f:
+        return " ".join(f.read().split()[:3])
+
+
+def paired(exe: Path, paths: List[str], pairs: int = PAIRS, count: int = PAIR_COUNT,
+           size: int = 16, baud: int = 0) -> Dict[str, Any]:
+    """Round trips through C and fap_py, interleaved on one bus: the measurement of
+    issue 24's fap_py target (``python -m bench`` and ``--paired`` both call this).
+
+    One pair is a C run, a fap_py run and a fap_py asyncio run of ``count`` round
+    trips each, back to back on the same bus, their order rotated from pair to pair
+    (so neither side always runs first after a pause); a load swing between pairs
+    moves both sides of a pair alike, so the median of the per-pair ratios holds
+    where the rates of whole runs swing (bench/README-pyfap.md). Each run also
+    reports the master's poll turns per round trip, the unit the unpaced bus
+    quantises a round trip in.
+    """
+    runs: Dict[str, Callable[[], Result]] = {
+        "c": lambda: run_c(exe, paths, "round-trip", count, size),
+        "py": lambda: run_py(paths, "round-trip", count, size),
+        "aio": lambda: run_py(paths, "round-trip asyncio", count, size),
+    }
+    load_before = _loadavg()
+    got: List[Dict[str, Result]] = []
+    dropped: List[str] = []
+    while len(got) < max(1, pairs) and len(dropped) < max(1, pairs):
+        i = len(got) + len(dropped)
+        order = PAIR_APIS[i % 3:] + PAIR_APIS[:i % 3]
+        try:
+            got.append({api: runs[api]() for api in order})
+        except (FapError, SystemExit) as e:   # a frame the bus lost: the pair is void
+            dropped.append(str(e))
+    load_after = _loadavg()
+    if not got:
+        raise RuntimeError(f"fap_py paired: every pair failed ({dropped[-1]})")
+
+    def col(api: str, fn: Callable[[Result], float]) -> List[float]:
+        return [fn(p[api]) for p in got]
+
+    per_pair = [{api: {"rate": p[api].rate, "polls": p[api].polls / p[api].count,
+                       "cpu_us": p[api].cpu_s / p[api].count * 1e6} for api in PAIR_APIS}
+                for p in got]
+    ratio = [p["py"].rate / p["c"].rate for p in got]
+    aio_ratio = [p["aio"].rate / p["c"].rate for p in got]
+    return {
+        "pairs": len(got), "dropped": dropped, "count": count, "size": size, "baud": baud,
+        "load_before": load_before, "load_after": load_after,
+        "ratio": statistics.median(ratio), "ratio_min": min(ratio), "ratio_max": max(ratio),
+        "aio_ratio": statistics.median(aio_ratio),
+        "rate": {api: statistics.median(col(api, lambda r: r.rate)) for api in PAIR_APIS},
+        "polls": {api: statistics.median(col(api, lambda r: r.polls / r.count))
+                  for api in PAIR_APIS},
+        "cpu_us": {api: statistics.median(col(api, lambda r: r.cpu_s / r.count * 1e6))
+                   for api in PAIR_APIS},
+        "per_pair": per_pair,
+    }
+
+
+def paired_report(res: Dict[str, Any]) -> str:
+    """The pairs and their medians, for a terminal."""
+    names = {"c": "C", "py": "fap_py", "aio": "asyncio"}
+    link = f"bus paced at {res['baud']} baud" if res.get("baud") else "unpaced bus"
+    L = [f"fap_py vs C round trips ({res['size']} B, {link}): {res['pairs']} interleaved "
+         f"pairs of {res['count']} round trips; load average {res['load_before']} -> "
+         f"{res['load_after']}",
+         f"{'pair':>4}  " + "".join(f"{names[a] + ' /s':>13}{'polls/msg':>10}" for a in PAIR_APIS)
+         + f"{'Py/C':>7}"]
+    for i, p in enumerate(res["per_pair"], 1):
+        L.append(f"{i:>4}  " + "".join(f"{p[a]['rate']:>13,.0f}{p[a]['polls']:>10.2f}"
+                                      for a in PAIR_APIS)
+                 + f"{p['py']['rate'] / p['c']['rate']:>7.2f}")
+    L.append("  med " + "".join(f"{res['rate'][a]:>13,.0f}{res['polls'][a]:>10.2f}"
+                               for a in PAIR_APIS) + f"{res['ratio']:>7.2f}")
+    for why in res.get("dropped", []):
+        L.append(f"  dropped a pair (a frame lost, no echo): {why}")
+    L.append(f"median per-pair ratio fap_py/C {res['ratio']:.2f} (range {res['ratio_min']:.2f}"
+             f"-{res['ratio_max']:.2f}), asyncio/C {res['aio_ratio']:.2f}; CPU us per round trip "
+             + ", ".join(f"{names[a]} {res['cpu_us'][a]:.0f}" for a in PAIR_APIS))
+    return "\n".join(L)
+
+
 # -- report ------------------------------------------------------------------------
 
 def median(repeat: int, run: Callable[[], Result]) -> Result:
@@ -279,7 +373,7 @@ def print_table(results: List[Result], baud: int) -> None:
 
 def main(argv: Optional[List[str]] = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--count", type=int, default=2000, help="messages per run (default 2000)")
+    ap.add_argument("--count", type=int, help=f"messages per run (default 2000; --paired {PAIR_COUNT})")
     ap.add_argument("--sizes", default="16,1024", help="message sizes, comma separated")
     ap.add_argument("--baud", type=int, default=0, help="pace the bus at this rate (default unpaced)")
     ap.add_argument("--repeat", type=int, default=3,
@@ -287,10 +381,24 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--c-bench", type=Path, help="bench_fapx_c executable (default: build it)")
     ap.add_argument("--build-dir", type=Path, default=Path("/tmp/fap_py-bench-build"),
                     help="meson build dir for the C side (default %(default)s)")
+    ap.add_argument("--paired", type=int, metavar="PAIRS", nargs="?", const=PAIRS, default=0,
+                    help=f"only the target's measurement: PAIRS (default {PAIRS}) interleaved C / "
+                         "fap_py / asyncio round-trip runs on one unpaced bus, median per-pair "
+                         "ratio (what python -m bench reports)")
     args = ap.parse_args(argv)
     sizes = [int(s) for s in args.sizes.split(",")]
     exe = args.c_bench or build_c_bench(args.build_dir)
-    count = args.count
+    count = args.count or 2000
+    if args.paired:     # the target's measurement: unpaced unless --baud is given
+        bus = BusProcess(2, args.baud)
+        count = args.count or PAIR_COUNT
+        if args.baud:       # about a second per run at the wire's pace
+            count = min(count, max(20, int((wire_rate("round-trip", sizes[0], args.baud) or 100))))
+        try:
+            print(paired_report(paired(exe, bus.paths, args.paired, count, sizes[0], args.baud)))
+        finally:
+            bus.close()
+        return 0
     bus = BusProcess(2, args.baud)
     results: List[Result] = []
     try:

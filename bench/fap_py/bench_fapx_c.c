@@ -71,15 +71,15 @@ static void *slave_thread(void *p)
             break;
         if (n < 0)
             die("slave rx", n);
-        pthread_mutex_lock(&a->lock);
-        a->received++;
-        pthread_cond_signal(&a->cond);
-        pthread_mutex_unlock(&a->lock);
-        if (a->echo) {
+        if (a->echo) {       /* the echo first: the count is the bench's, not the round trip's */
             int rc = fapx_tx_wait(a->slave, src, buf, (size_t)n, -1);
             if (rc < 0)
                 die("slave tx", rc);
         }
+        pthread_mutex_lock(&a->lock);
+        a->received++;
+        pthread_cond_signal(&a->cond);
+        pthread_mutex_unlock(&a->lock);
     }
     return NULL;
 }
