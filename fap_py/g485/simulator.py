@@ -19,7 +19,7 @@ import os
 import select
 import threading
 import time
-from typing import Any, Iterable, List, Optional, Sequence, Union
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
 from ..errors import ClosedError, PortError
 from ..rs485 import RS485
@@ -30,6 +30,9 @@ from .transaction import timeout_arg, whole_arg
 from .transport import PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485.sim")
+
+#: how many distinct whole frames a simulator keeps decoded (its fast path's cache)
+_KNOWN_FRAMES = 64
 
 
 class Simulator:
@@ -142,15 +145,19 @@ class Simulator:
             poller = select.poll()
             poller.register(fd, select.POLLIN)
             poller.register(stop_r, select.POLLIN)
-            if not self._serve_open_fd(poller, stop_only):
+            if not self._serve_open_fd(fd, poller, stop_only):
                 return
 
-    def _serve_open_fd(self, poller: "select.poll", stop_only: "select.poll") -> bool:
+    def _serve_open_fd(self, fd: int, poller: "select.poll", stop_only: "select.poll") -> bool:
         """Serve until stopped (False) or until the port was opened again (True)."""
         stop_r = self._stop_r
         parser = self._parser
         io = self._io
+        read = io.read_nowait
         dispatch = self._dispatch
+        # a master polls with the same few requests: their packets are made once (a Packet
+        # is immutable); bounded, so a stream of distinct frames cannot grow it
+        known: Dict[bytes, Packet] = {}
         held = b""  # a request's first bytes, read in pieces (codec.frame_start), not parsed yet
         while True:
             ready = poller.poll(self.idle_timeout * 1000.0 if held or parser.buffered else None)
@@ -160,10 +167,10 @@ class Simulator:
                     held = b""
                 dispatch(parser.expire())
                 continue
-            if any(rfd == stop_r for rfd, _ in ready):
+            if (len(ready) != 1 or ready[0][0] != fd) and any(rfd == stop_r for rfd, _ in ready):
                 return False
             try:
-                data = io.read_nowait(4096)
+                data = read(4096)
             except PortError:
                 if self._stopping:
                     return False
@@ -178,7 +185,11 @@ class Simulator:
                 if not parser.buffered:
                     # fast paths: the chunk is exactly one frame (the common case), or the
                     # start of one (a paced line): no Parser pass
-                    packet = exact_packet(data)
+                    packet = known.get(data)
+                    if packet is None:
+                        packet = exact_packet(data)
+                        if packet is not None and len(known) < _KNOWN_FRAMES:
+                            known[data] = packet
                     if packet is not None:
                         dispatch((packet,))
                         continue
@@ -218,6 +229,8 @@ class Simulator:
                 self._dispatch(self._parser.expire())
 
     def _dispatch(self, events: Sequence[Union[Packet, Discarded]]) -> None:
+        if not events:
+            return
         debug = log.isEnabledFor(logging.DEBUG)
         for ev in events:
             if debug:
