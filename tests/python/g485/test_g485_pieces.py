@@ -8,7 +8,7 @@ import select
 import time
 from typing import Callable, List
 
-from fap_py.g485 import Discarded, Parser, ParseIssue, SimDevice, Simulator, codec
+from fap_py.g485 import Discarded, ParseIssue, Parser, SimDevice, Simulator, codec
 from fap_py.g485.transaction import Done, Session, Wait
 
 DEADLINE = 5.0
@@ -75,16 +75,17 @@ def test_simulator_answers_a_request_written_in_pieces(pty_link) -> None:
     path, fd = pty_link
     dev = _Recording(4)
     request = codec.encode_read_request(4, 7, 1)
-    with Simulator(path, [dev], idle_timeout=5.0) as sim:
-        got: List[bytes] = []
-        read = sim._io.read_nowait
+    sim = Simulator(path, [dev], idle_timeout=5.0)
+    got: List[bytes] = []
+    read = sim._io.read_nowait
 
-        def recording_read(n: int) -> bytes:
-            chunk = read(n)
-            got.append(chunk)
-            return chunk
+    def recording_read(n: int) -> bytes:
+        chunk = read(n)
+        got.append(chunk)
+        return chunk
 
-        sim._io.read_nowait = recording_read  # type: ignore[method-assign]
+    sim._io.read_nowait = recording_read  # type: ignore[method-assign]  # before the thread binds it
+    with sim:
         for cut in (1, 2, 3, 4, 5):
             del got[:]
             os.write(fd, request[:cut])
