@@ -262,6 +262,8 @@ class PortIO:
         self._watch()
 
     def close(self) -> None:
+        if self._vmin > 1 and not self.port.closed:
+            self.wake_at(1)  # leave the terminal as the port layer set it up
         self.port.close()
 
 
