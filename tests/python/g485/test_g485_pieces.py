@@ -78,13 +78,17 @@ class _Recording(SimDevice):
         return super().handle(event)
 
 
-def test_simulator_answers_a_request_written_in_pieces(pty_link) -> None:
+@pytest.mark.parametrize("baud", [9600, 115200])
+def test_simulator_answers_a_request_written_in_pieces(pty_link, baud: int) -> None:
     path, fd = pty_link
     dev = _Recording(4)
-    request = codec.encode_read_request(4, 7, 1)
-    # pieces shorter than the shortest frame wake the simulator only at the idle time
-    # (PortIO.wake_at): 0.5 s, long enough for the rest to follow before it expires
-    sim = Simulator(path, [dev], idle_timeout=0.5)
+    request = codec.encode_read_request(4, 7, 1)  # 7 bytes
+    # at 9600 a shortest frame lasts 6 ms: pieces shorter than it wake the simulator only
+    # at the idle time (PortIO.wake_at), 0.5 s here, long enough for the rest to follow;
+    # at 115200 (0.5 ms) it wakes per piece
+    sim = Simulator(path, [dev], idle_timeout=0.5, baudrate=baud)
+    sim._io.wake_at(codec.MIN_FRAME)
+    assert sim._io.gated == (baud == 9600)
     got: List[bytes] = []
     read = sim._io.read_nowait
 
@@ -143,7 +147,9 @@ def test_wake_at_sets_vmin_and_loses_no_byte_below_it(pty_link) -> None:
     path, fd = pty_link
     io = PortIO(path, 115200, None)
     try:
-        io.wake_at(16)
+        io.wake_at(8)  # 0.7 ms on the wire: shorter than WAKE_AT_MIN_WIRE, woken per piece
+        assert not io.gated and termios.tcgetattr(io._tty_fd())[6][termios.VMIN] == 1
+        io.wake_at(16)  # 1.4 ms
         assert io.gated and termios.tcgetattr(io._tty_fd())[6][termios.VMIN] == 16
         os.write(fd, b"\x01\x02\x03")  # fewer than 16: no wake-up, but read at the deadline
         assert io.read_some(16, time.monotonic() + 0.05) == b"\x01\x02\x03"
