@@ -133,13 +133,6 @@ class AsyncG485Master:
             self._timer = loop.call_at(self._deadline, self._on_timeout)
             return
         try:
-            if self.master.io.gated:  # bytes fewer than wake_at() asked for never woke the reader
-                chunk = self.master.io.read_nowait(4096)
-                if chunk:
-                    action = tx.receive(chunk, loop.time())
-                    if type(action) is not Wait:  # they completed (or spoiled) the reply
-                        self._finish(action)
-                        return
             action = tx.expire(loop.time())
         except FapError as exc:
             self._finish(exc=exc)
@@ -149,7 +142,6 @@ class AsyncG485Master:
     def _step(self, action: Action) -> None:
         """More bytes wanted: keep waiting (maybe less long); anything else ends the wait."""
         if type(action) is Wait:
-            self.master.io.wake_at(action.size)  # one wake-up for the rest of the reply
             self._arm(action.deadline)
         else:
             self._finish(action)
@@ -198,8 +190,6 @@ class AsyncG485Master:
             while True:
                 if isinstance(action, Send):
                     if isinstance(io, PortIO):  # discard stale input and write: one call into C
-                        if action.size:
-                            io.wake_at(action.size)  # the reader wakes once for the whole reply
                         io.send_fresh(action.wire)
                     else:
                         io.flush_input()

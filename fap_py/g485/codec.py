@@ -300,17 +300,6 @@ def frame_start(chunk: bytes) -> bool:
     return n == 3 or MIN_LENGTH <= chunk[3] <= MAX_LENGTH and n < HEADER_SIZE + chunk[3]
 
 
-#: the shortest frame (Handshake-Request, Get-Error-Word-Request, Set): FF FF ADDR LEN PID CHECK
-MIN_FRAME = HEADER_SIZE + MIN_LENGTH
-
-
-def bytes_to_finish(start: bytes) -> int:
-    """Bytes still missing from a :func:`frame_start` chunk: the rest of the frame once its
-    length byte is in, else what the shortest frame would still need."""
-    n = len(start)
-    return HEADER_SIZE + start[3] - n if n >= HEADER_SIZE else MIN_FRAME - n
-
-
 # -- argument checks ---------------------------------------------------------
 
 def _check_address(address: int, *, broadcast_ok: bool, what: str) -> None:

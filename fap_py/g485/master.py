@@ -242,7 +242,6 @@ class G485Master(Closing):
                     wire, size, deadline = action
                     if size and fast:
                         assert isinstance(io, PortIO)
-                        io.wake_at(size)  # one wake-up for the whole reply (VMIN)
                         chunk = io.exchange(wire, size, max(0.0, deadline - now()))
                     else:
                         if fast:
@@ -256,7 +255,6 @@ class G485Master(Closing):
                             continue
                         chunk = io.read_within(size, max(0.0, deadline - now()))
                 elif kind is Wait:
-                    io.wake_at(action.size)
                     chunk = io.read_some(action.size, action.deadline)
                 elif kind is Done:
                     return action.value

@@ -23,17 +23,7 @@ from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
 from ..errors import ClosedError, PortError
 from ..rs485 import RS485
-from .codec import (
-    MAX_SLAVE_ADDRESS,
-    MIN_FRAME,
-    MIN_SLAVE_ADDRESS,
-    Discarded,
-    Packet,
-    Parser,
-    bytes_to_finish,
-    exact_packet,
-    frame_start,
-)
+from .codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS, Discarded, Packet, Parser, exact_packet, frame_start
 from .device import SimDevice
 from .errors import G485ValueError
 from .transaction import timeout_arg, whole_arg
@@ -169,35 +159,25 @@ class Simulator:
         # is immutable); bounded, so a stream of distinct frames cannot grow it
         known: Dict[bytes, Packet] = {}
         held = b""  # a request's first bytes, read in pieces (codec.frame_start), not parsed yet
-        # wake up once a whole shortest frame is queued, not per piece (PortIO.wake_at); bytes
-        # fewer than that are read at the idle time, so a stray byte is seen as before
-        wake_at = io.wake_at
-        wake_at(MIN_FRAME)
-        idle_ms = self.idle_timeout * 1000.0
         while True:
-            ready = poller.poll(idle_ms if held or parser.buffered or io.gated else None)
+            ready = poller.poll(self.idle_timeout * 1000.0 if held or parser.buffered else None)
             if not ready:
-                data = read(4096) if io.gated else b""
-                if not data:  # the line was idle
-                    if held or parser.buffered:
-                        if held:  # the rest never came: the Parser holds it now (no event), drops it
-                            parser.feed(held)
-                            held = b""
-                        dispatch(parser.expire())
-                        wake_at(MIN_FRAME)
-                    continue
-            else:
-                if (len(ready) != 1 or ready[0][0] != fd) and any(rfd == stop_r for rfd, _ in ready):
+                if held:  # the rest never came: the Parser holds it now (no event) and drops it
+                    parser.feed(held)
+                    held = b""
+                dispatch(parser.expire())
+                continue
+            if (len(ready) != 1 or ready[0][0] != fd) and any(rfd == stop_r for rfd, _ in ready):
+                return False
+            try:
+                data = read(4096)
+            except PortError:
+                if self._stopping:
                     return False
-                try:
-                    data = read(4096)
-                except PortError:
-                    if self._stopping:
-                        return False
-                    data = b""
-                else:
-                    if not data and not any(flags & (select.POLLHUP | select.POLLERR) for _, flags in ready):
-                        continue  # a spurious wake-up
+                data = b""
+            else:
+                if not data and not any(flags & (select.POLLHUP | select.POLLERR) for _, flags in ready):
+                    continue  # a spurious wake-up
             if data:
                 if held:
                     data = held + data
@@ -211,15 +191,12 @@ class Simulator:
                         if packet is not None and len(known) < _KNOWN_FRAMES:
                             known[data] = packet
                     if packet is not None:
-                        dispatch((packet,))  # the reply first, then back to whole-frame wake-ups
-                        wake_at(MIN_FRAME)
+                        dispatch((packet,))
                         continue
                     if frame_start(data):
                         held = data
-                        wake_at(bytes_to_finish(data))  # one wake-up for the rest
                         continue
                 dispatch(parser.feed(data))
-                wake_at(1 if parser.buffered else MIN_FRAME)  # the Parser decides byte by byte
                 continue
             # hung up (EIO or end of file): nobody on the other side of the pty yet, or
             # the port was disconnected (the port layer has closed its fd, whose number

@@ -21,10 +21,9 @@ import errno
 import math
 import os
 import select
-import stat
 import termios
 import time
-from typing import Any, List, Optional, Union
+from typing import Any, Optional, Union
 
 import serial
 
@@ -39,11 +38,6 @@ PortSpec = Union[str, "os.PathLike[str]", "serial.SerialBase", int]
 _SLICE_MS = int(WAIT_SLICE * 1000)
 #: the most one read asks for (the C port layer's bound)
 _MAX_N = 4096
-#: PortIO.wake_at gates wake-ups only for frames at least this long on the wire (seconds).
-#: Measured (bench/README-g485.md): a 16-byte reply at 1 Mbaud (0.16 ms) waited for whole
-#: cost 2-5 % of reads/s for ~20 us less CPU per read; at 115200 (1.4 ms) it cut the
-#: master's CPU per read 3x at equal reads/s
-WAKE_AT_MIN_WIRE = 1e-3
 
 
 def _n(n: int) -> int:
@@ -99,13 +93,6 @@ class PortIO:
         # read that fails with EAGAIN); not with echo suppression, whose parked input poll misses
         self._poller: Optional[select.poll] = None
         self._use_poll = not p.rs485.echo_suppression
-        # frame-sized wake-ups (VMIN): not with echo suppression (the write reads its echo,
-        # shorter than a frame, through poll) nor on a port shared on purpose
-        self._vmin_ok = not p.rs485.echo_suppression and p.rs485.exclusive is not False
-        self._tio: Optional[List[Any]] = None
-        self._tty = (-1, 0)
-        self._vmin = 1
-        self._byte_time = 10.0 / self.baudrate  # 8N1, as the port layer sets the line
         self._watch()
 
     @property
@@ -117,70 +104,9 @@ class PortIO:
     def closed(self) -> bool:
         return self.port.closed
 
-    def wake_at(self, n: int) -> None:
-        """Let a wait on this port (poll, an event loop's reader, a read with a deadline)
-        end only once ``n`` bytes (at most 255) are queued, or at its deadline: a frame
-        that arrives in pieces then costs one wake-up, not one per piece.
-
-        The terminal's VMIN with VTIME 0: the line discipline reports the port readable
-        only from VMIN bytes on, while a non-blocking read still returns whatever is
-        queued (the reads of the port layer are non-blocking). Only where it applies (a
-        terminal, no echo suppression, not shared) and for frames that last at least
-        :data:`WAKE_AT_MIN_WIRE` on the wire; elsewhere, and for n < 1, the port wakes
-        per piece (VMIN 1). Waits that end at their deadline read what is queued once more
-        (:meth:`read_some`, :meth:`exchange`), so bytes fewer than ``n`` are never missed.
-        """
-        # a frame shorter on the wire than WAKE_AT_MIN_WIRE is waited for piece by piece
-        n = 1 if n * self._byte_time < WAKE_AT_MIN_WIRE else 255 if n > 255 else n
-        if n == self._vmin or not self._vmin_ok:
-            return
-        tio = self._tio
-        try:
-            fd = self._tty_fd()
-            if tio is None:
-                tio = self._tio = termios.tcgetattr(fd)
-            tio[6][termios.VMIN] = n
-            termios.tcsetattr(fd, termios.TCSANOW, tio)
-        except (termios.error, OSError, PortError, ClosedError):
-            self._vmin_ok = False  # not a terminal (a network port), or gone: wake per piece
-            self._tio = None
-            return
-        self._vmin = n
-
-    def _tty_fd(self) -> int:
-        """A descriptor of the port's terminal in this process (termios is the terminal's,
-        whichever descriptor sets it): the port layer's own, found by device number and
-        checked again before each use (a closed number may be reused)."""
-        fd, rdev = self._tty
-        if fd >= 0:
-            try:
-                st = os.fstat(fd)
-                if stat.S_ISCHR(st.st_mode) and st.st_rdev == rdev:
-                    return fd
-            except OSError:
-                pass
-        rdev = os.stat(self.port.path).st_rdev
-        for name in os.listdir("/proc/self/fd"):
-            try:
-                st = os.stat(f"/proc/self/fd/{name}")
-            except OSError:
-                continue
-            if stat.S_ISCHR(st.st_mode) and st.st_rdev == rdev:
-                self._tty = (int(name), rdev)
-                return int(name)
-        raise OSError(errno.ENOTTY, "no terminal descriptor")
-
-    @property
-    def gated(self) -> bool:
-        """True while :meth:`wake_at` holds wake-ups back until more than one byte is queued."""
-        return self._vmin > 1
-
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (``time.monotonic()``) for the first."""
-        got = self._read(_n(n), max(1, math.ceil(_secs(deadline, "deadline", 1e12) * 1e9)))
-        if not got and self._vmin > 1:  # fewer than wake_at() bytes may be queued
-            got = self._read(n, 0)
-        return got
+        return self._read(_n(n), max(1, math.ceil(_secs(deadline, "deadline", 1e12) * 1e9)))
 
     def read_within(self, n: int, timeout: float) -> bytes:
         """Up to ``n`` bytes, waiting at most ``timeout`` seconds for the first (b"" if
@@ -197,7 +123,7 @@ class PortIO:
                     break
                 ms = math.ceil((deadline - time.monotonic()) * 1000.0)
                 if ms <= 0:
-                    return self._read(n, 0) if self._vmin > 1 else b""
+                    return b""
             return self._read(n, 0)
         return self._read(n, time.monotonic_ns() + math.ceil(timeout * 1e9))
 
@@ -206,13 +132,10 @@ class PortIO:
         most ``timeout`` seconds for the first (b"" if nothing came): one call into C
         (``fap_port_transact``). ``timeout`` must include the request's wire time."""
         try:
-            got = self._transact(_data(data), n,
-                                 time.monotonic_ns() + math.ceil(_secs(timeout, "timeout") * 1e9))
+            return self._transact(_data(data), n,
+                                  time.monotonic_ns() + math.ceil(_secs(timeout, "timeout") * 1e9))
         except BusCollisionError as exc:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
-        if not got and n and self._vmin > 1:  # fewer than wake_at() bytes may be queued
-            got = self._read(n, 0)
-        return got
 
     def send_fresh(self, data: bytes) -> None:
         """:meth:`flush_input` then :meth:`write` in one call into C (the reply is
@@ -223,11 +146,7 @@ class PortIO:
             raise EchoMismatchError(f"{self.name}: {exc}") from None
 
     def _watch(self) -> None:
-        """(Re)build the poller on the port's current fd (after open and after a reopen,
-        which also put VMIN back to 1: :meth:`wake_at` starts over)."""
-        self._tio = None
-        self._tty = (-1, 0)
-        self._vmin = 1
+        """(Re)build the poller on the port's current fd (after open and after a reopen)."""
         fd = self.port.fd if self._use_poll and not self.port.closed else -1
         if fd >= 0:
             self._poller = select.poll()
@@ -270,8 +189,6 @@ class PortIO:
         self._watch()
 
     def close(self) -> None:
-        if self._vmin > 1 and not self.port.closed:
-            self.wake_at(1)  # leave the terminal as the port layer set it up
         self.port.close()
 
 
@@ -322,12 +239,6 @@ class SerialIO:
     def _check(self) -> None:
         if self.closed:
             raise ClosedError(f"{self.name}: port closed")
-
-    #: a pyserial object or raw fd wakes up per piece (see PortIO.wake_at)
-    gated = False
-
-    def wake_at(self, n: int) -> None:
-        """Nothing here: a pyserial object or raw fd wakes up per piece (see PortIO.wake_at)."""
 
     def read_some(self, n: int, deadline: float) -> bytes:
         """Up to ``n`` bytes, waiting until ``deadline`` (monotonic) for the first; b"" on timeout."""
