@@ -280,6 +280,26 @@ def exact_packet(chunk: bytes) -> Optional[Packet]:
     return None if kind is None else _packet(kind, chunk)
 
 
+def frame_start(chunk: bytes) -> bool:
+    """True if ``chunk`` is the unfinished start of a request frame that a
+    :class:`Parser` holding nothing would keep whole and report nothing for.
+
+    The simulator's fast path for a request read in pieces: it holds such a
+    chunk as bytes and tries :func:`exact_packet` on the joined pieces; the
+    Parser, fed the joined bytes at once, decides everything else exactly as
+    it would have piece by piece. FF FF FF (a reply or the wake-up preamble)
+    is never held: the Parser looks ahead there.
+    """
+    if type(chunk) is not bytes:
+        return False
+    n = len(chunk)
+    if n < 3:
+        return n > 0 and START.startswith(chunk)
+    if not chunk.startswith(START) or chunk[2] == SMA_R or chunk[2] == 0xFE:
+        return False
+    return n == 3 or MIN_LENGTH <= chunk[3] <= MAX_LENGTH and n < HEADER_SIZE + chunk[3]
+
+
 # -- argument checks ---------------------------------------------------------
 
 def _check_address(address: int, *, broadcast_ok: bool, what: str) -> None:

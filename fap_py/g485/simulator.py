@@ -5,7 +5,8 @@ second simulator or master on the same path gets a busy error), or a
 pyserial URL/object or raw fd through the thin adapter. The thread blocks
 in ``poll`` (no busy-waiting) on the port and on a wake-up pipe, feeds what
 it reads to one parser (a chunk that is exactly one frame, the common case,
-becomes its packet directly: ``codec.exact_packet``), hands every event to
+becomes its packet directly: ``codec.exact_packet``; the first pieces of a
+request are held as bytes until it is whole: ``codec.frame_start``), hands every event to
 every device on the port (each decides whether it is addressed) and writes
 the replies. A partial frame left when the line goes idle is expired after
 ``idle_timeout``. On a shared bus the simulator also hears the other
@@ -18,17 +19,20 @@ import os
 import select
 import threading
 import time
-from typing import Any, Iterable, List, Optional, Sequence, Union
+from typing import Any, Dict, Iterable, List, Optional, Sequence, Union
 
 from ..errors import ClosedError, PortError
 from ..rs485 import RS485
-from .codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS, Discarded, Packet, Parser, exact_packet
+from .codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS, Discarded, Packet, Parser, exact_packet, frame_start
 from .device import SimDevice
 from .errors import G485ValueError
 from .transaction import timeout_arg, whole_arg
 from .transport import PortIO, PortSpec, open_io
 
 log = logging.getLogger("fap_py.g485.sim")
+
+#: how many distinct whole frames a simulator keeps decoded (its fast path's cache)
+_KNOWN_FRAMES = 64
 
 
 class Simulator:
@@ -141,23 +145,32 @@ class Simulator:
             poller = select.poll()
             poller.register(fd, select.POLLIN)
             poller.register(stop_r, select.POLLIN)
-            if not self._serve_open_fd(poller, stop_only):
+            if not self._serve_open_fd(fd, poller, stop_only):
                 return
 
-    def _serve_open_fd(self, poller: "select.poll", stop_only: "select.poll") -> bool:
+    def _serve_open_fd(self, fd: int, poller: "select.poll", stop_only: "select.poll") -> bool:
         """Serve until stopped (False) or until the port was opened again (True)."""
         stop_r = self._stop_r
         parser = self._parser
         io = self._io
+        read = io.read_nowait
+        dispatch = self._dispatch
+        # a master polls with the same few requests: their packets are made once (a Packet
+        # is immutable); bounded, so a stream of distinct frames cannot grow it
+        known: Dict[bytes, Packet] = {}
+        held = b""  # a request's first bytes, read in pieces (codec.frame_start), not parsed yet
         while True:
-            ready = poller.poll(self.idle_timeout * 1000.0 if parser.buffered else None)
+            ready = poller.poll(self.idle_timeout * 1000.0 if held or parser.buffered else None)
             if not ready:
-                self._dispatch(parser.expire())
+                if held:  # the rest never came: the Parser holds it now (no event) and drops it
+                    parser.feed(held)
+                    held = b""
+                dispatch(parser.expire())
                 continue
-            if any(rfd == stop_r for rfd, _ in ready):
+            if (len(ready) != 1 or ready[0][0] != fd) and any(rfd == stop_r for rfd, _ in ready):
                 return False
             try:
-                data = io.read_nowait(4096)
+                data = read(4096)
             except PortError:
                 if self._stopping:
                     return False
@@ -166,9 +179,24 @@ class Simulator:
                 if not data and not any(flags & (select.POLLHUP | select.POLLERR) for _, flags in ready):
                     continue  # a spurious wake-up
             if data:
-                # fast path: the chunk is exactly one frame (the common case), no Parser pass
-                packet = None if parser.buffered else exact_packet(data)
-                self._dispatch(parser.feed(data) if packet is None else (packet,))
+                if held:
+                    data = held + data
+                    held = b""
+                if not parser.buffered:
+                    # fast paths: the chunk is exactly one frame (the common case), or the
+                    # start of one (a paced line): no Parser pass
+                    packet = known.get(data)
+                    if packet is None:
+                        packet = exact_packet(data)
+                        if packet is not None and len(known) < _KNOWN_FRAMES:
+                            known[data] = packet
+                    if packet is not None:
+                        dispatch((packet,))
+                        continue
+                    if frame_start(data):
+                        held = data
+                        continue
+                dispatch(parser.feed(data))
                 continue
             # hung up (EIO or end of file): nobody on the other side of the pty yet, or
             # the port was disconnected (the port layer has closed its fd, whose number
@@ -201,6 +229,8 @@ class Simulator:
                 self._dispatch(self._parser.expire())
 
     def _dispatch(self, events: Sequence[Union[Packet, Discarded]]) -> None:
+        if not events:
+            return
         debug = log.isEnabledFor(logging.DEBUG)
         for ev in events:
             if debug:

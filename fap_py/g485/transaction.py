@@ -45,6 +45,7 @@ from .._validate import check_baud, check_bool, check_int, check_seconds
 from . import codec
 from .codec import (
     EPID,
+    HEADER_SIZE,
     HPID,
     REPLY_KINDS,
     WAKE_UP_BAUD_THRESHOLD,
@@ -303,7 +304,7 @@ class Transaction:
     """
 
     __slots__ = ("_s", "_make", "_args", "_tries", "_attempt", "_flow", "_prefix", "_timeout", "_deadline",
-                 "_waiter", "_after")
+                 "_waiter", "_held", "_after")
 
     def __init__(self, session: "Session", make: Callable[..., Union[Flow, "_ReadOnce"]], args: Tuple[Any, ...],
                  retries: Optional[int], after: Optional[Callable[[], None]] = None) -> None:
@@ -322,6 +323,7 @@ class Transaction:
         self._timeout: Optional[float] = None
         self._deadline = 0.0
         self._waiter: Optional[_ReplyWaiter] = None
+        self._held = b""  # the reply's first bytes while they match it (no waiter yet)
         self._after = after
 
     @property
@@ -349,9 +351,22 @@ class Transaction:
             now = _clock(now)
         waiter = self._waiter
         if waiter is None:
-            if is_exact_reply(chunk, self._prefix) and not _debug():
-                return self._next(reply_packet(chunk), now)  # the common case: no waiter object
-            waiter = self._waiter = _ReplyWaiter(self._s, self._prefix)
+            prefix = self._prefix
+            held = self._held + chunk if self._held else chunk
+            if is_exact_reply(held, prefix) and not _debug():
+                return self._next(reply_packet(held), now)  # the common case: no waiter object
+            # a reply arriving in pieces (a paced line): while the bytes so far are the
+            # awaited reply's first bytes, wait for the rest without a Parser pass; the
+            # Parser would hold them and emit nothing, so feeding them later at once
+            # (below) is the same. Anything else goes to the waiter as before.
+            if (type(held) is bytes and len(held) < HEADER_SIZE + prefix[3] and not self._s.parser.buffered
+                    and (prefix.startswith(held) if len(held) <= len(prefix) else held.startswith(prefix))
+                    and not _debug()):
+                self._held = held
+                return Wait(HEADER_SIZE + prefix[3] - len(held), self._deadline)
+            self._held = b""
+            chunk = held
+            waiter = self._waiter = _ReplyWaiter(self._s, prefix)
         try:
             raw = waiter.feed(chunk)
         except RETRYABLE_ERRORS as exc:
@@ -366,6 +381,13 @@ class Transaction:
         """Nothing (more) came: a retry or the failure once ``now`` is past the deadline."""
         if type(now) is not float or now - now:
             now = _clock(now)
+        if self._held:  # the reply's first bytes, held without a waiter: hand them over
+            held, self._held = self._held, b""
+            self._waiter = _ReplyWaiter(self._s, self._prefix)
+            try:
+                self._waiter.feed(held)  # a clean partial reply: nothing completes or fails
+            except RETRYABLE_ERRORS as exc:  # pragma: no cover - held bytes matched the reply
+                return self._failed(exc, now)
         if now < self._deadline:
             return Wait(self._waiter.wanted() if self._waiter else reply_size(self._prefix), self._deadline)
         waiter = self._waiter or _ReplyWaiter(self._s, self._prefix)
@@ -374,6 +396,7 @@ class Transaction:
     def _next(self, reply: Optional[Packet], now: float) -> Action:
         """Hand ``reply`` to the flow: its next exchange, its result, or a retry."""
         self._waiter = None
+        self._held = b""
         flow = self._flow
         if isinstance(flow, _ReadOnce):  # the hot path: no generator, no StopIteration
             if reply is not None:
