@@ -602,8 +602,14 @@ static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
                                      done ? 0 : missing ? missing : LF_FAP_OVERHEAD);
         e->poll_id = 0;
     }
-    if (stage == 1 && fed && missing && !h->port_down) {
-        lf_ns rest = (lf_ns)missing * lf_char_time_ns(e->baud);
+    /* More than the last byte missing (nothing came: the whole frame):
+     * hold for all but the last at the baud's pace; the last one (or what
+     * a stage 2 did not bring) is waited for on the port, so the reply is
+     * not later than the wire. */
+    if (stage == 1 && !done && !missing && !fed)
+        missing = LF_FAP_OVERHEAD;
+    if (stage == 1 && missing > 1 && !h->port_down) {
+        lf_ns rest = (lf_ns)(missing - 1) * lf_char_time_ns(e->baud);
         e->hold_until = min_ns(now + rest, lf_fap_decoder_deadline(&h->dec));
         e->predicting = 2;
     }
