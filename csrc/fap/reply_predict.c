@@ -64,5 +64,5 @@ void lf_reply_predict_outcome(lf_reply_predict *p, unsigned id, size_t missing)
     }
     if (p->ta[id] == 0)
         p->paced = 0;               /* complete even at no turnaround: observe again */
-    p->ta[id] = p->ta[id] > step / 2 ? p->ta[id] - step / 2 : 0;
+    p->ta[id] = p->ta[id] > step ? p->ta[id] - step : 0;
 }
