@@ -13,13 +13,15 @@
  * Learning: an observed reply (the engine watched the port) gives an
  * upper bound of the turnaround (the engine's wake-up latency on top);
  * the estimate takes the smallest. A predicted read that finds the reply
- * complete lowers it by a quarter of a character time (the slave may be
- * faster than predicted: the master reacts late by the difference, so the
- * estimate keeps probing down), one that finds bytes missing raises it by
- * at most a character time (one late reply does not drag the estimate).
- * The estimate settles where about one predicted read in five finds the
- * last byte missing (that read costs one more wake-up). Every 64th poll
- * of a slave is observed again.
+ * complete lowers it by a step (the slave may be faster than predicted:
+ * the master reacts late by the difference, so the estimate keeps probing
+ * down), one that finds bytes missing raises it by the same step, however
+ * late the reply was (one late reply does not drag the estimate). The
+ * step is half a character time, or 1/16 of the estimate when that is
+ * more. So the estimate oscillates around the reply's usual end: about
+ * one predicted read in two finds the last byte missing, and the engine
+ * then waits for it on the port (never later than the wire). Every 64th
+ * poll of a slave is observed again.
  *
  * Only on a device (the kernel's tty, not a network transport) and only
  * once a reply was seen no sooner than the port's baud allows: an unpaced
