@@ -164,7 +164,7 @@ static void test_idle_master_wakes_about_once_per_poll(void)
     double per_poll = (double)(w1 - w0) / (double)(p1 - p0);
     fprintf(stderr, "master engine: %.2f wake-ups per poll cycle (%ld over %llu polls)\n",
             per_poll, w1 - w0, (unsigned long long)(p1 - p0));
-    CHECK(per_poll < 2.5);
+    CHECK(per_poll < 3.0);    /* 4.5-5 when it watches the port */
     fapx_close(m);
     fapx_close(s);
     fap_vbus_close(bus);
