@@ -569,6 +569,10 @@ static void plan_reply(engine *e, lf_ns sent_end)
     fapx *h = e->h;
     const lf_fap_master *m = &h->m;
     e->poll_id = 0;
+    if (e->predicting == 1) {         /* the awaited slave was removed: that hold is void */
+        e->hold_until = 0;
+        e->predicting = 0;
+    }
     if (h->mode != FAPX_MASTER || m->state != LF_M_POLL_WAIT || m->out.len || h->port_down)
         return;
     e->poll_id = m->cur;

@@ -51,11 +51,12 @@ void lf_reply_predict_outcome(lf_reply_predict *p, unsigned id, size_t missing)
 {
     if (!valid(p, id) || p->ta[id] < 0)
         return;
-    /* The step: half a character time, or a sixteenth of the estimate when
-     * that is more (at 1 Mbaud the turnaround is many character times).
-     * Down half a step, up a whole one: about one read in three finds the
-     * last byte missing. */
-    lf_ns step = p->ct / 2;
+    /* The step: an eighth of a character time (the master's lateness on a
+     * complete read is about the step: small), or 1/16 of the estimate
+     * when that is more (a turnaround of many character times, 1 Mbaud,
+     * or a slave that slowed down, is followed in tens of polls). Up and
+     * down alike: about one read in two finds the last byte missing. */
+    lf_ns step = p->ct / 8;
     if (p->ta[id] / 16 > step)
         step = p->ta[id] / 16;
     if (missing) {

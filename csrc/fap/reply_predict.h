@@ -17,7 +17,7 @@
  * the master reacts late by the difference, so the estimate keeps probing
  * down), one that finds bytes missing raises it by the same step, however
  * late the reply was (one late reply does not drag the estimate). The
- * step is half a character time, or 1/16 of the estimate when that is
+ * step is an eighth of a character time, or 1/16 of the estimate when
  * more. So the estimate oscillates around the reply's usual end: about
  * one predicted read in two finds the last byte missing, and the engine
  * then waits for it on the port (never later than the wire). Every 64th

@@ -49,12 +49,16 @@ static void test_learning_steps(void)
     CHECK_EQ(p.ta[1], 400000);
     lf_reply_predict_observed(&p, 1, 0, 300000 + WIRE);
     CHECK_EQ(p.ta[1], 300000);
-    /* complete: down a step (half a character time; 1/16 of 300 us is less) */
+    /* complete: down a step (1/16 of 300 us: more than an eighth of a character time) */
     lf_reply_predict_outcome(&p, 1, 0);
-    CHECK_EQ(p.ta[1], 300000 - CT / 2);
+    CHECK_EQ(p.ta[1], 300000 - 300000 / 16);
     /* missing bytes: up one step, however late the reply was */
     lf_reply_predict_outcome(&p, 1, LF_FAP_OVERHEAD);
-    CHECK_EQ(p.ta[1], 300000);
+    CHECK_EQ(p.ta[1], 281250 + 281250 / 16);
+    /* a small estimate moves by an eighth of a character time */
+    p.ta[1] = 100000;
+    lf_reply_predict_outcome(&p, 1, 1);
+    CHECK_EQ(p.ta[1], 100000 + CT / 8);
     /* a large estimate moves by 1/16 of itself */
     p.ta[1] = 3200000;
     lf_reply_predict_outcome(&p, 1, 0);
