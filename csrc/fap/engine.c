@@ -4,7 +4,9 @@
  * inter-byte gap, port reopen). It feeds received bytes to the decoder and
  * frames to the state machine, and transmits the state machine's outbox
  * through the port layer. While a frame is arriving it sleeps on the timer
- * for the frame's wire time instead of waking per byte (rx_pacing.h).
+ * for the frame's wire time instead of waking per byte (rx_pacing.h); a
+ * master that polled a slave sleeps until the DATA_DONE can be complete
+ * and reads it in one wake-up (reply_predict.h).
  * No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
 #include "fap/reply_predict.h"
