@@ -571,7 +571,9 @@ static void plan_reply(engine *e, lf_ns sent_end)
     fapx *h = e->h;
     const lf_fap_master *m = &h->m;
     e->poll_id = 0;
-    if (e->predicting == 1) {         /* the awaited slave was removed: that hold is void */
+    /* A frame went while a predicted hold was pending (the slave was
+     * removed, or its reply timed out with nothing held): that hold is void. */
+    if (e->predicting == 1 || (e->predicting == 2 && !lf_fap_decoder_missing(&h->dec))) {
         e->hold_until = 0;
         e->predicting = 0;
     }
