@@ -4,10 +4,14 @@
  * inter-byte gap, port reopen). It feeds received bytes to the decoder and
  * frames to the state machine, and transmits the state machine's outbox
  * through the port layer. While a frame is arriving it sleeps on the timer
- * for the frame's wire time instead of waking per byte (rx_pacing.h).
+ * for the frame's wire time instead of waking per byte (rx_pacing.h); a
+ * master that polled a slave sleeps until the DATA_DONE can be complete
+ * and reads it in one wake-up (reply_predict.h).
  * No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
+#include "fap/reply_predict.h"
 #include "common/mono_timerfd.h"
+#include "port/port_internal.h"   /* the backend: a device, or a network transport */
 #include "port/port_net.h"
 #include "port/rx_pacing.h"
 #include <errno.h>
@@ -234,10 +238,12 @@ static void refresh_port_counts(fapx *h)
 
 /* Transmit the outbox until the state machine stops producing frames, or
  * a stop is requested: a turn can be a second of frames, and a stop must
- * not wait for them (the frames left are counted in tx_abandoned). */
-static void drain_outbox(fapx *h)
+ * not wait for them (the frames left are counted in tx_abandoned).
+ * Returns when the last frame sent ended on the wire (0: none sent). */
+static lf_ns drain_outbox(fapx *h)
 {
     int wrote_data = 0;
+    lf_ns sent_end = 0;
     for (;;) {
         const lf_fap_outbox *o = h->mode == FAPX_MASTER ? &h->m.out : &h->s.out;
         if (o->len == 0)
@@ -294,6 +300,7 @@ static void drain_outbox(fapx *h)
             lf_fap_master_sent(&h->m, now);
         else
             lf_fap_slave_sent(&h->s, now);
+        sent_end = now;
         /* Per frame, not per burst: a peer may already hold this frame, and
          * a slave's turn can be a second of frames. */
         pthread_mutex_lock(&h->lock);
@@ -308,6 +315,7 @@ static void drain_outbox(fapx *h)
     }
     publish_locked(h);
     pthread_mutex_unlock(&h->lock);
+    return sent_end;
 }
 
 /* Apply the application's slave-list changes (a snapshot taken under the
@@ -376,6 +384,12 @@ typedef struct engine {
     lf_rx_pace pace;              /* the link's observed pace, per frame */
     int at_baud;                  /* the link was seen running at the port's baud */
     lf_ns held_to;                /* when the last hold was due to end (0: none) */
+    /* The awaited DATA_DONE (master; reply_predict.h) */
+    lf_reply_predict rp;
+    unsigned poll_id;             /* the slave polled (0: no reply to learn from) */
+    lf_ns poll_sent;              /* when its SEND_DATA ended on the wire */
+    uint64_t polls0;              /* m.c.polls then: a DATA_DONE came when it moves */
+    int predicting;               /* the hold is the predicted reply's (1) or its rest's (2) */
     uint8_t rbuf[4096];
 } engine;
 
@@ -409,6 +423,9 @@ static void engine_init(engine *e, fapx *h)
     e->h = h;
     e->reg_port = -1;
     e->baud = fap_port_baud(h->port);
+    /* a device at a known baud (a network transport paces nothing here) */
+    int device = h->port->be == &lf_port_posix_backend && lf_port_link_slack_ns(h->port) == 0;
+    lf_reply_predict_init(&e->rp, e->baud, device);
 }
 
 /* The application's requests (stop, queued data, slave list), under the
@@ -546,6 +563,66 @@ static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t 
     return observed;
 }
 
+/* A SEND_DATA went (sent_end: its end on the wire): sleep without the
+ * port until its DATA_DONE can be complete, if the link's pace allows a
+ * prediction (reply_predict.h); never past the reply timeout. */
+static void plan_reply(engine *e, lf_ns sent_end)
+{
+    fapx *h = e->h;
+    const lf_fap_master *m = &h->m;
+    e->poll_id = 0;
+    /* A frame went while a predicted hold was pending (the slave was
+     * removed, or its reply timed out with nothing held): that hold is void. */
+    if (e->predicting == 1 || (e->predicting == 2 && !lf_fap_decoder_missing(&h->dec))) {
+        e->hold_until = 0;
+        e->predicting = 0;
+    }
+    if (h->mode != FAPX_MASTER || m->state != LF_M_POLL_WAIT || m->out.len || h->port_down)
+        return;
+    e->poll_id = m->cur;
+    e->poll_sent = sent_end;
+    e->polls0 = m->c.polls;
+    if (e->hold_until || lf_fap_decoder_missing(&h->dec))
+        return;
+    lf_ns at = lf_reply_predict_when(&e->rp, m->cur, sent_end);
+    if (at) {
+        e->hold_until = min_ns(at, m->wait_deadline);
+        e->predicting = 1;
+    }
+}
+
+/* The read at the end of a predicted hold (stage 1) or of the hold for
+ * its rest (stage 2). Stage 1 tells the predictor how it went, and holds
+ * for the missing bytes at the baud's pace when some came (the slave was
+ * late, or sends DATA in its turn); anything else watches the port again
+ * (nothing came: the slave is late or gone; the state machine's timeout
+ * stays as it was). */
+static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
+{
+    fapx *h = e->h;
+    size_t missing = lf_fap_decoder_missing(&h->dec);
+    int done = h->m.c.polls != e->polls0;
+    if (stage == 1 && e->poll_id) {
+        /* a DATA frame in the slave's turn: longer than predicted by design */
+        int data_turn = !done && h->dec.n > 10 && h->dec.buf[10] == LF_FAP_DATA;
+        if (!data_turn)
+            lf_reply_predict_outcome(&e->rp, e->poll_id,
+                                     done ? 0 : missing ? missing : LF_FAP_OVERHEAD);
+        e->poll_id = 0;
+    }
+    /* More than the last byte missing (nothing came: the whole frame):
+     * hold for all but the last at the baud's pace; the last one (or what
+     * a stage 2 did not bring) is waited for on the port, so the reply is
+     * not later than the wire. */
+    if (stage == 1 && !done && !missing && !fed)
+        missing = LF_FAP_OVERHEAD;
+    if (stage == 1 && missing > 1 && !h->port_down) {
+        lf_ns rest = (lf_ns)(missing - 1) * lf_char_time_ns(e->baud);
+        e->hold_until = min_ns(now + rest, lf_fap_decoder_deadline(&h->dec));
+        e->predicting = 2;
+    }
+}
+
 /* Read what the port has and feed the decoder; then hold while the frame
  * is incomplete: sleep until all but its last byte can be in at the link's
  * observed pace (never past the gap deadline; port/rx_pacing.h). A hold
@@ -556,9 +633,11 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
     /* A hold ends at its time, or at any timer (state machine, gap): what
      * has arrived is fed before a timeout is judged. */
     int held = e->hold_until && (timer_ev || now >= e->hold_until);
+    int stage = held ? e->predicting : 0;
     if (held) {
         e->held_to = e->hold_until;
         e->hold_until = 0;
+        e->predicting = 0;
         port_ev |= EPOLLIN;
     }
     size_t fed = 0;
@@ -576,6 +655,14 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
             if (n < (ssize_t)sizeof e->rbuf)
                 break;
         }
+    }
+    if (stage) {
+        predicted_read(e, stage, fed, now);
+        return;
+    }
+    if (e->poll_id && h->mode == FAPX_MASTER && h->m.c.polls != e->polls0) {
+        lf_reply_predict_observed(&e->rp, e->poll_id, e->poll_sent, now);
+        e->poll_id = 0;
     }
     if (fed && !h->port_down) {
         lf_ns hold = pace_hold(e, frame_start, held, fed, lf_fap_decoder_missing(&h->dec), now);
@@ -629,7 +716,9 @@ void *lf_fapx_engine_main(void *arg)
     engine e;
     engine_init(&e, h);
     while (!take_requests(h, lf_now_ns())) {
-        drain_outbox(h);
+        lf_ns sent_end = drain_outbox(h);
+        if (sent_end)
+            plan_reply(&e, sent_end);
         watch_port(&e);
         uint32_t port_ev = 0;
         int timer_ev = wait_events(&e, next_deadline(&e), &port_ev);

@@ -1,0 +1,178 @@
+/* The master's predicted reply read (fap/reply_predict.h): the learning
+ * rules on their own (sans-I/O, exact), then a real master and slave on
+ * the paced virtual bus, counting the master engine thread's wake-ups per
+ * poll cycle (a count, not a time). */
+#include "bus_util.h"
+#include "fap/fapx_internal.h"
+#include "fap/reply_predict.h"
+#include <dirent.h>
+#include <pthread.h>
+#include <unistd.h>
+
+#define BAUD 115200
+#define CT ((lf_ns)(10LL * LF_NS_PER_S / BAUD))
+#define WIRE (LF_FAP_OVERHEAD * CT)
+
+static void test_no_prediction_before_a_paced_reply(void)
+{
+    lf_reply_predict p;
+    lf_reply_predict_init(&p, BAUD, 1);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 1000000), 0);      /* nothing learned */
+    /* a reply complete 50 us after our frame's end: faster than its own
+     * 15 bytes at the baud (an unpaced pty): still no prediction */
+    lf_reply_predict_observed(&p, 1, 1000000, 1000000 + 50000);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 2000000), 0);
+    /* at the baud, with a 200 us turnaround: sent_end + 200 us + wire */
+    lf_reply_predict_observed(&p, 1, 1000000, 1000000 + 200000 + WIRE);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 5000000), 5000000 + 200000 + WIRE);
+    CHECK_EQ(lf_reply_predict_when(&p, 2, 5000000), 0);      /* per slave */
+    CHECK_EQ(lf_reply_predict_when(&p, 0, 5000000), 0);
+    CHECK_EQ(lf_reply_predict_when(&p, 32, 5000000), 0);
+    /* a network transport, or an unknown baud: never */
+    lf_reply_predict_init(&p, BAUD, 0);
+    lf_reply_predict_observed(&p, 1, 1000000, 1000000 + 200000 + WIRE);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 5000000), 0);
+    lf_reply_predict_init(&p, 0, 1);
+    lf_reply_predict_observed(&p, 1, 1000000, 1000000 + 200000 + WIRE);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 5000000), 0);
+}
+
+static void test_learning_steps(void)
+{
+    lf_reply_predict p;
+    lf_reply_predict_init(&p, BAUD, 1);
+    lf_reply_predict_observed(&p, 1, 0, 400000 + WIRE);
+    CHECK_EQ(p.ta[1], 400000);
+    /* a later observation only lowers it (an observation includes the
+     * engine's wake-up latency: the smallest is the best bound) */
+    lf_reply_predict_observed(&p, 1, 0, 900000 + WIRE);
+    CHECK_EQ(p.ta[1], 400000);
+    lf_reply_predict_observed(&p, 1, 0, 300000 + WIRE);
+    CHECK_EQ(p.ta[1], 300000);
+    /* complete: down a step (1/16 of 300 us: more than an eighth of a character time) */
+    lf_reply_predict_outcome(&p, 1, 0);
+    CHECK_EQ(p.ta[1], 300000 - 300000 / 16);
+    /* missing bytes: up one step, however late the reply was */
+    lf_reply_predict_outcome(&p, 1, LF_FAP_OVERHEAD);
+    CHECK_EQ(p.ta[1], 281250 + 281250 / 16);
+    /* a small estimate moves by an eighth of a character time */
+    p.ta[1] = 100000;
+    lf_reply_predict_outcome(&p, 1, 1);
+    CHECK_EQ(p.ta[1], 100000 + CT / 8);
+    /* a large estimate moves by 1/16 of itself */
+    p.ta[1] = 3200000;
+    lf_reply_predict_outcome(&p, 1, 0);
+    CHECK_EQ(p.ta[1], 3000000);
+    /* complete at no turnaround at all: the link may be faster than the
+     * baud; observe again before predicting */
+    p.ta[1] = 0;
+    lf_reply_predict_outcome(&p, 1, 0);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 0), 0);
+    /* unknown slave: outcomes change nothing */
+    lf_reply_predict_outcome(&p, 2, 1);
+    CHECK_EQ(p.ta[2], -1);
+}
+
+static void test_every_64th_poll_observes(void)
+{
+    lf_reply_predict p;
+    lf_reply_predict_init(&p, BAUD, 1);
+    lf_reply_predict_observed(&p, 3, 0, 100000 + WIRE);
+    int observed = 0;
+    for (int i = 0; i < 3 * LF_REPLY_PREDICT_OBSERVE_EVERY; i++)
+        observed += lf_reply_predict_when(&p, 3, 1000000) == 0;
+    CHECK_EQ(observed, 3);
+}
+
+/* ---- a real master on the paced bus ---- */
+
+/* The master engine thread's voluntary context switches (its wake-ups). */
+static long thread_wakeups(const char *name)
+{
+    DIR *d = opendir("/proc/self/task");
+    if (!d)
+        return -1;
+    long out = -1;
+    struct dirent *de;
+    while ((de = readdir(d)) && out < 0) {
+        if (de->d_name[0] == '.')
+            continue;
+        char path[320], buf[4096];
+        snprintf(path, sizeof path, "/proc/self/task/%s/comm", de->d_name);
+        FILE *f = fopen(path, "r");
+        if (!f)
+            continue;
+        int match = fgets(buf, sizeof buf, f) && strncmp(buf, name, strlen(name)) == 0;
+        fclose(f);
+        if (!match)
+            continue;
+        snprintf(path, sizeof path, "/proc/self/task/%s/status", de->d_name);
+        if (!(f = fopen(path, "r")))
+            continue;
+        while (fgets(buf, sizeof buf, f))
+            if (sscanf(buf, "voluntary_ctxt_switches: %ld", &out) == 1)
+                break;
+        fclose(f);
+    }
+    closedir(d);
+    return out;
+}
+
+static uint64_t polls_of(fapx *h)
+{
+    fapx_stats st;
+    fapx_get_stats(h, &st);
+    return st.polls;
+}
+
+/* Wait until the master has made n more polls (10 s at most). */
+static int wait_polls(fapx *h, uint64_t n)
+{
+    uint64_t end = polls_of(h) + n;
+    for (int i = 0; i < 1000; i++) {
+        if (polls_of(h) >= end)
+            return 0;
+        fapx_event ev;
+        (void)fapx_event_wait(h, &ev, 10);   /* a timed wait: no busy loop */
+    }
+    return -ETIMEDOUT;
+}
+
+/* An idle poll cycle at 115200: SEND_DATA out, DATA_DONE in. Watching the
+ * port, the master wakes for the reply's first piece, the hold's end and
+ * the last byte (3.5-5 per cycle); reading at the predicted end, once,
+ * plus one when the estimate was early (a third of the reads) and the
+ * observations. */
+static void test_idle_master_wakes_about_once_per_poll(void)
+{
+    fap_vbus *bus = open_bus(2, BAUD);
+    REQUIRE(bus != NULL);
+    fapx *m = NULL, *s = NULL;
+    fapx_options o;
+    fast_options(&o, FAPX_SLAVE, 1);
+    o.port.baud = BAUD;
+    REQUIRE(fapx_open(&s, fap_vbus_port_path(bus, 1), &o) == 0);
+    fast_options(&o, FAPX_MASTER, 0);
+    o.port.baud = BAUD;
+    REQUIRE(fapx_open(&m, fap_vbus_port_path(bus, 0), &o) == 0);
+    REQUIRE(pthread_setname_np(m->thread, "fap-test-master") == 0);
+    CHECK_EQ(fapx_add_slave(m, 1), 0);
+    CHECK_EQ(wait_event(m, FAPX_EV_SLAVE_ACTIVE, 1, 5000, NULL), 0);
+    CHECK_EQ(wait_polls(m, 100), 0);          /* learn the turnaround */
+    uint64_t p0 = polls_of(m);
+    long w0 = thread_wakeups("fap-test-master");
+    CHECK_EQ(wait_polls(m, 400), 0);
+    long w1 = thread_wakeups("fap-test-master");
+    uint64_t p1 = polls_of(m);
+    REQUIRE(w0 >= 0 && w1 >= w0 && p1 > p0);
+    double per_poll = (double)(w1 - w0) / (double)(p1 - p0);
+    fprintf(stderr, "master engine: %.2f wake-ups per poll cycle (%ld over %llu polls)\n",
+            per_poll, w1 - w0, (unsigned long long)(p1 - p0));
+    CHECK(per_poll < 3.0);    /* 4.5-5 when it watches the port */
+    fapx_close(m);
+    fapx_close(s);
+    fap_vbus_close(bus);
+}
+
+UNIT_MAIN(UNIT(test_no_prediction_before_a_paced_reply), UNIT(test_learning_steps),
+          UNIT(test_every_64th_poll_observes), UNIT(test_idle_master_wakes_about_once_per_poll))
