@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import signal
 import statistics
 import subprocess
@@ -36,6 +35,7 @@ if __name__ == "__main__" and len(sys.argv) > 1 and sys.argv[1] == "_node":
 else:
     sys.path.insert(0, str(ROOT))
     from bench.__main__ import pct, turnarounds  # one capture reader (strips ROOT again)
+    from bench import rt_trace
     from bench.targets import Target
 
 BAUD = 115200
@@ -80,21 +80,46 @@ def _stop(p: "subprocess.Popen[str]") -> None:
         p.wait()
 
 
-def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path) -> Dict[str, Any]:
-    """One run: bus (+capture), slave, master, ``hogs`` busy loops; turnarounds."""
-    from fap_py.vbus import VirtualBus
+def threads(pid: int) -> List[Dict[str, Any]]:
+    """Every thread of ``pid``: tid, name, policy (0 other, 1 fifo, 2 rr)
+    and real-time priority, from /proc (what the option really gave)."""
+    out = []
+    for task in sorted(Path(f"/proc/{pid}/task").iterdir(), key=lambda p: int(p.name)):
+        try:
+            stat = (task / "stat").read_text()
+            comm = (task / "comm").read_text().strip()
+        except OSError:
+            continue   # the thread ended
+        f = stat.rsplit(")", 1)[1].split()
+        out.append({"tid": int(task.name), "comm": comm, "policy": int(f[38]),
+                    "rt_priority": int(f[37])})
+    return out
+
+
+def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
+              probe: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+    """One run: bus (+capture), slave, master, ``hogs`` busy loops; turnarounds.
+    With ``probe`` (a dict), fills it with the threads of the bus, slave and
+    master processes, the capture's records and the CLOCK_MONOTONIC window
+    (µs) holding the capture's time 0."""
+    from fap_py.vbus import VirtualBus, read_capture
 
     cap = tmp / f"rt-{int(realtime)}-{hogs}-{time.monotonic_ns()}.cap"
     hog_procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
                  for _ in range(hogs)]
     try:
+        t_lo = time.monotonic_ns() / 1e3
         with VirtualBus(ports=2, baud=BAUD, seed=1, capture=str(cap),
                         realtime=BUS_RT if realtime else None) as bus:
+            t_hi = time.monotonic_ns() / 1e3
             spec = NODE_RT if realtime else ""
             slave = _spawn(["slave", bus.paths[1], spec])
             try:
                 master = _spawn(["master", bus.paths[0], spec])
                 time.sleep(seconds)   # the measured window: the engines poll on their own
+                if probe is not None:
+                    probe.update(t0_window=(t_lo, t_hi), bus=threads(os.getpid()),
+                                 slave=threads(slave.pid), master=threads(master.pid))
                 _stop(master)
             finally:
                 _stop(slave)
@@ -103,6 +128,8 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path) -> Dict[str,
             h.kill()
             h.wait()
     ta = turnarounds(cap, BAUD)
+    if probe is not None:
+        probe["records"] = [(r.t_us, r.port, len(r.data)) for r in read_capture(str(cap)).records]
     cap.unlink(missing_ok=True)
     if not ta:
         raise RuntimeError("no poll cycle on the bus capture")
@@ -110,54 +137,68 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path) -> Dict[str,
 
 
 def _perf_start(path: Path) -> "Optional[subprocess.Popen[bytes]]":
-    """``perf record`` of the kernel's workqueue events, system-wide (None
-    without perf or the permission)."""
+    """``perf record`` of the scheduler and workqueue events the attribution
+    needs (bench/rt_trace.py), system-wide on CLOCK_MONOTONIC (None without
+    perf or the permission)."""
+    args = ["perf", "record", "-q", "-a", "-k", "mono", "-o", str(path)]
+    for ev in rt_trace.EVENTS:
+        args += ["-e", ev]
     try:
-        p = subprocess.Popen(["perf", "record", "-q", "-a", "-o", str(path),
-                              "-e", "workqueue:workqueue_queue_work",
-                              "-e", "workqueue:workqueue_execute_start"],
-                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:
         return None
     time.sleep(0.5)   # perf sets up its buffers before the round starts
     return p if p.poll() is None else None
 
 
-def _perf_stop(p: "subprocess.Popen[bytes]", path: Path) -> Optional[Dict[str, float]]:
-    """Queue-to-start latency (µs) of the kernel's pty delivery work
-    (``flush_to_ldisc`` on a normal-priority kworker) from the recording."""
-    p.send_signal(signal.SIGINT)
-    p.wait(30)
-    script = subprocess.run(["perf", "script", "-i", str(path)], capture_output=True,
-                            text=True).stdout
-    queued: Dict[str, float] = {}
-    lat: List[float] = []
-    for m in re.finditer(r"\s(\d+\.\d+):\s+workqueue:(\w+):\s+work struct[= ]\s*(0x[0-9a-f]+)"
-                         r"[^\n]*flush_to_ldisc", script):
-        t, ev, work = float(m.group(1)), m.group(2), m.group(3)
-        if ev == "workqueue_queue_work":
-            queued.setdefault(work, t)
-        elif work in queued:
-            lat.append((t - queued.pop(work)) * 1e6)
-    if not lat:
-        return None
-    return {"n": len(lat), "p50": pct(lat, .5), "p99": pct(lat, .99), "p999": pct(lat, .999),
-            "max": max(lat)}
+def _rt_tid(ths: List[Dict[str, Any]], name: Optional[str] = None) -> Optional[int]:
+    """The real-time thread of a process (by name when given)."""
+    for t in ths:
+        if t["policy"] in (1, 2) and (name is None or t["comm"] == name):
+            return int(t["tid"])
+    return None
+
+
+def _policies(probe: Dict[str, Any]) -> Dict[str, List[str]]:
+    """Per process, ``name:policy/prio`` of each thread (the policy check)."""
+    pol = {0: "other", 1: "fifo", 2: "rr", 3: "batch", 5: "idle"}
+    return {k: [f"{t['comm']}:{pol.get(t['policy'], t['policy'])}/{t['rt_priority']}"
+                for t in probe.get(k, [])] for k in ("bus", "slave", "master")}
 
 
 def profile_round(seconds: float, tmp: Path) -> Optional[Dict[str, Any]]:
-    """One hogs + real-time round under ``perf record``: how late the kernel
-    ran the pty delivery work the option does not reach."""
-    data = tmp / "rt-wq.perf"
+    """One hogs + real-time round under ``perf record``: each turnaround cut
+    into the steps of its path (bench/rt_trace.py), and the policy of every
+    thread of the three processes."""
+    data = tmp / "rt-sched.perf"
     perf = _perf_start(data)
     if perf is None:
         return None
+    probe: Dict[str, Any] = {}
     try:
-        turn = one_round(True, 2, seconds, tmp)
+        turn = one_round(True, 2, seconds, tmp, probe)
     finally:
-        kw = _perf_stop(perf, data)
+        perf.send_signal(signal.SIGINT)
+        perf.wait(60)
+    try:
+        relay, slave = _rt_tid(probe.get("bus", []), "fap-vbus"), _rt_tid(probe.get("slave", []))
+        if relay is None or slave is None:
+            return {"turnaround": turn, "threads": _policies(probe),
+                    "error": "no real-time relay or slave engine thread"}
+        script = subprocess.Popen(["perf", "script", "-i", str(data), "-F", rt_trace.FIELDS],
+                                  stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        assert script.stdout is not None
+        tr = rt_trace.parse(script.stdout, [relay, slave])
+        script.wait()
+    finally:
         data.unlink(missing_ok=True)
-    return {"turnaround": turn, "flush_to_ldisc_us": kw}
+    tx = rt_trace.bursts(probe["records"], BAUD)
+    lo, hi = probe["t0_window"]
+    pairs = rt_trace.pairs(tx)
+    off = rt_trace.align(tr, slave, relay, [b for _, b in pairs], lo, hi)
+    rows = rt_trace.attribute(tr, relay, slave, pairs, off) if off is not None else []
+    return {"turnaround": turn, "threads": _policies(probe),
+            "steps": rt_trace.summary(rows, len(pairs)), "aligned": off is not None}
 
 
 CONDITIONS = [("quiet", 0, False), ("quiet+rt", 0, True), ("hogs", 2, False),
