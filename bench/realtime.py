@@ -34,8 +34,8 @@ if __name__ == "__main__" and len(sys.argv) > 1 and sys.argv[1] == "_node":
     sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() not in (ROOT, ROOT / "bench")]
 else:
     sys.path.insert(0, str(ROOT))
-    from bench.__main__ import pct, turnarounds  # one capture reader (strips ROOT again)
     from bench import rt_trace
+    from bench.__main__ import pct, turnarounds  # one capture reader (strips ROOT again)
     from bench.targets import Target
 
 BAUD = 115200
@@ -96,8 +96,13 @@ def threads(pid: int) -> List[Dict[str, Any]]:
     return out
 
 
+HOG = "while True: pass"
+#: the same hog at SCHED_IDLE: what a user can do with their own batch work
+IDLE_HOG = "import os; os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))\n" + HOG
+
+
 def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
-              probe: Optional[Dict[str, Any]] = None) -> Dict[str, Any]:
+              probe: Optional[Dict[str, Any]] = None, hog: str = HOG) -> Dict[str, Any]:
     """One run: bus (+capture), slave, master, ``hogs`` busy loops; turnarounds.
     With ``probe`` (a dict), fills it with the threads of the bus, slave and
     master processes, the capture's records and the CLOCK_MONOTONIC window
@@ -105,7 +110,7 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
     from fap_py.vbus import VirtualBus, read_capture
 
     cap = tmp / f"rt-{int(realtime)}-{hogs}-{time.monotonic_ns()}.cap"
-    hog_procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    hog_procs = [subprocess.Popen([sys.executable, "-c", hog])
                  for _ in range(hogs)]
     try:
         t_lo = time.monotonic_ns() / 1e3
@@ -203,26 +208,57 @@ def profile_round(seconds: float, tmp: Path) -> Optional[Dict[str, Any]]:
 
 CONDITIONS = [("quiet", 0, False), ("quiet+rt", 0, True), ("hogs", 2, False),
               ("hogs+rt", 2, True)]
+#: with ``idle_hogs``: the hogs at SCHED_IDLE (a waking kworker preempts them)
+IDLE_CONDITION = ("idle-hogs+rt", 2, True)
 
 
-def measure(rounds: int = 3, seconds: float = 5.0, profile: bool = True) -> Dict[str, Any]:
+def measure(rounds: int = 3, seconds: float = 5.0, profile: bool = True,
+            idle_hogs: bool = False) -> Dict[str, Any]:
     """Every condition ``rounds`` times, interleaved (load drifts hit all
     four alike); per condition the medians of the rounds' p50/p99; with
-    ``profile``, one more hogs + real-time round under perf (the kernel's
-    pty work latency)."""
+    ``profile``, one more hogs + real-time round under perf (where each
+    turnaround's time went, :func:`profile_round`); with ``idle_hogs`` a fifth condition, the hogs at
+    SCHED_IDLE."""
     out: Dict[str, Any] = {"baud": BAUD, "rounds": rounds, "seconds": seconds,
                            "node_rt": NODE_RT, "bus_rt": BUS_RT,
                            "loadavg_before": os.getloadavg(), "runs": {}}
     with tempfile.TemporaryDirectory(prefix="bench-rt-") as d:
+        conds = CONDITIONS + ([IDLE_CONDITION] if idle_hogs else [])
         for _ in range(rounds):
-            for name, hogs, rt in CONDITIONS:
-                out["runs"].setdefault(name, []).append(one_round(rt, hogs, seconds, Path(d)))
+            for name, hogs, rt in conds:
+                out["runs"].setdefault(name, []).append(one_round(
+                    rt, hogs, seconds, Path(d), hog=IDLE_HOG if name == IDLE_CONDITION[0] else HOG))
         out["profile"] = profile_round(seconds, Path(d)) if profile else None
     out["loadavg_after"] = os.getloadavg()
     out["summary"] = {
         name: {k: statistics.median(r[k] for r in runs) for k in ("p50", "p99", "max", "n")}
         for name, runs in out["runs"].items()}
     return out
+
+
+def profile_note(prof: Optional[Dict[str, Any]]) -> str:
+    """The profile round in one clause: the step the tail (turnarounds at or
+    above the round's p99) spends most in, with each step's share, and any
+    thread of the path that did not get the asked policy."""
+    if not prof:
+        return ""
+    st = prof.get("steps") or {}
+    if not st.get("attributed"):
+        return f"; profile: not attributed ({prof.get('error', 'trace not aligned')})"
+    steps = st["steps"]
+    top = st["top_step"]
+    parts = ", ".join(f"{k} {v['tail_median']:.0f}" for k, v in steps.items())
+    note = (f"; profile (one hogs+rt round, {st['attributed']}/{st['turnarounds']} turnarounds "
+            f"traced, p99 {st['p99']:.0f} µs): the {st['tail_n']} tail turnarounds "
+            f"(median {st['tail_turnaround_median']:.0f} µs) spend most in '{top}' (medians µs: "
+            f"{parts}); the kernel's pty work (flush_to_ldisc, SCHED_OTHER kworker) waiting for "
+            f"a CPU is {st['kworker_wait_share_of_tail'] * 100:.0f} % of a tail turnaround; "
+            f"{top} p50/p99 {steps[top]['p50']:.0f}/{steps[top]['p99']:.0f} µs over all")
+    th = prof.get("threads") or {}
+    rt_ok = {k: any(":fifo/" in t for t in v) for k, v in th.items()}
+    if th and not all(rt_ok.values()):
+        note += "; NOT real-time: " + ", ".join(k for k, ok in rt_ok.items() if not ok)
+    return note
 
 
 def targets(res: Optional[Dict[str, Any]] = None, rounds: int = 3,
@@ -239,11 +275,7 @@ def targets(res: Optional[Dict[str, Any]] = None, rounds: int = 3,
     note = (f"medians of {res['rounds']}x{res['seconds']:g} s; nodes {res['node_rt']}, bus "
             f"{res['bus_rt']}; {side}; load avg {la[0]:.2f} before, "
             f"{res['loadavg_after'][0]:.2f} after (2 cores)")
-    kw = (res.get("profile") or {}).get("flush_to_ldisc_us")
-    if kw:   # the floor the option cannot move: the kernel's pty delivery work
-        note += (f"; profile: the kernel's pty delivery (flush_to_ldisc, SCHED_OTHER kworker) "
-                 f"started p50/p99/p99.9 {kw['p50']:.0f}/{kw['p99']:.0f}/{kw['p999']:.0f} µs "
-                 f"after it was queued, {kw['n']} work items")
+    note += profile_note(res.get("profile"))
     return [Target("rt-fap-p99-hogs-115200",
                    "FAP p99 turnaround <= 1 ms at 115200, real-time option, two CPU hogs",
                    s["hogs+rt"]["p99"], LIMIT_US, False, "µs", note)]
@@ -255,15 +287,16 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--json", action="store_true", help="print the raw results as JSON")
     ap.add_argument("--no-profile", action="store_true",
-                    help="skip the perf round (kernel pty work latency)")
+                    help="skip the perf round (each turnaround cut into the steps of its path)")
+    ap.add_argument("--idle-hogs", action="store_true",
+                    help="also run the hogs at SCHED_IDLE, with the option")
     a = ap.parse_args(argv)
-    res = measure(a.rounds, a.seconds, not a.no_profile)
+    res = measure(a.rounds, a.seconds, not a.no_profile, a.idle_hogs)
     if a.json:
         print(json.dumps(res, indent=1))
     print("| condition | p50 µs | p99 µs | max µs | turnarounds/round |")
     print("|---|---|---|---|---|")
-    for name, _, _ in CONDITIONS:
-        r = res["summary"][name]
+    for name, r in res["summary"].items():
         print(f"| {name} | {r['p50']:.0f} | {r['p99']:.0f} | {r['max']:.0f} | {r['n']:.0f} |")
     from bench.targets import table
     print()
