@@ -106,7 +106,9 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
     """One run: bus (+capture), slave, master, ``hogs`` busy loops; turnarounds.
     With ``probe`` (a dict), fills it with the threads of the bus, slave and
     master processes, the capture's records and the CLOCK_MONOTONIC window
-    (µs) holding the capture's time 0."""
+    (µs) holding the capture's time 0 (and, at the window's end, the threads
+    again as ``policies``), then calls ``probe["on_ready"](probe)``
+    if there is one, before the measured window."""
     from fap_py.vbus import VirtualBus, read_capture
 
     cap = tmp / f"rt-{int(realtime)}-{hogs}-{time.monotonic_ns()}.cap"
@@ -121,10 +123,16 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
             slave = _spawn(["slave", bus.paths[1], spec])
             try:
                 master = _spawn(["master", bus.paths[0], spec])
-                time.sleep(seconds)   # the measured window: the engines poll on their own
                 if probe is not None:
                     probe.update(t0_window=(t_lo, t_hi), bus=threads(os.getpid()),
                                  slave=threads(slave.pid), master=threads(master.pid))
+                    if "on_ready" in probe:
+                        probe["on_ready"](probe)
+                time.sleep(seconds)   # the measured window: the engines poll on their own
+                if probe is not None:   # the policies as they were in the window
+                    probe.update(policies={"bus": threads(os.getpid()),
+                                           "slave": threads(slave.pid),
+                                           "master": threads(master.pid)})
                 _stop(master)
             finally:
                 _stop(slave)
@@ -141,18 +149,22 @@ def one_round(realtime: bool, hogs: int, seconds: float, tmp: Path,
     return {"n": len(ta), "p50": pct(ta, .5), "p99": pct(ta, .99), "max": max(ta)}
 
 
-def _perf_start(path: Path) -> "Optional[subprocess.Popen[bytes]]":
-    """``perf record`` of the scheduler and workqueue events the attribution
-    needs (bench/rt_trace.py), system-wide on CLOCK_MONOTONIC (None without
-    perf or the permission)."""
+def _perf_start(path: Path, relay: int, slave: int) -> "Optional[subprocess.Popen[bytes]]":
+    """``perf record`` of the events the attribution needs (bench/rt_trace.py)
+    on CLOCK_MONOTONIC: every CPU's pty work items, the scheduler events of
+    the relay and the slave engine only (a system-wide scheduler trace made
+    perf itself a CPU hog and the round's tail worse). None without perf or
+    the permission."""
+    filters = {"sched:sched_wakeup": f"pid == {relay} || pid == {slave}",
+               "sched:sched_switch": f"next_pid == {relay}"}
     args = ["perf", "record", "-q", "-a", "-k", "mono", "-o", str(path)]
     for ev in rt_trace.EVENTS:
-        args += ["-e", ev]
+        args += ["-e", ev] + (["--filter", filters[ev]] if ev in filters else [])
     try:
         p = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     except OSError:
         return None
-    time.sleep(0.5)   # perf sets up its buffers before the round starts
+    time.sleep(0.5)   # perf sets up its buffers before the window starts
     return p if p.poll() is None else None
 
 
@@ -167,8 +179,9 @@ def _rt_tid(ths: List[Dict[str, Any]], name: Optional[str] = None) -> Optional[i
 def _policies(probe: Dict[str, Any]) -> Dict[str, List[str]]:
     """Per process, ``name:policy/prio`` of each thread (the policy check)."""
     pol = {0: "other", 1: "fifo", 2: "rr", 3: "batch", 5: "idle"}
+    seen = probe.get("policies", {})
     return {k: [f"{t['comm']}:{pol.get(t['policy'], t['policy'])}/{t['rt_priority']}"
-                for t in probe.get(k, [])] for k in ("bus", "slave", "master")}
+                for t in seen.get(k, [])] for k in ("bus", "slave", "master")}
 
 
 def profile_round(seconds: float, tmp: Path) -> Optional[Dict[str, Any]]:
@@ -176,20 +189,27 @@ def profile_round(seconds: float, tmp: Path) -> Optional[Dict[str, Any]]:
     into the steps of its path (bench/rt_trace.py), and the policy of every
     thread of the three processes."""
     data = tmp / "rt-sched.perf"
-    perf = _perf_start(data)
-    if perf is None:
-        return None
-    probe: Dict[str, Any] = {}
+    perfs: List["subprocess.Popen[bytes]"] = []
+
+    def start(probe: Dict[str, Any]) -> None:
+        relay, slave = _rt_tid(probe["bus"], "fap-vbus"), _rt_tid(probe["slave"])
+        p = _perf_start(data, relay, slave) if relay and slave else None
+        perfs.extend([p] if p else [])
+
+    probe: Dict[str, Any] = {"on_ready": start}
     try:
         turn = one_round(True, 2, seconds, tmp, probe)
     finally:
-        perf.send_signal(signal.SIGINT)
-        perf.wait(60)
+        for p in perfs:
+            p.send_signal(signal.SIGINT)
+            p.wait(60)
+    relay, slave = _rt_tid(probe.get("bus", []), "fap-vbus"), _rt_tid(probe.get("slave", []))
+    if not perfs:
+        return None if relay and slave else {
+            "turnaround": turn, "threads": _policies(probe),
+            "error": "no real-time relay or slave engine thread"}
     try:
-        relay, slave = _rt_tid(probe.get("bus", []), "fap-vbus"), _rt_tid(probe.get("slave", []))
-        if relay is None or slave is None:
-            return {"turnaround": turn, "threads": _policies(probe),
-                    "error": "no real-time relay or slave engine thread"}
+        assert relay is not None and slave is not None
         script = subprocess.Popen(["perf", "script", "-i", str(data), "-F", rt_trace.FIELDS],
                                   stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         assert script.stdout is not None
