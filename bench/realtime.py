@@ -7,9 +7,11 @@ without and with the real-time option (nodes ``fifo:50,mlock``, the bus
 relay ``fifo:60``). The turnaround (end of the master's request to the start
 of the slave's answer) comes from the bus capture, as in ``python -m bench``;
 medians over ``rounds`` rounds of each round's p50/p99, the load average
-recorded before and after.
+recorded before and after. One more hogs + real-time round runs under perf
+and each of its turnarounds is cut into the steps of its path
+(bench/rt_trace.py); the verdict's note names the step the tail is in.
 
-    python bench/realtime.py [--rounds 3] [--seconds 5] [--json] [--no-profile]
+    python bench/realtime.py [--rounds 3] [--seconds 5] [--json] [--no-profile] [--idle-hogs]
 
 ``targets(...)`` returns the issue's ``Target`` row (p99 <= 1 ms with the
 option and the hogs) and the three other conditions as notes.
