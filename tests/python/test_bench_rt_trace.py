@@ -110,3 +110,32 @@ def test_profile_note_names_the_step_and_a_thread_left_normal() -> None:
     assert "NOT real-time: slave" in note
     assert realtime.profile_note(None) == ""
     assert "not attributed" in realtime.profile_note({"steps": {"attributed": 0}})
+
+
+def test_threads_reads_each_threads_policy() -> None:
+    import os
+    import threading
+
+    from bench import realtime
+
+    ready, done = threading.Event(), threading.Event()
+    tid: List[int] = []
+
+    def idle() -> None:   # SCHED_IDLE needs no privilege
+        os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))
+        tid.append(threading.get_native_id())
+        ready.set()
+        done.wait(10)
+
+    t = threading.Thread(target=idle)
+    t.start()
+    try:
+        assert ready.wait(10)
+        by = {r["tid"]: r for r in realtime.threads(os.getpid())}
+        assert by[tid[0]]["policy"] == os.SCHED_IDLE
+        assert by[os.getpid()]["policy"] == os.SCHED_OTHER
+        probe = {"policies": {"bus": [by[tid[0]]]}}
+        assert realtime._policies(probe)["bus"][0].endswith(":idle/0")
+    finally:
+        done.set()
+        t.join()
