@@ -220,7 +220,7 @@ def _pct(v: List[float], q: float) -> float:
     return s[min(len(s) - 1, int(q * len(s)))]
 
 
-def summary(rows: List[Dict[str, float]], n_all: int) -> Dict[str, object]:
+def summary(rows: List[Dict[str, float]], n_all: int) -> Dict[str, Any]:
     """p50/p99 of each step over all attributed turnarounds, and each step's
     median share of the turnarounds at or above their p99 (the tail)."""
     if not rows:

@@ -74,7 +74,7 @@ def test_steps_add_up_to_the_turnaround_and_name_the_slow_hop() -> None:
     pairs = rt_trace.pairs(rt_trace.bursts(recs, BAUD))
     assert [round(b - a, 3) for a, b in pairs] == [round(t, 3) for t in tas]
     off = rt_trace.align(tr, SLAVE, RELAY, [b for _, b in pairs], T0 - 3000.0, T0 + 3000.0)
-    assert off == pytest.approx(T0, abs=1.0)
+    assert off is not None and off == pytest.approx(T0, abs=1.0)
     rows = rt_trace.attribute(tr, RELAY, SLAVE, pairs, off)
     assert len(rows) == len(waits)
     for r, w in zip(rows, waits):
