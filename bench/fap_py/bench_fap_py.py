@@ -28,7 +28,7 @@ the numbers show the software alone.
 ``polls/msg`` is the master's SEND_DATA turns per message over the window:
 on the unpaced bus the master polls back to back, so a round trip that
 waits for a slow (or descheduled) application thread spans more turns, and
-every turn costs both engines wake-ups and CPU (bench/README.md, "fap_py
+every turn costs both engines wake-ups and CPU (bench/PERFORMANCE.md, "fap_py
 per message").
 """
 from __future__ import annotations
@@ -239,7 +239,7 @@ PAIR_APIS = ("c", "py", "aio")
 #: Pairs and round trips per run of the target's measurement: many short pairs
 #: (~0.1 s a run) keep both sides of a pair inside one load regime; on this
 #: 2-core box at load 4-8, 25 x 300 gave medians within +-0.04 run to run where
-#: 11 x 1000 moved by +-0.25 (bench/README-pyfap.md).
+#: 11 x 1000 moved by +-0.25 (bench/PERFORMANCE.md).
 PAIRS, PAIR_COUNT = 25, 300
 
 
@@ -257,7 +257,7 @@ def paired(exe: Path, paths: List[str], pairs: int = PAIRS, count: int = PAIR_CO
     trips each, back to back on the same bus, their order rotated from pair to pair
     (so neither side always runs first after a pause); a load swing between pairs
     moves both sides of a pair alike, so the median of the per-pair ratios holds
-    where the rates of whole runs swing (bench/README-pyfap.md). Each run also
+    where the rates of whole runs swing (bench/PERFORMANCE.md). Each run also
     reports the master's poll turns per round trip, the unit the unpaced bus
     quantises a round trip in.
     """
