@@ -291,7 +291,7 @@ def frame_start(chunk: bytes) -> bool:
     is never held: the Parser looks ahead there.
     """
     if type(chunk) is not bytes:
-        return False
+        chunk = _raw(chunk, "chunk")
     n = len(chunk)
     if n < 3:
         return n > 0 and START.startswith(chunk)

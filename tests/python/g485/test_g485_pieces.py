@@ -8,7 +8,10 @@ import select
 import time
 from typing import Callable, List
 
+import pytest
+
 from fap_py.g485 import Discarded, ParseIssue, Parser, SimDevice, Simulator, codec
+from fap_py.g485.errors import G485ValueError
 from fap_py.g485.transaction import Done, Session, Wait
 
 DEADLINE = 5.0
@@ -40,7 +43,10 @@ def test_frame_start_holds_only_what_the_parser_holds_silently(vectors) -> None:
             assert p.feed(chunk) == [] and p.buffered == len(chunk), chunk.hex(" ")
             assert codec.exact_packet(chunk) is None
     assert held > len(vectors)  # every frame's first pieces were held
-    assert not codec.frame_start(bytearray(b"\xff\xff"))  # bytes only: the caller joins bytes
+    assert codec.frame_start(bytearray(b"\xff\xff")) == codec.frame_start(b"\xff\xff")  # bytes-like
+    for bad in (None, 300, "ffff"):   # anything else is named, like every codec call
+        with pytest.raises(G485ValueError):
+            codec.frame_start(bad)
 
 
 def test_reply_in_pieces_is_the_same_however_it_is_cut() -> None:
