@@ -95,6 +95,18 @@ ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
 ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
                                 int64_t deadline_ns, int *at_baud);
 
+/* lf_port_read_frame_kept for a reply whose expected length (want) and
+ * earliest completion are known (the exec master: the last reply's length
+ * from that node, after the request's end): with *at_baud set and
+ * not_before ahead, one sleep until not_before (never past deadline_ns),
+ * one read; the rest, if any, held at the baud's pace (bounded by its wire
+ * time); nothing yet, or *at_baud clear: lf_port_read_frame_kept. A reply
+ * found complete by a wake-up within a character time of not_before
+ * clears *at_baud (at the baud it could not be: the link is faster). A
+ * stop during the sleep waits at most until not_before. Same returns. */
+ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
+                           int64_t deadline_ns, int *at_baud);
+
 /* fap_port_read whose deadline holds to the nanosecond, for short waits
  * that are part of the wire timing (the exec slave watching the line
  * through its turnaround delay): the port's poll counts whole
