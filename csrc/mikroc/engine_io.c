@@ -77,9 +77,11 @@ static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_
 {
     /* the caller's thread does the I/O: the real-time option applies to it */
     ssize_t n = fap_port_rt_enter(c->port);
-    /* want > 1: the frame's wire time in one sleep, not a wake-up per byte */
+    /* want > 1: the frame's wire time in one sleep, not a wake-up per byte,
+     * at the pace the last frame showed (the port keeps it) */
     if (n == 0)
-        n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
+        n = want > 1 ? lf_port_read_frame_kept(c->port, c->rx, max, want, deadline_ns,
+                                               lf_port_rx_at_baud(c->port))
                      : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;
@@ -143,7 +145,7 @@ int mikrocRS485_CtxPoll(mikrocRS485_ctx *c, char *data_buffer, int timeout_ms)
         /* a bus that never goes quiet must not hold us past the deadline */
         if (deadline != 0 && deadline != INT64_MAX && fap_port_now_ns() >= deadline)
             return 0;
-        int n = refill(c, sizeof c->rx, lf_mikroc_missing(&c->dec), deadline);
+        int n = refill(c, sizeof c->rx, lf_mikroc_expect(&c->dec), deadline);
         if (n <= 0)
             return n;                /* 0: deadline passed */
     }

@@ -71,6 +71,7 @@ struct fap_port {
     int intr_fd;                  /* the port's own cancel fd (an eventfd,
                                      lf_port_open_interruptible), else -1 */
     int interrupted;              /* atomic: lf_port_interrupt was called */
+    int rx_at_baud;               /* rx_pacing.c: frames came at the baud's pace */
 };
 
 /* port_config.c */

@@ -135,6 +135,11 @@ ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
     return read_paced(p, buf, n, want, deadline_ns, 1, at_baud);
 }
 
+int *lf_port_rx_at_baud(fap_port *p)
+{
+    return p ? &p->rx_at_baud : NULL;
+}
+
 ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
                            int64_t deadline_ns, int *at_baud)
 {
@@ -151,6 +156,8 @@ ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_
         ssize_t r = fap_port_read(p, buf, n, 0);
         if (r < 0)
             return r;
+        if (until == deadline_ns)
+            return r;           /* the deadline came first: what is in */
         if (r > 0 && (size_t)r >= want) {
             if (lf_now_ns() - until <= ct)
                 *at_baud = 0;   /* complete at an on-time wake: the link is faster */

@@ -95,6 +95,10 @@ ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
 ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
                                 int64_t deadline_ns, int *at_baud);
 
+/* The port's own at_baud flag for lf_port_read_frame_kept, for engines
+ * whose state has no room for one (the mikroC context). Its reader's. */
+int *lf_port_rx_at_baud(fap_port *p);
+
 /* lf_port_read_frame_kept for a reply whose expected length (want) and
  * earliest completion are known (the exec master: the last reply's length
  * from that node, after the request's end): with *at_baud set and
