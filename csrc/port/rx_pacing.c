@@ -149,7 +149,9 @@ ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_
         want = n;
     lf_ns ct = lf_char_time_ns(fap_port_baud(p));
     lf_ns now = lf_now_ns();
-    if (*at_baud && ct > 0 && not_before > now && deadline_ns > now) {
+    /* a reply shorter than a hold is worth (lf_rx_hold_ct_ns: a short frame
+     * at 1 Mbaud) comes in a piece or two anyway: no sleep for it */
+    if (*at_baud && lf_rx_hold_ct_ns(ct, want) > 0 && not_before > now && deadline_ns > now) {
         /* the reply cannot be complete before not_before: one sleep, one read */
         lf_ns until = not_before < deadline_ns ? not_before : deadline_ns;
         p->be->sleep_until(p->ctx, until);

@@ -101,8 +101,8 @@ int *lf_port_rx_at_baud(fap_port *p);
 
 /* lf_port_read_frame_kept for a reply whose expected length (want) and
  * earliest completion are known (the exec master: the last reply's length
- * from that node, after the request's end): with *at_baud set and
- * not_before ahead, one sleep until not_before (never past deadline_ns),
+ * from that node, after the request's end): with *at_baud set, not_before
+ * ahead and want long enough for a hold (lf_rx_hold_ct_ns > 0), one sleep until not_before (never past deadline_ns),
  * one read; the rest, if any, held at the baud's pace (bounded by its wire
  * time); nothing yet, or *at_baud clear: lf_port_read_frame_kept. A reply
  * found complete by a wake-up within a character time of not_before

@@ -490,6 +490,19 @@ static void test_reply_one_sleep(void)
     CHECK(w.sleeps == 0 || w.slept[0] < 16 * CT);
     CHECK_EQ(lf_port_read_reply(p, buf, sizeof buf, 16, 0, 0, NULL), -EINVAL);
     close_fake(&w, p);
+
+    /* 16 bytes at 1 Mbaud (160 us): too short for a hold, so no sleep */
+    p = open_fake(&w, 1000000);
+    REQUIRE(p);
+    at_baud = 1;
+    script_at(&w, 16, 10000);
+    shift(&w, 10000);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 160000, lf_now_ns() + 100 * CT,
+                           &at_baud);
+    CHECK(r >= 1);
+    CHECK_EQ(w.sleeps, 0);
+    CHECK_EQ(w.polls, 1);
+    close_fake(&w, p);
 }
 
 UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_reply_one_sleep), UNIT(test_all_there_read_at_once),
@@ -497,4 +510,5 @@ UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_reply_one_sleep), UNIT(test_all_there_re
           UNIT(test_slow_link_baud_bounds_hold), UNIT(test_pace_hold), UNIT(test_frame_kept_pace),
           UNIT(test_deadline_caps_sleep),
           UNIT(test_stalled_wire_returns), UNIT(test_no_sleep_cases),
-          UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing), UNIT(test_mikroc_expect))
+          UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing),
+          UNIT(test_mikroc_expect))
