@@ -140,6 +140,11 @@ int *lf_port_rx_at_baud(fap_port *p)
     return p ? &p->rx_at_baud : NULL;
 }
 
+int64_t lf_port_tx_end_ns(fap_port *p)
+{
+    return p ? __atomic_load_n(&p->tx_end_ns, __ATOMIC_RELAXED) : 0;
+}
+
 ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
                            int64_t deadline_ns, int *at_baud)
 {

@@ -99,6 +99,12 @@ ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
  * whose state has no room for one (the mikroC context). Its reader's. */
 int *lf_port_rx_at_baud(fap_port *p);
 
+/* When the last frame written on p can have left the wire: the write's
+ * start plus its wire time at the port's baud (0: nothing written). An
+ * answer to it cannot be complete before this plus the answer's own wire
+ * time. */
+int64_t lf_port_tx_end_ns(fap_port *p);
+
 /* lf_port_read_frame_kept for a reply whose expected length (want) and
  * earliest completion are known (the exec master: the last reply's length
  * from that node, after the request's end): with *at_baud set, not_before
