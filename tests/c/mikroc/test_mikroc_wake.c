@@ -1,0 +1,99 @@
+/* mikroC master and slave on a bus paced at 115200 (a relay thread
+ * delivering each byte at the end of its wire time): how many times each
+ * side's thread sleeps per exchange (voluntary context switches,
+ * getrusage RUSAGE_THREAD), not how long anything takes. Reading the
+ * 8-byte frame to the decoder's lower bound, a piece at a time, cost 6-11;
+ * expecting a full frame (and, on the master, sleeping until our frame's
+ * end plus the reply's wire time) costs 2-4. */
+#include <errno.h>
+#include <pthread.h>
+#include <stdio.h>
+#include <sys/resource.h>
+
+#include "fap_vbus.h"
+#include "mikroc_rs485.h"
+#include "unit.h"
+
+#define EXCHANGES 40
+/* above the 2.7-4.1 an exchange costs now, under the 5.9-11 of per-piece
+ * reads: a loaded machine moves it by one or two either way */
+#define MAX_WAKEUPS 5.0
+
+typedef struct slave_arg {
+    const char *path;
+    int stop;                   /* atomic */
+    long wakeups;               /* over the measured exchanges */
+    int served;
+} slave_arg;
+
+static long thread_wakeups(void)
+{
+    struct rusage ru;
+    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : -1;
+}
+
+static void *slave_main(void *arg)
+{
+    slave_arg *a = arg;
+    static mikrocRS485_ctx c;
+    mikrocRS485_CtxInitSlave(&c, 1);
+    if (mikrocRS485_CtxOpen(&c, a->path, 115200, NULL) < 0)
+        return NULL;
+    char buf[8];
+    memset(buf, 0, sizeof buf);
+    long w0 = 0;
+    while (!__atomic_load_n(&a->stop, __ATOMIC_ACQUIRE)) {
+        int m = mikrocRS485_CtxPoll(&c, buf, 100);
+        if (m & MIKROC_RS485_POLL_READY) {
+            if (++a->served == 5)
+                w0 = thread_wakeups();   /* after the pace was learnt */
+            int n = (uint8_t)buf[MIKROC_RS485_IDX_COUNT];
+            buf[MIKROC_RS485_IDX_READY] = 0;
+            mikrocRS485_CtxSend(&c, buf, (unsigned)n, 1);
+            if (a->served == 5 + EXCHANGES)
+                a->wakeups = thread_wakeups() - w0;
+        }
+        buf[MIKROC_RS485_IDX_ERROR] = 0;
+    }
+    mikrocRS485_CtxClose(&c);
+    return NULL;
+}
+
+static void test_exchange_wakeups(void)
+{
+    fap_vbus_options bo;
+    fap_vbus_options_init(&bo);
+    bo.n_ports = 2;
+    bo.baud = 115200;
+    fap_vbus *bus = NULL;
+    REQUIRE(fap_vbus_open(&bus, &bo) == 0);
+    slave_arg sa = {.path = fap_vbus_port_path(bus, 1)};
+    pthread_t th;
+    pthread_create(&th, NULL, slave_main, &sa);
+    mikrocRS485_ctx m;
+    mikrocRS485_CtxInitMaster(&m);
+    REQUIRE(mikrocRS485_CtxOpen(&m, fap_vbus_port_path(bus, 0), 115200, NULL) == 0);
+    char rx[8];
+    long w0 = 0;
+    int ok = 0;
+    for (int i = 0; i < 5 + EXCHANGES; i++) {
+        if (i == 5)
+            w0 = thread_wakeups();
+        memset(rx, 0, sizeof rx);
+        REQUIRE(mikrocRS485_CtxSend(&m, "abc", 3, 1) == 0);
+        int r = mikrocRS485_CtxPoll(&m, rx, 2000);
+        ok += i >= 5 && (r & MIKROC_RS485_POLL_READY) && memcmp(rx, "abc", 3) == 0;
+    }
+    double per = (double)(thread_wakeups() - w0) / EXCHANGES;
+    __atomic_store_n(&sa.stop, 1, __ATOMIC_RELEASE);
+    pthread_join(th, NULL);
+    double sper = (double)sa.wakeups / EXCHANGES;
+    fprintf(stderr, "wake-ups per exchange at 115200: master %.2f, slave %.2f\n", per, sper);
+    CHECK_EQ(ok, EXCHANGES);
+    CHECK(per <= MAX_WAKEUPS);
+    CHECK(sa.wakeups > 0 && sper <= MAX_WAKEUPS);
+    mikrocRS485_CtxClose(&m);
+    fap_vbus_close(bus);
+}
+
+UNIT_MAIN(UNIT(test_exchange_wakeups))
