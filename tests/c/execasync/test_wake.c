@@ -8,11 +8,11 @@
 #include <errno.h>
 #include <pthread.h>
 #include <stdio.h>
-#include <sys/resource.h>
 
 #include "exec_async_engine.h"
 #include "fap_vbus.h"
 #include "unit.h"
+#include "wakeups.h"
 
 #define TRANSACTIONS 40
 /* well above the 2-4 a reply costs now, well under the 12-14 of per-piece
@@ -36,20 +36,10 @@ static void *serve(void *arg)
     return NULL;
 }
 
-static long thread_wakeups(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : -1;
-}
-
 static void test_reply_wait_wakeups(void)
 {
-    fap_vbus_options bo;
-    fap_vbus_options_init(&bo);
-    bo.n_ports = 2;
-    bo.baud = 115200;
-    fap_vbus *bus = NULL;
-    REQUIRE(fap_vbus_open(&bus, &bo) == 0);
+    fap_vbus *bus = test_paced_bus(115200);
+    REQUIRE(bus);
     fap_port_options po;
     fap_port_options_init(&po);
     po.rs485_mode = FAP_RS485_NONE;
@@ -71,14 +61,14 @@ static void test_reply_wait_wakeups(void)
     /* the first few learn the reply's length and the link's pace */
     for (int i = 0; i < 4; i++)
         CHECK_EQ(execMasterTransact(m, 1, (const byte *)"pingpong", 8, reply, sizeof reply, &len), 0);
-    long w0 = thread_wakeups();
+    long w0 = test_thread_wakeups();
     int ok = 0;
     for (int i = 0; i < TRANSACTIONS; i++) {
         len = 0;
         int rc = execMasterTransact(m, 1, (const byte *)"pingpong", 8, reply, sizeof reply, &len);
         ok += rc == 0 && len == 8 && memcmp(reply, "pingpong", 8) == 0;
     }
-    long w1 = thread_wakeups();
+    long w1 = test_thread_wakeups();
     CHECK_EQ(ok, TRANSACTIONS);
     double per = (double)(w1 - w0) / TRANSACTIONS;
     fprintf(stderr, "master wake-ups per transaction at 115200: %.2f\n", per);

@@ -9,11 +9,11 @@
 #include <pthread.h>
 #include <semaphore.h>
 #include <stdio.h>
-#include <sys/resource.h>
 
 #include "fap_vbus.h"
 #include "mikroc_rs485.h"
 #include "unit.h"
+#include "wakeups.h"
 
 #define EXCHANGES 40
 /* the master: above the 2.3-3.3 an exchange costs it now, under the
@@ -31,12 +31,6 @@ typedef struct slave_arg {
     int served, counted;
 } slave_arg;
 
-static long thread_wakeups(void)
-{
-    struct rusage ru;
-    return getrusage(RUSAGE_THREAD, &ru) == 0 ? ru.ru_nvcsw : -1;
-}
-
 static void *slave_main(void *arg)
 {
     slave_arg *a = arg;
@@ -53,12 +47,12 @@ static void *slave_main(void *arg)
         int m = mikrocRS485_CtxPoll(&c, buf, 100);
         if (m & MIKROC_RS485_POLL_READY) {
             if (++a->served == 5)
-                w0 = thread_wakeups();   /* after the pace was learnt */
+                w0 = test_thread_wakeups();   /* after the pace was learnt */
             int n = (uint8_t)buf[MIKROC_RS485_IDX_COUNT];
             buf[MIKROC_RS485_IDX_READY] = 0;
             mikrocRS485_CtxSend(&c, buf, (unsigned)n, 1);
             if (a->served > 5) {
-                a->wakeups = thread_wakeups() - w0;
+                a->wakeups = test_thread_wakeups() - w0;
                 a->counted = a->served - 5;
             }
         }
@@ -70,12 +64,8 @@ static void *slave_main(void *arg)
 
 static void test_exchange_wakeups(void)
 {
-    fap_vbus_options bo;
-    fap_vbus_options_init(&bo);
-    bo.n_ports = 2;
-    bo.baud = 115200;
-    fap_vbus *bus = NULL;
-    REQUIRE(fap_vbus_open(&bus, &bo) == 0);
+    fap_vbus *bus = test_paced_bus(115200);
+    REQUIRE(bus);
     slave_arg sa = {.path = fap_vbus_port_path(bus, 1)};
     sem_init(&sa.ready, 0, 0);
     pthread_t th;
@@ -89,13 +79,13 @@ static void test_exchange_wakeups(void)
     int ok = 0;
     for (int i = 0; i < 5 + EXCHANGES; i++) {
         if (i == 5)
-            w0 = thread_wakeups();
+            w0 = test_thread_wakeups();
         memset(rx, 0, sizeof rx);
         REQUIRE(mikrocRS485_CtxSend(&m, "abc", 3, 1) == 0);
         int r = mikrocRS485_CtxPoll(&m, rx, 2000);
         ok += i >= 5 && (r & MIKROC_RS485_POLL_READY) && memcmp(rx, "abc", 3) == 0;
     }
-    double per = (double)(thread_wakeups() - w0) / EXCHANGES;
+    double per = (double)(test_thread_wakeups() - w0) / EXCHANGES;
     __atomic_store_n(&sa.stop, 1, __ATOMIC_RELEASE);
     pthread_join(th, NULL);
     double sper = sa.counted ? (double)sa.wakeups / sa.counted : 0;
