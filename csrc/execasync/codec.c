@@ -262,3 +262,21 @@ size_t lf_exec_rx_missing(const struct execAsyncStateDef *s)
     };
     return s->Phase < sizeof left ? left[s->Phase] : 1;
 }
+
+void lf_exec_flen_byte(lf_exec_flen *f, const struct execAsyncStateDef *s, int was_in, int done)
+{
+    if (done) {
+        f->last = f->cur + 1 <= EXEC_ASYNC_MAX_FRAME ? f->cur + 1 : 0;
+        f->cur = lf_exec_rx_in_frame(s) ? 2 : 0;   /* a DLE STX cut it short */
+    } else if (lf_exec_rx_in_frame(s)) {
+        f->cur = was_in ? f->cur + 1 : 2;           /* DLE STX: 2 bytes in */
+    } else {
+        f->cur = 0;
+    }
+}
+
+size_t lf_exec_rx_want(const struct execAsyncStateDef *s, const lf_exec_flen *f, size_t expect)
+{
+    size_t want = lf_exec_rx_missing(s);
+    return expect > f->cur && expect - f->cur > want ? expect - f->cur : want;
+}

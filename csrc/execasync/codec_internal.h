@@ -50,4 +50,19 @@ const char *lf_exec_status_reason(int status);
  * wire time instead of waking per byte (port/rx_pacing.h). */
 size_t lf_exec_rx_missing(const struct execAsyncStateDef *s);
 
+/* Wire length of the frame in progress (from its DLE STX) and of the last
+ * one that ended: the engines expect the next frame as long as the last
+ * (a master polling with one request size; the replies to it). */
+typedef struct lf_exec_flen {
+    size_t cur;    /* bytes of the frame in progress so far */
+    size_t last;   /* bytes of the last frame that ended; 0 = none */
+} lf_exec_flen;
+
+/* After one byte went into the decoder s: was_in = lf_exec_rx_in_frame(s)
+ * before it, done = what execAsyncByteIn returned. */
+void lf_exec_flen_byte(lf_exec_flen *f, const struct execAsyncStateDef *s, int was_in, int done);
+/* The bytes to ask the port for: the decoder's lower bound, or what is
+ * left of `expect` bytes (a frame's expected wire length) if more. */
+size_t lf_exec_rx_want(const struct execAsyncStateDef *s, const lf_exec_flen *f, size_t expect);
+
 #endif

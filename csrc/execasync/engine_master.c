@@ -41,6 +41,13 @@ struct execMaster {
     int busy;                        /* a transaction is in flight (t, txlen valid) */
     lf_exec_mtx t;
     word txlen;
+    /* the reply wait (port/rx_pacing.h); all under lock */
+    lf_exec_flen flen;               /* wire length of the reply in progress */
+    struct { uint16_t req, rep; } expect[256];   /* per node: the last request's
+                                      * wire length and its reply's */
+    int at_baud;                     /* replies came at the baud's pace */
+    int fresh;                       /* nothing read since the attempt was sent */
+    lf_ns req_end;                   /* when the attempt's request can have ended */
     int stop_fd;                     /* eventfd: execMasterStop ends the port's waits */
     int stopped;                     /* atomic: execMasterStop was called */
 };
@@ -114,6 +121,7 @@ static int send_attempt(execMaster *m)
     if (t->attempt > 0)
         LF_STAT_INC(m->stats.retries);
     memset(&m->rx, 0, sizeof m->rx);   /* a half reply of the last attempt is void */
+    m->flen.cur = 0;
     lf_ns t_write = lf_now_ns();
     lf_exec_tap_abandon(&m->tap, &m->trace, t_write);
     /* Written, not drained (fap_port_send: the port still drains where RTS
@@ -128,7 +136,9 @@ static int send_attempt(execMaster *m)
         return (int)w;
     LF_STAT_INC(m->stats.tx_frames);
     lf_ns end = t_write + (lf_ns)m->txlen * lf_char_time_ns(fap_port_baud(m->port));
-    lf_exec_mtx_sent(t, end > now ? end : now);
+    m->req_end = end > now ? end : now;
+    m->fresh = 1;
+    lf_exec_mtx_sent(t, m->req_end);
     return 0;
 }
 
@@ -184,6 +194,28 @@ static int begin_locked(execMaster *m, byte node, const byte *req, word req_len)
     return err;
 }
 
+/* Read the reply (or what is queued: wait_until 0) in as few wake-ups as
+ * the wire allows (port/rx_pacing.h). An exec frame carries no length: the
+ * reply is expected as long as the node's last reply to a request of this
+ * length, so the first wait of an attempt is one sleep until the request's
+ * end plus that reply's wire time (the reply cannot be complete sooner)
+ * once the link was seen at the baud's pace. Lock held, busy. */
+static ssize_t read_reply(execMaster *m, byte *buf, size_t cap, int64_t wait_until)
+{
+    size_t expect = m->expect[m->t.node].req == m->txlen ? m->expect[m->t.node].rep : 0;
+    size_t want = lf_exec_rx_want(&m->rx, &m->flen, expect);
+    int fresh = m->fresh;
+    m->fresh = 0;
+    if (!wait_until)   /* execMasterStep: what is there, no wait */
+        return lf_port_read_paced(m->port, buf, cap, want, 0);
+    if (fresh && expect) {
+        lf_ns ct = lf_char_time_ns(fap_port_baud(m->port));
+        return lf_port_read_reply(m->port, buf, cap, want, m->req_end + (lf_ns)expect * ct,
+                                  wait_until, &m->at_baud);
+    }
+    return lf_port_read_frame_kept(m->port, buf, cap, want, wait_until, &m->at_baud);
+}
+
 /* Read what comes until wait_until (0 = only what is queued), decode it,
  * and let sm_seq decide: reply (0), wait more (EXEC_MASTER_MORE), resend
  * (done here, then EXEC_MASTER_MORE) or give up (its error). An error ends
@@ -192,21 +224,25 @@ static int step_locked(execMaster *m, int64_t wait_until)
 {
     lf_exec_mtx *t = &m->t;
     byte chunk[128];
-    /* one wake-up per reply, not per byte (port/rx_pacing.h) */
-    ssize_t r = lf_port_read_paced(m->port, chunk, sizeof chunk,
-                                   lf_exec_rx_missing(&m->rx), wait_until);
+    ssize_t r = read_reply(m, chunk, sizeof chunk, wait_until);
     if (r < 0)
         return (int)r;
     /* Decode the whole chunk: a good reply may follow a bad frame. */
     lf_exec_mact act = LF_EXEC_M_WAIT;
     lf_ns now = r > 0 && lf_trace_on(&m->trace) ? lf_now_ns() : 0;
     for (ssize_t i = 0; i < r; i++) {
-        if (!lf_exec_byte_in_traced(chunk[i], &m->rx, m->rxbuf, &m->tap, &m->trace, now))
+        int was_in = lf_exec_rx_in_frame(&m->rx);
+        int done = lf_exec_byte_in_traced(chunk[i], &m->rx, m->rxbuf, &m->tap, &m->trace, now);
+        lf_exec_flen_byte(&m->flen, &m->rx, was_in, done);
+        if (!done)
             continue;
         lf_exec_mact a = lf_exec_mtx_on_frame(t, &m->rx);
         count_frame(m, t);
-        if (a == LF_EXEC_M_DONE)
+        if (a == LF_EXEC_M_DONE) {
+            m->expect[t->node].req = m->txlen;
+            m->expect[t->node].rep = (uint16_t)m->flen.last;
             return 0;              /* bytes after the reply: not ours to wait for */
+        }
         if (a != LF_EXEC_M_WAIT)
             act = a;
     }

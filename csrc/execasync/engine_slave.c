@@ -44,8 +44,7 @@ struct execSlave {
     execSlaveStats stats;
     lf_trace trace;                    /* wire trace hook (fap_trace.h) */
     lf_exec_tap tap;                   /* raw bytes of the request in progress */
-    size_t cur_len;                    /* bytes of the frame in progress so far */
-    size_t last_req;                   /* bytes of the last frame received */
+    lf_exec_flen flen;                 /* wire length: this request, the last */
     int at_baud;                       /* the link keeps the baud's pace (rx_pacing.h) */
 };
 
@@ -190,20 +189,6 @@ static int handle_frame(execSlave *s, int tainted)
     }
 }
 
-/* The length of the frame in progress and of the last one (wait_input's
- * guess); a DLE STX starts a frame 2 bytes in. */
-static void count_byte(execSlave *s, int was_in, int done)
-{
-    if (done) {
-        s->last_req = s->cur_len + 1 <= EXEC_ASYNC_MAX_FRAME ? s->cur_len + 1 : 0;
-        s->cur_len = lf_exec_rx_in_frame(&s->rx) ? 2 : 0;   /* DLE STX cut it short */
-    } else if (lf_exec_rx_in_frame(&s->rx)) {
-        s->cur_len = was_in ? s->cur_len + 1 : 2;
-    } else {
-        s->cur_len = 0;
-    }
-}
-
 /* Wait for input or a stop until deadline. 1: bytes in pending, 0: time is
  * up, negative: error (the port's: a vanished device) or -ECANCELED. */
 static int wait_input(execSlave *s, lf_ns deadline)
@@ -217,9 +202,7 @@ static int wait_input(execSlave *s, lf_ns deadline)
      * next like the last, so the bytes it still owes (never more than
      * their wire time from the first bytes: lf_port_read_frame) come in one
      * wake-up instead of one per lower bound. */
-    size_t want = lf_exec_rx_missing(&s->rx);
-    if (s->last_req > s->cur_len && s->last_req - s->cur_len > want)
-        want = s->last_req - s->cur_len;
+    size_t want = lf_exec_rx_want(&s->rx, &s->flen, s->flen.last);
     ssize_t r = lf_port_read_frame_kept(s->port, s->pending, PENDING_SIZE, want, deadline,
                                         &s->at_baud);
     if (r <= 0)
@@ -247,7 +230,7 @@ int execSlaveServe(execSlave *s, int timeout_ms)
             int was_in = lf_exec_rx_in_frame(&s->rx);
             int done = lf_exec_byte_in_traced(s->pending[i], &s->rx, s->rxbuf, &s->tap,
                                               &s->trace, s->last_rx);
-            count_byte(s, was_in, done);
+            lf_exec_flen_byte(&s->flen, &s->rx, was_in, done);
             int tainted = lf_exec_rwin_byte(&s->window, i, done, lf_exec_rx_in_frame(&s->rx));
             if (!done)
                 continue;

@@ -224,3 +224,13 @@ size_t lf_mikroc_missing(const mikrocRS485_decoder *d)
     unsigned count = d->n >= 2 ? (d->raw[1] & MIKROC_RS485_DL_COUNT) : 0;
     return count + 4u > d->n ? count + 4u - d->n : 1;
 }
+
+size_t lf_mikroc_expect(const mikrocRS485_decoder *d)
+{
+    size_t missing = lf_mikroc_missing(d);
+    if (d->in_frame && d->n >= 2)
+        return missing;              /* DATALEN is in: exact */
+    size_t held = d->in_frame ? 1u + d->n : 0;
+    size_t rest = MIKROC_RS485_FRAME_MAX > held ? MIKROC_RS485_FRAME_MAX - held : 0;
+    return rest > missing ? rest : missing;
+}

@@ -72,14 +72,21 @@ int mikrocRS485_CtxResetRx(mikrocRS485_ctx *c)
 }
 
 /* Refill the read-ahead buffer with up to max bytes: >0 bytes, 0 nothing by
- * the deadline, <0 error. */
-static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_ns)
+ * the deadline, <0 error. not_before: the frame cannot be complete sooner
+ * (0: unknown). */
+static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t not_before,
+                  int64_t deadline_ns)
 {
     /* the caller's thread does the I/O: the real-time option applies to it */
     ssize_t n = fap_port_rt_enter(c->port);
-    /* want > 1: the frame's wire time in one sleep, not a wake-up per byte */
-    if (n == 0)
-        n = want > 1 ? lf_port_read_paced(c->port, c->rx, max, want, deadline_ns)
+    /* want > 1: the frame's wire time in one sleep, not a wake-up per byte,
+     * at the pace the last frame showed (the port keeps it) */
+    if (n == 0 && not_before)
+        n = lf_port_read_reply(c->port, c->rx, max, want, not_before, deadline_ns,
+                               lf_port_rx_at_baud(c->port));
+    else if (n == 0)
+        n = want > 1 ? lf_port_read_frame_kept(c->port, c->rx, max, want, deadline_ns,
+                                               lf_port_rx_at_baud(c->port))
                      : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;
@@ -88,6 +95,18 @@ static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t deadline_
     c->rx_pos = 0;
     c->rx_len = (uint16_t)n;
     return (int)n;
+}
+
+/* A master waiting for a reply: a slave answers after our frame, so its
+ * reply (a full frame expected) cannot be complete before our frame's end
+ * plus that frame's wire time (0: no such bound, e.g. a frame started). */
+static int64_t reply_not_before(const mikrocRS485_ctx *c)
+{
+    if (c->role != MIKROC_RS485_ROLE_MASTER || c->dec.in_frame)
+        return 0;
+    int64_t end = lf_port_tx_end_ns(c->port);
+    return end ? end + (int64_t)MIKROC_RS485_FRAME_MAX * lf_char_time_ns(fap_port_baud(c->port))
+               : 0;
 }
 
 static void feed_one(mikrocRS485_ctx *c, char *data_buffer)
@@ -102,7 +121,7 @@ void mikrocRS485_CtxReceive(mikrocRS485_ctx *c, char *data_buffer)
     /* One byte per call, like the UART data register: a byte still in the
      * kernel keeps the fd readable, so poll() on fap_port_fd() says when to
      * call again. */
-    if (c->rx_pos == c->rx_len && refill(c, 1, 1, 0) <= 0)
+    if (c->rx_pos == c->rx_len && refill(c, 1, 1, 0, 0) <= 0)
         return;                      /* no byte in the "UART register" */
     feed_one(c, data_buffer);
 }
@@ -143,7 +162,8 @@ int mikrocRS485_CtxPoll(mikrocRS485_ctx *c, char *data_buffer, int timeout_ms)
         /* a bus that never goes quiet must not hold us past the deadline */
         if (deadline != 0 && deadline != INT64_MAX && fap_port_now_ns() >= deadline)
             return 0;
-        int n = refill(c, sizeof c->rx, lf_mikroc_missing(&c->dec), deadline);
+        int n = refill(c, sizeof c->rx, lf_mikroc_expect(&c->dec), reply_not_before(c),
+                       deadline);
         if (n <= 0)
             return n;                /* 0: deadline passed */
     }

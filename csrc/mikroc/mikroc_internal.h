@@ -22,4 +22,9 @@ void lf_mikroc_trace(struct mikrocRS485_ctx *c, fap_trace_dir dir, fap_trace_sta
  * (the whole minimal frame when none has started). refill() sleeps their
  * wire time instead of waking per byte (port/rx_pacing.h). */
 size_t lf_mikroc_missing(const mikrocRS485_decoder *d);
+/* The bytes to ask the port for: what is left of a full frame
+ * (MIKROC_RS485_FRAME_MAX: three data bytes, what nodes send) until
+ * DATALEN says the count, then lf_mikroc_missing. A shorter frame costs
+ * at most the difference in wire time (lf_port_read_frame's bound). */
+size_t lf_mikroc_expect(const mikrocRS485_decoder *d);
 #endif

@@ -71,6 +71,9 @@ struct fap_port {
     int intr_fd;                  /* the port's own cancel fd (an eventfd,
                                      lf_port_open_interruptible), else -1 */
     int interrupted;              /* atomic: lf_port_interrupt was called */
+    int rx_at_baud;               /* rx_pacing.c: frames came at the baud's pace */
+    int64_t tx_end_ns;            /* port_io.c: when the last frame written can have
+                                     left (write start + its wire time); atomic */
 };
 
 /* port_config.c */

@@ -301,7 +301,11 @@ static ssize_t port_write(fap_port *p, const void *buf, size_t n, int lazy_drain
             goto out;   /* nothing sent */
         delay_us(p, p->conn.delay_before_us);
     }
+    int64_t t_write = lf_now_ns();
     err = write_all(p, fd, buf, n, &written, echo ? &es : NULL);
+    /* the earliest an answer to it can start (rx_pacing.h: lf_port_tx_end_ns) */
+    __atomic_store_n(&p->tx_end_ns, t_write + (int64_t)written * lf_char_time_ns(p->opt.baud),
+                     __ATOMIC_RELAXED);
     if (!err && (!lazy_drain || echo || switched))
         err = drain(p, fd);   /* the last stop bit has left the UART */
     if (!err && switched)

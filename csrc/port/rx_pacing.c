@@ -135,6 +135,51 @@ ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
     return read_paced(p, buf, n, want, deadline_ns, 1, at_baud);
 }
 
+int *lf_port_rx_at_baud(fap_port *p)
+{
+    return p ? &p->rx_at_baud : NULL;
+}
+
+int64_t lf_port_tx_end_ns(fap_port *p)
+{
+    return p ? __atomic_load_n(&p->tx_end_ns, __ATOMIC_RELAXED) : 0;
+}
+
+ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
+                           int64_t deadline_ns, int *at_baud)
+{
+    if (!p || (!buf && n) || !at_baud)
+        return -EINVAL;
+    if (want > n)
+        want = n;
+    lf_ns ct = lf_char_time_ns(fap_port_baud(p));
+    lf_ns now = lf_now_ns();
+    /* a reply shorter than a hold is worth (lf_rx_hold_ct_ns: a short frame
+     * at 1 Mbaud) comes in a piece or two anyway: no sleep for it */
+    if (*at_baud && lf_rx_hold_ct_ns(ct, want) > 0 && not_before > now && deadline_ns > now) {
+        /* the reply cannot be complete before not_before: one sleep, one read */
+        lf_ns until = not_before < deadline_ns ? not_before : deadline_ns;
+        p->be->sleep_until(p->ctx, until);
+        ssize_t r = fap_port_read(p, buf, n, 0);
+        if (r < 0)
+            return r;
+        if (until == deadline_ns)
+            return r;           /* the deadline came first: what is in */
+        if (r > 0 && (size_t)r >= want) {
+            if (lf_now_ns() - until <= ct)
+                *at_baud = 0;   /* complete at an on-time wake: the link is faster */
+            return r;
+        }
+        if (r > 0) {   /* the rest at the baud's pace, bounded by its wire time */
+            int64_t rest = lf_now_ns() + (int64_t)(want - (size_t)r) * ct;
+            return read_rest(p, buf, n, (size_t)r, want, rest < deadline_ns ? rest : deadline_ns,
+                             at_baud);
+        }
+        /* nothing yet (a slow responder): wait for it on the fd as before */
+    }
+    return read_paced(p, buf, n, want, deadline_ns, 1, at_baud);
+}
+
 ssize_t lf_port_read_until(fap_port *p, void *buf, size_t n, int64_t deadline_ns)
 {
     if (!p || (!buf && n))

@@ -95,6 +95,28 @@ ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
 ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
                                 int64_t deadline_ns, int *at_baud);
 
+/* The port's own at_baud flag for lf_port_read_frame_kept, for engines
+ * whose state has no room for one (the mikroC context). Its reader's. */
+int *lf_port_rx_at_baud(fap_port *p);
+
+/* When the last frame written on p can have left the wire: the write's
+ * start plus its wire time at the port's baud (0: nothing written). An
+ * answer to it cannot be complete before this plus the answer's own wire
+ * time. */
+int64_t lf_port_tx_end_ns(fap_port *p);
+
+/* lf_port_read_frame_kept for a reply whose expected length (want) and
+ * earliest completion are known (the exec master: the last reply's length
+ * from that node, after the request's end): with *at_baud set, not_before
+ * ahead and want long enough for a hold (lf_rx_hold_ct_ns > 0), one sleep until not_before (never past deadline_ns),
+ * one read; the rest, if any, held at the baud's pace (bounded by its wire
+ * time); nothing yet, or *at_baud clear: lf_port_read_frame_kept. A reply
+ * found complete by a wake-up within a character time of not_before
+ * clears *at_baud (at the baud it could not be: the link is faster). A
+ * stop during the sleep waits at most until not_before. Same returns. */
+ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
+                           int64_t deadline_ns, int *at_baud);
+
 /* fap_port_read whose deadline holds to the nanosecond, for short waits
  * that are part of the wire timing (the exec slave watching the line
  * through its turnaround delay): the port's poll counts whole

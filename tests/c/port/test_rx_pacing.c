@@ -377,6 +377,26 @@ static void test_mikroc_missing(void)
     CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[n - 1], &f), MIKROC_RS485_FRAME);
 }
 
+/* What mikroC asks the port for: a full frame (8 bytes) until DATALEN
+ * says the count, then exactly what is missing; a 1-byte frame's count. */
+static void test_mikroc_expect(void)
+{
+    mikrocRS485_decoder d;
+    mikrocRS485_DecoderInit(&d);
+    mikrocRS485_frame f;
+    CHECK_EQ(lf_mikroc_expect(&d), MIKROC_RS485_FRAME_MAX);
+    uint8_t fr[16];
+    int n = mikrocRS485_Encode(fr, (const uint8_t *)"a", 1, 7, 1);
+    REQUIRE(n == 6);
+    size_t expect[] = {7, 6, 3, 2, 1};                /* START, addr: guess; DL: exact */
+    for (int i = 0; i + 1 < n; i++) {
+        CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[i], &f), MIKROC_RS485_MORE);
+        CHECK_EQ(lf_mikroc_expect(&d), expect[i]);
+    }
+    CHECK_EQ(mikrocRS485_DecoderFeed(&d, fr[n - 1], &f), MIKROC_RS485_FRAME);
+    CHECK_EQ(lf_mikroc_expect(&d), MIKROC_RS485_FRAME_MAX);
+}
+
 /* lf_port_read_frame_kept: a frame at the baud's pace sets at_baud; the
  * next frame then holds from its first piece (one poll, no wait for a
  * second piece); a link 10x faster makes the trusted hold find its frame
@@ -406,9 +426,89 @@ static void test_frame_kept_pace(void)
     close_fake(&w, p);
 }
 
-UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_all_there_read_at_once),
+/* lf_port_read_reply: 16 bytes at the baud's pace starting 1 character
+ * after the request's end (the responder's latency); not_before = the
+ * end + 16 characters. With at_baud: one sleep, one read, no poll; the
+ * last byte is left for the caller's wait on the fd (the hold's rule).
+ * Without at_baud, or nothing there at the wake: the fd as before. A
+ * reply complete at an on-time wake (a link 10x faster) clears at_baud. */
+static void shift(wire *w, int64_t by)
+{
+    for (size_t k = 0; k < w->n; k++)
+        w->at[k] += by;
+}
+
+static void test_reply_one_sleep(void)
+{
+    wire w;
+    fap_port *p = open_fake(&w, BAUD);
+    REQUIRE(p);
+    uint8_t buf[64];
+    int at_baud = 1;
+    script(&w, 16, 0);
+    shift(&w, CT);
+    int64_t not_before = lf_now_ns() + 16 * CT;
+    ssize_t r = lf_port_read_reply(p, buf, sizeof buf, 16, not_before, lf_now_ns() + 100 * CT,
+                                   &at_baud);
+    CHECK_EQ(r, 15);
+    CHECK_EQ(w.sleeps, 1);
+    CHECK_EQ(w.polls, 0);
+    CHECK_EQ(w.reads, 1);
+    CHECK_EQ(at_baud, 1);
+
+    /* the deadline comes first: the sleep ends there, what is in is returned */
+    script(&w, 16, 0);
+    shift(&w, CT);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 8 * CT,
+                           &at_baud);
+    CHECK(r >= 6 && r <= 8);
+    CHECK_EQ(w.sleeps, 1);
+    CHECK(w.slept[0] <= 8 * CT);
+
+    /* a slow responder: nothing at the wake, then the first piece on the fd */
+    script(&w, 16, 0);
+    shift(&w, 30 * CT);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
+                           &at_baud);
+    CHECK(r >= 1);
+    CHECK(w.polls >= 1);
+    CHECK_EQ(at_baud, 1);
+
+    /* a faster link: complete at the wake, which clears at_baud */
+    script_at(&w, 16, CT / 10);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
+                           &at_baud);
+    CHECK_EQ(r, 16);
+    CHECK_EQ(at_baud, 0);
+
+    /* at_baud clear: no sleep before the first piece */
+    script(&w, 16, 0);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
+                           &at_baud);
+    CHECK(r >= 1);
+    CHECK(w.polls >= 1);
+    CHECK(w.sleeps == 0 || w.slept[0] < 16 * CT);
+    CHECK_EQ(lf_port_read_reply(p, buf, sizeof buf, 16, 0, 0, NULL), -EINVAL);
+    close_fake(&w, p);
+
+    /* 16 bytes at 1 Mbaud (160 us): too short for a hold, so no sleep */
+    p = open_fake(&w, 1000000);
+    REQUIRE(p);
+    at_baud = 1;
+    script_at(&w, 16, 10000);
+    shift(&w, 10000);
+    r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 160000, lf_now_ns() + 100 * CT,
+                           &at_baud);
+    CHECK(r >= 1);
+    CHECK_EQ(w.sleeps, 0);
+    CHECK_EQ(w.polls, 1);
+    close_fake(&w, p);
+}
+
+UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_reply_one_sleep), UNIT(test_all_there_read_at_once),
           UNIT(test_paced_frame_one_sleep), UNIT(test_fast_link_short_hold),
           UNIT(test_slow_link_baud_bounds_hold), UNIT(test_pace_hold), UNIT(test_frame_kept_pace),
           UNIT(test_deadline_caps_sleep),
           UNIT(test_stalled_wire_returns), UNIT(test_no_sleep_cases),
-          UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing))
+          UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing),
+          UNIT(test_mikroc_expect))
