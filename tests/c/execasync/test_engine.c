@@ -13,6 +13,7 @@
 #include "exec_async_engine.h"
 #include "fap_vbus.h"
 #include "unit.h"
+#include "exec_echo.h"
 
 #define N_SLAVES 3
 #define PORT_MASTER 0
@@ -502,14 +503,6 @@ static void test_bad_arguments(void)
 }
 
 /* Turnaround: the slave waits out the port's quiet time before answering. */
-static int echo_handler(void *ctx, const execSlaveRequest *req, byte *reply, word cap)
-{
-    (void)ctx;
-    (void)cap;
-    memcpy(reply, req->data, req->len);
-    return req->len;
-}
-
 static void *serve_until_stop(void *arg)
 {
     while (execSlaveServe(arg, -1) >= 0)
@@ -535,7 +528,7 @@ static void test_turnaround_delay(void)
     execSlaveOptionsInit(&so);
     so.node = 42;
     execSlave *s;
-    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, &so, echo_handler, NULL));
+    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, &so, test_exec_echo, NULL));
     pthread_t t;
     pthread_create(&t, NULL, serve_until_stop, s);
     for (int i = 0; i < 2; i++) {
@@ -566,7 +559,7 @@ static void test_port_vanishes(void)
     fap_port_options po = port_opts();
     execSlave *s;
     execMaster *m;
-    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, NULL, echo_handler, NULL));
+    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, NULL, test_exec_echo, NULL));
     REQUIRE_ZERO(execMasterOpen(&m, fap_vbus_port_path(b2, 0), &po, NULL));
     REQUIRE_ZERO(fap_vbus_disconnect(b2, 1, 300));
     REQUIRE_ZERO(fap_vbus_disconnect(b2, 0, 300));
@@ -591,7 +584,7 @@ static void test_stop_wakes_serve(void)
     REQUIRE_ZERO(fap_vbus_open(&b2, &bo));
     fap_port_options po = port_opts();
     execSlave *s;
-    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, NULL, echo_handler, NULL));
+    REQUIRE_ZERO(execSlaveOpen(&s, fap_vbus_port_path(b2, 1), &po, NULL, test_exec_echo, NULL));
     CHECK_EQ(execSlaveServe(s, 1), 0);        /* nothing there: time runs out */
     pthread_t t;
     pthread_create(&t, NULL, serve_until_stop, s);

@@ -13,20 +13,12 @@
 #include "fap_vbus.h"
 #include "unit.h"
 #include "wakeups.h"
+#include "exec_echo.h"
 
 #define TRANSACTIONS 40
 /* well above the 2-4 a reply costs now, well under the 12-14 of per-piece
  * reads: a loaded machine moves it by one or two either way */
 #define MAX_WAKEUPS_PER_TRANSACTION 7.0
-
-static int echo(void *ctx, const execSlaveRequest *req, byte *reply, word cap)
-{
-    (void)ctx;
-    if (req->len > cap)
-        return -1;
-    memcpy(reply, req->data, req->len);
-    return req->len;
-}
 
 static void *serve(void *arg)
 {
@@ -52,7 +44,7 @@ static void test_reply_wait_wakeups(void)
     execSlaveOptions so;
     execSlaveOptionsInit(&so);
     execSlave *s = NULL;
-    REQUIRE(execSlaveOpen(&s, fap_vbus_port_path(bus, 1), &po, &so, echo, NULL) == 0);
+    REQUIRE(execSlaveOpen(&s, fap_vbus_port_path(bus, 1), &po, &so, test_exec_echo, NULL) == 0);
     pthread_t th;
     pthread_create(&th, NULL, serve, s);
 

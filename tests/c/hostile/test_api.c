@@ -18,6 +18,7 @@
 #include "fap_vbus.h"
 #include "mikroc_rs485.h"
 #include "unit.h"
+#include "exec_echo.h"
 
 #define HUGE_SIZE ((size_t)SIZE_MAX)
 
@@ -410,16 +411,6 @@ static void test_exec_codec(void)
     CHECK_EQ(execUnPackData(raw, overlapping), 0);
 }
 
-/* ---- exec_async_engine.h ---- */
-static int echo(void *ctx, const execSlaveRequest *req, byte *reply, word cap)
-{
-    (void)ctx;
-    if (req->len > cap)
-        return -1;
-    memcpy(reply, req->data, req->len);
-    return req->len;
-}
-
 static void *serve_forever(void *arg)
 {
     execSlave *s = arg;
@@ -440,8 +431,8 @@ static void test_exec_engine(void)
     CHECK(m == (execMaster *)0x1);
     execSlaveOptions so;
     execSlaveOptionsInit(&so);
-    CHECK(execSlaveOpen(NULL, "/dev/null", &po, &so, echo, NULL) < 0);
-    CHECK(execSlaveOpen(&s, NULL, &po, &so, echo, NULL) < 0);
+    CHECK(execSlaveOpen(NULL, "/dev/null", &po, &so, test_exec_echo, NULL) < 0);
+    CHECK(execSlaveOpen(&s, NULL, &po, &so, test_exec_echo, NULL) < 0);
     CHECK(s == (execSlave *)0x1);
     execMasterOptionsInit(NULL);
     execSlaveOptionsInit(NULL);
@@ -477,12 +468,12 @@ static void test_exec_engine(void)
     for (int i = 0; i < 2; i++) {
         so.node = bad_nodes[i];
         execSlave *x = (execSlave *)0x1;
-        CHECK_EQ(execSlaveOpen(&x, fap_vbus_port_path(b, 1), &po, &so, echo, NULL), -EINVAL);
+        CHECK_EQ(execSlaveOpen(&x, fap_vbus_port_path(b, 1), &po, &so, test_exec_echo, NULL), -EINVAL);
         CHECK(x == (execSlave *)0x1);
     }
     so.node = 7;
     CHECK_EQ(execSlaveOpen(&s, fap_vbus_port_path(b, 1), &po, &so, NULL, NULL), -EINVAL);
-    REQUIRE(execSlaveOpen(&s, fap_vbus_port_path(b, 1), &po, &so, echo, NULL) == 0);
+    REQUIRE(execSlaveOpen(&s, fap_vbus_port_path(b, 1), &po, &so, test_exec_echo, NULL) == 0);
     execMasterGetStats(m, NULL);
     execSlaveGetStats(s, NULL);
     pthread_t t;

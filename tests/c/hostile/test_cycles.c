@@ -14,6 +14,7 @@
 #include "fap_vbus.h"
 #include "mikroc_rs485.h"
 #include "unit.h"
+#include "exec_echo.h"
 
 static int count_dir(const char *path)
 {
@@ -29,14 +30,6 @@ static int count_dir(const char *path)
 
 static int fds(void) { return count_dir("/proc/self/fd"); }
 static int threads(void) { return count_dir("/proc/self/task"); }
-
-static int echo(void *ctx, const execSlaveRequest *req, byte *reply, word cap)
-{
-    (void)ctx;
-    (void)cap;
-    memcpy(reply, req->data, req->len);
-    return req->len;
-}
 
 static void one_cycle(void)
 {
@@ -84,7 +77,7 @@ static void one_cycle(void)
     execSlaveOptionsInit(&so);
     so.node = 2;
     execSlave *es = NULL;
-    REQUIRE(execSlaveOpen(&es, p1, &po, &so, echo, NULL) == 0);
+    REQUIRE(execSlaveOpen(&es, p1, &po, &so, test_exec_echo, NULL) == 0);
     execSlaveClose(es);
     execMasterClose(em);
 
