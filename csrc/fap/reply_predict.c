@@ -21,6 +21,10 @@ lf_ns lf_reply_predict_when(lf_reply_predict *p, unsigned id, lf_ns sent_end)
 {
     if (!valid(p, id) || !p->paced || p->ta[id] < 0)
         return 0;
+    if (p->observe_for[id]) {
+        p->observe_for[id]--;
+        return 0;
+    }
     if (++p->since_observe[id] >= LF_REPLY_PREDICT_OBSERVE_EVERY) {
         p->since_observe[id] = 0;
         return 0;
@@ -59,11 +63,28 @@ void lf_reply_predict_outcome(lf_reply_predict *p, unsigned id, size_t missing)
     lf_ns step = p->ct / 8;
     if (p->ta[id] / 16 > step)
         step = p->ta[id] / 16;
+    p->late[id] = (uint8_t)(p->late[id] << 1 | (missing > 1));
+    if (__builtin_popcount(p->late[id]) >= LF_REPLY_PREDICT_WIDE_OF_8) {
+        /* spread wider than a character time: watch the port for a while;
+         * the observations take the estimate down to their smallest */
+        p->late[id] = 0;
+        p->downs[id] = 0;
+        p->observe_for[id] = LF_REPLY_PREDICT_WIDE_POLLS;
+        p->ta[id] = -1;             /* relearned from the observations */
+        return;
+    }
     if (missing) {
+        p->downs[id] = 0;
         p->ta[id] += step;
         return;
     }
     if (p->ta[id] == 0)
         p->paced = 0;               /* complete even at no turnaround: observe again */
+    /* from the third complete read in a row the estimate may be late by
+     * much (its first observation carried a wake-up's latency): double the
+     * step each time, up to 8x (two in a row are common around the reply's end) */
+    p->downs[id]++;
+    unsigned k = p->downs[id] < 3 ? 0 : p->downs[id] - 2 < 3 ? p->downs[id] - 2 : 3;
+    step <<= k;
     p->ta[id] = p->ta[id] > step ? p->ta[id] - step : 0;
 }

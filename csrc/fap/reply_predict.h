@@ -23,6 +23,20 @@
  * then waits for it on the port (never later than the wire). Every 64th
  * poll of a slave is observed again.
  *
+ * What a complete read costs: the master reacts late by the time the reply
+ * waited, which the read cannot see. Two bounds keep that from costing
+ * poll cycles (31 slaves served by one loaded process, each learning once
+ * every 31 cycles from a first observation that carried the master's
+ * wake-up latency: 78 % of reads found the reply complete, and the
+ * master's reaction doubled):
+ * - from the third complete read in a row the down step doubles each
+ *   time, up to 8x (a late estimate comes down in a few polls, not tens);
+ *   a read finding bytes missing resets it;
+ * - a slave whose turnaround spreads wider than a character time (4 of
+ *   its last 8 reads found more than the last byte missing) is watched on
+ *   the port for its next 16 polls, which relearns its estimate from the
+ *   smallest observed turnaround, the low end; then predicted again.
+ *
  * Only on a device (the kernel's tty, not a network transport) and only
  * once a reply was seen no sooner than the port's baud allows: an unpaced
  * pty, a link faster than the baud or an unknown baud keep the observed
@@ -30,16 +44,22 @@
 #ifndef LF_FAP_REPLY_PREDICT_H
 #define LF_FAP_REPLY_PREDICT_H
 #include <stddef.h>
+#include <stdint.h>
 #include "common/mono_clock.h"
 #include "fap/codec.h"
 
 #define LF_REPLY_PREDICT_OBSERVE_EVERY 64   /* polls of one slave between observations */
+#define LF_REPLY_PREDICT_WIDE_OF_8 4        /* late reads (> 1 byte missing) of the last 8 ... */
+#define LF_REPLY_PREDICT_WIDE_POLLS 16      /* ... that make the next polls of a slave observed */
 
 typedef struct lf_reply_predict {
     lf_ns ct;                       /* character time at the port's baud; 0: never predict */
     int paced;                      /* the last observed reply came at the baud's pace */
     unsigned since_observe[LF_FAP_MAX_ID + 1];
     lf_ns ta[LF_FAP_MAX_ID + 1];    /* learned turnaround per slave; -1: unknown */
+    unsigned downs[LF_FAP_MAX_ID + 1];  /* complete reads in a row: the down step doubles */
+    uint8_t late[LF_FAP_MAX_ID + 1];    /* the last 8 reads, a bit each: > 1 byte missing */
+    unsigned observe_for[LF_FAP_MAX_ID + 1];  /* polls left to observe (a spread turnaround) */
 } lf_reply_predict;
 
 /* baud: the port's; device: a local tty (not a network transport). */

@@ -84,6 +84,72 @@ static void test_every_64th_poll_observes(void)
     CHECK_EQ(observed, 3);
 }
 
+/* Complete reads in a row: from the third on, the down step doubles each
+ * time (up to 8x), so an estimate learned late comes down in a few polls;
+ * a read finding bytes missing resets it. Fails with a constant step. */
+static void test_complete_reads_in_a_row_come_down_faster(void)
+{
+    lf_reply_predict p;
+    lf_reply_predict_init(&p, BAUD, 1);
+    lf_reply_predict_observed(&p, 1, 0, 1600000 + WIRE);
+    lf_ns ta = 1600000;
+    for (int i = 1; i <= 8; i++) {
+        int k = i < 3 ? 0 : i - 2 < 3 ? i - 2 : 3;
+        lf_ns step = ta / 16 > CT / 8 ? ta / 16 : CT / 8;
+        ta = ta > step << k ? ta - (step << k) : 0;
+        lf_reply_predict_outcome(&p, 1, 0);
+        CHECK_EQ(p.ta[1], ta);
+    }
+    CHECK(p.ta[1] < 1600000 / 4);   /* a constant 1/16 step: 0.6x after 8 reads */
+    lf_ns before = p.ta[1];
+    lf_reply_predict_outcome(&p, 1, 1);                 /* resets the run */
+    before += before / 16 > CT / 8 ? before / 16 : CT / 8;
+    CHECK_EQ(p.ta[1], before);
+    lf_reply_predict_outcome(&p, 1, 0);                 /* one step again */
+    lf_ns step = before / 16 > CT / 8 ? before / 16 : CT / 8;
+    CHECK_EQ(p.ta[1], before - step);
+}
+
+/* A slave whose reads keep finding more than the last byte missing (its
+ * turnaround spreads wider than a character time: then the reads that
+ * found it complete woke late by as much) is watched on the port for its
+ * next LF_REPLY_PREDICT_WIDE_POLLS polls and relearned from the smallest
+ * observed turnaround; reads one byte short never count. Fails without
+ * the rule (every poll but the 64th is predicted). */
+static void test_spread_turnaround_is_watched(void)
+{
+    lf_reply_predict p;
+    lf_reply_predict_init(&p, BAUD, 1);
+    lf_reply_predict_observed(&p, 2, 0, 500000 + WIRE);
+    for (int i = 0; i < 16; i++) {                      /* tight: one byte short */
+        CHECK(lf_reply_predict_when(&p, 2, 0) != 0);
+        lf_reply_predict_outcome(&p, 2, i % 2);
+    }
+    /* three late reads of eight: still predicted */
+    for (int i = 0; i < 3; i++) {
+        CHECK(lf_reply_predict_when(&p, 2, 0) != 0);
+        lf_reply_predict_outcome(&p, 2, 3);
+        lf_reply_predict_outcome(&p, 2, 0);
+    }
+    CHECK(lf_reply_predict_when(&p, 2, 0) != 0);
+    lf_reply_predict_outcome(&p, 2, LF_FAP_OVERHEAD);   /* the fourth (nothing came) */
+    CHECK_EQ(p.ta[2], -1);
+    /* watched: the first observation, then WIDE_POLLS more */
+    int watched = 0;
+    lf_ns obs[] = { 640000, 520000, 610000 };
+    for (int i = 0; i < 1 + LF_REPLY_PREDICT_WIDE_POLLS; i++) {
+        lf_ns sent = 10000000 * (lf_ns)(i + 1);
+        if (lf_reply_predict_when(&p, 2, sent) == 0) {
+            watched++;
+            lf_reply_predict_observed(&p, 2, sent, sent + obs[i % 3] + WIRE);
+        }
+    }
+    CHECK_EQ(watched, 1 + LF_REPLY_PREDICT_WIDE_POLLS);
+    /* predicted again, from the low end of what was observed */
+    CHECK_EQ(lf_reply_predict_when(&p, 2, 0), 520000 + WIRE);
+    CHECK_EQ(lf_reply_predict_when(&p, 1, 0), 0);      /* other slaves untouched */
+}
+
 /* ---- a real master on the paced bus ---- */
 
 /* The master engine thread's voluntary context switches (its wake-ups). */
@@ -175,4 +241,6 @@ static void test_idle_master_wakes_about_once_per_poll(void)
 }
 
 UNIT_MAIN(UNIT(test_no_prediction_before_a_paced_reply), UNIT(test_learning_steps),
-          UNIT(test_every_64th_poll_observes), UNIT(test_idle_master_wakes_about_once_per_poll))
+          UNIT(test_every_64th_poll_observes),
+          UNIT(test_complete_reads_in_a_row_come_down_faster), UNIT(test_spread_turnaround_is_watched),
+          UNIT(test_idle_master_wakes_about_once_per_poll))
