@@ -24,18 +24,20 @@
  * poll of a slave is observed again.
  *
  * What a complete read costs: the master reacts late by the time the reply
- * waited, which the read cannot see. Two bounds keep that from costing
- * poll cycles (31 slaves served by one loaded process, each learning once
- * every 31 cycles from a first observation that carried the master's
- * wake-up latency: 78 % of reads found the reply complete, and the
- * master's reaction doubled):
+ * waited, which the read cannot see. So a slave is predicted only while
+ * its turnaround is tight (31 slaves served by one loaded process, each
+ * polled once every 31 cycles, had 500-650 us turnarounds scattered by
+ * more than a frame: 64 % of reads found the reply complete, 30 % found
+ * more than the last byte missing, and the master's reaction doubled):
+ * - before predicting, 4 observations in a row must lie within a
+ *   character time of each other (else 4 more are taken, and so on); the
+ *   estimate starts at their smallest, the low end;
+ * - a predicted slave whose reads find more than the last byte missing in
+ *   4 of its last 8 (a turnaround spread wider than a character time,
+ *   which makes the complete reads late by as much) goes back to that;
  * - from the third complete read in a row the down step doubles each
- *   time, up to 8x (a late estimate comes down in a few polls, not tens);
- *   a read finding bytes missing resets it;
- * - a slave whose turnaround spreads wider than a character time (4 of
- *   its last 8 reads found more than the last byte missing) is watched on
- *   the port for its next 16 polls, which relearns its estimate from the
- *   smallest observed turnaround, the low end; then predicted again.
+ *   time, up to 8x (an estimate that is late comes down in a few polls);
+ *   a read finding bytes missing resets it.
  *
  * Only on a device (the kernel's tty, not a network transport) and only
  * once a reply was seen no sooner than the port's baud allows: an unpaced
@@ -49,8 +51,8 @@
 #include "fap/codec.h"
 
 #define LF_REPLY_PREDICT_OBSERVE_EVERY 64   /* polls of one slave between observations */
-#define LF_REPLY_PREDICT_WIDE_OF_8 4        /* late reads (> 1 byte missing) of the last 8 ... */
-#define LF_REPLY_PREDICT_WIDE_POLLS 16      /* ... that make the next polls of a slave observed */
+#define LF_REPLY_PREDICT_TIGHT_N 4          /* observations within a character time: predict */
+#define LF_REPLY_PREDICT_WIDE_OF_8 4        /* late reads (> 1 byte missing) of the last 8: stop */
 
 typedef struct lf_reply_predict {
     lf_ns ct;                       /* character time at the port's baud; 0: never predict */
@@ -59,7 +61,10 @@ typedef struct lf_reply_predict {
     lf_ns ta[LF_FAP_MAX_ID + 1];    /* learned turnaround per slave; -1: unknown */
     unsigned downs[LF_FAP_MAX_ID + 1];  /* complete reads in a row: the down step doubles */
     uint8_t late[LF_FAP_MAX_ID + 1];    /* the last 8 reads, a bit each: > 1 byte missing */
-    unsigned observe_for[LF_FAP_MAX_ID + 1];  /* polls left to observe (a spread turnaround) */
+    uint8_t tight[LF_FAP_MAX_ID + 1];   /* its turnaround is tight: predicted */
+    unsigned obs_n[LF_FAP_MAX_ID + 1];  /* not yet: observations in the current run, */
+    lf_ns obs_lo[LF_FAP_MAX_ID + 1];    /* their smallest */
+    lf_ns obs_hi[LF_FAP_MAX_ID + 1];    /* and largest turnaround */
 } lf_reply_predict;
 
 /* baud: the port's; device: a local tty (not a network transport). */
