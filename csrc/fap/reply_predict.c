@@ -19,7 +19,7 @@ static int valid(const lf_reply_predict *p, unsigned id)
 
 lf_ns lf_reply_predict_when(lf_reply_predict *p, unsigned id, lf_ns sent_end)
 {
-    if (!valid(p, id) || !p->paced || !p->tight[id] || p->ta[id] < 0)
+    if (!valid(p, id) || !p->paced || !p->tight[id] || p->data[id] || p->ta[id] < 0)
         return 0;
     if (++p->since_observe[id] >= LF_REPLY_PREDICT_OBSERVE_EVERY) {
         p->since_observe[id] = 0;
@@ -65,6 +65,12 @@ void lf_reply_predict_observed(lf_reply_predict *p, unsigned id, lf_ns sent_end,
     p->ta[id] = p->obs_lo[id];
     p->late[id] = 0;
     p->downs[id] = 0;
+}
+
+void lf_reply_predict_turn(lf_reply_predict *p, unsigned id, int sent_data)
+{
+    if (valid(p, id))
+        p->data[id] = sent_data != 0;
 }
 
 void lf_reply_predict_outcome(lf_reply_predict *p, unsigned id, size_t missing)
