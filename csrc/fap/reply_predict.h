@@ -36,7 +36,7 @@
  *   4 of its last 8 (a turnaround spread wider than a character time,
  *   which makes the complete reads late by as much) goes back to that;
  * - a slave that sent DATA in its turn is observed until a turn without
- *   (its reply is a DATA frame and a DATA_DONE; predicting it cost 12-15 %
+ *   (its reply is a DATA frame and a DATA_DONE; predicting it cost ~12 %
  *   of a data exchange's rate at 115200);
  * - from the third complete read in a row the down step doubles each
  *   time, up to 8x (an estimate that is late comes down in a few polls);
