@@ -45,36 +45,20 @@ static void *echo(void *arg)
     }
 }
 
-/* A master (tx queue tx_depth, 0: default) polling slave 1, active. */
-static fap_vbus *open_pair(fapx **m, fapx **s, unsigned tx_depth)
-{
-    fap_vbus *bus = open_bus(2, 0);
-    if (!bus)
-        return NULL;
-    fapx_options o;
-    fast_options(&o, FAPX_SLAVE, 1);
-    int rc = fapx_open(s, fap_vbus_port_path(bus, 1), &o);
-    fast_options(&o, FAPX_MASTER, 0);
-    o.tx_depth = tx_depth;
-    if (rc == 0 && (rc = fapx_open(m, fap_vbus_port_path(bus, 0), &o)) != 0)
-        fapx_close(*s);
-    if (rc != 0) {
-        fprintf(stderr, "fapx_open: %d\n", rc);
-        fap_vbus_close(bus);
-        return NULL;
-    }
-    CHECK_EQ(fapx_add_slave(*m, 1), 0);
-    CHECK_EQ(wait_event(*m, FAPX_EV_SLAVE_ACTIVE, 1, 5000, NULL), 0);
-    return bus;
-}
-
 #define ROUND_TRIPS 200
 
 static void test_receiver_wakes_once_per_message(void)
 {
-    fapx *m = NULL, *s = NULL;
-    fap_vbus *bus = open_pair(&m, &s, 0);
+    fap_vbus *bus = open_bus(2, 0);
     REQUIRE(bus != NULL);
+    fapx *m = NULL, *s = NULL;
+    fapx_options o;
+    fast_options(&o, FAPX_SLAVE, 1);
+    REQUIRE(fapx_open(&s, fap_vbus_port_path(bus, 1), &o) == 0);
+    fast_options(&o, FAPX_MASTER, 0);
+    REQUIRE(fapx_open(&m, fap_vbus_port_path(bus, 0), &o) == 0);
+    CHECK_EQ(fapx_add_slave(m, 1), 0);
+    CHECK_EQ(wait_event(m, FAPX_EV_SLAVE_ACTIVE, 1, 5000, NULL), 0);
     echo_ctx c = { .s = s };
     pthread_mutex_init(&c.lock, NULL);
     pthread_t th;
@@ -114,9 +98,17 @@ static void test_receiver_wakes_once_per_message(void)
 /* fapx_tx_wait and fapx_flush still wake for room and completion. */
 static void test_tx_waiters_still_wake(void)
 {
-    fapx *m = NULL, *s = NULL;
-    fap_vbus *bus = open_pair(&m, &s, 2);
+    fap_vbus *bus = open_bus(2, 0);
     REQUIRE(bus != NULL);
+    fapx *m = NULL, *s = NULL;
+    fapx_options o;
+    fast_options(&o, FAPX_SLAVE, 1);
+    REQUIRE(fapx_open(&s, fap_vbus_port_path(bus, 1), &o) == 0);
+    fast_options(&o, FAPX_MASTER, 0);
+    o.tx_depth = 2;
+    REQUIRE(fapx_open(&m, fap_vbus_port_path(bus, 0), &o) == 0);
+    CHECK_EQ(fapx_add_slave(m, 1), 0);
+    CHECK_EQ(wait_event(m, FAPX_EV_SLAVE_ACTIVE, 1, 5000, NULL), 0);
     for (int i = 0; i < 20; i++)      /* more than the queue holds: waits for room */
         CHECK_EQ(fapx_tx_wait(m, 1, "x", 1, 5000), 0);
     CHECK_EQ(fapx_flush(m, 5000), 0);
