@@ -101,7 +101,6 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     pthread_condattr_init(&ca);
     pthread_condattr_setclock(&ca, CLOCK_MONOTONIC);
     pthread_cond_init(&h->cond, &ca);
-    pthread_cond_init(&h->tx_cond, &ca);
     pthread_condattr_destroy(&ca);
     pthread_mutex_init(&h->lock, NULL);
     lf_trace_init(&h->trace);
@@ -111,7 +110,6 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     err = lf_port_open_cancellable(&h->port, path, &o.port, &h->cancel_fd);
     if (err < 0) {
         pthread_cond_destroy(&h->cond);
-        pthread_cond_destroy(&h->tx_cond);
         pthread_mutex_destroy(&h->lock);
         lf_trace_destroy(&h->trace);
         goto fail;
@@ -197,7 +195,6 @@ void lf_fapx_stop(fapx *h)
     h->tx_inflight = 0;
     h->active_pub = 0;
     pthread_cond_broadcast(&h->cond);
-    pthread_cond_broadcast(&h->tx_cond);
     pthread_mutex_unlock(&h->lock);
 }
 
@@ -217,7 +214,6 @@ void lf_fapx_destroy_stats(fapx *h, fapx_stats *final)
         *final = h->stats;
     h->closing = 1;
     pthread_cond_broadcast(&h->cond);
-    pthread_cond_broadcast(&h->tx_cond);
     while (h->waiters)                 /* let blocked readers leave first */
         pthread_cond_wait(&h->cond, &h->lock);
     pthread_mutex_unlock(&h->lock);
@@ -232,7 +228,6 @@ void lf_fapx_destroy_stats(fapx *h, fapx_stats *final)
     lf_ring_free(&h->tx);
     lf_ring_free(&h->ev);
     pthread_cond_destroy(&h->cond);
-    pthread_cond_destroy(&h->tx_cond);
     pthread_mutex_destroy(&h->lock);
     lf_trace_destroy(&h->trace);
     free(h);
@@ -358,22 +353,17 @@ static struct timespec deadline_ts(int timeout_ms, int *forever)
     return lf_ns_to_timespec(lf_now_ns() + (lf_ns)(timeout_ms < 0 ? 0 : timeout_ms) * LF_NS_PER_MS);
 }
 
-/* Wait on a condition until `ready` or the deadline (lock held). tx: the
- * transmit side's tx_cond (queue room, drained), else cond (rx, events);
- * a closing handle's destroyer waits on cond for the waiters to leave. */
-#define WAIT_UNTIL(h, tx, ready, timeout_ms, rc) do { \
+/* Wait on the condition until `ready` or the deadline (lock held). */
+#define WAIT_UNTIL(h, ready, timeout_ms, rc) do { \
     int forever_; struct timespec ts_ = deadline_ts((timeout_ms), &forever_); \
-    pthread_cond_t *cv_ = (tx) ? &(h)->tx_cond : &(h)->cond; \
     (h)->waiters++; \
-    (h)->tx_waiters += (tx); \
     while (!(ready) && !(h)->closing) { \
-        int e_ = forever_ ? pthread_cond_wait(cv_, &(h)->lock) \
-                          : pthread_cond_timedwait(cv_, &(h)->lock, &ts_); \
+        int e_ = forever_ ? pthread_cond_wait(&(h)->cond, &(h)->lock) \
+                          : pthread_cond_timedwait(&(h)->cond, &(h)->lock, &ts_); \
         if (e_ == ETIMEDOUT && !(ready)) { (rc) = -ETIMEDOUT; break; } \
     } \
     if (!(ready) && (h)->closing) (rc) = -ESHUTDOWN; \
     (h)->waiters--; \
-    (h)->tx_waiters -= (tx); \
     if ((h)->closing) pthread_cond_broadcast(&(h)->cond); \
 } while (0)
 
@@ -386,7 +376,7 @@ static int tx_common(fapx *h, unsigned dst, const void *data, size_t len, int wa
     pthread_mutex_lock(&h->lock);
     int rc = 0;
     if (wait && !(h->mode >= 0 && dst == h->id))
-        WAIT_UNTIL(h, 1, h->tx.count < h->tx.cap, timeout_ms, rc);
+        WAIT_UNTIL(h, h->tx.count < h->tx.cap, timeout_ms, rc);
     if (rc != 0)
         ;
     else if (h->closing)
@@ -428,7 +418,7 @@ int fapx_flush(fapx *h, int timeout_ms)
         return -EINVAL;
     pthread_mutex_lock(&h->lock);
     int rc = 0;
-    WAIT_UNTIL(h, 1, (h->tx.count == 0 && !h->tx_inflight) || !h->started, timeout_ms, rc);
+    WAIT_UNTIL(h, (h->tx.count == 0 && !h->tx_inflight) || !h->started, timeout_ms, rc);
     if (rc == 0 && (h->tx.count || h->tx_abandoned_now))
         rc = -ESHUTDOWN;               /* no engine running to send it, or a stop dropped it */
     pthread_mutex_unlock(&h->lock);
@@ -476,7 +466,7 @@ int fapx_rx_wait(fapx *h, void *buf, size_t cap, unsigned *src, int timeout_ms)
         return -EINVAL;
     pthread_mutex_lock(&h->lock);
     int rc = 0;
-    WAIT_UNTIL(h, 0, h->rx.count > 0, timeout_ms, rc);
+    WAIT_UNTIL(h, h->rx.count > 0, timeout_ms, rc);
     if (rc == 0)
         rc = rx_take_locked(h, buf, cap, src);
     pthread_mutex_unlock(&h->lock);
@@ -510,7 +500,7 @@ int fapx_event_wait(fapx *h, fapx_event *ev, int timeout_ms)
         return -EINVAL;
     pthread_mutex_lock(&h->lock);
     int rc = 0;
-    WAIT_UNTIL(h, 0, h->ev.count > 0, timeout_ms, rc);
+    WAIT_UNTIL(h, h->ev.count > 0, timeout_ms, rc);
     if (rc == 0)
         rc = ev_take_locked(h, ev);
     pthread_mutex_unlock(&h->lock);

@@ -105,7 +105,7 @@ static void push_event(fapx *h, int type, unsigned id, lf_ns now)
         ev->time_ns = now;
         lf_ring_commit(&h->ev);
         set_notify_locked(h);
-        if (h->waiters > h->tx_waiters)     /* an rx/event waiter */
+        if (h->waiters)
             pthread_cond_broadcast(&h->cond);
     }
     pthread_mutex_unlock(&h->lock);
@@ -130,7 +130,7 @@ static void sm_deliver(void *ctx, uint8_t src, const uint8_t *data, uint16_t len
         memcpy(it->data, data, len);
         lf_ring_commit(&h->rx);
         set_notify_locked(h);
-        if (h->waiters > h->tx_waiters)     /* an rx/event waiter */
+        if (h->waiters)
             pthread_cond_broadcast(&h->cond);
     } else {
         h->ec.rx_dropped++;
@@ -157,8 +157,8 @@ static int sm_tx_pop(void *ctx, uint8_t *dst, uint8_t *data, uint16_t *len)
         lf_ring_pop(&h->tx);
         h->tx_inflight = 1;
         got = 1;
-        if (h->tx_waiters)             /* room for fapx_tx_wait */
-            pthread_cond_broadcast(&h->tx_cond);
+        if (h->waiters)                /* room for fapx_tx_wait */
+            pthread_cond_broadcast(&h->cond);
     }
     pthread_mutex_unlock(&h->lock);
     return got;
@@ -310,8 +310,8 @@ static lf_ns drain_outbox(fapx *h)
     pthread_mutex_lock(&h->lock);
     if (h->tx_inflight || wrote_data) {
         h->tx_inflight = 0;
-        if (h->tx_waiters)             /* drained: fapx_flush */
-            pthread_cond_broadcast(&h->tx_cond);
+        if (h->waiters)
+            pthread_cond_broadcast(&h->cond);
     }
     publish_locked(h);
     pthread_mutex_unlock(&h->lock);
@@ -707,7 +707,6 @@ static void engine_finish(engine *e)
     publish_locked(h);
     h->exited = 1;                    /* lf_fapx_stop's grace wait ends */
     pthread_cond_broadcast(&h->cond);
-    pthread_cond_broadcast(&h->tx_cond);   /* fapx_flush: no engine left */
     pthread_mutex_unlock(&h->lock);
 }
 

@@ -29,9 +29,7 @@ typedef struct lf_engine_counts {
 
 struct fapx {
     pthread_mutex_t lock;
-    pthread_cond_t cond;          /* rx/event arrival, close (CLOCK_MONOTONIC) */
-    pthread_cond_t tx_cond;       /* tx queue room, tx drained (fapx_tx_wait, fapx_flush):
-                                   * its own, so a receiver does not wake per frame sent */
+    pthread_cond_t cond;          /* rx/event arrival, tx drained, close (CLOCK_MONOTONIC) */
     fap_port *port;
     fapx_options o;
 
@@ -42,7 +40,6 @@ struct fapx {
     int exited;                   /* the engine thread has left its loop */
     int tx_abandoned_now;         /* the last stop dropped output: flush fails */
     unsigned waiters;             /* threads inside a *_wait call */
-    unsigned tx_waiters;          /* ... of them waiting on tx_cond */
     lf_ring rx, tx, ev;
     int tx_inflight;              /* a popped frame is being transmitted */
     int tx_kick;                  /* fapx_tx queued something for the engine */
