@@ -389,6 +389,7 @@ typedef struct engine {
     unsigned poll_id;             /* the slave polled (0: no reply to learn from) */
     lf_ns poll_sent;              /* when its SEND_DATA ended on the wire */
     uint64_t polls0;              /* m.c.polls then: a DATA_DONE came when it moves */
+    uint64_t data0;               /* m.c.data_rx then: the slave sent DATA when it moves */
     int predicting;               /* the hold is the predicted reply's (1) or its rest's (2) */
     uint8_t rbuf[4096];
 } engine;
@@ -582,6 +583,7 @@ static void plan_reply(engine *e, lf_ns sent_end)
     e->poll_id = m->cur;
     e->poll_sent = sent_end;
     e->polls0 = m->c.polls;
+    e->data0 = m->c.data_rx;
     if (e->hold_until || lf_fap_decoder_missing(&h->dec))
         return;
     lf_ns at = lf_reply_predict_when(&e->rp, m->cur, sent_end);
@@ -604,8 +606,11 @@ static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
     int done = h->m.c.polls != e->polls0;
     if (stage == 1 && e->poll_id) {
         /* a DATA frame in the slave's turn: longer than predicted by design */
-        int data_turn = !done && h->dec.n > 10 && h->dec.buf[10] == LF_FAP_DATA;
-        if (!data_turn)
+        int data_turn = h->m.c.data_rx != e->data0 ||
+                        (!done && h->dec.n > 10 && h->dec.buf[10] == LF_FAP_DATA);
+        if (data_turn)
+            lf_reply_predict_turn(&e->rp, e->poll_id, 1);
+        else
             lf_reply_predict_outcome(&e->rp, e->poll_id,
                                      done ? 0 : missing ? missing : LF_FAP_OVERHEAD);
         e->poll_id = 0;
@@ -661,7 +666,11 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
         return;
     }
     if (e->poll_id && h->mode == FAPX_MASTER && h->m.c.polls != e->polls0) {
-        lf_reply_predict_observed(&e->rp, e->poll_id, e->poll_sent, now);
+        /* a turn with DATA in it: the DATA_DONE's end is no turnaround */
+        int data = h->m.c.data_rx != e->data0;
+        if (!data)
+            lf_reply_predict_observed(&e->rp, e->poll_id, e->poll_sent, now);
+        lf_reply_predict_turn(&e->rp, e->poll_id, data);
         e->poll_id = 0;
     }
     if (fed && !h->port_down) {
