@@ -23,7 +23,7 @@ size_t lf_fap_encode(uint8_t *out, size_t cap, unsigned msg, unsigned dst,
     memcpy(out, LF_FAP_MARKER, LF_FAP_MARKER_LEN);
     out[8] = (uint8_t)(size & 0xFF);
     out[9] = (uint8_t)(size >> 8);
-    out[10] = (uint8_t)msg;
+    out[LF_FAP_MSG_AT] = (uint8_t)msg;
     out[11] = (uint8_t)dst;
     out[12] = (uint8_t)src;
     if (len)
@@ -139,9 +139,9 @@ static void parse(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)
             reject(d, &d->c.framing_errors, LF_FAP_REJ_SIZE, 10, now);
             continue;
         }
-        if (d->n < 11)
+        if (d->n <= LF_FAP_MSG_AT)
             return;
-        unsigned msg = d->buf[10];
+        unsigned msg = d->buf[LF_FAP_MSG_AT];
         if (msg > LF_FAP_ID || (msg == LF_FAP_DATA) != (size > LF_FAP_HDR_LEN)) {
             reject(d, &d->c.framing_errors,
                    msg > LF_FAP_ID ? LF_FAP_REJ_MSG : LF_FAP_REJ_MSG_SIZE, 11, now);
@@ -181,6 +181,11 @@ size_t lf_fap_decoder_missing(const lf_fap_decoder *d)
     /* parse() keeps only a valid prefix: the size field is in range */
     size_t total = ((size_t)d->buf[8] | ((size_t)d->buf[9] << 8)) + LF_FAP_CRC_LEN;
     return total > d->n ? total - d->n : 0;
+}
+
+int lf_fap_decoder_msg(const lf_fap_decoder *d)
+{
+    return d->n > LF_FAP_MSG_AT ? d->buf[LF_FAP_MSG_AT] : -1;
 }
 
 void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void *ctx)

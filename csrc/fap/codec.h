@@ -15,6 +15,7 @@
 #define LF_FAP_MARKER      "cCtRsFeF"
 #define LF_FAP_MARKER_LEN  8
 #define LF_FAP_HDR_LEN     13            /* marker + size + msg + dst + src */
+#define LF_FAP_MSG_AT      10            /* the message type's byte: after marker + size */
 #define LF_FAP_CRC_LEN     2
 #define LF_FAP_OVERHEAD    (LF_FAP_HDR_LEN + LF_FAP_CRC_LEN)   /* 15 */
 #define LF_FAP_MAX_DATA    1024
@@ -107,6 +108,8 @@ void lf_fap_decoder_tick(lf_fap_decoder *d, lf_ns now, lf_fap_frame_cb cb, void 
  * its size field is in, the minimal frame before that; 0 when nothing is
  * held. The engine sleeps their wire time instead of waking per byte. */
 size_t lf_fap_decoder_missing(const lf_fap_decoder *d);
+/* The message type of the held candidate frame, or -1 before its byte is in. */
+int lf_fap_decoder_msg(const lf_fap_decoder *d);
 /* Drop everything held (after a port reopen). */
 void lf_fap_decoder_reset(lf_fap_decoder *d);
 /* Report every rejection through cb (NULL: stop reporting). */

@@ -607,7 +607,7 @@ static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
     if (stage == 1 && e->poll_id) {
         /* a DATA frame in the slave's turn: longer than predicted by design */
         int data_turn = h->m.c.data_rx != e->data0 ||
-                        (!done && h->dec.n > 10 && h->dec.buf[10] == LF_FAP_DATA);
+                        (!done && lf_fap_decoder_msg(&h->dec) == LF_FAP_DATA);
         if (data_turn)
             lf_reply_predict_turn(&e->rp, e->poll_id, 1);
         else
