@@ -45,7 +45,6 @@ from .._validate import check_baud, check_bool, check_int, check_seconds
 from . import codec
 from .codec import (
     EPID,
-    HEADER_SIZE,
     HPID,
     REPLY_KINDS,
     WAKE_UP_BAUD_THRESHOLD,
@@ -304,7 +303,7 @@ class Transaction:
     """
 
     __slots__ = ("_s", "_make", "_args", "_tries", "_attempt", "_flow", "_prefix", "_timeout", "_deadline",
-                 "_waiter", "_held", "_after")
+                 "_waiter", "_held", "_size", "_after")
 
     def __init__(self, session: "Session", make: Callable[..., Union[Flow, "_ReadOnce"]], args: Tuple[Any, ...],
                  retries: Optional[int], after: Optional[Callable[[], None]] = None) -> None:
@@ -324,6 +323,7 @@ class Transaction:
         self._deadline = 0.0
         self._waiter: Optional[_ReplyWaiter] = None
         self._held = b""  # the reply's first bytes while they match it (no waiter yet)
+        self._size = 0    # bytes of the awaited reply (reply_size of _prefix)
         self._after = after
 
     @property
@@ -359,11 +359,11 @@ class Transaction:
             # awaited reply's first bytes, wait for the rest without a Parser pass; the
             # Parser would hold them and emit nothing, so feeding them later at once
             # (below) is the same. Anything else goes to the waiter as before.
-            if (type(held) is bytes and len(held) < HEADER_SIZE + prefix[3] and not self._s.parser.buffered
+            if (type(held) is bytes and len(held) < self._size and not self._s.parser.buffered
                     and (prefix.startswith(held) if len(held) <= len(prefix) else held.startswith(prefix))
                     and not _debug()):
                 self._held = held
-                return Wait(HEADER_SIZE + prefix[3] - len(held), self._deadline)
+                return Wait(self._size - len(held), self._deadline)
             self._held = b""
             chunk = held
             waiter = self._waiter = _ReplyWaiter(self._s, prefix)
@@ -389,7 +389,7 @@ class Transaction:
             except RETRYABLE_ERRORS as exc:  # pragma: no cover - held bytes matched the reply
                 return self._failed(exc, now)
         if now < self._deadline:
-            return Wait(self._waiter.wanted() if self._waiter else reply_size(self._prefix), self._deadline)
+            return Wait(self._waiter.wanted() if self._waiter else self._size, self._deadline)
         waiter = self._waiter or _ReplyWaiter(self._s, self._prefix)
         return self._failed(waiter.expired(self._timeout), now)
 
@@ -421,7 +421,7 @@ class Transaction:
             return Send(wire, 0, now)
         self._prefix = prefix
         self._timeout = timeout
-        size = reply_size(prefix)
+        self._size = size = reply_size(prefix)
         # the timeout plus the request's and the reply's wire time (the request may still be
         # on the wire when the write returns)
         self._deadline = deadline = now + (timeout or s.timeout) + (len(wire) + size) * s.byte_time
