@@ -25,5 +25,10 @@ for build in sys.argv[1:]:
             found = re.findall(r"^=*\s*(\d+ passed.*?)\s*=*$", entry.get("stdout", ""), re.M)
             if found:
                 print(f"pytest ({build}): {found[-1]}")
+            out = entry.get("stdout", "")
+            if "slowest" in out:   # pytest --durations (tests/meson.build)
+                rows = out.split(" durations ", 1)[1].splitlines()[1:]
+                rows = [r for r in rows[:40] if re.match(r"^\d+\.\d+s ", r)]
+                print(f"pytest ({build}): slowest tests\n" + "\n".join(rows[:20]))
 print(f"{passed} passed, {failed} failed")
 sys.exit(1 if failed or not passed else 0)
