@@ -541,7 +541,7 @@ class Parser:
         ``data``: any bytes-like object (bytes, bytearray, a memoryview, strided
         or multi-dimensional ones too, an ``array``, ``mmap``); a str, an int
         or a released memoryview is a :class:`G485ValueError`."""
-        if type(data) is not bytes and type(data) is not bytearray:
+        if not isinstance(data, (bytes, bytearray)):
             data = _buffer_bytes(data, "feed")
         buf = self._buf
         buf += data
