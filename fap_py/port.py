@@ -283,12 +283,21 @@ class Port(NativeHandle):
         One call into C instead of three. The write skips ``tcdrain`` unless soft
         RTS or echo suppression needs it, so ``deadline_ns`` must allow for the
         request's own wire time. Raises like :meth:`write` and :meth:`read`.
+
+        ``n=0`` is **send only**, by design (C's ``cap 0``): the pending input
+        is dropped, ``data`` is written, and b"" comes back at once whatever
+        ``deadline_ns`` says (a broadcast nobody answers). ``data=b""`` with
+        ``n=0`` would do nothing but drop input: it is refused
+        (InvalidValueError; :meth:`flush_input` does that).
         """
         if type(data) is not bytes and isinstance(data, (bytearray, memoryview)):
             data = bytes(data)               # bytes-like, strided views too
         if type(data) is not bytes or type(n) is not int or type(deadline_ns) is not int \
                 or not 0 <= n <= MAX_READ or not 0 <= deadline_ns <= _FOREVER_NS:
             raise InvalidValueError(f"transact({type(data).__name__}, {n}, {deadline_ns}) out of range")
+        if not data and not n:
+            raise InvalidValueError("transact(b'', 0, ...): nothing to send and no reply awaited "
+                                    "(n=0 is send only; flush_input() drops pending input)")
         step = deadline_ns
         if deadline_ns:
             step = min(deadline_ns, time.monotonic_ns() + _SLICE_NS)

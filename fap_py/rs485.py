@@ -18,7 +18,7 @@ from ._validate import U32, check_baud, check_int
 from .errors import InvalidTypeError, InvalidValueError
 
 __all__ = ["DEFAULT_BAUD", "RS485", "RS485Mode", "port_options", "line_options", "c_defaults",
-           "parse_realtime"]
+           "parse_realtime", "baud_rates", "check_rate"]
 
 
 class RS485Mode(enum.IntEnum):
@@ -146,7 +146,7 @@ class RS485:
         """
         if not isinstance(po, ffi.CData) or ffi.typeof(po) is not _PO_TYPE:
             raise InvalidTypeError(f"po must be a cffi 'fap_port_options *', not {po!r}")
-        po.baud = check_baud(baudrate)
+        po.baud = check_rate(baudrate)
         if self.mode is not None:
             po.rs485_mode = int(self.mode)
         for name in _INT_FIELDS:
@@ -191,10 +191,36 @@ def line_options(rs485: Optional[RS485]) -> RS485:
     return rs485
 
 
+def baud_rates() -> tuple:
+    """The baud rates the C port layer opens (``fap_port_baud_rate``), ascending."""
+    global _RATES
+    if _RATES is None:
+        rates, i = [], 0
+        while lib.fap_port_baud_rate(i):
+            rates.append(int(lib.fap_port_baud_rate(i)))
+            i += 1
+        _RATES = tuple(rates)
+    return _RATES
+
+
+_RATES: Optional[tuple] = None
+
+
+def check_rate(value: Any, what: str = "baudrate") -> int:
+    """``value`` if it is one of :func:`baud_rates`; else InvalidTypeError /
+    InvalidValueError naming the rates (what ``fap_port_open`` would refuse
+    with EINVAL, refused before anything reaches C)."""
+    baud = check_baud(value, what)
+    if baud not in baud_rates():
+        raise InvalidValueError(f"{what} {baud} is not a rate the port layer opens (one of "
+                                f"{', '.join(map(str, baud_rates()))})")
+    return baud
+
+
 def port_options(baudrate: int, rs485: Optional[RS485] = None) -> Any:
-    """A new cffi ``fap_port_options *`` for ``baudrate`` and ``rs485``.
-    Raises before anything reaches C."""
-    baudrate = check_baud(baudrate)
+    """A new cffi ``fap_port_options *`` for ``baudrate`` (one of
+    :func:`baud_rates`) and ``rs485``. Raises before anything reaches C."""
+    baudrate = check_rate(baudrate)
     opts = line_options(rs485)
     po = ffi.new("fap_port_options *")
     lib.fap_port_options_init(po)

@@ -281,11 +281,37 @@ CAPTURE_LINE_MAX = 65536
 CaptureItem = Union[Dict[str, str], CaptureRecord, CaptureEvent]
 
 
+#: the header's fields a bus writes: each value's range (a field not given is not
+#: checked; one this list lacks is kept as written, for later formats)
+_HEADER_RANGES = {"ports": (2, MAX_PORTS), "baud": (0, 0xFFFFFFFF), "echo": (0, 1),
+                  "seed": (0, 2**64 - 1)}
+
+
+def _header(tokens: Iterable[str], lineno: int) -> Dict[str, str]:
+    """The header's fields, each known one a decimal number in its range."""
+    fields = _fields(tokens, lineno)
+    for key, (lo, hi) in _HEADER_RANGES.items():
+        value = fields.get(key)
+        if value is None:
+            continue
+        ok = value.isascii() and value.isdigit() and len(value) <= 20 and lo <= int(value) <= hi
+        if not ok:
+            raise CaptureFormatError(f"line {lineno}: header {key}={value[:40]} is not a number "
+                                     f"in {lo}..{hi}")
+    return fields
+
+
 def iter_capture(lines: Iterable[str]) -> Iterator[CaptureItem]:
     """Parse capture lines one by one (sans I/O): yields the header (a dict),
-    each :class:`CaptureRecord` and :class:`CaptureEvent` in file order."""
+    each :class:`CaptureRecord` and :class:`CaptureEvent` in file order.
+
+    The header's ``ports``, ``baud``, ``echo`` and ``seed`` must be numbers in
+    their ranges, there is at most one header, and a data line's port must be
+    below the header's ``ports``: else :class:`CaptureFormatError`."""
     if isinstance(lines, (str, bytes)) or not isinstance(lines, Iterable):
         raise InvalidTypeError(f"lines must be an iterable of str, not {type(lines).__name__}")
+    n_ports: Optional[int] = None
+    seen_header = False
     for lineno, raw in enumerate(lines, 1):
         if not isinstance(raw, str):
             raise InvalidTypeError(f"line {lineno}: expected str, not {type(raw).__name__}")
@@ -300,7 +326,13 @@ def iter_capture(lines: Iterable[str]) -> Iterator[CaptureItem]:
             if kind == "fap-vbus-capture":
                 if len(tokens) < 2 or tokens[1] != "1":
                     raise CaptureFormatError(f"line {lineno}: unsupported capture version")
-                yield _fields(tokens[2:], lineno)
+                if seen_header:
+                    raise CaptureFormatError(f"line {lineno}: a second capture header")
+                seen_header = True
+                header = _header(tokens[2:], lineno)
+                if "ports" in header:
+                    n_ports = int(header["ports"])
+                yield header
                 continue
             f = _fields(tokens[1:], lineno)
             try:
@@ -317,6 +349,9 @@ def iter_capture(lines: Iterable[str]) -> Iterator[CaptureItem]:
             raise CaptureFormatError(f"line {lineno}: bad data line {line[:80]!r}") from exc
         if not parts[2:] or any(len(h) != 2 for h in parts[2:]) or t_us < 0 or port < 0:
             raise CaptureFormatError(f"line {lineno}: bad data line {line[:80]!r}")
+        if n_ports is not None and port >= n_ports:
+            raise CaptureFormatError(f"line {lineno}: data from port {port}, but the header "
+                                     f"says ports={n_ports}")
         yield CaptureRecord(t_us, port, data)
 
 

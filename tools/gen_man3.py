@@ -1,7 +1,10 @@
 #!/usr/bin/env python3
 """Generate libfap's man3 pages: one page per public C function.
 
-    gen_man3.py SOURCE OUTDIR HEADER...
+    gen_man3.py SOURCE OUTDIR [--version=V] [--includedir=DIR] [--libdir=DIR] HEADER...
+
+(--includedir/--libdir: where the installed headers and library are, as
+each page's SYNOPSIS names them; meson passes the install's own.)
 
 The prototype and the comment written above it come from the headers
 themselves (so a changed signature changes its page); SOURCE
@@ -235,8 +238,15 @@ def wrap_prototype(proto: str) -> List[str]:
     return lines + [cur]
 
 
-def render(fn: Function, entry: Entry, date: str, version: str) -> str:
+#: where the pages say the headers and the library are: the install's own
+#: directories (meson passes --includedir= and --libdir=), these by default
+DEFAULT_PATHS = {"includedir": "/usr/local/include/libfap", "libdir": "/usr/local/lib"}
+
+
+def render(fn: Function, entry: Entry, date: str, version: str,
+           paths: Optional[Dict[str, str]] = None) -> str:
     s = entry.sections
+    paths = paths or DEFAULT_PATHS
     parts = [
         f'.TH {fn.name.upper()} 3 {date} "libfap {version}" "libfap Manual"',
         ".SH NAME",
@@ -248,10 +258,14 @@ def render(fn: Function, entry: Entry, date: str, version: str) -> str:
         *(f"\\fB{esc(ln)}\\fP" for ln in wrap_prototype(fn.prototype)),
         ".fi",
         ".PP",
-        "Compile and link with",
-        ".IR \"$(pkg-config --cflags --libs fap)\" ,",
-        "or",
-        ".IR \"\\\\%-I/usr/local/include/libfap ... -lfap -lpthread -lrt\" .",   # \\% no hyphenation
+        "Compile and link with either of:",
+        ".PP",
+        ".RS",
+        ".nf",
+        "cc app.c $(pkg-config \\-\\-cflags \\-\\-libs fap)",
+        f"cc \\-I{esc(paths['includedir'])} app.c \\-L{esc(paths['libdir'])} \\-lfap \\-lpthread \\-lrt",
+        ".fi",
+        ".RE",
         ".SH DESCRIPTION",
     ]
     desc = s.get("description") or fn.comment
@@ -285,8 +299,15 @@ def main(argv: List[str]) -> int:
         return 0
     source, outdir, *headers = argv
     version = "0"
-    if headers and headers[0].startswith("--version="):
-        version = headers.pop(0).split("=", 1)[1]
+    paths = dict(DEFAULT_PATHS)
+    while headers and headers[0].startswith("--"):
+        key, _, value = headers.pop(0)[2:].partition("=")
+        if key == "version":
+            version = value
+        elif key in paths and value.startswith("/"):
+            paths[key] = value
+        else:
+            raise SystemExit(f"gen_man3.py: unknown option or not an absolute path: --{key}={value}")
     date, entries = parse_source(Path(source))
     functions: List[Function] = []
     for h in headers:
@@ -301,7 +322,7 @@ def main(argv: List[str]) -> int:
     for old in out.glob("*.3"):           # a removed function loses its page
         old.unlink()
     for fn in functions:
-        (out / f"{fn.name}.3").write_text(render(fn, entries[fn.name], date, version), encoding="utf-8")
+        (out / f"{fn.name}.3").write_text(render(fn, entries[fn.name], date, version, paths), encoding="utf-8")
     return 0
 
 

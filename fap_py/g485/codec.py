@@ -161,6 +161,18 @@ def _raw(data: bytes, what: str) -> bytes:
     raise G485ValueError(f"{what} must be bytes-like, not {type(data).__name__}")
 
 
+def _buffer_bytes(data: object, what: str) -> bytes:
+    """The bytes of any bytes-like object (buffer protocol, C-contiguous or not)."""
+    if isinstance(data, str):
+        raise G485ValueError(f"{what} takes bytes, not str (encode it first)")
+    try:
+        return memoryview(data).tobytes()          # type: ignore[arg-type]
+    except TypeError:
+        raise G485ValueError(f"{what} takes bytes, not {type(data).__name__}") from None
+    except ValueError as exc:                      # a released memoryview
+        raise G485ValueError(f"{what}: unusable buffer ({exc})") from None
+
+
 def _u8s(*values: int) -> None:
     """Raw header fields: ints 0..255 (not bools)."""
     for v in values:
@@ -524,9 +536,13 @@ class Parser:
         return HEADER_SIZE + self._buf[3] - n
 
     def feed(self, data: bytes) -> List[Event]:
-        """Add bytes; return the packets and discards they complete, in order."""
-        if not isinstance(data, (bytes, bytearray, memoryview)):
-            raise G485ValueError(f"feed takes bytes, not {type(data).__name__}")
+        """Add bytes; return the packets and discards they complete, in order.
+
+        ``data``: any bytes-like object (bytes, bytearray, a memoryview, strided
+        or multi-dimensional ones too, an ``array``, ``mmap``); a str, an int
+        or a released memoryview is a :class:`G485ValueError`."""
+        if not isinstance(data, (bytes, bytearray)):
+            data = _buffer_bytes(data, "feed")
         buf = self._buf
         buf += data
         events: List[Event] = []

@@ -50,15 +50,27 @@ MAX_EEPROM_FILE = 1 << 20
 
 def _eeprom_path(value: Any) -> str:
     """An EEPROM file path: a path without NUL, and a regular file if it exists
-    (it is created at the first save). Refused up front, not at power-on:
-    '', a directory, ``/dev/null``, ``/dev/zero``."""
+    (it is created at the first save, so its directory must exist). Refused up
+    front, not at power-on or at a save that would fail: '', a directory,
+    ``/dev/null``, ``/dev/zero``, a name that is not valid UTF-8 (bytes such as
+    ``b'\\xff\\xfe'``, a lone surrogate), a file in a missing directory."""
     try:
         path = check_path(value, "eeprom_path")
     except InvalidValueError as exc:
         raise G485ValueError(str(exc)) from None
     try:
+        path.encode("utf-8")
+    except UnicodeEncodeError:
+        shown = value if isinstance(value, bytes) else path
+        raise G485ValueError(f"eeprom_path {shown!r} is not a valid UTF-8 file name") from None
+    try:
         st = os.stat(path)
     except FileNotFoundError:
+        parent = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(parent):
+            raise G485ValueError(f"eeprom_path {path!r}: its directory {parent!r} does not exist "
+                                 "(the file is created at the first save, the directory is not)"
+                                 ) from None
         return path
     except OSError as exc:
         raise G485ValueError(f"eeprom_path {path!r}: {exc.strerror}") from None

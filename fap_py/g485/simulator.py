@@ -48,6 +48,7 @@ class Simulator:
                  idle_timeout: Optional[float] = None, rs485: Optional[RS485] = None,
                  **serial_kwargs: Any) -> None:
         self._stopping = True  # until the port is open: stop() has nothing to do
+        self._closed = False   # set by stop()/close(): add() and device() refuse then
         self.devices: List[SimDevice] = []
         try:
             for device in devices:
@@ -69,7 +70,8 @@ class Simulator:
         self.events = 0  # parser events handled (packets and discards)
 
     def add(self, device: SimDevice) -> SimDevice:
-        """Put a device on this port (IDs must differ)."""
+        """Put a device on this port (IDs must differ). ClosedError once stopped."""
+        self._check_open()
         if not isinstance(device, SimDevice):
             raise G485ValueError(f"a device must be a SimDevice, not {type(device).__name__}")
         if any(d.address == device.address for d in self.devices):
@@ -78,12 +80,19 @@ class Simulator:
         return device
 
     def device(self, address: int) -> SimDevice:
-        """The device currently answering at ``address`` (G485ValueError if none)."""
+        """The device currently answering at ``address`` (G485ValueError if none;
+        ClosedError once stopped: nothing answers on a closed port)."""
+        self._check_open()
         whole_arg(address, "address", MIN_SLAVE_ADDRESS, MAX_SLAVE_ADDRESS)
         for d in self.devices:
             if d.address == address:
                 return d
         raise G485ValueError(f"no device answers at ID {address} on {self.name}")
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise ClosedError(f"{getattr(self, 'name', 'simulator')}: simulator stopped "
+                              "(its port is closed: make a new one)")
 
     # -- thread -------------------------------------------------------------
 
@@ -98,15 +107,21 @@ class Simulator:
         return self
 
     def stop(self) -> None:
-        """Stop the thread and close the port (if the simulator opened it)."""
+        """Stop the thread and close the port (if the simulator opened it).
+        Afterwards start(), add() and device() raise ClosedError."""
         if not self._stopping:
             self._stopping = True
+            self._closed = True
             os.write(self._stop_w, b"x")
             if self._thread is not None:
                 self._thread.join(5.0)
             self._io.close()
             os.close(self._stop_r)
             os.close(self._stop_w)
+
+    def close(self) -> None:
+        """The same as :meth:`stop` (the name every other fap_py object uses)."""
+        self.stop()
 
     def __enter__(self) -> "Simulator":
         return self.start()

@@ -20,13 +20,15 @@ Records without a time get the time of the previous one (0 at first).
 """
 from __future__ import annotations
 
+import errno
+import io
 import struct
 from typing import BinaryIO, Optional
 
 from .. import _protocols
 from .._closing import Closing
 from .._validate import check_bool
-from ..errors import InvalidTypeError, InvalidValueError
+from ..errors import FileError, InvalidTypeError, InvalidValueError
 from .core import Record
 from .decoders import plugin
 
@@ -59,16 +61,36 @@ class PcapWriter(Closing):
     """Writes records to a pcap file (a context manager)."""
 
     def __init__(self, fh: BinaryIO, epoch: Optional[float] = None) -> None:
-        """``fh``: a binary file open for writing; ``epoch``: the time of untimed records."""
+        """``fh``: a binary file open for writing; ``epoch``: the time of untimed records.
+
+        A text file (``open(path, "w")``, ``io.StringIO``) is an
+        :class:`InvalidTypeError`, a closed file or one not open for writing an
+        :class:`InvalidValueError`, a failed write of the file header a
+        :class:`FileError`: all here, before any record."""
         if not callable(getattr(fh, "write", None)) or not callable(getattr(fh, "flush", None)):
             raise InvalidTypeError(f"fh must be a binary file, not {type(fh).__name__}")
+        if isinstance(fh, io.TextIOBase):
+            raise InvalidTypeError(f"fh must be a binary file (open it with 'wb'), not a text file "
+                                   f"({type(fh).__name__})")
         if epoch is not None and (isinstance(epoch, bool) or not isinstance(epoch, (int, float))
                                   or not 0.0 <= epoch < 2.0**32):
             raise InvalidValueError(f"epoch must be None or 0..2**32 s, not {epoch!r}")
         self._fh = fh
         self._last = 0.0 if epoch is None else epoch
-        fh.write(_GLOBAL.pack(0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE))
-        fh.flush()
+        try:
+            fh.write(_GLOBAL.pack(0xA1B2C3D4, 2, 4, 0, 0, SNAPLEN, LINKTYPE))
+            fh.flush()
+        except TypeError:             # a text file that is no io.TextIOBase
+            raise InvalidTypeError(f"fh must be a binary file (open it with 'wb'): "
+                                   f"{type(fh).__name__} does not take bytes") from None
+        except io.UnsupportedOperation:
+            raise InvalidValueError("fh is not open for writing (open it with 'wb')") from None
+        except ValueError as exc:     # closed
+            raise InvalidValueError(f"fh cannot be written: {exc}") from None
+        except OSError as exc:
+            raise FileError(exc.errno or errno.EIO, f"pcap file: {exc.strerror or exc}",
+                            getattr(fh, "name", None) if isinstance(getattr(fh, "name", None), str)
+                            else None) from None
 
     def write(self, rec: Record, flush: bool = False) -> None:
         """Append one record. A pcap record holds 0 <= t < 2**32 s: a later time

@@ -2,7 +2,8 @@
 # Install libfap (headers, libraries, fap.pc) into a scratch DESTDIR and
 # build a vendor-style program against it, both with the plain
 # `cc -I<includedir>/libfap app.c -lfap -lpthread -lrt` and with pkg-config;
-# then the example makefiles, both through pkg-config and through PREFIX.
+# then each example directory copied alone out of the tree, its makefile
+# both through pkg-config and through PREFIX.
 set -eu
 builddir=$1; srcdir=$2; examples=${3:-}
 cc=${CC:-cc}
@@ -35,22 +36,41 @@ $cc "$srcdir/vendor_app.c" -o "$dest/app_pc" $cflags $(pkg-config --libs fap)
 LD_LIBRARY_PATH=$libdir "$dest/app_pc" /nonexistent/ttyFAP
 passed=2
 
-# 3. the example makefiles: through pkg-config, then through PREFIX alone
-#    (meson's libdir, e.g. lib/x86_64-linux-gnu, found without LIBDIR)
+# 3. the example makefiles, each directory copied ALONE out of the tree (as a
+#    user starts a project from it: nothing outside it may be needed), built
+#    through pkg-config, then through PREFIX alone (meson's libdir, e.g.
+#    lib/x86_64-linux-gnu, found without LIBDIR)
 if [ -n "$examples" ]; then
   command -v make >/dev/null || { echo "make missing"; exit 1; }
   for ex in fap execasync mikroc; do
-    mkdir -p "$dest/ex-pc/$ex" "$dest/ex-prefix/$ex"
-    make -s -C "$dest/ex-pc/$ex" -f "$examples/$ex/Makefile" VPATH="$examples/$ex" CC="$cc"
-    env -u PKG_CONFIG_PATH make -s -C "$dest/ex-prefix/$ex" -f "$examples/$ex/Makefile" \
-      VPATH="$examples/$ex" CC="$cc" PREFIX="$prefix"
+    for way in pc prefix; do
+      mkdir -p "$dest/ex-$way"
+      cp -R "$examples/$ex" "$dest/ex-$way/$ex"
+      rm -f "$dest/ex-$way/$ex/meson.build"    # the in-tree build's file, not the makefile's
+    done
+    make -s -C "$dest/ex-pc/$ex" CC="$cc" \
+      || { echo "examples/$ex copied alone: make (pkg-config) failed"; exit 1; }
+    env -u PKG_CONFIG_PATH make -s -C "$dest/ex-prefix/$ex" CC="$cc" PREFIX="$prefix" \
+      || { echo "examples/$ex copied alone: make PREFIX=... failed"; exit 1; }
   done
-  # each runs and reaches fapInit (the PREFIX build through its rpath alone)
+  # the block that finds libfap is the same in every makefile (one convention)
+  block() { sed -n '/^# ---- finding libfap/,/^# -----------*$/p' "$1"; }
+  ref=$(block "$examples/fap/Makefile")
+  [ -n "$ref" ] || { echo "examples/fap/Makefile: no libfap block"; exit 1; }
+  for ex in execasync mikroc; do
+    [ "$(block "$examples/$ex/Makefile")" = "$ref" ] \
+      || { echo "examples/$ex/Makefile: its libfap block differs from examples/fap's"; exit 1; }
+  done
+  # each runs and reaches fapInit / its open (the PREFIX build through its rpath alone)
   for way in pc prefix; do
-    out=$(LD_LIBRARY_PATH=$([ $way = pc ] && echo "$libdir") \
-          "$dest/ex-$way/fap/fap_slave" /nonexistent/ttyFAP 7 2>&1) || true
+    ld=$([ $way = pc ] && echo "$libdir" || true)
+    out=$(LD_LIBRARY_PATH=$ld "$dest/ex-$way/fap/fap_slave" /nonexistent/ttyFAP 7 2>&1) || true
     case $out in *"fapInit() Failed"*) ;; *) echo "ex-$way fap_slave: $out"; exit 1 ;; esac
+    for bin in execasync/exec_master execasync/exec_slave execasync/exec_demo \
+               mikroc/mikroc_master mikroc/mikroc_slave; do
+      [ -x "$dest/ex-$way/$bin" ] || { echo "ex-$way: $bin not built"; exit 1; }
+    done
   done
-  passed=4
+  passed=5
 fi
 echo "$passed passed, 0 failed"

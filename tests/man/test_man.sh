@@ -2,7 +2,10 @@
 # The man pages: mandoc -Tlint finds nothing at any level (style included);
 # `meson install --tags man` puts them where `man -M PREFIX/share/man` finds
 # fapInit(3), fapx_open(3), libfap(7), fap(1) and fap-monitor(1); every
-# header function has its man3 page. Skipped (77) without mandoc or man
+# header function has its man3 page; every man3 page and libfap(7) name the
+# install's own header and library directories (not a fixed /usr/local);
+# fapInit(3)'s EXAMPLE, compiled with its SYNOPSIS line, waits for frames
+# without spinning (run_man_example.py). Skipped (77) without mandoc or man
 # unless CI is set.
 set -eu
 builddir=$1; srcdir=$2
@@ -15,7 +18,7 @@ done
 dest=$(mktemp -d)
 trap 'rm -rf "$dest"' EXIT
 # --no-rebuild: the pages are this test's dependencies (built); nothing else is needed
-meson install -C "$builddir" --destdir "$dest" --tags man --no-rebuild --quiet >/dev/null
+meson install -C "$builddir" --destdir "$dest" --tags man,devel,runtime --no-rebuild --quiet >/dev/null
 mandir=$(find "$dest" -type d -name man3 -path '*/share/man/*' | head -n 1)
 mandir=${mandir%/man3}
 [ -n "$mandir" ] || { echo "no man3 directory installed"; exit 1; }
@@ -51,4 +54,24 @@ if [ -f "$mandir/man1/fap.1" ]; then
   check 1 fap-monitor "--protocol"
   check 1 fap-exec "FAP EXEC MASTER"
 fi
+
+# 4. the compile line names this install's directories: where fap.h and
+#    libfap.so really are under the prefix (whatever --prefix/--libdir said)
+hdr=$(find "$dest" -name fap.h -path '*/libfap/*' | head -n 1)
+lib=$(find "$dest" -name libfap.so | head -n 1)
+[ -n "$hdr" ] && [ -n "$lib" ] || { echo "fap.h or libfap.so not installed"; exit 1; }
+incdir=$(dirname "${hdr#"$dest"}"); libdir=$(dirname "${lib#"$dest"}")
+check 3 fapInit "cc -I$incdir app.c -L$libdir -lfap -lpthread -lrt"
+check 3 fap_port_open "cc -I$incdir app.c -L$libdir -lfap -lpthread -lrt"
+check 7 libfap "-I$incdir app.c -L$libdir -lfap"
+wrong=$(grep -L -F -e "cc \\-I$incdir app.c \\-L$libdir \\-lfap \\-lpthread \\-lrt" "$mandir"/man3/*) || true
+[ -z "$wrong" ] || { echo "man3 pages without the install's -I$incdir/-L$libdir:"; echo "$wrong" | head; exit 1; }
+passed=$((passed + 1))
+
+# 5. fapInit(3)'s EXAMPLE, compiled from the installed page with its own
+#    SYNOPSIS line, runs on a pty and waits for a frame without spinning
+work=$(mktemp -d)
+trap 'rm -rf "$dest" "$work"' EXIT
+python3 "$srcdir/tests/man/run_man_example.py" "$mandir/man3/fapInit.3" "$dest" "$work"
+passed=$((passed + 1))
 echo "$passed passed, 0 failed"
