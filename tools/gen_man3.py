@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Generate libfap's man3 pages: one page per public C function.
 
-    gen_man3.py SOURCE OUTDIR HEADER...
+    gen_man3.py SOURCE OUTDIR [--version=V] [--source=MORE]... HEADER...
 
 The prototype and the comment written above it come from the headers
 themselves (so a changed signature changes its page); SOURCE
@@ -22,7 +22,9 @@ SOURCE format, one block per function:
     -- example              (kept as written, in a literal block)
     -- see                  (names; man3 unless "name(N)")
 
-Lines starting "#" outside blocks are comments. A "%% date: YYYY-MM-DD"
+Each --source=MORE (man/functions.d/<component>.txt, one per component
+that has one) adds entries in the same format; a function described twice
+fails the build. Lines starting "#" outside blocks are comments. A "%% date: YYYY-MM-DD"
 line sets the pages' date.
 """
 from __future__ import annotations
@@ -287,7 +289,16 @@ def main(argv: List[str]) -> int:
     version = "0"
     if headers and headers[0].startswith("--version="):
         version = headers.pop(0).split("=", 1)[1]
+    more = [h.split("=", 1)[1] for h in headers if h.startswith("--source=")]
+    headers = [h for h in headers if not h.startswith("--source=")]
     date, entries = parse_source(Path(source))
+    for extra in more:            # a component's own entries (man/functions.d/<comp>.txt)
+        _, got = parse_source(Path(extra))
+        twice = sorted(entries.keys() & got.keys())
+        if twice:
+            raise SystemExit(f"{extra}: entries already in {source}: {twice}")
+        entries.update(got)
+        source += f", {extra}"
     functions: List[Function] = []
     for h in headers:
         functions += parse_header(Path(h))
