@@ -39,7 +39,8 @@ passed=2
 #    (meson's libdir, e.g. lib/x86_64-linux-gnu, found without LIBDIR)
 if [ -n "$examples" ]; then
   command -v make >/dev/null || { echo "make missing"; exit 1; }
-  for ex in fap execasync mikroc; do
+  for mk in "$examples"/*/Makefile; do   # every example folder with a makefile
+    ex=$(basename "$(dirname "$mk")")
     mkdir -p "$dest/ex-pc/$ex" "$dest/ex-prefix/$ex"
     make -s -C "$dest/ex-pc/$ex" -f "$examples/$ex/Makefile" VPATH="$examples/$ex" CC="$cc"
     env -u PKG_CONFIG_PATH make -s -C "$dest/ex-prefix/$ex" -f "$examples/$ex/Makefile" \
