@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Generate libfap's man3 pages: one page per public C function.
 
-    gen_man3.py SOURCE OUTDIR [--version=V] [--includedir=DIR] [--libdir=DIR] HEADER...
+    gen_man3.py SOURCE OUTDIR [--version=V] [--includedir=DIR] [--libdir=DIR] [--source=MORE]... HEADER...
 
 (--includedir/--libdir: where the installed headers and library are, as
-each page's SYNOPSIS names them; meson passes the install's own.)
+each page's SYNOPSIS names them; meson passes the install's own.
+--source: a component's own entries, man/functions.d/<comp>.txt.)
 
 The prototype and the comment written above it come from the headers
 themselves (so a changed signature changes its page); SOURCE
@@ -25,7 +26,9 @@ SOURCE format, one block per function:
     -- example              (kept as written, in a literal block)
     -- see                  (names; man3 unless "name(N)")
 
-Lines starting "#" outside blocks are comments. A "%% date: YYYY-MM-DD"
+Each --source=MORE (man/functions.d/<component>.txt, one per component
+that has one) adds entries in the same format; a function described twice
+fails the build. Lines starting "#" outside blocks are comments. A "%% date: YYYY-MM-DD"
 line sets the pages' date.
 """
 from __future__ import annotations
@@ -300,15 +303,25 @@ def main(argv: List[str]) -> int:
     source, outdir, *headers = argv
     version = "0"
     paths = dict(DEFAULT_PATHS)
+    more: List[str] = []
     while headers and headers[0].startswith("--"):
         key, _, value = headers.pop(0)[2:].partition("=")
         if key == "version":
             version = value
+        elif key == "source":
+            more.append(value)
         elif key in paths and value.startswith("/"):
             paths[key] = value
         else:
             raise SystemExit(f"gen_man3.py: unknown option or not an absolute path: --{key}={value}")
     date, entries = parse_source(Path(source))
+    for extra in more:            # a component's own entries (man/functions.d/<comp>.txt)
+        _, got = parse_source(Path(extra))
+        twice = sorted(entries.keys() & got.keys())
+        if twice:
+            raise SystemExit(f"{extra}: entries already in {source}: {twice}")
+        entries.update(got)
+        source += f", {extra}"
     functions: List[Function] = []
     for h in headers:
         functions += parse_header(Path(h))

@@ -74,4 +74,18 @@ const char *lf_codec_shared_name(int code);
     .finish = p##_finish, .reject_name = p##_reject_name, .frame_name = frame_name_, \
     .missing = p##_missing, .encode = p##_encode, .max_frame = max_frame_,          \
 }
+
+/* A row's place in the table: the row and the other names it answers to
+ * (a NULL-terminated list, or NULL), defined beside the row as
+ * lf_codec_entry_<component>. csrc/meson.build generates the table of
+ * these (codec_rows.c) from the components list: every component with a
+ * codec_table.c (but common, the table's home) is a row, in that order. */
+typedef struct lf_codec_entry {
+    const fap_codec *codec;
+    const char *const *aliases;
+} lf_codec_entry;
+#define LF_CODEC_ENTRY(comp, row, aliases_) \
+    const lf_codec_entry lf_codec_entry_##comp = {&(row), (aliases_)}
+/* The generated table: every entry, then NULL. */
+extern const lf_codec_entry *const lf_codec_rows[];
 #endif

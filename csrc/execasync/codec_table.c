@@ -108,5 +108,8 @@ static size_t exec_encode(uint8_t *out, size_t cap, const unsigned *field,
     return execAsyncBufferOut((byte)field[0], raw, out, (byte)len, (byte)field[1]);
 }
 
-const fap_codec lf_codec_exec =
+static const fap_codec row =
     LF_CODEC_ROW(exec, lf_codec_never, lf_codec_unnamed, EXEC_ASYNC_MAX_FRAME);
+/* the old spelling, accepted on input */
+static const char *const aliases[] = {"execasync", NULL};
+LF_CODEC_ENTRY(execasync, row, aliases);

@@ -116,4 +116,5 @@ static size_t fap_encode(uint8_t *out, size_t cap, const unsigned *field,
     return lf_fap_encode(out, cap, field[0], field[1], field[2], data, len);
 }
 
-const fap_codec lf_codec_fap = LF_CODEC_ROW(fap, fap_deadline, fap_frame_name, LF_FAP_MAX_FRAME);
+static const fap_codec row = LF_CODEC_ROW(fap, fap_deadline, fap_frame_name, LF_FAP_MAX_FRAME);
+LF_CODEC_ENTRY(fap, row, NULL);

@@ -112,5 +112,6 @@ static size_t mikroc_encode(uint8_t *out, size_t cap, const unsigned *field,
     return n > 0 ? (size_t)n : 0;
 }
 
-const fap_codec lf_codec_mikroc =
+static const fap_codec row =
     LF_CODEC_ROW(mikroc, lf_codec_never, lf_codec_unnamed, MIKROC_RS485_FRAME_MAX);
+LF_CODEC_ENTRY(mikroc, row, NULL);

@@ -13,7 +13,9 @@ sampler, child processes, bit-error channel model). Each protocol's part is its 
 A plug-in module has ``run(cfg) -> dict`` (one JSON-able report with ``"protocol"`` and the
 verdict ``"ok"``) and ``child(path, node, baud, seed, rate, until) -> int`` (a slave process's
 body); an optional ``duration(cfg) -> float`` says how long ``run`` takes when that is more
-than ``cfg.seconds``.
+than ``cfg.seconds``; ``report(result) -> list`` gives the summary lines of a report (``.ci/soak.sh``
+prints each protocol's own); an optional ``CHECK8 = True`` marks a protocol whose frames carry
+only an 8-bit check (its corruption is measured, not failed on; CI gives it the shorter run).
 """
 from __future__ import annotations
 

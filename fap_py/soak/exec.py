@@ -127,3 +127,11 @@ def run(cfg: Config) -> Dict[str, Any]:
         "master_stats": mstats, "resources": rig.sampler.summary(),
         "ok": corrupted == 0 and stale == 0 and dup == 0 and bad_at_slave[0] == 0,
     }
+
+
+def report(r: Dict[str, Any]) -> List[str]:
+    """The summary lines of a report of :func:`run` (``.ci/soak.sh`` prints them)."""
+    return [f"soak exec: {r['transactions']} transactions, intact {r['replies_intact']}, corrupted "
+            f"{r['replies_corrupted']}, stale {r['stale_replies']}, handler twice {r['duplicated']} "
+            f"(+{r['duplicated_seq0_documented']} documented SeqNo 0), failed {r['failed']}, "
+            f"recovery {r['recovery_s']}"]

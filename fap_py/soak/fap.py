@@ -240,3 +240,12 @@ def _report(rig: Rig, bstats: Any, incs: Dict[int, List[Incarnation]], sent: Dic
         "resources": rig.sampler.summary(),
         "ok": corrupted == 0 and dup == 0 and corrupt_at_master == 0 and s_dup == 0,
     }
+
+
+def report(r: Dict[str, Any]) -> List[str]:
+    """The summary lines of a report of :func:`run` (``.ci/soak.sh`` prints them)."""
+    a, b = r["master_to_slaves"], r["slaves_to_master"]
+    return [f"soak fap: m->s sent {a['sent']} intact {a['delivered_intact']} corrupted {a['corrupted']} "
+            f"duplicated {a['duplicated']} lost {a['lost']} (counters {a['loss_counters']}); "
+            f"s->m sent {b['sent']} intact {b['delivered_intact']} corrupted {b['corrupted']} "
+            f"duplicated {b['duplicated']} lost {b['lost']}; recovery {r['recovery_s']}"]

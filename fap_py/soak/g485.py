@@ -15,9 +15,10 @@ import threading
 import time
 from typing import Any, Dict, List
 
-from .harness import Config, FaultPlan, Rig, channel_soak, reports, running, say
+from .harness import Config, FaultPlan, Rig, channel_report, channel_soak, reports, running, say
 
 NAME = "g485"
+CHECK8 = True       # an 8-bit frame check: corruption measured, not failed on
 _KEY = b"fap-soak"
 G485_FIRST = 8          # first user register
 G485_BLOCK = 16         # seq (4) + random (4) + digest (8)
@@ -154,3 +155,11 @@ def _bus(cfg: Config) -> Dict[str, Any]:
         "master_stats": mstats, "simulators": sim_stats, "resources": rig.sampler.summary(),
         "ok": True,
     }
+
+
+def report(r: Dict[str, Any]) -> List[str]:
+    """The summary lines of a report of :func:`run` (``.ci/soak.sh`` prints them)."""
+    return [f"soak g485: bus BER {r['faults']['bit_error_rate']}/byte, {r['faults']['bus_bit_errors']} bit errors; "
+            f"{r['sent']} write+read-back cycles, intact {r['delivered_intact']}, corrupted-undetected "
+            f"{r['corrupted_undetected']}, stale {r['stale_read']}, lost {r['lost']} (failed {r['failed']}); "
+            f"recovery {r['recovery_s']}"] + channel_report(r)

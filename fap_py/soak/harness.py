@@ -374,3 +374,13 @@ def channel_soak(protocol: str, cfg: Config, make_frame: Callable[[random.Random
             "delivered_intact": intact, "damage_detected": detected,
             "damage_undetected": undetected, "clean_but_lost": lost,
             "undetected_per_damaged_frame": round(undetected / damaged, 5) if damaged else 0.0}
+
+
+def channel_report(r: Dict[str, Any]) -> List[str]:
+    """The lines every report with a channel model (``channel_soak``) ends with: the
+    undetected corruption rate on the bus, then what the channel model measured."""
+    p, c = r["protocol"], r["channel"]
+    return [f"soak {p}: UNDETECTED CORRUPTION RATE on the bus {r['undetected_corruption_rate']} per message",
+            f"soak {p} channel: {c['frames']} frames at bit error rate {c['bit_error_rate']}: "
+            f"{c['damaged_on_wire']} damaged, {c['damage_undetected']} passed the 8-bit check "
+            f"({c['undetected_per_damaged_frame']} per damaged frame)"]

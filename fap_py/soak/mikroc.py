@@ -17,9 +17,10 @@ import threading
 import time
 from typing import Any, Dict, List, Tuple
 
-from .harness import Config, FaultPlan, Rig, channel_soak, reports, running, say
+from .harness import Config, FaultPlan, Rig, channel_report, channel_soak, reports, running, say
 
 NAME = "mikroc"
+CHECK8 = True       # an 8-bit frame check: corruption measured, not failed on
 _KEY = b"fap-soak"
 
 
@@ -212,3 +213,14 @@ def _bus(cfg: Config) -> Dict[str, Any]:
         # mikroC never sends a frame twice: a duplicate would be a bus or engine defect
         "ok": dup == 0 and s_dup == 0,
     }
+
+
+def report(r: Dict[str, Any]) -> List[str]:
+    """The summary lines of a report of :func:`run` (``.ci/soak.sh`` prints them)."""
+    a, b = r["master_to_slaves"], r["slaves_to_master"]
+    return [f"soak mikroc: bus BER {r['faults']['bit_error_rate']}/byte, {r['faults']['bus_bit_errors']} bit errors; "
+            f"m->s sent {a['sent']} intact {a['delivered_intact']} corrupted-undetected "
+            f"{a['corrupted_undetected']} duplicated {a['duplicated']} lost {a['lost']}; "
+            f"s->m intact {b['delivered_intact']} corrupted-undetected "
+            f"{b['corrupted_undetected'] + b['from_wrong_node']} duplicated {b['duplicated']} "
+            f"lost {b['lost']}; recovery {r['recovery_s']}"] + channel_report(r)

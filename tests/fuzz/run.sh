@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Fuzz campaign: build the libFuzzer targets, seed their corpora from the
-# vectors, run each target (and the G485 parser fuzzer) for N seconds.
+# vectors, run each target (and the Python fuzzers) for N seconds.
 #   tests/fuzz/run.sh --seconds N [--out DIR] [TARGET...]
-# Targets: fuzz_fap_decoder fuzz_fap_sm fuzz_exec_bytein fuzz_exec_pack
-# fuzz_mikroc g485 (default: all). Corpora grow in DIR/corpus/<target>
+# Targets (default: all, found in tests/fuzz/, not listed here): every
+# fuzz_<name>.c (libFuzzer) and every <name>_fuzz.py but test_* (target
+# <name>; it takes --seconds, --corpus and --json). Corpora grow in DIR/corpus/<target>
 # (kept between runs); a crashing input is saved as DIR/crash-<target>-*.
 # Prints executions per target; exit 1 if any target found a failure.
 set -euo pipefail
@@ -15,11 +16,16 @@ while [ $# -gt 0 ]; do
   case "$1" in
     --seconds) seconds="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
-    -h|--help) sed -n '2,9p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,10p' "$0"; exit 0 ;;
     *) targets+=("$1"); shift ;;
   esac
 done
-[ ${#targets[@]} -gt 0 ] || targets=(fuzz_fap_decoder fuzz_fap_sm fuzz_exec_bytein fuzz_exec_pack fuzz_mikroc g485)
+if [ ${#targets[@]} -eq 0 ]; then
+  for f in "$root"/tests/fuzz/fuzz_*.c; do t=$(basename "$f"); targets+=("${t%.c}"); done
+  for f in "$root"/tests/fuzz/*_fuzz.py; do   # but the pytest files test_*
+    t=$(basename "$f"); case "$t" in test_*) continue ;; esac; targets+=("${t%_fuzz.py}")
+  done
+fi
 "$root/tests/fuzz/build.sh" "$out"
 python3 "$root/tests/fuzz/seed_corpus.py" "$out/corpus"
 python="${PYTHON:-python3}"
@@ -28,8 +34,8 @@ fail=0
 summary=()
 for t in "${targets[@]}"; do
   log="$out/$t.log"
-  if [ "$t" = g485 ]; then
-    if nice "$python" "$root/tests/fuzz/g485_fuzz.py" --seconds "$seconds" --corpus "$out/corpus/g485" --json >"$log" 2>&1; then
+  if [ -e "$root/tests/fuzz/${t}_fuzz.py" ]; then
+    if nice "$python" "$root/tests/fuzz/${t}_fuzz.py" --seconds "$seconds" --corpus "$out/corpus/$t" --json >"$log" 2>&1; then
       execs=$("$python" -c 'import json,sys; print(json.loads(open(sys.argv[1]).read().splitlines()[-1])["executions"])' "$log")
     else
       fail=1; execs="FAILED"; tail -20 "$log" >&2

@@ -42,7 +42,8 @@ passed=2
 #    lib/x86_64-linux-gnu, found without LIBDIR)
 if [ -n "$examples" ]; then
   command -v make >/dev/null || { echo "make missing"; exit 1; }
-  for ex in fap execasync mikroc; do
+  for mk in "$examples"/*/Makefile; do   # every example folder with a makefile
+    ex=$(basename "$(dirname "$mk")")
     for way in pc prefix; do
       mkdir -p "$dest/ex-$way"
       cp -R "$examples/$ex" "$dest/ex-$way/$ex"
@@ -57,8 +58,9 @@ if [ -n "$examples" ]; then
   block() { sed -n '/^# ---- finding libfap/,/^# -----------*$/p' "$1"; }
   ref=$(block "$examples/fap/Makefile")
   [ -n "$ref" ] || { echo "examples/fap/Makefile: no libfap block"; exit 1; }
-  for ex in execasync mikroc; do
-    [ "$(block "$examples/$ex/Makefile")" = "$ref" ] \
+  for mk in "$examples"/*/Makefile; do
+    ex=$(basename "$(dirname "$mk")")
+    [ "$(block "$mk")" = "$ref" ] \
       || { echo "examples/$ex/Makefile: its libfap block differs from examples/fap's"; exit 1; }
   done
   # each runs and reaches fapInit / its open (the PREFIX build through its rpath alone)
