@@ -21,6 +21,9 @@ import tempfile
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
+from bench import servers
+from bench.stats import pct, summary, turnarounds
+
 ROOT = Path(__file__).resolve().parents[1]
 log = logging.getLogger("bench")
 
@@ -33,17 +36,11 @@ MODES = ("direct", "tcp", "rfc2217", "pyserial-socket", "pyserial-rfc2217")
 
 
 def _ser2net(workdir: Path, mode: str, dev: str, baud: int) -> Any:
-    sys.path.insert(0, str(ROOT / "tests" / "python" / "port"))
-    from net_helpers import Ser2net  # the tests' launcher: one way to run ser2net
-
-    return Ser2net(workdir, [(mode, dev, baud)], {"chardelay": "false"}, nodelay=NODELAY)
+    return servers.Ser2net(workdir, [(mode, dev, baud)], {"chardelay": "false"}, nodelay=NODELAY)
 
 
 def have_ser2net() -> bool:
-    sys.path.insert(0, str(ROOT / "tests" / "python" / "port"))
-    from net_helpers import SER2NET
-
-    return SER2NET is not None
+    return servers.SER2NET is not None
 
 
 def _client_path(mode: str, s2n: Any, direct: str) -> str:
@@ -58,7 +55,6 @@ def _client_path(mode: str, s2n: Any, direct: str) -> str:
 
 def net_run(runner: Any, kind: str, baud: int, mode: str, seconds: float) -> Dict[str, Any]:
     """One run: the client through `mode`, the server on the bus directly."""
-    from bench.__main__ import turnarounds
     from fap_py.vbus import VirtualBus
 
     tmp = Path(tempfile.mkdtemp(dir=runner.tmp))
@@ -118,8 +114,6 @@ def _g485_run(client: str, server: str, baud: int, seconds: float,
 
 
 def _series(runs: List[Dict[str, Any]]) -> Dict[str, Any]:
-    from bench.__main__ import pct, summary
-
     if not runs:
         return {"error": "all runs failed"}
     out: Dict[str, Any] = {"rate": summary([r["rate"] for r in runs]),
@@ -153,7 +147,6 @@ def mismatch_series(runner: Any, rounds: int, seconds: float,
                     quick: bool = False) -> Dict[str, Any]:
     """{kind: {"115200": series, "1000000": series}}: nodes opened at that
     baud on a bus paced at 1 Mbaud (quick: FAP only)."""
-    from bench.__main__ import turnarounds
     from fap_py.vbus import VirtualBus
 
     res: Dict[str, Any] = {}
