@@ -133,7 +133,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     # The checkout's fap_py/ has no compiled _native: the installed fap_py
     # from here on (also in the children: they run in a temp dir).
     use_installed_fap_py()
-    from bench import net, report, runner as rn
+    from bench import net, report
+    from bench import runner as rn
 
     rn.suite_paths()
     quick = args.quick

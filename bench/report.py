@@ -14,6 +14,7 @@ from bench import net
 from bench.kinds import BASE, PY_KINDS, floor_of, floor_rate, label
 from bench.targets import Target, table
 
+
 def profile_markdown(prof: Dict[str, Any]) -> str:
     L = ["| exchange | side | CPU µs | wake-ups | syscalls | by syscall (per exchange) |",
          "|---|---|---|---|---|---|"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import logging
 import os
 import signal
 import statistics
@@ -22,8 +23,10 @@ from pathlib import Path
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 from bench import ROOT, syscalls
-from bench.kinds import BASE, C_KINDS, PEER_HELP, PEER_MODULES, PY_KINDS, is_c, limit
+from bench.kinds import BASE, PEER_HELP, PEER_MODULES, PY_KINDS, is_c, limit
 from bench.stats import pct, proc_cpu, proc_wakeups, summary, turnarounds
+
+log = logging.getLogger("bench")
 
 
 def suite_paths() -> None:

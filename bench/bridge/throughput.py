@@ -212,8 +212,8 @@ def bridge_run(baud: int, n_slaves: int, seconds: float, work: str,
     consumer's distinct arrivals in the same wall-clock window. ``profile``: a py-spy
     command line ending in ``--pid``, run on the bridge process during the flood."""
     import paho.mqtt.client as mqtt
-    from bench.servers import Mosquitto
 
+    from bench.servers import Mosquitto
     from fap_py.fap import Slave
     from fap_py.vbus import VirtualBus
 
