@@ -126,11 +126,14 @@ def _series(runs: List[Dict[str, Any]]) -> Dict[str, Any]:
 
 def network_series(runner: Any, baud: int, rounds: int, seconds: float,
                    quick: bool = False) -> Dict[str, Any]:
-    """{kind: {mode: series}} through ser2net at `baud` (paced); quick: FAP
-    and G485 only, libfap's transports only (a smoke test)."""
+    """{kind: {mode: series}} through ser2net at `baud` (paced); quick (a
+    smoke test): FAP direct and through libfap's two transports, G485 through
+    libfap's rfc2217:// only (each G485 run starts a Python simulator)."""
     res: Dict[str, Any] = {}
     for kind in ("fap-poll", "g485") if quick else C_NET_KINDS + ("g485",):
         modes = MODES if kind == "g485" and not quick else MODES[:3]
+        if quick and kind == "g485":
+            modes = ("rfc2217",)
         res[kind] = {}
         for mode in modes:
             runs = []
