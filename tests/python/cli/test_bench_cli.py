@@ -33,8 +33,9 @@ def bench_path() -> Iterator[None]:
 def _git_status() -> str:
     if shutil.which("git") is None or not (ROOT / ".git").exists():
         return ""
-    return subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=ROOT,
-                          capture_output=True, text=True, timeout=30).stdout
+    # bench/ only: where the old default put runs (the rest of a checkout may be edited meanwhile)
+    return subprocess.run(["git", "status", "--porcelain", "--untracked-files=all", "--", "bench"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=30).stdout
 
 
 def test_bench_writes_outside_the_tree_by_default(tmp_path: Path) -> None:
