@@ -24,12 +24,20 @@ BEGIN = "<!-- bench:begin -->"
 END = "<!-- bench:end -->"
 
 
+def _full(run: Path) -> bool:
+    try:
+        return not json.loads((run / "results.json").read_text()).get("quick")
+    except (OSError, ValueError):
+        return False
+
+
 def newest(results: Path) -> Path:
+    """The newest full run (not a --quick smoke run) under ``results``."""
     runs = sorted((p for p in (results.iterdir() if results.is_dir() else ())
-                   if (p / "results.json").is_file()),
+                   if (p / "results.json").is_file() and _full(p)),
                   key=lambda p: (p / "results.json").stat().st_mtime)
     if not runs:
-        raise FileNotFoundError(f"no run with results.json under {results}")
+        raise FileNotFoundError(f"no full run with results.json under {results}")
     return runs[-1]
 
 
@@ -63,6 +71,9 @@ def section(res: Dict[str, Any], rel: Optional[str], plots: bool = False) -> str
 
 def regenerate(readme: Path, run: Path, root: Path) -> None:
     res = json.loads((run / "results.json").read_text())
+    if res.get("quick"):
+        raise ValueError(f"{run} is a --quick smoke run, not a measurement: "
+                         "regenerate from a full `python -m bench` run")
     rel: Optional[str]
     try:
         rel = str(run.resolve().relative_to(root.resolve()))

@@ -78,6 +78,9 @@ def test_readme_from_a_run_directory_outside_the_repository(tmp_path: Path, benc
     assert "old" not in text and "Latest run: 2026-12-02 on `h`" in text
     assert "kept outside the repository" in text and str(tmp_path) not in text   # no local path
     assert readme.main(tmp_path / "nowhere", root) == 3                         # a clear error
+    res["quick"] = True                     # a smoke run's numbers are no measurement
+    (run / "results.json").write_text(json.dumps(res))
+    assert readme.main(run, root) == 3 and "Latest run: 2026-12-02" in (root / "README.md").read_text()
 
 
 def test_perf_window_notes_are_filtered_and_real_lines_kept(bench_path: None) -> None:
@@ -115,3 +118,16 @@ def test_quick_does_not_call_the_peers_it_does_not_run_missing(bench_path: None,
     assert kinds == ["bare"] and set(missing) == {"pymodbus"} and "pip install" in missing["pymodbus"]
     with pytest.raises(SystemExit):
         bm.parse(["--sections", "paced,nonsense"])
+
+
+def test_readme_default_is_the_newest_full_run(tmp_path: Path, bench_path: None, monkeypatch) -> None:
+    from bench import readme
+
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    home = tmp_path / "fap-bench"
+    for name, quick in (("full", False), ("smoke", True)):      # the smoke run is the newer
+        (home / name).mkdir(parents=True)
+        (home / name / "results.json").write_text(json.dumps({"quick": quick}))
+    assert readme.newest(home).name == "full"
+    with pytest.raises(FileNotFoundError):
+        readme.newest(tmp_path / "none")
