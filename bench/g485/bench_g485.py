@@ -32,6 +32,7 @@ import os
 import select
 import subprocess
 import sys
+import tempfile
 import time
 import tty
 from typing import Any, Callable, Dict, List, Optional, Tuple
@@ -229,7 +230,9 @@ def proc_cpu(pid: int) -> float:
 
 
 def start_server(argv: List[str]) -> subprocess.Popen:
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    # in a neutral folder: from the repository root ``-m fap_py`` would be the
+    # checkout's fap_py/, which has no compiled _native (a non-editable install)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
     line = proc.stdout.readline() if proc.stdout else ""
     if not line:
         raise RuntimeError(f"server {argv} did not start")
