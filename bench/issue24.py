@@ -136,12 +136,19 @@ def own_rows(res: Dict[str, Any]) -> List[Target]:
 
 
 def part_rows(rounds: int, quick: bool, skip: bool = False,
-              importer: Callable[[str], Any] = importlib.import_module) -> List[Target]:
-    """Every other part's rows, or "not measured" rows saying why."""
+              importer: Callable[[str], Any] = importlib.import_module,
+              why: str = "skipped (--skip-parts)",
+              measured: Optional[Dict[str, List[Target]]] = None) -> List[Target]:
+    """Every other part's rows, or "not measured" rows saying why (``skip``:
+    every part not in ``measured``, with ``why``). ``measured``: rows a part
+    already gave in this run, by module name (not measured again)."""
     rows: List[Target] = []
     for module, goal, names in PARTS:
+        if measured and module in measured:
+            rows += measured[module]
+            continue
         if skip:
-            rows += [Target(n, goal, None, 0.0, True, "", "skipped (--skip-parts)") for n in names]
+            rows += [Target(n, goal, None, 0.0, True, "", why) for n in names]
             continue
         try:
             mod = importer(module)

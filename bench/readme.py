@@ -2,38 +2,51 @@
 
 The section between the markers ``<!-- bench:begin -->`` and ``<!-- bench:end
 -->`` in the top-level README.md is rewritten from one run's ``results.json``
-(the newest ``bench/results/*`` by default): the run's setup and load, the
-met/missed table of issue 24's targets, and the paced 115200 and 1 Mbaud
-tables. Nothing is measured; the lead regenerates the section after a run.
+(by default the newest run in :func:`bench.results_home`, else the newest
+baseline in ``bench/results/``): the run's setup and load, the met/missed
+table of issue 24's targets, and the paced 115200 and 1 Mbaud tables.
+Nothing is measured; the lead regenerates the section after a run. A run
+inside the repository is linked; one outside it (the default place) is
+named by its folder, since readers of the README cannot open it.
 """
 from __future__ import annotations
 
 import json
 import sys
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Optional
+
+from bench import issue24, results_home
+from bench.report import markdown  # the runner's own tables, one format
+from bench.targets import Target, table
 
 BEGIN = "<!-- bench:begin -->"
 END = "<!-- bench:end -->"
 
 
+def _full(run: Path) -> bool:
+    try:
+        return not json.loads((run / "results.json").read_text()).get("quick")
+    except (OSError, ValueError):
+        return False
+
+
 def newest(results: Path) -> Path:
-    runs = sorted((p for p in results.iterdir() if (p / "results.json").is_file()),
+    """The newest full run (not a --quick smoke run) under ``results``."""
+    runs = sorted((p for p in (results.iterdir() if results.is_dir() else ())
+                   if (p / "results.json").is_file() and _full(p)),
                   key=lambda p: (p / "results.json").stat().st_mtime)
     if not runs:
-        raise FileNotFoundError(f"no run with results.json under {results}")
+        raise FileNotFoundError(f"no full run with results.json under {results}")
     return runs[-1]
 
 
-def section(res: Dict[str, Any], rel: str, plots: bool = False) -> str:
-    """The generated Markdown (no markers)."""
-    from bench.__main__ import markdown  # the runner's own tables, one format
-    from bench.targets import Target, table
-
+def section(res: Dict[str, Any], rel: Optional[str], plots: bool = False) -> str:
+    """The generated Markdown (no markers); ``rel``: the run's folder relative
+    to the repository, None for a run outside it."""
     full = markdown(res)
     blocks = full.split("\n## ")
     keep = [b for b in blocks if b.startswith(("Paced at 115200", "Paced at 1000000"))]
-    from bench import issue24
     rows = ([Target(**{k: v for k, v in t.items() if k != "met"}) for t in res["targets"]]
             if "targets" in res else issue24.own_rows(res))     # a run from before the rows
     met = sum(1 for t in rows if t.met)
@@ -41,12 +54,14 @@ def section(res: Dict[str, Any], rel: str, plots: bool = False) -> str:
     L: List[str] = [
         f"Latest run: {res['date']} on `{res['host']}`, {res['machine']}; load average "
         f"{res['loadavg_before']} before, {res.get('loadavg_after', '?')} after; "
-        f"{res['rounds']} rounds of {res['seconds']} s, medians (min–max). Full table and plots: "
-        f"[`{rel}/table.md`]({rel}/table.md).", "",
+        f"{res['rounds']} rounds of {res['seconds']} s, medians (min–max). "
+        + (f"Full table and plots: [`{rel}/table.md`]({rel}/table.md)." if rel else
+           "Full table and plots: the run's `table.md` and PNGs (kept outside the repository)."),
+        "",
         f"Targets of issue 24 in this run: {met} met, {missed} missed, "
         f"{len(rows) - met - missed} not measured.", "",
         table(rows)]
-    if plots:
+    if plots and rel:
         L += [f"![efficiency vs baud]({rel}/efficiency.png)", ""]
     for b in keep:
         title, _, body = b.partition("\n")
@@ -56,10 +71,14 @@ def section(res: Dict[str, Any], rel: str, plots: bool = False) -> str:
 
 def regenerate(readme: Path, run: Path, root: Path) -> None:
     res = json.loads((run / "results.json").read_text())
+    if res.get("quick"):
+        raise ValueError(f"{run} is a --quick smoke run, not a measurement: "
+                         "regenerate from a full `python -m bench` run")
+    rel: Optional[str]
     try:
         rel = str(run.resolve().relative_to(root.resolve()))
     except ValueError:
-        rel = str(run)
+        rel = None
     text = readme.read_text()
     if BEGIN not in text or END not in text:
         raise ValueError(f"{readme}: markers {BEGIN} / {END} missing")
@@ -72,7 +91,10 @@ def regenerate(readme: Path, run: Path, root: Path) -> None:
 def main(run: Path, root: Path) -> int:
     try:
         if str(run) == "latest":
-            run = newest(root / "bench" / "results")
+            try:
+                run = newest(results_home())
+            except FileNotFoundError:
+                run = newest(root / "bench" / "results")   # the baselines kept in git
         regenerate(root / "README.md", run, root)
     except (OSError, ValueError, KeyError, json.JSONDecodeError) as e:
         print(f"bench: --readme: {e}", file=sys.stderr)

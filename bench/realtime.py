@@ -36,9 +36,10 @@ if __name__ == "__main__" and len(sys.argv) > 1 and sys.argv[1] == "_node":
     sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() not in (ROOT, ROOT / "bench")]
 else:
     sys.path.insert(0, str(ROOT))
-    from bench import rt_trace
-    from bench.__main__ import pct, turnarounds  # one capture reader (strips ROOT again)
+    from bench import rt_trace, use_installed_fap_py
+    from bench.stats import pct, turnarounds  # one capture reader
     from bench.targets import Target
+    use_installed_fap_py()
 
 BAUD = 115200
 NODE_RT = "fifo:50,mlock"   #: the engines' I/O threads

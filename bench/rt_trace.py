@@ -110,7 +110,7 @@ def _last_before(items: List[Any], t: float) -> Optional[Any]:
 def bursts(records: Iterable[Tuple[float, int, int]], baud: int) -> List[Tuple[float, float, int]]:
     """(start, end, port) of each transmission from capture records (t_us,
     port, n bytes), a sender's back-to-back records merged: the rule of
-    ``bench.__main__.turnarounds``, which gives only the differences."""
+    ``bench.stats.turnarounds``, which gives only the differences."""
     ct = 10e6 / baud
     tx: List[Tuple[float, float, int]] = []
     for t, port, n in sorted(records):

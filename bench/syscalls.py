@@ -13,6 +13,11 @@ disabled (``-D -1``) and opens the window through perf's control pipe
 (``--control fd:CTL,ACK``): :meth:`Probe.enable` when the client says
 "measuring", :meth:`Probe.disable` when it reports. Without perf the probe
 wraps nothing and reports nothing; the bench goes on.
+
+perf says ``Events disabled`` / ``Events enabled`` on its stderr at every
+switch of the window: the wrapped command's stderr goes to a file
+(:attr:`Probe.stderr`) and :meth:`Probe.relay_stderr` passes on every other
+line (the command's own errors, perf's real ones).
 """
 from __future__ import annotations
 
@@ -22,10 +27,11 @@ import re
 import select
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import IO, Dict, List, Optional
 
 log = logging.getLogger("bench.syscalls")
 # The syscalls an exchange can make (the rest is reported as "other"): a
@@ -35,6 +41,8 @@ DETAIL = ("read", "write", "epoll_wait", "epoll_pwait", "epoll_ctl", "timerfd_se
           "ioctl", "poll", "ppoll", "pselect6", "select", "futex", "clock_nanosleep",
           "nanosleep", "fcntl", "clock_gettime", "sched_yield", "getrusage", "epoll_pwait2")
 _PERF: Optional[bool] = None
+#: perf's own notes on the control pipe's switches: not errors, never shown
+NOISE = re.compile(r"^Events (enabled|disabled)\s*$")
 
 
 def have_perf() -> bool:
@@ -60,6 +68,26 @@ class Probe:
         self._out = Path(tempfile.mkstemp(prefix="bench-perf-", suffix=".csv")[1])
         self._ctl_r, self._ctl_w = os.pipe()
         self._ack_r, self._ack_w = os.pipe()
+        self._err: Optional[IO[bytes]] = tempfile.TemporaryFile() if self.on else None
+
+    @property
+    def stderr(self) -> Optional[IO[bytes]]:
+        """The wrapped command's stderr (``Popen(stderr=...)``): a file
+        when perf wraps it, None (inherit) otherwise."""
+        return self._err
+
+    def relay_stderr(self, to: Optional[IO[str]] = None) -> None:
+        """After the command ended: its stderr lines but perf's switch notes,
+        to ``to`` (default sys.stderr). Once; later calls do nothing."""
+        if self._err is None:
+            return
+        self._err.seek(0)
+        text = self._err.read().decode(errors="replace")
+        self._err.close()
+        self._err = None
+        kept = [line for line in text.splitlines() if line.strip() and not NOISE.match(line)]
+        if kept:
+            print("\n".join(kept), file=to or sys.stderr, flush=True)
 
     @property
     def pass_fds(self) -> List[int]:

@@ -49,10 +49,14 @@ import time
 from typing import Dict, List
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(HERE, "..", "..", "tests", "python", "bridge"))
+sys.path.insert(0, os.path.join(HERE, "..", ".."))   # the checkout, for ``bench``
 
 import paho.mqtt.client as mqtt  # noqa: E402
-from mosquitto import Mosquitto  # noqa: E402
+
+from bench import use_installed_fap_py  # noqa: E402
+from bench.servers import Mosquitto  # noqa: E402
+
+use_installed_fap_py()
 
 from fap_py.fap import Slave  # noqa: E402
 from fap_py.vbus import VirtualBus  # noqa: E402

@@ -39,12 +39,13 @@ from typing import Any, Dict, List, Optional, Tuple
 
 ROOT = Path(__file__).resolve().parents[2]
 # The checkout's fap_py/ has no compiled _native: use the installed fap_py (as bench/__main__).
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != ROOT]
-sys.path.insert(0, str(ROOT / "tests" / "python" / "bridge"))
-if str(ROOT) not in sys.path:   # for ``bench.targets`` when run as a file
+if str(ROOT) not in sys.path:   # for ``bench`` when run as a file
     sys.path.append(str(ROOT))
 
+from bench import use_installed_fap_py  # noqa: E402
 from bench.targets import Target, table  # noqa: E402
+
+use_installed_fap_py()
 
 log = logging.getLogger("bench.bridge")
 
@@ -211,8 +212,8 @@ def bridge_run(baud: int, n_slaves: int, seconds: float, work: str,
     consumer's distinct arrivals in the same wall-clock window. ``profile``: a py-spy
     command line ending in ``--pid``, run on the bridge process during the flood."""
     import paho.mqtt.client as mqtt
-    from mosquitto import Mosquitto
 
+    from bench.servers import Mosquitto
     from fap_py.fap import Slave
     from fap_py.vbus import VirtualBus
 

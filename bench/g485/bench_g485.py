@@ -32,6 +32,7 @@ import os
 import select
 import subprocess
 import sys
+import tempfile
 import time
 import tty
 from typing import Any, Callable, Dict, List, Optional, Tuple
@@ -229,7 +230,9 @@ def proc_cpu(pid: int) -> float:
 
 
 def start_server(argv: List[str]) -> subprocess.Popen:
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True)
+    # in a neutral folder: from the repository root ``-m fap_py`` would be the
+    # checkout's fap_py/, which has no compiled _native (a non-editable install)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, text=True, cwd=tempfile.gettempdir())
     line = proc.stdout.readline() if proc.stdout else ""
     if not line:
         raise RuntimeError(f"server {argv} did not start")
@@ -397,11 +400,13 @@ def run_one(args: argparse.Namespace, rnd: int, server_argv: List[str],
 def paired(args: argparse.Namespace) -> int:
     """The sync and async G485 masters and the bare poll client in interleaved batches, each on
     its own bus: ``paired.py``, the measurement ``python -m bench`` reports as its G485 targets
-    (with ``--paced``, the same setup)."""
-    import paired as p
-
-    print(p.report(p.measure(args.baud, args.paced, args.rounds, args.batch)))
-    return 0
+    (with ``--paced``, the same setup). Run as its own program: paired.py imports this module,
+    this one never imports paired.py (no import circle)."""
+    argv = [sys.executable, os.path.join(os.path.dirname(os.path.abspath(__file__)), "paired.py"),
+            str(args.baud), "--rounds", str(args.rounds)]
+    argv += [] if args.paced else ["--unpaced"]
+    argv += ["--batch", str(args.batch)] if args.batch else []
+    return subprocess.call(argv)
 
 
 def main() -> int:

@@ -9,7 +9,8 @@ three alike within a round, so the per-round ratios hold where whole-run
 rates swing. Reported: the median of the per-round ratios sync/bare and
 async/sync, the median rates, client CPU per read, and the load average.
 
-``python -m bench`` calls :func:`targets`; ``bench_g485.py --paired`` prints
+``python -m bench`` calls :func:`targets`; ``python bench/g485/paired.py
+[BAUD...]`` (or ``bench_g485.py --paired``, which runs this program) prints
 the same measurement (:func:`measure`, :func:`report`).
 """
 from __future__ import annotations
@@ -154,6 +155,19 @@ def targets(bauds: Sequence[int] = (115200, 1000000), rounds: int = 21,
     return rows
 
 
+def main(argv: Optional[List[str]] = None) -> int:
+    import argparse
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("bauds", type=int, nargs="*", default=[115200, 1000000], metavar="BAUD")
+    ap.add_argument("--unpaced", action="store_true", help="unpaced virtual buses (default: paced at BAUD)")
+    ap.add_argument("--rounds", type=int, default=21, help="interleaved rounds (default 21)")
+    ap.add_argument("--batch", type=int, help="reads per batch (default: about 0.05-0.1 s of reads)")
+    a = ap.parse_args(argv)
+    for b in a.bauds:
+        print(report(measure(b, not a.unpaced, a.rounds, a.batch)))
+    return 0
+
+
 if __name__ == "__main__":
-    for b in (int(a) for a in (sys.argv[1:] or ["115200", "1000000"])):
-        print(report(measure(b)))
+    sys.exit(main())

@@ -105,22 +105,35 @@ def _build_dir() -> Optional[Path]:
 
 
 def test_bench_without_matplotlib_skips_the_plots(tmp_path: Path) -> None:
+    """A tiny run (one cell, 0.1 s: seconds, not the 100 s of a --quick run)
+    with matplotlib and pytest hidden: the plots are skipped and said so, the
+    bench needs nothing of the tests, and perf's window notes stay quiet."""
     build = _build_dir()
     if build is None:
         if os.environ.get("CI"):
             pytest.fail("no meson build directory with bench/ for python -m bench")
         pytest.skip("no meson build directory")
-    # matplotlib hidden (None in sys.modules), the bench run as `python -m bench`
-    code = ("import runpy, sys; sys.modules['matplotlib'] = None; "
+    # matplotlib and pytest hidden (None in sys.modules), the bench run as `python -m bench`
+    code = ("import runpy, sys; sys.modules['matplotlib'] = None; sys.modules['pytest'] = None; "
             "runpy.run_module('bench', run_name='__main__', alter_sys=True)")
-    argv = [sys.executable, "-c", code, "--quick", "--only", "bare", "--build-dir", str(build),
-            "--out", str(tmp_path / "out")]
-    p, out, seen = _with_tty_stderr(argv, cwd=ROOT, timeout=300)
+    argv = [sys.executable, "-c", code, "--quick", "--only", "bare", "--sections", "paced",
+            "--seconds", "0.1", "--build-dir", str(build), "--out", str(tmp_path / "out")]
+    t0 = time.monotonic()
+    p, out, seen = _with_tty_stderr(argv, cwd=ROOT, timeout=40)
+    took = time.monotonic() - t0
     text = seen.decode(errors="replace")
     assert p.returncode == 0, text
     assert "bench: matplotlib missing, plots skipped" in text
     assert "Traceback" not in text and "ModuleNotFoundError" not in text
     assert "paced 115200: bare" in text        # the rich bar's description, on the terminal
+    assert "Events disabled" not in text and "Events enabled" not in text   # perf's own notes
+    # the Python peers are not run by --quick: said so, never called "missing"
+    assert "--quick: not run: minimalmodbus, pymodbus, dynamixel" in text
+    assert "missing, skipped" not in text
     assert b"(no plots: matplotlib missing)" in out
     made = {f.name for f in (tmp_path / "out").iterdir()}
     assert {"results.json", "table.md"} <= made and not any(n.endswith(".png") for n in made)
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert list(res["paced"]["115200"]) == ["bare"] and res["missing"] == {}
+    assert res["skipped"]["pymodbus"].startswith("not run in --quick")
+    assert took < 30, f"the tiny bench run took {took:.1f} s"
