@@ -22,6 +22,7 @@ __all__ = [
     "check_bool",
     "check_bytes",
     "check_seconds",
+    "check_probability",
     "check_timeout",
     "check_baud",
     "check_path",
@@ -89,6 +90,22 @@ def check_seconds(value: Any, what: str, *, lo: float = 0.0, hi: float = MAX_TIM
         raise error(f"{what} must be {'>' if lo_open else '>='} {lo} s, not {value}")
     if v > hi:
         raise error(f"{what} must be at most {hi} s, not {value}")
+    return v
+
+
+def check_probability(value: Any, what: str, *,
+                      error: Type[Exception] = InvalidValueError,
+                      type_error: Type[Exception] = InvalidTypeError) -> float:
+    """A probability: a finite number in 0..1 (no unit: not "at most 1.0 s")."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise type_error(f"{what} must be a probability (a number in 0..1), "
+                         f"not {type(value).__name__}")
+    try:
+        v = float(value)
+    except OverflowError:
+        v = math.inf
+    if not 0.0 <= v <= 1.0:      # NaN fails both
+        raise error(f"{what} must be a probability in 0..1, not {value}")
     return v
 
 
