@@ -62,7 +62,8 @@ class Stats:
         self.bytes = 0
         self.t_first: Optional[float] = None
         self.t_last: Optional[float] = None
-        self._pending: Optional[tuple] = None     # (node, key, t_end) of the last request
+        # (node, key, t_end, port, raw) of the last request
+        self._pending: Optional[tuple] = None
 
     def _node_and_role(self, rec: Record) -> tuple:
         """(node, 'req' | 'ans' | None, pairing key) of a good frame, from its
@@ -90,14 +91,31 @@ class Stats:
         self.frame_bytes += len(rec.raw)
         ns = self.nodes[str(node)]
         ns.frames += 1
+        if role == "ans" and self._repeats_request(rec):
+            role = "req"                  # a retry of the pending request, not its answer
         if role == "req":
-            self._pending = (node, key, rec.t_end)
+            self._pending = (node, key, rec.t_end, rec.port, bytes(rec.raw))
         elif role == "ans":
             pend = self._pending
             if pend and (key is None or pend[1] == key) and pend[2] is not None \
                     and rec.t is not None:
                 ns.add_reply(max(0.0, rec.t - pend[2]))
             self._pending = None
+
+    def _repeats_request(self, rec: Record) -> bool:
+        """A frame the plug-in calls an answer is still a request when it comes
+        from the pending request's sender (captures name the port) or, where
+        the sender is unknown (a live port), repeats its bytes exactly: a
+        master's retry (exec async frames carry no direction, and a retry
+        re-sends the same node, sequence number and data). An echoing exec
+        node's reply is byte-identical to its request: on a live port it is
+        counted as a frame of the node but not timed (docs/monitor.md)."""
+        pend = self._pending
+        if pend is None:
+            return False
+        if rec.port is not None and pend[3] is not None:
+            return rec.port == pend[3]
+        return bytes(rec.raw) == pend[4]
 
     def utilisation(self) -> Optional[float]:
         """Share of the time the wire carried bytes (10 bits each), or None if unknown."""
