@@ -142,7 +142,7 @@ def run(a: argparse.Namespace) -> int:
                 res = soak.run(proto, cfg)
             if stop.is_set():
                 res["interrupted"] = True
-            emit(a, res, _human(res))
+            emit(a, {"event": "result", **res}, _human(res))
             failed |= not res.get("ok", True)
             if stop.is_set():
                 break

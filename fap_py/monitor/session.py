@@ -268,7 +268,7 @@ class Session:
         if cfg.as_json and cfg.stats_only:
             summary = self._stats.summary()
             summary["protocol"] = None if mon is None else mon.locked
-            out.write(json.dumps({"stats": summary}) + "\n")
+            out.write(json.dumps({"event": "stats", "stats": summary}) + "\n")
         elif not cfg.as_json:
             out.write(self._stats.footer() + "\n")
         out.flush()
