@@ -26,6 +26,7 @@ __all__ = [
     "check_timeout",
     "check_baud",
     "check_path",
+    "check_gpio_line",
     "timeout_ms",
 ]
 
@@ -135,3 +136,50 @@ def check_path(port: Any, what: str = "port", *,
     if not path or "\0" in path:
         raise error(f"{what} must be a non-empty path without NUL bytes, not {path!r}")
     return path
+
+
+#: lines a GPIO DE/RE pin may use: the C port layer's bound (port_gpio.c: offsets < 512)
+GPIO_LINES_MAX = 512
+#: linux/gpio.h GPIO_GET_CHIPINFO_IOCTL: _IOR(0xB4, 0x01, struct gpiochip_info), 68 bytes
+_GPIO_GET_CHIPINFO = 0x8044B401
+
+
+def check_gpio_line(chip: Any, line: Any) -> int:
+    """The RS-485 GPIO mode's DE/RE line, checked before the port opens so an
+    error names the chip, not the serial port: ``chip`` a GPIO character
+    device (it is opened and asked for its line count, GPIO_GET_CHIPINFO),
+    ``line`` an offset below that count (and below 512, the C bound).
+    Returns the chip's line count. Raises InvalidValueError (a bad line) or
+    FileError naming the chip (missing, not permitted, not a GPIO chip)."""
+    import errno
+    import fcntl
+    import struct
+
+    from .errors import FileError
+
+    path = check_path(chip, "gpio_chip")
+    check_int(line, "gpio_line", 0, U32)
+    if line >= GPIO_LINES_MAX:
+        raise InvalidValueError(f"gpio_line {line}: a GPIO line offset is 0..{GPIO_LINES_MAX - 1}")
+    def fail(err: int, why: str) -> "FileError":
+        exc = FileError(err, why, path)
+        exc.why = why
+        return exc
+
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | os.O_NOCTTY)
+    except OSError as exc:
+        raise fail(exc.errno or errno.EIO, f"cannot open the GPIO chip ({exc.strerror})") from None
+    try:
+        info = bytearray(68)
+        fcntl.ioctl(fd, _GPIO_GET_CHIPINFO, info)
+    except OSError as exc:
+        raise fail(exc.errno or errno.ENOTTY, "not a GPIO character device (GPIO_GET_CHIPINFO "
+                   f"refused: {exc.strerror}); give /dev/gpiochipN") from None
+    finally:
+        os.close(fd)
+    lines = struct.unpack_from("=I", info, 64)[0]
+    if line >= lines:
+        raise InvalidValueError(f"gpio_line {line}: {path} has {lines} lines "
+                                f"(0..{max(lines, 1) - 1})")
+    return int(lines)
