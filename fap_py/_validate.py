@@ -121,9 +121,37 @@ def timeout_ms(value: Any, what: str = "timeout", **kw: Any) -> int:
     return -1 if t is None else min(math.ceil(t * 1000.0), INT_MS_MAX)
 
 
-def check_baud(value: Any, what: str = "baudrate", **kw: Any) -> int:
-    """A positive int baud rate (the port layer refuses rates termios lacks)."""
-    return check_int(value, what, 1, U32, **kw)
+def baud_rates() -> "tuple[int, ...]":
+    """The rates the C port layer opens a line at (its termios table,
+    ``fap_port_baud_rate()``), ascending."""
+    global _BAUD_RATES
+    if _BAUD_RATES is None:
+        from ._native import lib
+
+        rates = []
+        while True:
+            r = int(lib.fap_port_baud_rate(len(rates)))
+            if r == 0:
+                break
+            rates.append(r)
+        _BAUD_RATES = tuple(rates)
+    return _BAUD_RATES
+
+
+_BAUD_RATES: "Optional[tuple[int, ...]]" = None
+
+
+def check_baud(value: Any, what: str = "baudrate", *,
+               error: Type[Exception] = InvalidValueError, **kw: Any) -> int:
+    """An int baud rate of the C port layer's table (:func:`baud_rates`): a
+    rate termios lacks is refused here, naming the rate and the valid ones,
+    rather than as C's bare ``open: invalid argument``."""
+    value = check_int(value, what, 1, U32, error=error, **kw)
+    rates = baud_rates()
+    if rates and value not in rates:
+        raise error(f"{what} {value} is not a supported rate; supported: "
+                    f"{', '.join(map(str, rates))}")
+    return value
 
 
 def check_path(port: Any, what: str = "port", *,

@@ -194,6 +194,14 @@ seconds = _nonneg_float
 count = _nonneg_int
 
 
+def positive(text: str) -> int:
+    """argparse type: an int >= 1 (``--registers``: how many of a thing, none is no request)."""
+    v = integer(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {text!r}")
+    return v
+
+
 def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[int] = DEFAULT_BAUD,
                      port_required: bool = True, rs485_default: str = "auto",
                      port_help: str = "serial device (e.g. /dev/ttyUSB0, or a `fap bus` port)",

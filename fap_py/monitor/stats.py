@@ -15,6 +15,11 @@ from .core import Record
 from .decoders import plugin
 
 
+def plural(n: int, word: str) -> str:
+    """``1 frame``, ``2 frames``."""
+    return f"{n} {word if n == 1 else word + 's'}"
+
+
 def _percentile(sorted_values: List[float], q: float) -> float:
     """Nearest-rank percentile of an ascending list."""
     k = max(0, min(len(sorted_values) - 1, int(round(q / 100.0 * len(sorted_values) + 0.5)) - 1))
@@ -156,7 +161,7 @@ class Stats:
         s = self.summary()
         errs = ", ".join(f"{k} {v}" for k, v in sorted(s["errors"].items())) or "none"
         util = "unknown" if s["utilisation"] is None else f"{s['utilisation'] * 100:.1f} %"
-        lines = [f"-- {s['frames']} frames, errors: {errs}; {s['bytes']} bytes; "
+        lines = [f"-- {plural(s['frames'], 'frame')}, errors: {errs}; {plural(s['bytes'], 'byte')}; "
                  f"bus utilisation {util}"]
         for name, n in s["nodes"].items():
             e = ", ".join(f"{k} {v}" for k, v in sorted(n["errors"].items())) or "no errors"
@@ -164,7 +169,7 @@ class Stats:
                 f"; reply ms p50 {n['reply_p50_ms']} p99 {n['reply_p99_ms']} "
                 f"max {n['reply_max_ms']} ({n['replies']})")
             label = "unattributed" if name == "?" else f"node {name}"
-            lines.append(f"   {label}: {n['frames']} frames, {e}{reply}")
+            lines.append(f"   {label}: {plural(n['frames'], 'frame')}, {e}{reply}")
         return "\n".join(lines)
 
 
