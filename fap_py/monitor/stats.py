@@ -108,21 +108,21 @@ class Stats:
             self._pending = None
 
     def _repeats_request(self, rec: Record) -> bool:
-        """A frame the plug-in calls an answer is still a request when it comes
-        from the pending request's sender (captures name the port) or, where
-        the sender is unknown (a live port) and the protocol's frames carry no
-        direction (its plug-in's ``DIRECTIONLESS``: exec async), repeats its
-        bytes exactly: a master's retry re-sends the same node, sequence
-        number and data. An echoing exec
+        """In a protocol whose frames carry no direction (its plug-in's
+        ``DIRECTIONLESS``: exec async, whose answer repeats the request's node
+        and sequence number), a frame the plug-in calls an answer is still a
+        request when it comes from the pending request's sender (captures
+        name the port) or, where the sender is unknown (a live port), repeats
+        its bytes exactly: a master's retry re-sends the same node, sequence
+        number and data. Other protocols' frames say their direction. An echoing exec
         node's reply is byte-identical to its request: on a live port it is
         counted as a frame of the node but not timed (docs/monitor.md)."""
         pend = self._pending
-        if pend is None:
-            return False
+        if pend is None or not getattr(plugin(rec.protocol), "DIRECTIONLESS", False):
+            return False          # the frame's direction (its kind, a flag, the source) decides
         if rec.port is not None and pend[3] is not None:
             return rec.port == pend[3]
-        return bool(getattr(plugin(rec.protocol), "DIRECTIONLESS", False)) and \
-            bytes(rec.raw) == pend[4]
+        return bytes(rec.raw) == pend[4]
 
     def utilisation(self) -> Optional[float]:
         """Share of the time the wire carried bytes (10 bits each), or None if unknown."""
