@@ -22,9 +22,11 @@ __all__ = [
     "check_bool",
     "check_bytes",
     "check_seconds",
+    "check_probability",
     "check_timeout",
     "check_baud",
     "check_path",
+    "check_gpio_line",
     "timeout_ms",
 ]
 
@@ -92,6 +94,22 @@ def check_seconds(value: Any, what: str, *, lo: float = 0.0, hi: float = MAX_TIM
     return v
 
 
+def check_probability(value: Any, what: str, *,
+                      error: Type[Exception] = InvalidValueError,
+                      type_error: Type[Exception] = InvalidTypeError) -> float:
+    """A probability: a finite number in 0..1 (no unit: not "at most 1.0 s")."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise type_error(f"{what} must be a probability (a number in 0..1), "
+                         f"not {type(value).__name__}")
+    try:
+        v = float(value)
+    except OverflowError:
+        v = math.inf
+    if not 0.0 <= v <= 1.0:      # NaN fails both
+        raise error(f"{what} must be a probability in 0..1, not {value}")
+    return v
+
+
 def check_timeout(value: Any, what: str = "timeout", **kw: Any) -> Optional[float]:
     """A timeout in seconds, or None (= wait as long as it takes)."""
     return None if value is None else check_seconds(value, what, **kw)
@@ -103,9 +121,37 @@ def timeout_ms(value: Any, what: str = "timeout", **kw: Any) -> int:
     return -1 if t is None else min(math.ceil(t * 1000.0), INT_MS_MAX)
 
 
-def check_baud(value: Any, what: str = "baudrate", **kw: Any) -> int:
-    """A positive int baud rate (the port layer refuses rates termios lacks)."""
-    return check_int(value, what, 1, U32, **kw)
+def baud_rates() -> "tuple[int, ...]":
+    """The rates the C port layer opens a line at (its termios table,
+    ``fap_port_baud_rate()``), ascending."""
+    global _BAUD_RATES
+    if _BAUD_RATES is None:
+        from ._native import lib
+
+        rates = []
+        while True:
+            r = int(lib.fap_port_baud_rate(len(rates)))
+            if r == 0:
+                break
+            rates.append(r)
+        _BAUD_RATES = tuple(rates)
+    return _BAUD_RATES
+
+
+_BAUD_RATES: "Optional[tuple[int, ...]]" = None
+
+
+def check_baud(value: Any, what: str = "baudrate", *,
+               error: Type[Exception] = InvalidValueError, **kw: Any) -> int:
+    """An int baud rate of the C port layer's table (:func:`baud_rates`): a
+    rate termios lacks is refused here, naming the rate and the valid ones,
+    rather than as C's bare ``open: invalid argument``."""
+    value = check_int(value, what, 1, U32, error=error, **kw)
+    rates = baud_rates()
+    if rates and value not in rates:
+        raise error(f"{what} {value} is not a supported rate; supported: "
+                    f"{', '.join(map(str, rates))}")
+    return value
 
 
 def check_path(port: Any, what: str = "port", *,
@@ -118,3 +164,50 @@ def check_path(port: Any, what: str = "port", *,
     if not path or "\0" in path:
         raise error(f"{what} must be a non-empty path without NUL bytes, not {path!r}")
     return path
+
+
+#: lines a GPIO DE/RE pin may use: the C port layer's bound (port_gpio.c: offsets < 512)
+GPIO_LINES_MAX = 512
+#: linux/gpio.h GPIO_GET_CHIPINFO_IOCTL: _IOR(0xB4, 0x01, struct gpiochip_info), 68 bytes
+_GPIO_GET_CHIPINFO = 0x8044B401
+
+
+def check_gpio_line(chip: Any, line: Any) -> int:
+    """The RS-485 GPIO mode's DE/RE line, checked before the port opens so an
+    error names the chip, not the serial port: ``chip`` a GPIO character
+    device (it is opened and asked for its line count, GPIO_GET_CHIPINFO),
+    ``line`` an offset below that count (and below 512, the C bound).
+    Returns the chip's line count. Raises InvalidValueError (a bad line) or
+    FileError naming the chip (missing, not permitted, not a GPIO chip)."""
+    import errno
+    import fcntl
+    import struct
+
+    from .errors import FileError
+
+    path = check_path(chip, "gpio_chip")
+    check_int(line, "gpio_line", 0, U32)
+    if line >= GPIO_LINES_MAX:
+        raise InvalidValueError(f"gpio_line {line}: a GPIO line offset is 0..{GPIO_LINES_MAX - 1}")
+    def fail(err: int, why: str) -> "FileError":
+        exc = FileError(err, why, path)
+        exc.why = why
+        return exc
+
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | os.O_NOCTTY)
+    except OSError as exc:
+        raise fail(exc.errno or errno.EIO, f"cannot open the GPIO chip ({exc.strerror})") from None
+    try:
+        info = bytearray(68)
+        fcntl.ioctl(fd, _GPIO_GET_CHIPINFO, info)
+    except OSError as exc:
+        raise fail(exc.errno or errno.ENOTTY, "not a GPIO character device (GPIO_GET_CHIPINFO "
+                   f"refused: {exc.strerror}); give /dev/gpiochipN") from None
+    finally:
+        os.close(fd)
+    lines = struct.unpack_from("=I", info, 64)[0]
+    if line >= lines:
+        raise InvalidValueError(f"gpio_line {line}: {path} has {lines} lines "
+                                f"(0..{max(lines, 1) - 1})")
+    return int(lines)

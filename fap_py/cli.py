@@ -62,13 +62,25 @@ def _command_modules() -> List[Tuple[str, str]]:
     return found
 
 
+class _Formatter(logging.Formatter):
+    """The log format, with ``levelname_lower`` (``warning``) for the plain line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        record.levelname_lower = record.levelname.lower()
+        return super().format(record)
+
+
 def setup_logging(verbose: int, debug: bool) -> None:
     """-v info, -vv (or --debug) debug; the wire loggers (``fap_py.wire.*``)
     log every frame at debug."""
     level = logging.WARNING if not (verbose or debug) else \
         logging.INFO if verbose == 1 and not debug else logging.DEBUG
-    logging.basicConfig(level=level, stream=sys.stderr,
-                        format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    # without -v only warnings show: one plain line each (``fap: warning: ...``), as errors
+    fmt = "fap: %(levelname_lower)s: %(message)s" if level == logging.WARNING else \
+        "%(asctime)s %(name)s %(levelname)s %(message)s"
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_Formatter(fmt))
+    logging.basicConfig(level=level, handlers=[handler])
     logging.getLogger().setLevel(level)
 
 

@@ -622,7 +622,8 @@ class Master(Node):
             raise InvalidTypeError("slaves must be an iterable of slave IDs")
         ids = [_slave_id(s) for s in slaves]
         if len(set(ids)) != len(ids):
-            raise InvalidValueError(f"slaves lists an ID twice: {ids}")
+            twice = sorted({i for i in ids if ids.count(i) > 1})
+            raise InvalidValueError(f"slaves: ID {', '.join(map(str, twice))} listed twice: {ids}")
         super().__init__(port, baudrate, node_id=MASTER_ID, **options)
         try:
             for sid in ids:

@@ -147,7 +147,10 @@ class Port(NativeHandle):
         self.baudrate = int(lib.fap_port_baud(out[0]))
         note = ffi.new("char[]", 512)
         if lib.fap_port_warning(out[0], note, 512):   # a network server's quirk, open went on
-            log.warning("%s: %s", self.path, ffi.string(note).decode(errors="replace"))
+            text = ffi.string(note).decode(errors="replace")
+            if text.startswith("rfc2217:") and " ms" in text:   # the wait is the URL's option
+                text += " (a slow server: wait longer with ?option_ms=N on the URL)"
+            log.warning("%s: %s", self.path, text)
         self._adopt(out[0])
 
     # -- NativeHandle ----------------------------------------------------------

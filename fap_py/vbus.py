@@ -19,8 +19,10 @@ Example::
 from __future__ import annotations
 
 import errno
+import fcntl
 import logging
 import os
+import stat
 import threading
 from dataclasses import dataclass, field
 from typing import Any, Dict, Iterable, Iterator, List, Optional, Union
@@ -29,8 +31,9 @@ from ._files import open_user_file
 from ._handle import NativeHandle
 from ._native import ffi, lib
 from ._stats import Counters, stats_from_c
-from ._validate import check_bool, check_int, check_path, check_seconds
-from .errors import FileError, InvalidTypeError, InvalidValueError, error_from_code
+from ._validate import check_bool, check_int, check_path, check_probability, check_seconds
+from .errors import (FileError, InvalidTypeError, InvalidValueError, PortBusyError,
+                     error_from_code)
 
 __all__ = [
     "MAX_CAPTURE_BYTES",
@@ -39,6 +42,8 @@ __all__ = [
     "CaptureEvent",
     "CaptureFormatError",
     "CaptureRecord",
+    "LINK_DIR_LOCK",
+    "LinkDirBusyError",
     "VirtualBus",
     "VirtualBusStats",
     "parse_capture",
@@ -83,6 +88,98 @@ def _check(code: int, what: str) -> int:
 
 def _to_ms(seconds: float, what: str) -> int:
     return round(check_seconds(seconds, f"{what}: seconds", hi=_MAX_MS / 1000.0) * 1000.0)
+
+
+#: the lock file a bus holds (``flock``, with its pid) in its ``link_dir``
+LINK_DIR_LOCK = ".fap-bus.lock"
+
+
+class LinkDirBusyError(PortBusyError):
+    """Another live virtual bus holds the ``link_dir`` (its lock file):
+    a second bus there would re-point the first one's links. ``pid`` is the
+    holder's (None when its lock file holds no pid yet)."""
+
+    def __init__(self, link_dir: str, pid: Optional[int]) -> None:
+        who = f"pid {pid}" if pid is not None else "a process"
+        super().__init__(errno.EBUSY, f"another virtual bus ({who}) is running on this "
+                         "link directory; stop it or use another directory", link_dir)
+        self.pid = pid
+
+
+def _lock_pid(fd: int) -> Optional[int]:
+    try:
+        text = os.pread(fd, 32, 0).decode("ascii", "replace").strip()
+    except OSError:
+        return None
+    return int(text) if text.isdigit() else None
+
+
+def _lock_link_dir(link_dir: str) -> Optional[tuple]:
+    """Take ``link_dir``'s bus lock (docs/vbus.md): create the directory if
+    missing (its last component, as C does), ``flock`` the lock file and
+    write our pid into it. A lock file whose process died holds no flock
+    and is taken over. Returns (fd, created) to release with
+    :func:`_unlock_link_dir`, or None when the directory cannot be made or
+    used (C then reports the error as before). Raises LinkDirBusyError."""
+    created = False
+    try:
+        os.mkdir(link_dir, 0o755)
+        created = True
+    except FileExistsError:
+        pass
+    except OSError:
+        return None
+    path = os.path.join(link_dir, LINK_DIR_LOCK)
+    for _ in range(8):   # the holder may unlink the file between our open and flock
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC | os.O_NOFOLLOW, 0o644)
+        except OSError:
+            if created:
+                os.rmdir(link_dir)
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            pid = _lock_pid(fd)
+            os.close(fd)
+            raise LinkDirBusyError(link_dir, pid) from None
+        except OSError:
+            os.close(fd)
+            return None
+        try:
+            same = os.stat(path, follow_symlinks=False).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if not same:            # locked a file its holder just removed: again
+            os.close(fd)
+            continue
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            return None
+        old = _lock_pid(fd)
+        if old is not None and old != os.getpid():
+            log.info("%s: taking over the lock of pid %d (no longer running)", link_dir, old)
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        return fd, created
+    return None
+
+
+def _unlock_link_dir(link_dir: str, held: Optional[tuple]) -> None:
+    """Remove the lock file and release it; remove the directory if we made it."""
+    if held is None:
+        return
+    fd, created = held
+    try:
+        os.unlink(os.path.join(link_dir, LINK_DIR_LOCK))
+    except OSError:
+        pass
+    os.close(fd)
+    if created:
+        try:
+            os.rmdir(link_dir)
+        except OSError:
+            pass
 
 
 class VirtualBus(NativeHandle):
@@ -138,8 +235,12 @@ class VirtualBus(NativeHandle):
             keep.append(ffi.new("char[]", os.fsencode(capture)))
             opts.capture_path = keep[-1]
         out = ffi.new("fap_vbus **")
+        self._link_dir = link_dir
+        self._link_lock = None if link_dir is None else _lock_link_dir(link_dir)
         code = lib.fap_vbus_open(out, opts)
         if code < 0:
+            _unlock_link_dir(link_dir or "", self._link_lock)
+            self._link_lock = None
             where = ", ".join(f"{k}={os.fsdecode(v)}" for k, v in
                               (("link_dir", link_dir), ("capture", capture)) if v is not None)
             raise error_from_code(code, f"fap_vbus_open({where})")
@@ -155,6 +256,9 @@ class VirtualBus(NativeHandle):
     # -- lifetime (NativeHandle) -------------------------------------------
     def _release(self, bus: Any) -> None:
         lib.fap_vbus_close(bus)
+        if self._link_dir is not None:
+            _unlock_link_dir(self._link_dir, self._link_lock)
+            self._link_lock = None
         log.info("virtual bus closed")
 
     def close(self) -> None:
@@ -174,8 +278,8 @@ class VirtualBus(NativeHandle):
         0 disables.
         """
         p = -1 if port is None else self._port(port)
-        ber = check_seconds(bit_error_rate, "bit_error_rate", hi=1.0)   # a finite number in 0..1
-        drop = check_seconds(drop_rate, "drop_rate", hi=1.0)
+        ber = check_probability(bit_error_rate, "bit_error_rate")
+        drop = check_probability(drop_rate, "drop_rate")
         with self._lock:
             _check(self._call(lib.fap_vbus_set_fault, p, ber, drop), "set_fault")
 

@@ -21,10 +21,11 @@ import re
 import threading
 from typing import Any, Callable, Dict, List, Set, Tuple
 
+from .._project import docs_url
 from ..errors import InvalidTypeError, InvalidValueError
 from .config import BridgeConfig, BusConfig, check_bus_node
 
-_ORIGIN = {"name": "fap_py bridge", "support_url": "https://github.com/libfap/libfap/blob/main/docs/bridge.md"}
+_ORIGIN = {"name": "fap_py bridge", "support_url": docs_url("bridge.md")}
 
 # (component, key, name, fields): {node} and {stats}/{state}/{rx} are filled in per node
 _ENTITIES: Tuple[Tuple[str, str, str, Dict[str, Any]], ...] = (

@@ -32,7 +32,7 @@ from dataclasses import asdict, is_dataclass
 from enum import Enum
 from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Tuple
 
-from ..errors import FapError, InvalidValueError
+from ..errors import FapError, FileError, InvalidValueError
 from ..rs485 import DEFAULT_BAUD
 
 #: Exit codes of every ``fap`` command (docs/cli.md).
@@ -194,6 +194,14 @@ seconds = _nonneg_float
 count = _nonneg_int
 
 
+def positive(text: str) -> int:
+    """argparse type: an int >= 1 (``--registers``: how many of a thing, none is no request)."""
+    v = integer(text)
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, not {text!r}")
+    return v
+
+
 def add_port_options(parser: argparse.ArgumentParser, *, baud_default: Optional[int] = DEFAULT_BAUD,
                      port_required: bool = True, rs485_default: str = "auto",
                      port_help: str = "serial device (e.g. /dev/ttyUSB0, or a `fap bus` port)",
@@ -295,7 +303,17 @@ def rs485_from_args(args: argparse.Namespace, **extra: Any) -> Any:
     chip = getattr(args, "gpio_chip", None)
     if mode == RS485Mode.GPIO and not chip:
         raise UsageError("--rs485 gpio needs --gpio-chip PATH (and --gpio-line N)")
+    if chip is not None and mode != RS485Mode.GPIO:
+        raise UsageError(f"--gpio-chip is for --rs485 gpio (the mode is {args.rs485}): add "
+                         "--rs485 gpio, or drop --gpio-chip")
     if chip:
+        from .._validate import check_gpio_line
+        try:    # before the port opens: an error names the chip, not the serial port
+            check_gpio_line(chip, args.gpio_line)
+        except InvalidValueError as exc:
+            raise UsageError(str(exc).replace("gpio_line", "--gpio-line", 1)) from None
+        except FileError as exc:          # exit 3, naming the chip
+            raise FileError(exc.errno, f"--gpio-chip: {exc.why}", chip) from None
         extra.update(gpio_chip=chip, gpio_line=args.gpio_line)
     if getattr(args, "realtime", None):
         extra.setdefault("realtime", args.realtime)

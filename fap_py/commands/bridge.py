@@ -74,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
     if args.check:   # every file the configuration names: BridgeFileError (exit 3) names the key
         verify_files(config, ports=True)
-        emit(args, {"config": args.config, "ok": True, "buses": [b.name for b in config.buses],
+        emit(args, {"event": "checked", "config": args.config, "ok": True, "buses": [b.name for b in config.buses],
                     "broker": broker, "prefix": config.prefix, "host": config.host},
              f"{args.config}: ok: {len(config.buses)} bus(es), broker {broker}, "
              f"prefix {config.prefix}, host {config.host}")

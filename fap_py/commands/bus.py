@@ -32,9 +32,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--link-dir", metavar="DIR",
                    help="directory for the stable symlinks port0..portN-1 (default: a temp dir)")
     p.add_argument("--capture", metavar="FILE", help="record every byte on the bus (docs/vbus.md)")
-    p.add_argument("--ber", type=float, default=0.0, metavar="X",
+    p.add_argument("--ber", type=probability, default=0.0, metavar="X",
                    help="per-byte probability of one flipped bit, every port")
-    p.add_argument("--drop-rate", type=float, default=0.0, metavar="X",
+    p.add_argument("--drop-rate", type=probability, default=0.0, metavar="X",
                    help="per-byte probability of a dropped byte, every port")
     p.add_argument("--seed", type=int, default=0, help="seed of the random faults")
     add_realtime_option(p)   # the relay thread (docs/realtime.md)
@@ -42,10 +42,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def probability(text: str) -> float:
+    """argparse type of ``--ber`` / ``--drop-rate``: a probability, 0..1."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not 0.0 <= v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be a probability in 0..1, not {text!r}")
+    return v
+
+
 def _open(args: argparse.Namespace) -> "VirtualBus":
     """The bus, with an error that names the file or directory at fault
     (the C layer reports one code for both)."""
-    from ..vbus import VirtualBus
+    from ..vbus import LinkDirBusyError, VirtualBus
 
     if args.capture:
         try:
@@ -58,6 +69,11 @@ def _open(args: argparse.Namespace) -> "VirtualBus":
         return VirtualBus(ports=args.ports, baud=args.baud or None, echo=args.echo,
                           link_dir=args.link_dir, capture=args.capture, seed=args.seed,
                           realtime=args.realtime)
+    except LinkDirBusyError as exc:   # exit 3, as a port another program holds
+        who = f"pid {exc.pid}" if exc.pid is not None else "another process"
+        exc.strerror = (f"{args.link_dir}: --link-dir: another fap bus ({who}) is running on it; stop it "
+                        "or use another directory")
+        raise
     except OSError as exc:
         if not args.link_dir or exc.errno is None:
             raise

@@ -254,7 +254,8 @@ class _Plain:
     def update(self) -> None:
         t = self.view.totals()
         emit(self.args, {"event": "status", "active": self.view.active, **t},
-             f"{t['seconds']:6.2f}s active {self.view.active} on the wire "
+             f"{t['seconds']:6.2f}s active {', '.join(map(str, self.view.active)) or 'none'} "
+             f"on the {'' if self.view.paced else 'unpaced '}wire "
              f"{t['wire_bytes']} B, DATA delivered {t['data_frames']}, CRC errors "
              f"{t['crc_errors']}, goodput {t['goodput']:.0f} B/s")
 
@@ -335,8 +336,10 @@ def _summary(args: argparse.Namespace, view: View, master: "Master", interrupted
     if args.json:
         return
     print()
+    ids = ", ".join(map(str, view.ids))
+    active = ", ".join(map(str, view.active)) or "none"
     print(f"summary after {t['seconds']:.1f} s{' (interrupted)' if interrupted else ''}: "
-          f"active slaves {view.active} of {view.ids}")
+          f"active slaves {active} (of {ids})")
     cols = ("frames_tx", "frames_rx", "bytes_tx", "bytes_rx", "data_tx", "data_rx",
             "crc_errors", "id_cycles", "data_done_timeouts")
     heads = ("frames tx", "frames rx", "bytes tx", "bytes rx", "DATA tx", "DATA rx",
@@ -344,7 +347,11 @@ def _summary(args: argparse.Namespace, view: View, master: "Master", interrupted
     print(f"{'':<9}" + "".join(f"{h:>10}" for h in heads))
     for label, st in view.stats.items():
         print(f"{label:<9}" + "".join(f"{getattr(st, k):>10}" for k in cols))
-    print(f"goodput {t['goodput']:.0f} B/s ({t['data_frames']} DATA frames x {PAYLOAD} B) "
-          f"against {t['capacity']:.0f} B/s wire capacity at {view.baud} baud; "
-          f"{t['wire_bytes']} bytes on the wire; RS-485 mode {master.rs485_mode.name} "
-          "(a pty has no RS-485 ioctls)", flush=True)
+    # short lines (each under 80 columns): a terminal would wrap a long one inside a word
+    print(f"goodput {t['goodput']:.0f} B/s ({t['data_frames']} DATA frames x {PAYLOAD} B); "
+          f"wire capacity {t['capacity']:.0f} B/s at {view.baud} baud")
+    if not view.paced:
+        print("  unpaced bus: the ptys deliver faster than the baud, so these figures can "
+              "exceed\n  the capacity (--paced holds the bus to the baud)")
+    print(f"{t['wire_bytes']} bytes on the {'' if view.paced else 'unpaced '}wire; RS-485 mode "
+          f"{master.rs485_mode.name.lower()} (a pty has no RS-485 ioctls)", flush=True)

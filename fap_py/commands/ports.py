@@ -13,11 +13,12 @@ from __future__ import annotations
 import argparse
 import errno
 import os
-from typing import Any, Dict, List
+from typing import Any, Callable, Dict, List
 
 from .. import sysfs_ports
 from ..rs485 import DEFAULT_BAUD
-from ._options import BusError, add_command, add_output_options, baud, count, emit, seconds
+from ._options import (BusError, UsageError, add_command, add_output_options, baud, count, emit,
+                       seconds)
 
 #: where ports are looked up (tests point these at a fake tree)
 SYSFS_ROOT = "/sys"
@@ -34,23 +35,46 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "fap ports --check /dev/ttyS0 --baud 9600")
     p.add_argument("--all", action="store_true",
                    help="also serial_core slots without a UART (sysfs type 0: empty ttyS* slots)")
-    p.add_argument("--device", metavar="PATH", action="append",
-                   help="probe this path too (e.g. a pty of `fap bus`); repeatable")
+    p.add_argument("--device", metavar="PATH", action="append", type=_path("--device"),
+                   help="probe this path too (e.g. a pty of `fap bus`; a tcp:// or rfc2217:// "
+                   "URL is listed, not probed); repeatable")
     p.add_argument("--no-probe", action="store_true",
                    help="do not open the ports (opening a tty raises DTR/RTS)")
     c = p.add_argument_group("direction check (--check)")
-    c.add_argument("--check", metavar="PATH",
+    c.add_argument("--check", metavar="PATH", type=_path("--check"),
                    help="time the release of the direction line against the transceiver's echo "
-                   "of a test pattern on PATH, and recommend a mode")
+                   "of a test pattern on PATH (a device or a tcp:// / rfc2217:// URL), and "
+                   "recommend a mode")
     c.add_argument("--baud", metavar="N", type=baud, default=DEFAULT_BAUD, help="--check: baud rate")
-    c.add_argument("--rs485", choices=("soft", "none"), default="soft",
-                   help="--check: the mode to time (soft falls back to none on a port "
-                   "without an RTS line)")
+    c.add_argument("--rs485", choices=("soft", "none"), default=None,
+                   help="--check: the mode to time (default: soft, which falls back to none, "
+                   "and says so, on a port without an RTS line such as a pty; none on a "
+                   "network URL, whose server switches the direction)")
     c.add_argument("--rts-after", metavar="MS", type=seconds, default=0.0,
                    help="--check: last bit -> RTS released, milliseconds")
     c.add_argument("--rounds", metavar="N", type=count, default=5, help="--check: patterns sent")
     add_output_options(p)
     p.set_defaults(func=run)
+
+
+#: the schemes of a network port (docs/port.md): no local RS-485 direction to probe or time
+NETWORK_SCHEMES = ("tcp://", "rfc2217://")
+
+
+def is_network(path: str) -> bool:
+    """A ``tcp://`` or ``rfc2217://`` URL (an Ethernet serial server), not a device path."""
+    return path.lower().startswith(NETWORK_SCHEMES)
+
+
+def _path(option: str) -> "Callable[[str], str]":
+    """argparse type of ``--check`` / ``--device``: a non-empty path or URL (an
+    empty one would be silently ignored)."""
+    def parse(text: str) -> str:
+        if not text or "\0" in text:
+            raise argparse.ArgumentTypeError(f"needs a device path or a tcp:// / rfc2217:// "
+                                             f"URL, not {text!r}")
+        return text
+    return parse
 
 
 def probe(path: str) -> Dict[str, Any]:
@@ -85,23 +109,34 @@ def check(args: argparse.Namespace) -> int:
     from ..errors import PortError
     from ..rs485 import RS485, RS485Mode
 
-    state = probe(args.check)
-    if state.get("rs485") == "busy":
-        raise BusError(f"{args.check}: busy: held by another program (not opened)")
-    mode = RS485Mode.SOFT_RTS if args.rs485 == "soft" else RS485Mode.NONE
+    notes: List[str] = []
+    if is_network(args.check):
+        if args.rs485 == "soft":
+            raise UsageError(f"{args.check}: --rs485 soft: a network port has no RTS line here "
+                             "(the server switches the direction); use --rs485 none, the "
+                             "default for a URL")
+        state: Dict[str, Any] = {}
+        mode = RS485Mode.NONE
+    else:
+        state = probe(args.check)
+        if state.get("rs485") == "busy":
+            raise BusError(f"{args.check}: busy: held by another program (not opened)")
+        mode = RS485Mode.NONE if args.rs485 == "none" else RS485Mode.SOFT_RTS
     line = RS485(mode=mode, delay_after_send_us=round(args.rts_after * 1000))
     try:
         res = measure(args.check, args.baud, line, rounds=args.rounds,
                       kernel_rs485=state.get("rs485") == "yes")
     except PortError as exc:
-        if exc.errno != errno.ENOTTY or mode != RS485Mode.SOFT_RTS:
-            raise
+        if exc.errno != errno.ENOTTY or mode != RS485Mode.SOFT_RTS or args.rs485 == "soft":
+            raise                  # an explicit --rs485 soft the port cannot do: exit 3
         res = measure(args.check, args.baud, RS485(mode=RS485Mode.NONE), rounds=args.rounds,
                       kernel_rs485=False)   # no RTS line here (a pty): time the drain only
+        notes.append("the port has no RTS line (a pty, say): timed with --rs485 none, not "
+                     "the default soft")
     row = {"event": "check", "device": res.device, "mode": res.mode, "rounds": res.rounds,
            "echoed": res.echoed, "collisions": res.collisions, "release_us": res.release_us,
            "margins_us": list(res.margins_us), "recommend": res.recommend,
-           "warnings": list(res.warnings)}
+           "warnings": list(res.warnings), "notes": notes}
     if res.margins_us:
         med = res.release_us or 0
         text = (f"{res.device}: mode {res.mode}, line released {abs(med)} us "
@@ -110,26 +145,29 @@ def check(args: argparse.Namespace) -> int:
                 f"recommended mode: {res.recommend}")
     else:
         text = f"{res.device}: mode {res.mode}, no echo; recommended mode: {res.recommend}"
-    emit(args, row, "\n".join([text] + [f"  warning: {w}" for w in res.warnings]))
+    emit(args, row, "\n".join([text] + [f"  note: {n}" for n in notes]
+                              + [f"  warning: {w}" for w in res.warnings]))
     return 1 if res.warnings else 0
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.check:
+    if args.check is not None:
         return check(args)
     rows: List[Dict[str, Any]] = []
     seen = set()
     for port in sysfs_ports.list_ports(SYSFS_ROOT, DEV_ROOT, include_empty=args.all):
-        rows.append({"device": port.device, "description": port.description,
+        rows.append({"event": "port", "device": port.device, "description": port.description,
                      "driver": port.driver, "uart_type": port.uart_type,
                      "vid_pid": port.vid_pid, "serial": port.serial, "by_id": port.by_id,
                      "latency_timer_ms": port.latency_timer_ms})
         seen.add(port.device)
     for path in args.device or ():
         if path not in seen:
-            rows.append({"device": path, "description": "given with --device"})
+            rows.append({"event": "port", "device": path, "description": "given with --device"})
     for row in rows:
-        if not args.no_probe:
+        if is_network(row["device"]):     # a URL, not a file: nothing local to probe
+            row.update(rs485="network")
+        elif not args.no_probe:
             row.update(probe(row["device"]))
         emit(args, row, _human(row))
     if not rows:
@@ -156,6 +194,8 @@ def _human(row: Dict[str, Any]) -> str:
         text += "  | RS-485: no kernel support (ENOTTY)"
     elif rs == "busy":
         text += "  | busy: held by another program (not opened)"
+    elif rs == "network":
+        text += "  | a network port: not probed (its server switches the RS-485 direction)"
     elif rs == "unknown":
         text += f"  | RS-485: unknown ({row['error']})"
     if row.get("baud"):

@@ -100,10 +100,38 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
+def _value(v: Any) -> str:
+    """One value of the report as text: no Python reprs (True, None, quotes)."""
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_value(x) for x in v) or "-"
+    return str(v)
+
+
+def _lines(obj: Dict[str, Any], indent: str) -> List[str]:
+    """``key: value`` lines (the JSON's keys); a mapping of plain values on one line
+    (``key: a 1, b 2``), a deeper one as its own indented block."""
+    out: List[str] = []
+    for k, v in obj.items():
+        if isinstance(v, dict) and any(isinstance(x, dict) for x in v.values()):
+            out.append(f"{indent}{k}:")
+            out += _lines(v, indent + "  ")
+        elif isinstance(v, dict):
+            out.append(f"{indent}{k}: " + (", ".join(f"{a} {_value(b)}" for a, b in v.items())
+                                           or "-"))
+        else:
+            out.append(f"{indent}{k}: {_value(v)}")
+    return out
+
+
 def _human(res: Dict[str, Any]) -> str:
-    lines = [f"== {res['protocol']}"]
-    lines += [f"  {k}: {v}" for k, v in res.items() if k not in ("protocol", "master_stats")]
-    return "\n".join(lines)
+    body = {k: v for k, v in res.items() if k not in ("protocol", "master_stats", "event")}
+    return "\n".join([f"== {res['protocol']}"] + _lines(body, "  "))
 
 
 def config(a: argparse.Namespace) -> Any:
@@ -142,7 +170,7 @@ def run(a: argparse.Namespace) -> int:
                 res = soak.run(proto, cfg)
             if stop.is_set():
                 res["interrupted"] = True
-            emit(a, res, _human(res))
+            emit(a, {"event": "result", **res}, _human(res))
             failed |= not res.get("ok", True)
             if stop.is_set():
                 break

@@ -16,6 +16,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import fap_py
 
-    emit(args, {"fap_py": fap_py.__version__, "libfap": fap_py.native_version()},
+    emit(args, {"event": "version", "fap_py": fap_py.__version__, "libfap": fap_py.native_version()},
          f"fap_py {fap_py.__version__}, libfap core {fap_py.native_version()}")
     return 0

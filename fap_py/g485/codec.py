@@ -334,7 +334,7 @@ def check_register_span(register: int, count: int) -> None:
             or not MIN_REGISTER <= register <= MAX_REGISTER):
         raise G485ValueError(f"register {register!r} outside 1..100")
     if isinstance(count, bool) or not isinstance(count, int) or count < 1:
-        raise G485ValueError(f"count {count!r} must be at least 1")
+        raise G485ValueError(f"register count {count!r}: at least 1 register")
     if register + count - 1 > MAX_REGISTER:
         raise G485ValueError(f"registers {register}..{register + count - 1} run past 100")
 
@@ -348,10 +348,11 @@ def _as_data(data: Data) -> bytes:
     elif not isinstance(data, (bytes, bytearray, memoryview)):
         raise G485ValueError(f"register data must be bytes, ints 0..255 or one int, "
                              f"not {type(data).__name__}")
-    try:
-        return bytes(data)
-    except (ValueError, TypeError) as exc:
-        raise G485ValueError(f"register data must be bytes or ints 0..255: {exc}") from None
+    if isinstance(data, (list, tuple)):
+        bad = [v for v in data if not isinstance(v, int) or not 0 <= v <= 255]
+        if bad:
+            raise G485ValueError(f"register data must be bytes or ints 0..255, not {bad[0]!r}")
+    return bytes(data)
 
 
 # -- encoders (the 8 packet types) -------------------------------------------

@@ -183,23 +183,49 @@ class SimDevice:
         if not self.eeprom_path or not os.path.exists(self.eeprom_path):
             return True
         try:
-            doc = json.loads(read_user_file(self.eeprom_path, limit=MAX_EEPROM_FILE,
-                                            what="EEPROM file").decode("utf-8"))
-            if doc.get("format") != EEPROM_FORMAT:
-                raise ValueError(f"format {doc.get('format')!r}")
-            image = bytearray(self.factory_image)
-            for key, value in doc["registers"].items():
-                reg = int(key)
-                if self.specs[reg].saved and 0 <= int(value) <= 255:
-                    image[reg] = int(value)
-            if not codec.MIN_SLAVE_ADDRESS <= image[7] <= codec.MAX_SLAVE_ADDRESS:
-                raise ValueError(f"ID {image[7]}")
-            self.eeprom = image
-            self.baud_locked = bool(doc.get("baud_locked", False))
+            raw = read_user_file(self.eeprom_path, limit=MAX_EEPROM_FILE, what="EEPROM file")
+            self.eeprom, self.baud_locked = self._parse_eeprom(raw)
             return True
-        except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
-            log.warning("EEPROM file %s unusable (%s): factory settings", self.eeprom_path, exc)
-            return False
+        except OSError as exc:
+            why = getattr(exc, "why", "") or exc.strerror or str(exc)
+        except ValueError as exc:
+            why = str(exc)
+        log.warning("EEPROM file %s unusable (%s): factory settings", self.eeprom_path, why)
+        return False
+
+    def _parse_eeprom(self, raw: bytes) -> Tuple[bytearray, bool]:
+        """(image, baud_locked) of an EEPROM file's bytes; ValueError with the reason
+        in words (never a Python exception's text) when it is not one."""
+        try:
+            doc = json.loads(raw.decode("utf-8"))
+        except UnicodeDecodeError:
+            raise ValueError("not UTF-8 text") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"not JSON: {exc.msg} at line {exc.lineno}") from None
+        if not isinstance(doc, dict):
+            raise ValueError(f"not an EEPROM image: a JSON {type(doc).__name__.replace('dict', 'object')}"
+                             f", not an object with \"format\": \"{EEPROM_FORMAT}\"")
+        if doc.get("format") != EEPROM_FORMAT:
+            raise ValueError(f"format {doc.get('format')!r}, not {EEPROM_FORMAT!r}")
+        regs = doc.get("registers")
+        if not isinstance(regs, dict):
+            raise ValueError('"registers" must be an object of register: value')
+        image = bytearray(self.factory_image)
+        for key, value in regs.items():
+            if not key.isdigit() or not codec.MIN_REGISTER <= int(key) <= codec.MAX_REGISTER:
+                raise ValueError(f"register {key!r} outside {codec.MIN_REGISTER}.."
+                                 f"{codec.MAX_REGISTER}")
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 255:
+                raise ValueError(f"register {key}: value {value!r} is not 0..255")
+            if self.specs[int(key)].saved:
+                image[int(key)] = value
+        if not codec.MIN_SLAVE_ADDRESS <= image[7] <= codec.MAX_SLAVE_ADDRESS:
+            raise ValueError(f"ID register 7 = {image[7]}, not {codec.MIN_SLAVE_ADDRESS}.."
+                             f"{codec.MAX_SLAVE_ADDRESS}")
+        locked = doc.get("baud_locked", False)
+        if not isinstance(locked, bool):
+            raise ValueError(f'"baud_locked" must be true or false, not {locked!r}')
+        return image, locked
 
     def _save_eeprom(self) -> None:
         """Set 0x7C: the saved registers' current values go to EEPROM."""

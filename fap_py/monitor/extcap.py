@@ -15,6 +15,7 @@ import signal
 import sys
 from typing import List, Optional
 
+from .._project import docs_url
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from .pcap import LINKTYPE
 from .session import AUTO, LIVE_BAUD, Session, SessionConfig, protocol_choice, protocol_choices
@@ -24,7 +25,7 @@ VERSION = "1.0"
 
 
 def interfaces() -> str:
-    return (f"extcap {{version={VERSION}}}{{help=https://github.com/libfap/fap_py/blob/main/docs/monitor.md}}\n"
+    return (f"extcap {{version={VERSION}}}{{help={docs_url('monitor.md')}}}\n"
             f"interface {{value={INTERFACE}}}{{display=fap monitor: FAP, exec async, mikroC, "
             f"G485 on a serial port}}\n")
 

@@ -13,13 +13,14 @@ from .decoders import plugin
 def to_json(rec: Record) -> Dict[str, object]:
     """The documented JSON object of a record (docs/monitor.md).
 
-    Common keys: protocol, t, port, ok, error, frame; then the protocol's
+    Common keys: event (``"frame"``), protocol, t, port, ok, error, frame; then the protocol's
     fields (null for a bad frame or garbage). Bytes are lower-case hex.
     """
     if not isinstance(rec, Record):
         raise InvalidTypeError(f"rec must be a Record, not {type(rec).__name__}")
     ev = rec.event
     out: Dict[str, object] = {
+        "event": "frame",            # every record, good or bad (``ok``, ``error`` tell)
         "protocol": ev.protocol,
         "t": None if rec.t is None else round(rec.t, 6),
         "port": rec.port,

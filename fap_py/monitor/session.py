@@ -268,7 +268,7 @@ class Session:
         if cfg.as_json and cfg.stats_only:
             summary = self._stats.summary()
             summary["protocol"] = None if mon is None else mon.locked
-            out.write(json.dumps({"stats": summary}) + "\n")
+            out.write(json.dumps({"event": "stats", "stats": summary}) + "\n")
         elif not cfg.as_json:
             out.write(self._stats.footer() + "\n")
         out.flush()
@@ -294,7 +294,8 @@ class _Writer:
             return
         self.announced = True
         if mon.lock_frames:
-            self.session._status(f"auto: locked on {mon.locked} ({mon.lock_frames} good frames)")
+            good = f"{mon.lock_frames} good frame{'' if mon.lock_frames == 1 else 's'}"
+            self.session._status(f"auto: locked on {mon.locked} ({good})")
         else:
             self.session._status(f"auto: no protocol recognised (no good frame in {mon.bytes} "
                                  f"bytes); showing the bytes as {mon.locked}")

@@ -94,6 +94,9 @@ def capture_file(path: str, stop: Callable[[], bool] = _never) -> "tuple[int, It
     _check_stop(stop)
     items = iter_capture_file(path)
     first = next(items, None)
+    if first is None:     # not even a header: an empty file is no capture (a quiet bus has one)
+        raise CaptureFormatError(f"{path}: empty file: not a capture (no '# fap-vbus-capture' "
+                                 "header, no data line)")
     baud = 0
     if isinstance(first, dict):
         text = first.get("baud", "0")

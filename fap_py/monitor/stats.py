@@ -15,6 +15,11 @@ from .core import Record
 from .decoders import plugin
 
 
+def plural(n: int, word: str) -> str:
+    """``1 frame``, ``2 frames``."""
+    return f"{n} {word if n == 1 else word + 's'}"
+
+
 def _percentile(sorted_values: List[float], q: float) -> float:
     """Nearest-rank percentile of an ascending list."""
     k = max(0, min(len(sorted_values) - 1, int(round(q / 100.0 * len(sorted_values) + 0.5)) - 1))
@@ -62,7 +67,8 @@ class Stats:
         self.bytes = 0
         self.t_first: Optional[float] = None
         self.t_last: Optional[float] = None
-        self._pending: Optional[tuple] = None     # (node, key, t_end) of the last request
+        # (node, key, t_end, port, raw) of the last request
+        self._pending: Optional[tuple] = None
 
     def _node_and_role(self, rec: Record) -> tuple:
         """(node, 'req' | 'ans' | None, pairing key) of a good frame, from its
@@ -90,14 +96,33 @@ class Stats:
         self.frame_bytes += len(rec.raw)
         ns = self.nodes[str(node)]
         ns.frames += 1
+        if role == "ans" and self._repeats_request(rec):
+            role = "req"                  # a retry of the pending request, not its answer
         if role == "req":
-            self._pending = (node, key, rec.t_end)
+            self._pending = (node, key, rec.t_end, rec.port, bytes(rec.raw))
         elif role == "ans":
             pend = self._pending
             if pend and (key is None or pend[1] == key) and pend[2] is not None \
                     and rec.t is not None:
                 ns.add_reply(max(0.0, rec.t - pend[2]))
             self._pending = None
+
+    def _repeats_request(self, rec: Record) -> bool:
+        """In a protocol whose frames carry no direction (its plug-in's
+        ``DIRECTIONLESS``: exec async, whose answer repeats the request's node
+        and sequence number), a frame the plug-in calls an answer is still a
+        request when it comes from the pending request's sender (captures
+        name the port) or, where the sender is unknown (a live port), repeats
+        its bytes exactly: a master's retry re-sends the same node, sequence
+        number and data. Other protocols' frames say their direction. An echoing exec
+        node's reply is byte-identical to its request: on a live port it is
+        counted as a frame of the node but not timed (docs/monitor.md)."""
+        pend = self._pending
+        if pend is None or not getattr(plugin(rec.protocol), "DIRECTIONLESS", False):
+            return False          # the frame's direction (its kind, a flag, the source) decides
+        if rec.port is not None and pend[3] is not None:
+            return rec.port == pend[3]
+        return bytes(rec.raw) == pend[4]
 
     def utilisation(self) -> Optional[float]:
         """Share of the time the wire carried bytes (10 bits each), or None if unknown."""
@@ -136,7 +161,7 @@ class Stats:
         s = self.summary()
         errs = ", ".join(f"{k} {v}" for k, v in sorted(s["errors"].items())) or "none"
         util = "unknown" if s["utilisation"] is None else f"{s['utilisation'] * 100:.1f} %"
-        lines = [f"-- {s['frames']} frames, errors: {errs}; {s['bytes']} bytes; "
+        lines = [f"-- {plural(s['frames'], 'frame')}, errors: {errs}; {plural(s['bytes'], 'byte')}; "
                  f"bus utilisation {util}"]
         for name, n in s["nodes"].items():
             e = ", ".join(f"{k} {v}" for k, v in sorted(n["errors"].items())) or "no errors"
@@ -144,7 +169,7 @@ class Stats:
                 f"; reply ms p50 {n['reply_p50_ms']} p99 {n['reply_p99_ms']} "
                 f"max {n['reply_max_ms']} ({n['replies']})")
             label = "unattributed" if name == "?" else f"node {name}"
-            lines.append(f"   {label}: {n['frames']} frames, {e}{reply}")
+            lines.append(f"   {label}: {plural(n['frames'], 'frame')}, {e}{reply}")
         return "\n".join(lines)
 
 

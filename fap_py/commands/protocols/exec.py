@@ -104,7 +104,7 @@ def run_encode(args: argparse.Namespace) -> int:
     from fap_py.execasync import encode
 
     frame = encode(args.node, args.data, args.seq)
-    opt.emit(args, {"frame": frame, "node": args.node, "seq": args.seq, "data": args.data}, frame.hex())
+    opt.emit(args, {"event": "encoded", "frame": frame, "node": args.node, "seq": args.seq, "data": args.data}, frame.hex())
     return 0
 
 
@@ -114,16 +114,16 @@ def run_decode(args: argparse.Namespace) -> int:
     dec = Decoder()
     frames = dec.feed(args.data)
     for f in frames:
-        opt.emit(args, {"node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
+        opt.emit(args, {"event": "frame", "node": f.node, "seq": f.seq, "status": f.status, "data": f.data},
                  f"node {f.node} seq {f.seq} {f.status.name} data {f.data.hex()}")
     # what the decoder still holds after the last complete frame: a truncated frame
     tail = _unfinished(args.data, frames)
     if tail:
-        opt.emit(args, {"status": "truncated", "bytes": tail},
+        opt.emit(args, {"event": "truncated", "status": "truncated", "bytes": tail},
                  f"truncated frame: {opt.plural(len(tail), 'byte')} after the last complete frame "
                  f"({tail.hex()}), input ends inside a frame (max frame {MAX_FRAME} bytes)")
     if not frames and not tail:
-        opt.emit(args, {"status": "no_frame", "bytes": args.data},
+        opt.emit(args, {"event": "no_frame", "status": "no_frame", "bytes": args.data},
                  f"no exec async frame in {opt.plural(len(args.data), 'byte')}")
     return 0 if frames and not tail and all(f.ok for f in frames) else 1
 

@@ -29,6 +29,11 @@ def _ids(text: str) -> List[int]:
     lo, hi = PROTOCOL.node_min, PROTOCOL.node_max
     if not ids or any(not lo <= i <= hi for i in ids):
         raise argparse.ArgumentTypeError(f"slave IDs are {lo}..{hi}: {text!r}")
+    twice = sorted({i for i in ids if ids.count(i) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(
+            f"slave ID{'s' if len(twice) > 1 else ''} {', '.join(map(str, twice))} listed twice: "
+            f"{text!r}")
     return ids
 
 

@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     master(r)
     r.add_argument("--register", type=opt.integer, required=True, help="first register")
-    r.add_argument("--registers", type=opt.integer, default=1, help="how many registers")
+    r.add_argument("--registers", type=opt.positive, default=1, help="how many registers")
     r.set_defaults(func=run_read)
 
     w = opt.add_command(cmds, "write", help="write registers",
@@ -111,14 +111,20 @@ def run_sim(args: argparse.Namespace) -> int:
     for address in args.address:
         path = os.path.join(args.eeprom_dir, f"g485-{address}.json") if args.eeprom_dir else None
         if args.eeprom_dir:
-            os.makedirs(args.eeprom_dir, exist_ok=True)
+            try:
+                os.makedirs(args.eeprom_dir, exist_ok=True)
+            except OSError as exc:   # a file there, say: "File exists" named nothing
+                why = "not a directory" if isinstance(exc, FileExistsError) else exc.strerror
+                raise OSError(exc.errno, f"--eeprom-dir: cannot use it as the EEPROM directory "
+                              f"({why})", args.eeprom_dir) from None
         devices.append(SimDevice(address, eeprom_path=path, wake_up_loss=args.wake_up_loss,
                                  seed=args.seed + address))
     t0 = time.monotonic()
     with stop_on_sigterm() as done, Simulator(args.port, devices, baudrate=args.baud,
                                                   rs485=_rs485(args)) as sim:
         opt.emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
-                 f"ready: simulating G485 devices {', '.join(map(str, args.address))} on {sim.name}")
+                 f"ready: simulating G485 device{'s' if len(args.address) > 1 else ''} "
+                 f"{', '.join(map(str, args.address))} on {sim.name}")
         while not done.wait(0.2):
             if sim.error is not None:
                 raise sim.error

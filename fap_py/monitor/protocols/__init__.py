@@ -13,6 +13,9 @@
 - ``pair(event, asked)``: ``(node, role, key)`` for the statistics: the node a good frame
   counts for (None: not a frame, e.g. a wake-up preamble), ``"req"``, ``"ans"`` or None,
   and the key an answer must match (``asked`` is the pending request's key, or None);
+- optionally ``DIRECTIONLESS = True``: request and answer frames look alike (exec
+  async), so on a live port (no sender port) a frame repeating the pending request
+  byte for byte is its retry, not its answer;
 - optionally ``DISSECTOR``: the Wireshark dissector's name and filter prefix in
   ``dissectors/fap_monitor.lua`` (default: the protocol's name), whose fields must be
   ``<DISSECTOR>.<field>`` for every field of ``FIELDS`` (a test checks it);

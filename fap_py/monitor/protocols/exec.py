@@ -12,10 +12,13 @@ FIELDS = ("node", "seq", "data")
 DISSECTOR = "execasync"
 LEGACY = {"ExecDecoder": "decoder"}
 
+#: request and answer look alike (no direction bit): the statistics take a frame
+#: repeating the pending request byte for byte as its retry, not its answer
+DIRECTIONLESS = True
 #: the broadcast node (no answer), from the protocol table
 _BROADCAST = _protocols.get(NAME).broadcast
 
-__all__ = ["DISSECTOR", "FIELDS", "NAME", "decoder", "pair", "summary"]
+__all__ = ["DIRECTIONLESS", "DISSECTOR", "FIELDS", "NAME", "decoder", "pair", "summary"]
 
 
 def decoder(baud: int = 0) -> Decoder:

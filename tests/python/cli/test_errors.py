@@ -154,4 +154,4 @@ def test_help_exit_0_and_version(fap) -> None:
     r = fap("--version")
     assert r.code == 0 and r.out.startswith("fap_py ")
     r = run_proc("version", "--json")
-    assert r.code == 0 and set(json.loads(r.out)) == {"fap_py", "libfap"}
+    assert r.code == 0 and set(json.loads(r.out)) == {"event", "fap_py", "libfap"}

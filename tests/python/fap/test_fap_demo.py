@@ -18,7 +18,7 @@ def test_fap_demo_runs_and_tells_the_story(extra) -> None:
     assert proc.returncode == 0, proc.stderr + out
     assert proc.stderr == ""
     for needle in ("slave 3 active (answered QUERY_ID)", "slave 12 active (answered QUERY_ID)",
-                   "frames tx", "of [3, 7, 12]",
+                   "frames tx", "(of 3, 7, 12)",
                    "paced" if extra else "unpaced"):
         assert needle in out, f"{needle!r} missing from:\n{out}"
     # the stats table: one row per node, numbers in every column

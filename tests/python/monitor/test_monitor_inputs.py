@@ -84,7 +84,7 @@ def test_human_output_and_footer(tmp_path):
     assert "DATA       7 -> 0   [5] 68 65 6c 6c 6f  |hello|" in out
     assert "!! crc" in out and "!! size" in out
     assert "-- 9 frames, errors: crc 1, garbage" in out
-    assert "node 7: 1 frames" in out
+    assert "node 7: 1 frame, " in out and "1 frames" not in out
 
 
 def test_stats_only(tmp_path):

@@ -138,7 +138,7 @@ def test_monitor_reads_a_url(served: Tuple[VirtualBus, Ser2net]) -> None:
     try:
         assert mon.stderr is not None
         line = mon.stderr.readline()
-        while "fap_py.port WARNING" in line:     # the port layer's note on a server's quirk
+        while "fap_py.port WARNING" in line or line.startswith("fap: warning: "):   # a quirk
             line = mon.stderr.readline()
         assert "listening on" in line
         with Port(bus.paths[2], 115200) as dev:
