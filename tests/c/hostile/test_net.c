@@ -4,6 +4,11 @@
  * URL, and a server that closes at once or sends Telnet garbage. Every call
  * returns a documented code, never crashes, never hangs. */
 #include <arpa/inet.h>
+#include <net/if.h>
+#include <sched.h>
+#include <sys/ioctl.h>
+#include <sys/mount.h>
+#include <sys/wait.h>
 #include <errno.h>
 #include <netinet/in.h>
 #include <poll.h>
@@ -447,6 +452,98 @@ static void test_raw_server_refused(void)
     hostile_stop(&h);
 }
 
+/* ---- a DNS server that never answers --------------------------------------
+ *
+ * In a child with its own mount and network namespaces (root only: skipped
+ * otherwise), /etc/resolv.conf is bind-mounted over by one that names
+ * 127.0.0.1, where a UDP socket takes the queries and answers none. glibc's
+ * getaddrinfo then waits its timeout x attempts (10 s); the open must end
+ * at connect_ms, and at once on a cancel. Before the fix: 10.0 s. */
+
+static int fake_dns_enter(void)
+{
+    if (geteuid() != 0 || unshare(CLONE_NEWNS | CLONE_NEWNET) < 0)
+        return -1;
+    if (mount("none", "/", NULL, MS_REC | MS_PRIVATE, NULL) < 0)
+        return -1;
+    char conf[] = "/tmp/fap_resolv_XXXXXX";
+    int fd = mkstemp(conf);
+    if (fd < 0)
+        return -1;
+    const char text[] = "nameserver 127.0.0.1\n";
+    int ok = write(fd, text, sizeof text - 1) == (ssize_t)(sizeof text - 1);
+    close(fd);
+    ok = ok && mount(conf, "/etc/resolv.conf", NULL, MS_BIND, NULL) == 0;
+    unlink(conf);   /* the mount keeps it */
+    if (!ok)
+        return -1;
+    int s = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    struct ifreq ifr;
+    memset(&ifr, 0, sizeof ifr);
+    snprintf(ifr.ifr_name, sizeof ifr.ifr_name, "lo");
+    ok = ioctl(s, SIOCGIFFLAGS, &ifr) == 0;
+    ifr.ifr_flags |= IFF_UP;
+    ok = ok && ioctl(s, SIOCSIFFLAGS, &ifr) == 0;
+    close(s);
+    if (!ok)
+        return -1;
+    /* the server: takes every query, answers none (kept open until exit) */
+    int u = socket(AF_INET, SOCK_DGRAM | SOCK_CLOEXEC, 0);
+    struct sockaddr_in a = {.sin_family = AF_INET, .sin_port = htons(53),
+                            .sin_addr.s_addr = htonl(INADDR_LOOPBACK)};
+    return bind(u, (struct sockaddr *)&a, sizeof a);
+}
+
+static void dns_checks(void)
+{
+    fap_port_options o;
+    fap_port_options_init(&o);
+    fap_port *p = NULL;
+    int64_t t0 = fap_port_now_ns();
+    CHECK_EQ(fap_port_open(&p, "tcp://fap-dns-test.example:4001?connect_ms=300", &o),
+             FAP_PORT_ERESOLVE);
+    int64_t took = fap_port_now_ns() - t0;
+    fprintf(stderr, "dns: open at connect_ms=300 took %.3f s\n", took / 1e9);
+    CHECK(took >= 290 * 1000000LL);
+    CHECK(took < BOUND_NS);
+    /* a cancel (close, Ctrl-C) ends the lookup's wait at once */
+    int efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    kicker k;
+    kick_start(&k, efd, 100);
+    t0 = fap_port_now_ns();
+    CHECK_EQ(fap_port_open_cancellable(&p, "rfc2217://fap-dns-test.example:4001?connect_ms=60000",
+                                       &o, &efd), -ECANCELED);
+    took = fap_port_now_ns() - t0;
+    fprintf(stderr, "dns: cancelled open took %.3f s\n", took / 1e9);
+    CHECK(took < BOUND_NS);
+    pthread_join(k.th, NULL);
+    close(efd);
+    /* numeric hosts never wait for DNS */
+    t0 = fap_port_now_ns();
+    CHECK_EQ(fap_port_open(&p, "tcp://127.0.0.1:1?connect_ms=300", &o), -ECONNREFUSED);
+    CHECK(fap_port_now_ns() - t0 < BOUND_NS);
+}
+
+static void test_dns_that_never_answers(void)
+{
+    pid_t pid = fork();
+    REQUIRE(pid >= 0);
+    if (pid == 0) {
+        if (fake_dns_enter() < 0)
+            _exit(77);   /* not root, or no namespaces here */
+        dns_checks();
+        fflush(stderr);
+        _exit(unit_failed ? 1 : 0);
+    }
+    int st = 0;
+    REQUIRE(waitpid(pid, &st, 0) == pid);
+    if (WIFEXITED(st) && WEXITSTATUS(st) == 77) {
+        fprintf(stderr, "skip test_dns_that_never_answers: needs root and unshare(2)\n");
+        return;
+    }
+    CHECK(WIFEXITED(st) && WEXITSTATUS(st) == 0);
+}
+
 /* The classic API takes the URL as its device string. */
 static void test_classic_url(void)
 {
@@ -457,4 +554,4 @@ static void test_classic_url(void)
 
 UNIT_MAIN(UNIT(test_broken_urls), UNIT(test_misbehaving_servers), UNIT(test_classic_url),
           UNIT(test_telnet_floods_end_the_open), UNIT(test_flood_after_open),
-          UNIT(test_write_to_server_that_does_not_read), UNIT(test_raw_server_refused))
+          UNIT(test_write_to_server_that_does_not_read), UNIT(test_raw_server_refused), UNIT(test_dns_that_never_answers))
