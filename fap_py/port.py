@@ -20,6 +20,7 @@ import errno as _errno
 import logging
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Optional, Union
@@ -70,6 +71,29 @@ def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     if code == -_errno.ECANCELED:
         return ClosedError(f"{path or 'port'}: {what}: port closed")
     return error_from_code(code, what, path)
+
+
+def _open_interruptibly(lib: Any, out: Any, raw: bytes, po: Any, cancel_ref: Any,
+                        cancel_fd: int) -> int:
+    """``fap_port_open_cancellable`` in a helper thread while this one waits in
+    slices: a C call on the main thread would hold off Ctrl-C for as long as the
+    open waits (a name lookup, a connect, an RFC 2217 negotiation: up to
+    connect_ms + 2 x option_ms). On KeyboardInterrupt (or any exception) the
+    cancel fd ends the open at once; a port it opened meanwhile is closed."""
+    result: list = []
+    t = threading.Thread(target=lambda: result.append(
+        lib.fap_port_open_cancellable(out, raw, po, cancel_ref)), name="fap-port-open", daemon=True)
+    t.start()
+    try:
+        while t.is_alive():
+            t.join(WAIT_SLICE)
+    except BaseException:
+        os.eventfd_write(cancel_fd, 1)
+        t.join()   # every wait of the open watches the cancel fd: it returns at once
+        if result and result[0] == 0:
+            lib.fap_port_close(out[0])
+        raise
+    return int(result[0])
 
 
 @dataclass(frozen=True)
@@ -130,7 +154,10 @@ class Port(NativeHandle):
         self._cancel_fd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
         self._cancel_ref = ffi.new("int *", self._cancel_fd)
         out = ffi.new("fap_port **")
-        rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
+        if b"://" in raw:   # a network open waits (lookup, connect, RFC 2217): Ctrl-C ends it
+            rc = _open_interruptibly(lib, out, raw, po, self._cancel_ref, self._cancel_fd)
+        else:
+            rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
         if rc:
             os.close(self._cancel_fd)
             self._cancel_fd = -1
