@@ -236,10 +236,11 @@ from fap_py.errors import PortError
 from fap_py.port import Port
 u = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 u.bind(("127.0.0.1", 53))           # takes every query, answers none
-name = "fap-dns-test.example"
+name = "fap-dns-test.example"     # in /etc/hosts until the Master part
+other = "fap-unknown.example"     # never there: every lookup goes to the DNS
 t0 = time.monotonic()
 try:
-    Port(f"tcp://{name}:4001?connect_ms=500", 115200)
+    Port(f"tcp://{other}:4001?connect_ms=500", 115200)
     print("opened?!")
 except PortError as exc:
     print("refused", round(time.monotonic() - t0, 3), exc, flush=True)
@@ -247,9 +248,26 @@ except PortError as exc:
 threading.Timer(0.2, os.kill, (os.getpid(), signal.SIGINT)).start()
 t0 = time.monotonic()
 try:
-    Port(f"rfc2217://{name}:4001?connect_ms=60000", 115200)
+    Port(f"rfc2217://{other}:4001?connect_ms=60000", 115200)
 except KeyboardInterrupt:
     print("interrupted", round(time.monotonic() - t0 - 0.2, 3), flush=True)
+# Master.close() while its engine reopens and waits for the lookup: the name
+# is in /etc/hosts for the open, gone (a lookup the DNS never answers) for
+# the reopen after the server dropped the connection
+from fap_py.fap import Master
+srv = socket.create_server(("127.0.0.1", 0))
+m = Master(f"tcp://{name}:{srv.getsockname()[1]}?connect_ms=60000", 115200, slaves=[3])
+c, _ = srv.accept()
+subprocess_ok = os.system(f"mount --bind {sys.argv[1]} /etc/hosts") == 0
+c.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, b"\x01\0\0\0\0\0\0\0")
+c.close()                            # a reset: the engine reopens
+u.settimeout(20)
+while b"fap-dns-test" not in u.recvfrom(512)[0]:
+    pass                             # (the abandoned lookup above still asks, too)
+# the reopen's lookup reached the DNS server: the engine waits there now
+t0 = time.monotonic()
+m.close()
+print("closed", round(time.monotonic() - t0, 3), subprocess_ok, flush=True)
 """
 
 
@@ -268,18 +286,25 @@ def test_dns_that_never_answers(tmp_path) -> None:
         pytest.skip(why)
     conf = tmp_path / "resolv.conf"
     conf.write_text("nameserver 127.0.0.1\n")
+    hosts, no_name = tmp_path / "hosts", tmp_path / "hosts-without"
+    hosts.write_text("127.0.0.1 localhost fap-dns-test.example\n")
+    no_name.write_text("127.0.0.1 localhost\n")
     script = tmp_path / "child.py"
     script.write_text(_DNS_CHILD)
     cmd = (f"ip link set lo up && mount --bind {conf} /etc/resolv.conf && "
-           f"exec {sys.executable} {script}")
+           f"mount --bind {hosts} /etc/hosts && exec {sys.executable} {script} {no_name}")
     r = subprocess.run(["unshare", "--mount", "--net", "sh", "-c", cmd], capture_output=True,
                        text=True, timeout=60)
     if r.returncode != 0 and "unshare" in r.stderr:
         pytest.skip(f"no namespaces here: {r.stderr.strip()}")
+    print(r.stdout)
     lines = r.stdout.splitlines()
-    assert len(lines) == 2, (r.stdout, r.stderr)
+    assert len(lines) == 3, (r.stdout, r.stderr)
     word, took, *rest = lines[0].split(" ", 2)
     assert word == "refused" and float(took) < BOUND, lines[0]   # before: 10.0 s
     assert "not resolved" in lines[0], lines[0]
     word, took = lines[1].split()
     assert word == "interrupted" and float(took) < BOUND, lines[1]   # before: 9.4 s
+    word, took, mounted = lines[2].split()
+    assert mounted == "True", lines[2]
+    assert word == "closed" and float(took) < BOUND, lines[2]   # before: 8.7 s
