@@ -52,6 +52,7 @@ class Hostile:
         self.lst = socket.create_server(("127.0.0.1", 0))
         self.port = self.lst.getsockname()[1]
         self.accepted = threading.Event()
+        self.connections = 0
         self.settled = threading.Event()
         self._stop = threading.Event()
         self._conns: list = []
@@ -69,7 +70,9 @@ class Hostile:
             except OSError:
                 continue
             self._conns.append(c)
-            self.accepted.set()
+            self.connections += 1
+            if self.kind != "good_once" or self.connections > 1:
+                self.accepted.set()
             threading.Thread(target=self._serve, args=(c,), daemon=True).start()
 
     def _serve(self, c: socket.socket) -> None:
@@ -77,7 +80,24 @@ class Hostile:
             if self.kind == "close":
                 c.close()
                 return
-            if self.kind == "silent":
+            if self.kind == "good_once" and self.connections == 1:
+                # a real server's open, then it drops the line; later ones: silent
+                c.sendall(GOOD_HELLO)
+                seen = b""
+                while LAST_SETTING not in seen:
+                    chunk = c.recv(1)
+                    if not chunk:
+                        return
+                    seen = seen[-16:] + chunk
+                answers = [(101, (115200).to_bytes(4, "big")), (102, b"\x08"), (103, b"\x01"),
+                           (104, b"\x01"), (105, b"\x01"), (105, b"\x08"), (105, b"\x0b")]
+                c.sendall(b"".join(bytes([IAC, SB, 44, cmd]) + v + bytes([IAC, SE])
+                                   for cmd, v in answers))
+                while b"!" not in c.recv(4096):   # the client's word that it is open
+                    pass
+                c.close()
+                return
+            if self.kind in ("silent", "good_once"):
                 while not self._stop.is_set() and c.recv(4096):
                     pass
                 return
@@ -170,6 +190,35 @@ def test_ctrl_c_ends_a_network_open(kind: str) -> None:
     """The open waits up to option_ms = 10 minutes; Ctrl-C ends it at once."""
     with Hostile(kind) as srv:
         took = _interrupt_child(_CTRL_C_OPEN, srv.url(query="?option_ms=600000"), srv.accepted)
+    assert took < BOUND, took
+
+
+_CTRL_C_REOPEN = r"""
+import sys, time
+from fap_py.errors import PortGoneError
+from fap_py.port import Port
+p = Port(sys.argv[1], 115200)
+p.write(b"!")                        # open: the server drops the line now
+try:
+    while True:
+        p.read(64, timeout=1)
+except PortGoneError:
+    pass
+try:
+    p.reopen()
+except KeyboardInterrupt:
+    t0 = time.monotonic()
+    p.close()
+    print("interrupted", round(time.monotonic() - t0, 3), flush=True)
+    sys.exit(130)
+"""
+
+
+def test_ctrl_c_ends_a_network_reopen() -> None:
+    """The server dropped the line and now never negotiates: Port.reopen() waits
+    up to option_ms = 10 minutes; Ctrl-C ends it, close() after it is quick."""
+    with Hostile("good_once") as srv:
+        took = _interrupt_child(_CTRL_C_REOPEN, srv.url(query="?option_ms=600000"), srv.accepted)
     assert took < BOUND, took
 
 
