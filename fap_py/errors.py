@@ -154,6 +154,14 @@ def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
         return PortError(_errno.EPROTO, text, path)
     if code == -_errno.ETIMEDOUT and path and "://" in path and "open" in prefix:
         return PortError(_errno.ETIMEDOUT, f"{prefix}connection timed out", path)
+    if code == -_errno.EPROTO and path and path.startswith("rfc2217://"):
+        raw = "tcp://" + path[len("rfc2217://"):].split("?", 1)[0]
+        return PortError(_errno.EPROTO, f"{prefix}the server sent no Telnet negotiation within "
+                         f"option_ms: not an RFC 2217 server (a raw TCP port? use {raw})", path)
+    if code == -_errno.EIO and path and "://" in path:
+        text = f"{prefix}connection closed by the server"
+        return PortError(_errno.EIO, text, path) if "open" in prefix \
+            else PortGoneError(_errno.EIO, text, path)
     return None
 
 

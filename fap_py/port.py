@@ -20,6 +20,7 @@ import errno as _errno
 import logging
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Optional, Union
@@ -70,6 +71,38 @@ def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     if code == -_errno.ECANCELED:
         return ClosedError(f"{path or 'port'}: {what}: port closed")
     return error_from_code(code, what, path)
+
+
+def _interruptibly(call: Any, cancel_fd: int, undo: Any = None) -> int:
+    """``call()`` (one blocking C call returning an int) in a helper thread while
+    this one waits in slices: on the main thread the C call would hold off
+    Ctrl-C for as long as a network open or reopen waits (a name lookup, a
+    connect, an RFC 2217 negotiation: up to connect_ms + 2 x option_ms). On
+    KeyboardInterrupt (or any exception here) the cancel fd ends the call at
+    once, ``undo(rc)`` cleans up after it, and the exception goes on."""
+    result: list = []
+    failed: list = []
+
+    def run() -> None:
+        try:
+            result.append(int(call()))
+        except BaseException as exc:   # handed to the waiting thread
+            failed.append(exc)
+
+    t = threading.Thread(target=run, name="fap-port-open", daemon=True)
+    t.start()
+    try:
+        while t.is_alive():
+            t.join(WAIT_SLICE)
+    except BaseException:
+        os.eventfd_write(cancel_fd, 1)
+        t.join()   # every wait of a network open watches the cancel fd: it returns at once
+        if undo is not None and result:
+            undo(result[0])
+        raise
+    if failed:
+        raise failed[0]
+    return result[0]
 
 
 @dataclass(frozen=True)
@@ -130,7 +163,12 @@ class Port(NativeHandle):
         self._cancel_fd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
         self._cancel_ref = ffi.new("int *", self._cancel_fd)
         out = ffi.new("fap_port **")
-        rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
+        if b"://" in raw:   # a network open waits (lookup, connect, RFC 2217): Ctrl-C ends it
+            rc = _interruptibly(lambda: lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref),
+                                self._cancel_fd,
+                                lambda r: r == 0 and lib.fap_port_close(out[0]))
+        else:
+            rc = lib.fap_port_open_cancellable(out, raw, po, self._cancel_ref)
         if rc:
             os.close(self._cancel_fd)
             self._cancel_fd = -1
@@ -333,9 +371,22 @@ class Port(NativeHandle):
         Raises the open error if the device is not back yet; the port stays
         usable for further attempts.
         """
-        rc = self._call(self._lib.fap_port_reopen)
+        if "://" not in self.path:
+            rc = self._call(self._lib.fap_port_reopen)
+        else:   # a network reopen waits (lookup, connect, negotiation): Ctrl-C ends it
+            rc = _interruptibly(lambda: self._call(self._lib.fap_port_reopen), self._cancel_fd,
+                                lambda r: self._uncancel())
         if rc < 0:
             raise port_error(rc, "reopen", self.path)
+
+    def _uncancel(self) -> None:
+        """Clear the cancel fd after a Ctrl-C ended a reopen (not after a close():
+        that one's cancel stays), so the port remains usable for another try."""
+        if not self._closing and self._cancel_fd >= 0:
+            try:
+                os.eventfd_read(self._cancel_fd)
+            except BlockingIOError:
+                pass
 
 
 def now_ns() -> int:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import stat
 from dataclasses import dataclass
 from typing import Dict, List, Optional
 
@@ -52,12 +53,26 @@ class SerialPort:
         return self.driver or "serial port"
 
 
+#: the most read of one sysfs attribute (a PAGE_SIZE page is all sysfs gives)
+READ_MAX = 4096
+
+
 def _read(path: str) -> Optional[str]:
+    """A sysfs attribute's text, or None. Bounded: opened non-blocking and read
+    only when it is a regular file (a FIFO would block the open, ``/dev/zero``
+    never ends), at most :data:`READ_MAX` bytes."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as f:
-            return f.read().strip()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOCTTY | os.O_CLOEXEC)
     except OSError:
         return None
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return None
+        return os.read(fd, READ_MAX).decode("utf-8", errors="replace").strip()
+    except OSError:
+        return None
+    finally:
+        os.close(fd)
 
 
 def _read_int(path: str) -> Optional[int]:

@@ -110,13 +110,30 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
                               const fap_port_options *o,
                               const lf_port_backend *be, void *ctx)
 {
-    if (!out || !path || !be)
+    return lf_port_open_backend_cancel(out, path, o, be, ctx, NULL);
+}
+
+int lf_port_open_backend_cancel(fap_port **out, const char *path, const fap_port_options *o,
+                                const lf_port_backend *be, void *ctx, const int *cancel_fd)
+{
+    if (!out || !path || !be) {
+        if (be && be->destroy)
+            be->destroy(ctx);   /* the port would have owned it */
         return -EINVAL;
+    }
     fap_port *p = calloc(1, sizeof *p);
-    if (!p)
+    if (!p) {
+        if (be->destroy)
+            be->destroy(ctx);
         return -ENOMEM;
+    }
     p->be = be;
     p->ctx = ctx;
+    /* set before the connect: a network open's waits (name lookup, connect,
+     * RFC 2217 negotiation) end when it turns readable, like every later one */
+    p->cancel_fd = cancel_fd;
+    if (be->attach)
+        be->attach(ctx, &p->cancel_fd);
     p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     p->poll_fd = p->pend_efd = p->intr_fd = -1;
     pthread_mutex_init(&p->tx_mu, NULL);
@@ -155,11 +172,17 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
     return 0;
 }
 
+int lf_port_open_cancel(fap_port **out, const char *path, const fap_port_options *o,
+                        const int *cancel_fd)
+{
+    if (path && lf_port_url_scheme(path) != LF_PORT_DEVICE)   /* tcp://, rfc2217:// (port_net.c) */
+        return lf_port_net_open(out, path, o, cancel_fd);
+    return lf_port_open_backend_cancel(out, path, o, &lf_port_posix_backend, NULL, cancel_fd);
+}
+
 int fap_port_open(fap_port **out, const char *path, const fap_port_options *o)
 {
-    if (lf_port_url_scheme(path) != LF_PORT_DEVICE)   /* tcp://, rfc2217:// (port_net.c) */
-        return lf_port_net_open(out, path, o);
-    return lf_port_open_with_backend(out, path, o, &lf_port_posix_backend, NULL);
+    return lf_port_open_cancel(out, path, o, NULL);
 }
 
 void fap_port_close(fap_port *p)

@@ -49,6 +49,11 @@ typedef struct lf_port_backend {
     /* Where sysfs is (USB latency_timer); NULL = "/sys". Tests point it
      * at a fake tree. */
     const char *sysfs_root;
+    /* Optional: told, before the open, where the port keeps its cancel fd
+     * pointer (fap_port.cancel_fd: NULL = none, else readable = stop), so a
+     * backend whose open waits (port_net.c: name lookup, connect, RFC 2217
+     * negotiation) ends those waits too. */
+    void (*attach)(void *ctx, const int *const *cancel_fd);
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
@@ -66,5 +71,11 @@ int lf_port_gpio_set(void *ctx, int line_fd, int value);
 int lf_port_open_with_backend(fap_port **out, const char *path,
                               const fap_port_options *o,
                               const lf_port_backend *be, void *ctx);
+/* The same, whose open already watches *cancel_fd (NULL: none). */
+int lf_port_open_backend_cancel(fap_port **out, const char *path, const fap_port_options *o,
+                                const lf_port_backend *be, void *ctx, const int *cancel_fd);
+/* fap_port_open (device or URL) whose open already watches *cancel_fd. */
+int lf_port_open_cancel(fap_port **out, const char *path, const fap_port_options *o,
+                        const int *cancel_fd);
 
 #endif

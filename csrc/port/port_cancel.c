@@ -15,10 +15,9 @@ int lf_port_open_cancellable(fap_port **out, const char *path, const fap_port_op
 {
     if (!cancel_fd || !out)
         return -EINVAL;
-    int err = fap_port_open(out, path, o);
-    if (!err)
-        (*out)->cancel_fd = cancel_fd;
-    return err;
+    /* watched from the start: a network open's name lookup, connect and
+     * negotiation end with -ECANCELED too */
+    return lf_port_open_cancel(out, path, o, cancel_fd);
 }
 
 int fap_port_open_cancellable(fap_port **out, const char *path, const fap_port_options *o,

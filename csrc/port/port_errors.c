@@ -27,7 +27,8 @@ const char *fap_port_strerror(int err)
     case FAP_PORT_EURL: return "bad port URL (tcp://HOST:PORT or rfc2217://HOST:PORT)";
     case FAP_PORT_ENET485: return "RS-485 direction on a network port is the server's: "
                                   "use mode none (or auto)";
-    case FAP_PORT_ERESOLVE: return "host name not found";
+    case FAP_PORT_ERESOLVE: return "host name not resolved (unknown, or no DNS answer within "
+                                   "connect_ms)";
     case FAP_PORT_EREFUSED: return "the RFC 2217 server refused a line setting";
     default: break;
     }

@@ -97,6 +97,10 @@ void lf_port_latency_restore(lf_port_conn *c);
  * locks_file, /proc/locks' format; or a live UUCP LCK..name in uucp_dir,
  * NULL = skip)? 1 yes, 0 no, negative errno (stat, reading locks_file). */
 int lf_port_held_elsewhere(const char *path, const char *locks_file, const char *uucp_dir);
+/* Open a sysfs/proc/lock file to read: O_NONBLOCK, and only a regular
+ * file (a FIFO would block, /dev/zero never ends): the fd, or -1 with
+ * errno (EINVAL: not a regular file). */
+int lf_open_regular(const char *path);
 
 /* port.c: I/O calls borrow the fd; a vanished device is closed by the
  * last borrower, so an fd number is never reused under a running call. */

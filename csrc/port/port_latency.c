@@ -30,7 +30,7 @@ static int latency_file(const fap_port *p, char *out, size_t cap)
 
 static int read_ms(const char *file)
 {
-    int fd = open(file, O_RDONLY | O_CLOEXEC);
+    int fd = lf_open_regular(file);   /* never a FIFO or /dev/zero (a fake tree) */
     if (fd < 0)
         return -1;
     char buf[16] = {0};
@@ -45,7 +45,7 @@ static int read_ms(const char *file)
 
 static int write_ms(const char *file, int ms)
 {
-    int fd = open(file, O_WRONLY | O_CLOEXEC);
+    int fd = open(file, O_WRONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
     if (fd < 0)
         return -1;
     char buf[8];

@@ -14,6 +14,8 @@
 
 #include <fcntl.h>
 #include <netdb.h>
+#include <signal.h>
+#include <sys/eventfd.h>
 #include <netinet/in.h>
 #include <netinet/tcp.h>
 #include <stdio.h>
@@ -36,15 +38,29 @@
 #define USER_TIMEOUT_MS 5000
 /* The longest a send may wait for room in the socket buffer. */
 #define SEND_WAIT_MS 2000
+/* Telnet answers (WILL/WONT/DO/DONT) one connection sends at most: a real
+ * server negotiates a handful of options once; one that flips an option
+ * back and forth forever gets no more answers after these. */
+#define ANSWER_MAX 64
 
 enum { OPT_OFF = 0, OPT_ASKED, OPT_ON, OPT_REFUSED };
+
+struct lf_lookup;
 
 typedef struct lf_net {
     lf_port_url url;
     int fd;                       /* the connection, -1 when none */
+    const int *const *cancel;     /* the port's cancel fd pointer (net_attach) */
     pthread_mutex_t tx_mu;        /* one sender: data and Telnet answers */
     pthread_mutex_t st_mu;        /* warning[] */
+    pthread_mutex_t ans_mu;       /* ans[] (never held across a wait) */
     char warning[400];
+    /* Telnet answers the parser queued: sent without waiting by the reader
+     * (when no data send is in progress) or before the next data send. */
+    uint8_t ans[96];
+    size_t ans_len;
+    unsigned answers;             /* answers queued on this connection */
+    struct lf_lookup *lookup;     /* a name lookup an open stopped waiting for */
     /* RFC 2217 (stream state: used under the port's rx_mu or at open) */
     lf_telnet tn;
     uint8_t us[256], him[256];    /* option states, OPT_* */
@@ -77,33 +93,119 @@ static void map_gone(void)
     }
 }
 
-/* Send all n bytes (the socket is non-blocking), bounded in time. */
-static int send_all(lf_net *c, int fd, const uint8_t *buf, size_t n)
+/* The port's cancel fd (readable: stop), -1 when it has none. */
+static int cancel_fd_of(const lf_net *c)
+{
+    const int *p = c->cancel ? *c->cancel : NULL;
+    return p ? *p : -1;
+}
+
+/* Wait for events on fd (fd < 0: only the cancel fd and the deadline):
+ * the revents (> 0), 0 at the deadline, or -1 with errno (ECANCELED: the
+ * port's cancel fd turned readable). Every wait of an open and of a send
+ * is this one, so none outlives its deadline or a close. */
+static int net_wait(const lf_net *c, int fd, short events, int64_t deadline)
+{
+    for (;;) {
+        int64_t now = lf_now_ns();
+        if (now >= deadline)
+            return 0;
+        struct pollfd pf[2] = {{.fd = fd, .events = events},
+                               {.fd = cancel_fd_of(c), .events = POLLIN}};
+        int r = poll(pf, 2, lf_poll_timeout_ms(deadline, now));
+        if (r < 0 && errno != EINTR)
+            return -1;
+        if (r > 0 && pf[1].revents) {
+            errno = ECANCELED;
+            return -1;
+        }
+        if (r > 0 && pf[0].revents)
+            return pf[0].revents;
+    }
+}
+
+/* Queue a Telnet answer (bounded: see ANSWER_MAX). */
+static void ans_queue(lf_net *c, const uint8_t *b, size_t n)
+{
+    pthread_mutex_lock(&c->ans_mu);
+    if (c->answers < ANSWER_MAX && c->ans_len + n <= sizeof c->ans) {
+        memcpy(c->ans + c->ans_len, b, n);
+        c->ans_len += n;
+        c->answers++;
+    }
+    pthread_mutex_unlock(&c->ans_mu);
+}
+
+/* Send queued answers without waiting (tx_mu held, so they never split a
+ * data chunk): 0 when none is left, -1 with errno (EAGAIN: some are). */
+static int ans_push(lf_net *c, int fd)
+{
+    int err = 0;
+    pthread_mutex_lock(&c->ans_mu);
+    while (c->ans_len) {
+        ssize_t w = send(fd, c->ans, c->ans_len, MSG_NOSIGNAL | MSG_DONTWAIT);
+        if (w > 0) {
+            memmove(c->ans, c->ans + w, c->ans_len - (size_t)w);
+            c->ans_len -= (size_t)w;
+        } else if (w < 0 && errno == EINTR) {
+            continue;
+        } else {
+            if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK)
+                map_gone();
+            err = w < 0 && errno != EWOULDBLOCK ? errno : EAGAIN;
+            break;
+        }
+    }
+    pthread_mutex_unlock(&c->ans_mu);
+    if (err) {
+        errno = err;
+        return -1;
+    }
+    return 0;
+}
+
+/* The reader's turn to send queued answers: only if no data send holds
+ * the line (that one sends them first), and never waiting. */
+static void ans_flush_nowait(lf_net *c, int fd)
+{
+    if (pthread_mutex_trylock(&c->tx_mu) != 0)
+        return;
+    (void)ans_push(c, fd);   /* a failure shows on the next read or send */
+    pthread_mutex_unlock(&c->tx_mu);
+}
+
+/* Send all n bytes (the socket is non-blocking), queued answers first;
+ * bounded by deadline and by the port's cancel fd (ECANCELED). */
+static int send_all(lf_net *c, int fd, const uint8_t *buf, size_t n, int64_t deadline)
 {
     pthread_mutex_lock(&c->tx_mu);
-    int64_t deadline = lf_now_ns() + (int64_t)SEND_WAIT_MS * LF_NS_PER_MS;
     size_t off = 0;
     int err = 0;
-    while (off < n) {
-        ssize_t w = send(fd, buf + off, n - off, MSG_NOSIGNAL | MSG_DONTWAIT);
-        if (w > 0) {
-            off += (size_t)w;
-            continue;
-        }
-        if (w < 0 && errno == EINTR)
-            continue;
-        if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
-            map_gone();
+    for (;;) {
+        if (ans_push(c, fd) == 0) {
+            if (off >= n)
+                break;
+            ssize_t w = send(fd, buf + off, n - off, MSG_NOSIGNAL | MSG_DONTWAIT);
+            if (w > 0) {
+                off += (size_t)w;
+                continue;
+            }
+            if (w < 0 && errno == EINTR)
+                continue;
+            if (w < 0 && errno != EAGAIN && errno != EWOULDBLOCK) {
+                map_gone();
+                err = errno;
+                break;
+            }
+        } else if (errno != EAGAIN) {
             err = errno;
             break;
         }
-        int64_t now = lf_now_ns();
-        if (now >= deadline) {
-            err = ETIMEDOUT;
+        int wr = net_wait(c, fd, POLLOUT, deadline);
+        if (wr <= 0) {
+            err = wr == 0 ? ETIMEDOUT : errno;
             break;
         }
-        struct pollfd pf = {.fd = fd, .events = POLLOUT};
-        (void)poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
     }
     pthread_mutex_unlock(&c->tx_mu);
     if (err) {
@@ -113,12 +215,20 @@ static int send_all(lf_net *c, int fd, const uint8_t *buf, size_t n)
     return 0;
 }
 
+/* A send of this connection's own (Telnet commands, data), from now. */
+static int64_t send_deadline(void)
+{
+    return lf_now_ns() + (int64_t)SEND_WAIT_MS * LF_NS_PER_MS;
+}
+
 /* ---- Telnet option negotiation (the client's side) --------------------- */
 
+/* Answer the server: queued, sent by telnet_recv or the next send (the
+ * parser runs inside a read, which must not wait for room to send). */
 static void send_cmd(lf_net *c, uint8_t verb, uint8_t opt)
 {
     uint8_t b[3] = {LF_TN_IAC, verb, opt};
-    (void)send_all(c, c->fd, b, sizeof b);   /* a failure shows on the next read */
+    ans_queue(c, b, sizeof b);
 }
 
 /* What we do ourselves: binary, COM-PORT-OPTION. What we want the server
@@ -176,40 +286,41 @@ static void on_cmd(void *ctx, uint8_t verb, uint8_t opt, const uint8_t *sb, size
     }
 }
 
-/* Receive what is there and run it through the Telnet parser; data bytes
- * go to out (room for n). Same returns as recv(); only commands read:
- * -1 with EAGAIN (nothing for the caller). */
+/* Receive what is there (one recv) and run it through the Telnet parser;
+ * data bytes go to out (room for n). Same returns as recv(); only
+ * commands read: -1 with EAGAIN (nothing for the caller yet). One recv per
+ * call, never a loop: a server that sends nothing but commands keeps the
+ * caller in its own bounded wait (deadline, cancel fd), not in here. */
 static ssize_t telnet_recv(lf_net *c, int fd, uint8_t *out, size_t n)
 {
     uint8_t raw[512];
-    for (;;) {
-        size_t want = n < sizeof raw ? n : sizeof raw;
-        ssize_t r = recv(fd, raw, want, MSG_DONTWAIT);
-        if (r <= 0) {
-            if (r < 0)
-                map_gone();
-            return r;
-        }
-        size_t d = lf_telnet_rx(&c->tn, raw, (size_t)r, out, on_cmd, c);
-        if (d > 0)
-            return (ssize_t)d;
+    size_t want = n < sizeof raw ? n : sizeof raw;
+    ssize_t r = recv(fd, raw, want, MSG_DONTWAIT);
+    if (r <= 0) {
+        if (r < 0)
+            map_gone();
+        return r;
     }
+    size_t d = lf_telnet_rx(&c->tn, raw, (size_t)r, out, on_cmd, c);
+    ans_flush_nowait(c, fd);
+    if (d > 0)
+        return (ssize_t)d;
+    errno = EAGAIN;
+    return -1;
 }
 
 /* Read and parse until cond(c) holds or the deadline passes (data bytes
  * read meanwhile are dropped: this runs before the port's opening flush).
- * 0, or -1 with errno (EIO: the server closed). */
+ * 0, or -1 with errno (EIO: the server closed; ECANCELED). */
 static int pump_until(lf_net *c, int fd, int (*cond)(const lf_net *), int64_t deadline)
 {
     uint8_t junk[512];
     while (!cond(c)) {
-        int64_t now = lf_now_ns();
-        if (now >= deadline)
+        int w = net_wait(c, fd, POLLIN, deadline);
+        if (w < 0)
+            return -1;
+        if (w == 0)
             return 0;
-        struct pollfd pf = {.fd = fd, .events = POLLIN};
-        int pr = poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
-        if (pr <= 0)
-            continue;
         ssize_t r = telnet_recv(c, fd, junk, sizeof junk);
         if (r == 0) {
             errno = EIO;
@@ -264,7 +375,7 @@ static void quickack(int fd)
     (void)setsockopt(fd, IPPROTO_TCP, TCP_QUICKACK, &one, sizeof one);
 }
 
-static int connect_one(const struct addrinfo *ai, int64_t deadline)
+static int connect_one(const lf_net *c, const struct addrinfo *ai, int64_t deadline)
 {
     int fd = socket(ai->ai_family, ai->ai_socktype | SOCK_NONBLOCK | SOCK_CLOEXEC,
                     ai->ai_protocol);
@@ -273,49 +384,172 @@ static int connect_one(const struct addrinfo *ai, int64_t deadline)
     if (connect(fd, ai->ai_addr, ai->ai_addrlen) == 0)
         return fd;
     int err = errno;
-    while (err == EINPROGRESS || err == EINTR) {
-        int64_t now = lf_now_ns();
-        if (now >= deadline) {
-            err = ETIMEDOUT;
-            break;
-        }
-        struct pollfd pf = {.fd = fd, .events = POLLOUT};
-        int pr = poll(&pf, 1, lf_poll_timeout_ms(deadline, now));
-        if (pr < 0 && errno != EINTR) {
+    if (err == EINPROGRESS || err == EINTR) {
+        int w = net_wait(c, fd, POLLOUT, deadline);
+        if (w < 0) {
             err = errno;
-            break;
-        }
-        if (pr > 0) {
+        } else if (w == 0) {
+            err = ETIMEDOUT;
+        } else {
             socklen_t len = sizeof err;
             if (getsockopt(fd, SOL_SOCKET, SO_ERROR, &err, &len) < 0)
                 err = errno;
             if (err == 0)
                 return fd;
-            break;
         }
-        err = EINPROGRESS;
     }
     close(fd);
     errno = err;
     return -1;
 }
 
-static int net_connect(lf_net *c)
+/* ---- name lookup: bounded by connect_ms, ended by the cancel fd ----------
+ *
+ * getaddrinfo() can be neither timed nor interrupted (a DNS server that
+ * never answers holds it for the resolver's timeout x attempts: 10 s by
+ * default). So a name (not a numeric address) is looked up by a detached
+ * helper thread; the open waits for it in net_wait, bounded by the open's
+ * deadline and the port's cancel fd. An open that stops waiting leaves the
+ * lookup to finish on its own: the connection keeps it, and the next open
+ * (a reopen) waits for that same lookup instead of starting another, so
+ * one port never has more than one helper thread. The last of the thread
+ * and the connection to let go frees it. */
+
+typedef struct lf_lookup {
+    pthread_mutex_t mu;
+    int refs;                     /* the thread's and the connection's */
+    int done;                     /* the fields below are set */
+    int gai, sys_err;
+    struct addrinfo *res;
+    int efd;                      /* eventfd: readable once done */
+    char host[sizeof ((lf_port_url *)0)->host];
+    char port[sizeof ((lf_port_url *)0)->port];
+} lf_lookup;
+
+static const struct addrinfo lookup_hints = {
+    .ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM,
+    .ai_flags = AI_NUMERICSERV | AI_ADDRCONFIG};
+
+static void lookup_unref(lf_lookup *l)
 {
-    struct addrinfo hints = {.ai_family = AF_UNSPEC, .ai_socktype = SOCK_STREAM,
-                             .ai_flags = AI_NUMERICSERV | AI_ADDRCONFIG};
+    pthread_mutex_lock(&l->mu);
+    int last = --l->refs == 0;
+    pthread_mutex_unlock(&l->mu);
+    if (!last)
+        return;
+    if (l->res)
+        freeaddrinfo(l->res);
+    close(l->efd);
+    pthread_mutex_destroy(&l->mu);
+    free(l);
+}
+
+static void *lookup_main(void *arg)
+{
+    lf_lookup *l = arg;
     struct addrinfo *res = NULL;
-    int gai = getaddrinfo(c->url.host, c->url.port, &hints, &res);
-    if (gai != 0) {
+    int gai = getaddrinfo(l->host, l->port, &lookup_hints, &res);
+    int err = errno;
+    pthread_mutex_lock(&l->mu);
+    l->gai = gai;
+    l->sys_err = err;
+    l->res = res;
+    l->done = 1;
+    uint64_t one = 1;
+    if (write(l->efd, &one, sizeof one) < 0) { /* cannot fail: a fresh counter */ }
+    pthread_mutex_unlock(&l->mu);
+    lookup_unref(l);
+    return NULL;
+}
+
+static lf_lookup *lookup_start(const lf_net *c)
+{
+    lf_lookup *l = calloc(1, sizeof *l);
+    if (!l)
+        return NULL;
+    l->efd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (l->efd < 0) {
+        free(l);
+        return NULL;
+    }
+    pthread_mutex_init(&l->mu, NULL);
+    snprintf(l->host, sizeof l->host, "%s", c->url.host);
+    snprintf(l->port, sizeof l->port, "%s", c->url.port);
+    l->refs = 2;
+    pthread_attr_t a;
+    pthread_attr_init(&a);
+    pthread_attr_setdetachstate(&a, PTHREAD_CREATE_DETACHED);
+    /* no signals for the helper: SIGINT and the like stay the caller's */
+    sigset_t all, old;
+    sigfillset(&all);
+    pthread_sigmask(SIG_SETMASK, &all, &old);
+    pthread_t th;
+    int rc = pthread_create(&th, &a, lookup_main, l);
+    pthread_sigmask(SIG_SETMASK, &old, NULL);
+    pthread_attr_destroy(&a);
+    if (rc != 0) {
+        l->refs = 1;
+        lookup_unref(l);
+        errno = rc;
+        return NULL;
+    }
+    return l;
+}
+
+/* getaddrinfo for the URL's host and port, by deadline: 0 with *res, or
+ * -1 with errno (-FAP_PORT_ERESOLVE: unknown, or no answer in time;
+ * ECANCELED). */
+static int net_resolve(lf_net *c, struct addrinfo **res, int64_t deadline)
+{
+    struct addrinfo numeric = lookup_hints;
+    numeric.ai_flags |= AI_NUMERICHOST;
+    int gai = getaddrinfo(c->url.host, c->url.port, &numeric, res);
+    if (gai == 0)
+        return 0;   /* an address: no lookup, nothing to wait for */
+    if (gai != EAI_NONAME) {
         errno = gai == EAI_SYSTEM ? errno : -FAP_PORT_ERESOLVE;
         return -1;
     }
+    if (!c->lookup && !(c->lookup = lookup_start(c)))
+        return -1;
+    lf_lookup *l = c->lookup;
+    int w = net_wait(c, l->efd, POLLIN, deadline);
+    int werr = errno;
+    pthread_mutex_lock(&l->mu);
+    int done = l->done, sys_err = l->sys_err;
+    if (done) {
+        gai = l->gai;
+        *res = l->res;
+        l->res = NULL;
+    }
+    pthread_mutex_unlock(&l->mu);
+    if (!done) {   /* still running: it stays ours for the next open */
+        errno = w < 0 ? werr : -FAP_PORT_ERESOLVE;   /* ECANCELED, or no answer in time */
+        return -1;
+    }
+    c->lookup = NULL;
+    lookup_unref(l);
+    if (gai != 0) {
+        errno = gai == EAI_SYSTEM && sys_err ? sys_err : -FAP_PORT_ERESOLVE;
+        return -1;
+    }
+    return 0;
+}
+
+static int net_connect(lf_net *c)
+{
+    /* connect_ms bounds the name lookup and the connect together */
     int64_t deadline = lf_now_ns() + (int64_t)c->url.connect_ms * LF_NS_PER_MS;
+    struct addrinfo *res = NULL;
+    if (net_resolve(c, &res, deadline) < 0)
+        return -1;
     int fd = -1, err = ECONNREFUSED;
     for (struct addrinfo *ai = res; ai && fd < 0; ai = ai->ai_next) {
-        fd = connect_one(ai, deadline);
+        fd = connect_one(c, ai, deadline);
         if (fd < 0)
             err = errno;
+        if (fd < 0 && (err == ECANCELED || err == ETIMEDOUT))
+            break;   /* stopped, or connect_ms used up */
     }
     freeaddrinfo(res);
     if (fd < 0) {
@@ -327,25 +561,36 @@ static int net_connect(lf_net *c)
 }
 
 /* RFC 2217: binary both ways and COM-PORT-OPTION. A server that answers
- * DONT COM-PORT-OPTION is not one (FAP_PORT_EREFUSED); one that does not
- * answer within option_ms gets a warning and is used anyway. */
+ * DONT COM-PORT-OPTION is not one (FAP_PORT_EREFUSED); nor is one that
+ * sends no Telnet command at all within option_ms (EPROTO: a raw TCP
+ * port, whose bus would take the negotiation as data); one that
+ * negotiates but leaves COM-PORT-OPTION unanswered gets a warning and is
+ * used anyway. */
 static int rfc2217_start(lf_net *c, int fd)
 {
     lf_telnet_init(&c->tn);
     memset(c->us, 0, sizeof c->us);
     memset(c->him, 0, sizeof c->him);
+    pthread_mutex_lock(&c->ans_mu);
+    c->ans_len = 0;   /* a new connection: nothing owed */
+    c->answers = 0;
+    pthread_mutex_unlock(&c->ans_mu);
     const uint8_t hello[] = {LF_TN_IAC, LF_TN_WILL, LF_TN_OPT_BINARY,
                              LF_TN_IAC, LF_TN_DO, LF_TN_OPT_BINARY,
                              LF_TN_IAC, LF_TN_WILL, LF_TN_OPT_COMPORT};
     c->us[LF_TN_OPT_BINARY] = c->him[LF_TN_OPT_BINARY] = OPT_ASKED;
     c->us[LF_TN_OPT_COMPORT] = OPT_ASKED;
-    if (send_all(c, fd, hello, sizeof hello) < 0)
-        return -1;
     int64_t deadline = lf_now_ns() + (int64_t)c->url.option_ms * LF_NS_PER_MS;
+    if (send_all(c, fd, hello, sizeof hello, deadline) < 0)
+        return -1;
     if (pump_until(c, fd, comport_settled, deadline) < 0)
         return -1;
     if (c->us[LF_TN_OPT_COMPORT] == OPT_REFUSED) {
         errno = -FAP_PORT_EREFUSED;
+        return -1;
+    }
+    if (c->us[LF_TN_OPT_COMPORT] == OPT_ASKED && c->tn.cmds == 0) {
+        errno = EPROTO;   /* not a word of Telnet: not an RFC 2217 server */
         return -1;
     }
     if (c->us[LF_TN_OPT_COMPORT] == OPT_ASKED)
@@ -436,9 +681,9 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     }
     for (size_t i = 0; i < sizeof control_vals; i++)
         len += lf_telnet_cpc(LF_CPC_SET_CONTROL, &control_vals[i], 1, msg + len);
-    if (send_all(c, fd, msg, len) < 0)
-        return -1;
     int64_t deadline = lf_now_ns() + (int64_t)c->url.option_ms * LF_NS_PER_MS;
+    if (send_all(c, fd, msg, len, deadline) < 0)
+        return -1;
     if (pump_until(c, fd, settings_answered, deadline) < 0)
         return -1;
     /* A line setting answered with another value: the server cannot do
@@ -478,7 +723,8 @@ static int net_tcflush(void *ctx, int fd, int queue)
         uint8_t what = queue == TCIFLUSH ? LF_CPC_PURGE_RX
                        : queue == TCOFLUSH ? LF_CPC_PURGE_TX : LF_CPC_PURGE_BOTH;
         uint8_t msg[16];
-        if (send_all(c, fd, msg, lf_telnet_cpc(LF_CPC_PURGE_DATA, &what, 1, msg)) < 0)
+        if (send_all(c, fd, msg, lf_telnet_cpc(LF_CPC_PURGE_DATA, &what, 1, msg),
+                     send_deadline()) < 0)
             return -1;
     }
     if (queue == TCOFLUSH)
@@ -541,8 +787,8 @@ static ssize_t net_write(void *ctx, int fd, const void *buf, size_t n)
     uint8_t enc[2 * 1024];
     size_t take = n < sizeof enc / 2 ? n : sizeof enc / 2;
     size_t len = lf_telnet_escape(buf, take, enc);
-    if (send_all(c, fd, enc, len) < 0)
-        return -1;
+    if (send_all(c, fd, enc, len, send_deadline()) < 0)
+        return -1;   /* ECANCELED: a close ends a send to a server that does not read */
     return (ssize_t)take;
 }
 
@@ -550,9 +796,17 @@ static ssize_t net_write(void *ctx, int fd, const void *buf, size_t n)
 static void net_destroy(void *ctx)
 {
     lf_net *c = ctx;
+    if (c->lookup)
+        lookup_unref(c->lookup);   /* still running: the thread frees it */
     pthread_mutex_destroy(&c->tx_mu);
     pthread_mutex_destroy(&c->st_mu);
+    pthread_mutex_destroy(&c->ans_mu);
     free(c);
+}
+
+static void net_attach(void *ctx, const int *const *cancel_fd)
+{
+    ((lf_net *)ctx)->cancel = cancel_fd;
 }
 
 static const lf_port_backend net_backend = {
@@ -569,9 +823,11 @@ static const lf_port_backend net_backend = {
     .poll = lf_port_posix_poll,
     .sleep_until = lf_port_posix_sleep_until,
     .destroy = net_destroy,
+    .attach = net_attach,
 };
 
-int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o)
+int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o,
+                     const int *cancel_fd)
 {
     if (!out || !url)
         return -EINVAL;
@@ -589,8 +845,9 @@ int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o)
     c->fd = -1;
     pthread_mutex_init(&c->tx_mu, NULL);
     pthread_mutex_init(&c->st_mu, NULL);
+    pthread_mutex_init(&c->ans_mu, NULL);
     /* the port owns c from here: freed by net_destroy, also on failure */
-    return lf_port_open_with_backend(out, url, o, &net_backend, c);
+    return lf_port_open_backend_cancel(out, url, o, &net_backend, c, cancel_fd);
 }
 
 lf_ns lf_port_link_slack_ns(const fap_port *p)

@@ -9,8 +9,11 @@
 /* fap_port_open for a URL (port_url.h): parse it, refuse a kernel or
  * soft-RTS direction mode (FAP_PORT_ENET485: direction is the server's
  * job), connect. Same returns as fap_port_open, plus FAP_PORT_EURL,
- * FAP_PORT_ERESOLVE, FAP_PORT_EREFUSED, -ECONNREFUSED, -ETIMEDOUT. */
-int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o);
+ * FAP_PORT_ERESOLVE, FAP_PORT_EREFUSED, -ECONNREFUSED, -ETIMEDOUT, -EPROTO
+ * (rfc2217:// and no Telnet from the server), -ECANCELED (*cancel_fd, NULL
+ * = none, turned readable while the open waited). */
+int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o,
+                     const int *cancel_fd);
 
 /* What a reply timeout must allow on top of the wire time for the link's
  * round trip: the URL's rtt_ms on a network transport, 0 on a device. */

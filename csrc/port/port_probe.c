@@ -25,14 +25,36 @@
  * negative errno if the file cannot be read. Lines look like
  * "1: FLOCK  ADVISORY  WRITE 1234 00:05:123 0 EOF" (major:minor in hex,
  * inode in decimal; "->" marks a waiter, which holds nothing). */
+int lf_open_regular(const char *path)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC | O_NONBLOCK | O_NOCTTY);
+    if (fd < 0)
+        return -1;
+    struct stat st;
+    if (fstat(fd, &st) < 0 || !S_ISREG(st.st_mode)) {
+        close(fd);
+        errno = EINVAL;   /* a FIFO, /dev/zero ...: not a file to read */
+        return -1;
+    }
+    return fd;
+}
+
+/* /proc/locks lists one line per lock: far fewer than this on any machine. */
+#define LOCKS_MAX_LINES 1000000
+
 static int locks_file_has(const char *locks, const struct stat *st)
 {
-    FILE *f = fopen(locks, "re");
-    if (!f)
-        return -errno;
+    int fd = lf_open_regular(locks);
+    FILE *f = fd >= 0 ? fdopen(fd, "r") : NULL;
+    if (!f) {
+        int err = errno;
+        if (fd >= 0)
+            close(fd);
+        return -err;
+    }
     char line[256];
     int held = 0;
-    while (!held && fgets(line, sizeof line, f)) {
+    for (long lines = 0; !held && lines < LOCKS_MAX_LINES && fgets(line, sizeof line, f); lines++) {
         unsigned maj, min;
         unsigned long long ino;
         char kind[16];
@@ -56,7 +78,7 @@ static int uucp_lock_held(const char *dir, const char *real)
     char name[PATH_MAX];
     if (snprintf(name, sizeof name, "%s/LCK..%s", dir, base) >= (int)sizeof name)
         return 0;
-    int fd = open(name, O_RDONLY | O_CLOEXEC);
+    int fd = lf_open_regular(name);
     if (fd < 0)
         return 0;
     char buf[32] = {0};

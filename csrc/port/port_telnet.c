@@ -32,22 +32,40 @@ size_t lf_telnet_rx(lf_telnet *t, const uint8_t *in, size_t n, uint8_t *out,
                 t->verb = b;
                 t->state = ST_OPT;
             } else if (b == LF_TN_SB) {
-                t->sb_len = 0;
+                t->sb_len = t->sb_wire = 0;
                 t->state = ST_SB;
-            }                                 /* NOP, GA, ...: nothing to do */
+                t->cmds++;
+            } else {
+                t->cmds++;                    /* NOP, GA, ...: nothing to do */
+            }
             break;
         case ST_OPT:
             t->state = ST_DATA;
+            t->cmds++;
             if (cmd)
                 cmd(ctx, t->verb, b, NULL, 0);
             break;
         case ST_SB:
-            if (b == LF_TN_IAC)
-                t->state = ST_SB_IAC;
-            else if (t->sb_len < LF_TN_SB_MAX)
-                t->sb[t->sb_len++] = b;
-            break;
         case ST_SB_IAC:
+            if (++t->sb_wire > LF_TN_SB_WIRE_MAX) {
+                /* an SB that never ends: dropped; this byte is the stream's */
+                t->sb_dropped++;
+                t->sb_len = t->sb_wire = 0;
+                if (b == LF_TN_IAC) {
+                    t->state = ST_IAC;
+                } else {
+                    t->state = ST_DATA;
+                    out[o++] = b;
+                }
+                break;
+            }
+            if (t->state == ST_SB) {
+                if (b == LF_TN_IAC)
+                    t->state = ST_SB_IAC;
+                else if (t->sb_len < LF_TN_SB_MAX)
+                    t->sb[t->sb_len++] = b;
+                break;
+            }
             if (b == LF_TN_IAC) {             /* escaped 0xFF inside SB */
                 if (t->sb_len < LF_TN_SB_MAX)
                     t->sb[t->sb_len++] = b;

@@ -26,12 +26,20 @@ enum {
 };
 
 #define LF_TN_SB_MAX 32   /* longest subnegotiation kept; longer ones are cut */
+/* Longest subnegotiation read at all (its bytes on the wire): one that has
+ * not ended by then is dropped and the parser is back on data, so a server
+ * that opens an SB and never closes it cannot swallow the stream for good.
+ * COM-PORT-OPTION's longest (SIGNATURE text) is far below. */
+#define LF_TN_SB_WIRE_MAX 1024
 
 typedef struct lf_telnet {
     uint8_t state;           /* parser state (port_telnet.c) */
     uint8_t verb;            /* WILL/WONT/DO/DONT being read */
     uint8_t sb[LF_TN_SB_MAX];
     size_t sb_len;
+    size_t sb_wire;          /* bytes of the current SB read so far */
+    uint64_t cmds;           /* commands seen (any IAC sequence but IAC IAC) */
+    uint64_t sb_dropped;     /* subnegotiations cut at LF_TN_SB_WIRE_MAX */
 } lf_telnet;
 
 /* A command found in the stream: verb is WILL/WONT/DO/DONT with opt, or SB

@@ -9,6 +9,7 @@
 #include <pthread.h>
 #include <sys/eventfd.h>
 #include <sys/ioctl.h>
+#include <sys/stat.h>
 
 #include "fap_port.h"
 #include "port/port_backend.h"
@@ -709,6 +710,18 @@ static void test_latency_timer(void)
     MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
     fap_port_close(p);
     CHECK_EQ(latency_now(file), -1);
+    /* a FIFO (its open would block) and /dev/zero (it never ends) in the
+     * file's place: not read, the open goes on at once */
+    MUST(mkfifo(file, 0600) == 0);
+    int64_t t0 = fap_port_now_ns();
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    CHECK(fap_port_now_ns() - t0 < 1000000000LL);
+    unlink(file);
+    MUST(symlink("/dev/zero", file) == 0);
+    MUST(lf_port_open_with_backend(&p, t.name, &o, &be, &f) == 0);
+    fap_port_close(p);
+    unlink(file);
     snprintf(dir, sizeof dir, "rm -rf %s", root);
     CHECK_EQ(system(dir), 0);
     tp_close(&t);

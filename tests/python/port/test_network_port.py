@@ -120,7 +120,7 @@ def test_refused_connection_and_unknown_host() -> None:
     assert ei.value.errno == errno.ECONNREFUSED
     with pytest.raises(PortError) as ei:
         Port("tcp://no-such-host.invalid:4000", 115200)
-    assert "host name not found" in str(ei.value)
+    assert "host name not resolved" in str(ei.value)
 
 
 def test_connect_timeout() -> None:

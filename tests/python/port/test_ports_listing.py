@@ -123,3 +123,48 @@ def test_fap_ports_reports_a_held_port_busy(tree: tuple[VirtualBus, Path],
         assert main(["ports"]) == 0
         assert "busy: held by another program (not opened)" in capsys.readouterr().out
     assert _rows(capsys)[str(dev / "ttyUSB0")]["rs485"] == "no"   # released: probed again
+
+
+_HOSTILE_LIST = r"""
+import json, resource, sys
+resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))   # the old read grew to GBs
+from fap_py import sysfs_ports
+from fap_py.cli import main
+from fap_py.commands import ports as ports_cmd
+ports = sysfs_ports.list_ports(sys.argv[1], sys.argv[2])
+print(json.dumps({p.name: [p.uart_type, p.product, p.latency_timer_ms] for p in ports}))
+ports_cmd.SYSFS_ROOT, ports_cmd.DEV_ROOT = sys.argv[1], sys.argv[2]
+sys.exit(main(["ports", "--json"]))
+"""
+
+
+def test_sysfs_fifo_and_dev_zero_are_not_read(tmp_path: Path) -> None:
+    """Issue 32 item 18: a FIFO in a sysfs attribute's place blocked the open
+    forever, a link to /dev/zero grew the process to GBs. Both are skipped
+    (opened non-blocking, read only as regular files, at most a page), and
+    the rest of the port is still listed."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    sys_, dev = fake_tree(tmp_path, {"ttyS0": "/dev/null", "ttyUSB0": "/dev/null"})
+    (sys_ / "class/tty/ttyS0/type").unlink()
+    os.mkfifo(sys_ / "class/tty/ttyS0/type")           # nobody ever writes it
+    usb = sys_ / "devices/pci0000:00/usb1/1-1"
+    (usb / "product").unlink()
+    (usb / "product").symlink_to("/dev/zero")
+    latency = usb / "1-1:1.0/ttyUSB0/latency_timer"
+    latency.unlink()
+    os.mkfifo(latency)
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-c", _HOSTILE_LIST, str(sys_), str(dev)],
+                       capture_output=True, text=True, timeout=20)
+    took = time.monotonic() - t0
+    assert r.returncode == 0, r.stderr
+    assert took < 10, took
+    found = json.loads(r.stdout.splitlines()[0])
+    assert found["ttyS0"] == [None, None, None]          # the FIFO: no type, listed anyway
+    assert found["ttyUSB0"] == [None, "FTDI", None]      # /dev/zero and the FIFO: not read
+    rows = [json.loads(line) for line in r.stdout.splitlines()[1:]]
+    assert {row["device"] for row in rows} == {str(dev / "ttyS0"), str(dev / "ttyUSB0")}
