@@ -46,6 +46,7 @@ from .errors import (
     FrameError,
     InvalidTypeError,
     InvalidValueError,
+    PortError,
     error_from_code,
 )
 from .rs485 import DEFAULT_BAUD as _DEFAULT_BAUD
@@ -94,6 +95,8 @@ def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
     if code >= 0:
         return
     if code == -errno.ETIMEDOUT:
+        if what in ("open", "reopen"):   # no connection within connect_ms: a port error
+            raise PortError(errno.ETIMEDOUT, f"{what}: connection timed out", path)
         raise NoReplyError(f"{what}: no reply")
     if code == -errno.EBADMSG:
         raise CorruptReplyError(f"{what}: corrupted reply")
