@@ -162,7 +162,7 @@ def _check_address(address: int) -> int:
 def _check_data(data: bytes) -> bytes:
     # bytes(3) would be three zero bytes and bytes("x") a TypeError: accept
     # only byte buffers, so a wrong argument is a clear fap_py error.
-    return check_bytes(data, "data (a mikroC frame carries 0..3 bytes)", 0, MAX_DATA)
+    return check_bytes(data, "data (one mikroC frame)", 0, MAX_DATA)
 
 
 def encode(address: int, data: bytes = b"", *, from_master: bool = True) -> bytes:
