@@ -60,7 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        "polled by the master)")
         q.add_argument("--max-age", metavar="S", type=opt.seconds, default=None,
                        help="drop (and count) a queued message not sent within S seconds "
-                       "(default: 10 x --interval, at least --wait)")
+                       "(default: 10 x --interval, at least twice --wait)")
         add_payload_options(q)
 
     m = opt.add_command(cmds, "master", help="run the master (ID 0): poll slaves, send, print what arrives",
@@ -126,7 +126,7 @@ class Outbox:
                  done: Stop) -> None:
         self.args, self.node, self.to, self.is_master, self.done = args, node, to, is_master, done
         self.max_age = args.max_age if args.max_age is not None \
-            else max(10 * args.interval, args.wait)
+            else max(10 * args.interval, 2 * args.wait)
         self.waiting: Deque[Tuple[float, bytes]] = deque()   # not handed to the engine yet
         self.engine: Deque[bytes] = deque()    # handed to the engine, not on the wire yet
         self.queued = self.sent = self.stale = self.skipped = 0
