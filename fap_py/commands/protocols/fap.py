@@ -192,7 +192,8 @@ class Outbox:
             self._unsaid_stale += dropped
         self._say_stale()
         self._say_skips()
-        if self.waiting and self.present():
+        there = self.present()      # every pump: a poll is seen when it happens
+        if self.waiting and there:
             while self.waiting:
                 try:
                     node.send(self.waiting[0][1], self.to)
