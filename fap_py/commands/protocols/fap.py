@@ -15,10 +15,9 @@ from collections import deque
 from typing import Any, Deque, Dict, List, Tuple
 
 from fap_py import _protocols
-
-from .. import _options as opt
 from fap_py.errors import QueueFullError
 
+from .. import _options as opt
 from .._node import (
     CLIENT,
     SERVER,

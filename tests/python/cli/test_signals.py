@@ -29,7 +29,6 @@ from typing import Callable, ContextManager, Dict, Iterator, List, Optional
 import pytest
 
 from fap_py import RS485, RS485Mode, execasync
-from fap_py import Slave as FapSlave
 from fap_py.cli import build_parser
 from fap_py.g485 import SimDevice, Simulator
 from fap_py.vbus import VirtualBus

@@ -53,7 +53,7 @@ def _mikroc_echo(path: str) -> Iterator[None]:
             while not done.is_set():
                 try:
                     msg = s.receive(0.05)
-                except Exception:       # noqa: BLE001 - timeouts while idle
+                except Exception:
                     continue
                 s.send(msg.data)
 
