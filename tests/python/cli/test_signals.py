@@ -228,11 +228,21 @@ def test_signal_gives_the_summary_and_the_documented_code(name: str, sig: int) -
         assert last.get(k) == v, (k, last)
 
 
-def _children(pid: int) -> List[int]:
+def _soak_slaves(pid: int) -> List[int]:
+    """The soak's slave processes (``python -m fap_py.soak --child ...``): started inside
+    its signal handling, unlike a helper an import may spawn (ctypes' find_library)."""
     try:
-        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+        kids = [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
     except OSError:
         return []
+    found = []
+    for k in kids:
+        try:
+            if b"--child" in Path(f"/proc/{k}/cmdline").read_bytes().split(b"\0"):
+                found.append(k)
+        except OSError:
+            pass
+    return found
 
 
 def test_soak_sigterm_gives_the_results_so_far() -> None:
@@ -244,9 +254,9 @@ def test_soak_sigterm_gives_the_results_so_far() -> None:
                          text=True)
     try:
         end = time.monotonic() + 30
-        while not _children(p.pid) and time.monotonic() < end:
+        while not _soak_slaves(p.pid) and time.monotonic() < end:
             time.sleep(0.05)
-        assert _children(p.pid), "the soak started no slave"
+        assert _soak_slaves(p.pid), f"the soak started no slave: {p.poll()}"
         p.send_signal(signal.SIGTERM)
         out, err = p.communicate(timeout=30)
     finally:
