@@ -46,6 +46,7 @@ from .errors import (
     FrameError,
     InvalidTypeError,
     InvalidValueError,
+    PortError,
     error_from_code,
 )
 from .rs485 import DEFAULT_BAUD as _DEFAULT_BAUD
@@ -94,6 +95,8 @@ def _raise_for(code: int, what: str, path: Optional[str] = None) -> None:
     if code >= 0:
         return
     if code == -errno.ETIMEDOUT:
+        if what in ("open", "reopen"):   # no connection within connect_ms: a port error
+            raise PortError(errno.ETIMEDOUT, f"{what}: connection timed out", path)
         raise NoReplyError(f"{what}: no reply")
     if code == -errno.EBADMSG:
         raise CorruptReplyError(f"{what}: corrupted reply")
@@ -156,28 +159,42 @@ class Decoder:
 
     ``buffer_size`` (1..255) limits the payload; a longer one is reported
     as ``Status.OVERFLOW`` with its first ``buffer_size`` bytes.
+
+    Thread-safe: :meth:`feed` and :meth:`reset` hold the decoder's lock, so
+    calls from several threads are serialised and each call decodes its
+    bytes as one run (the C state is never seen half-updated). A decoder is
+    one byte stream: bytes fed from two threads are decoded in the order the
+    calls take the lock, and frames interleaved that way are reported as
+    what they are on the wire (framing or CRC errors), never as an error of
+    the decoder.
     """
 
     def __init__(self, buffer_size: int = MAX_DATA) -> None:
         check_int(buffer_size, "buffer_size", 1, MAX_DATA, **_ERR)
         self._size = buffer_size
+        self._lock = threading.Lock()
         self._buf = ffi.new("byte[]", buffer_size)
         self.reset()
 
     def reset(self) -> None:
         """Forget any partial frame; wait for the next DLE STX."""
-        self._state = ffi.new("struct execAsyncStateDef *")
-        self._state.BufferSize = self._size % 256
+        state = ffi.new("struct execAsyncStateDef *")
+        state.BufferSize = self._size % 256
+        with self._lock:
+            self._state = state
 
     def feed(self, data: BytesLike) -> List[Frame]:
+        """The frames completed by ``data`` (a bytes-like object), in order."""
         frames: List[Frame] = []
-        st = self._state
-        for b in check_bytes(data, "data", 0, 1 << 62, **_ERR):
-            if lib.execAsyncByteIn(b, st, self._buf):
-                frame = Frame(st.Node, st.SeqNo, bytes(ffi.buffer(self._buf, st.Length)),
-                              Status(st.Status))
-                log.debug("decoded %s", frame)
-                frames.append(frame)
+        raw = check_bytes(data, "data", 0, 1 << 62, **_ERR)
+        with self._lock:         # execAsyncByteIn releases the GIL: one feeder at a time
+            st, buf = self._state, self._buf
+            for b in raw:
+                if lib.execAsyncByteIn(b, st, buf):
+                    frame = Frame(st.Node, st.SeqNo, bytes(ffi.buffer(buf, st.Length)),
+                                  Status(st.Status))
+                    log.debug("decoded %s", frame)
+                    frames.append(frame)
         return frames
 
 

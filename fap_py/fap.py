@@ -51,6 +51,7 @@ from .errors import (
     InvalidTypeError,
     InvalidValueError,
     NotMasterError,
+    PortError,
     QueueFullError,
     SlaveExistsError,
     UnknownSlaveError,
@@ -124,6 +125,8 @@ def _error(code: int, what: str, path: Optional[str] = None, detail: str = "") -
     if err == _errno.EAGAIN:
         return QueueFullError(f"{what}: transmit queue full{extra}; flush() or retry later")
     if err == _errno.ETIMEDOUT:
+        if what == "open":   # no connection within connect_ms (tcp://, rfc2217://): a port error
+            return PortError(err, "open: connection timed out", path)
         return FapTimeoutError(f"{what}: timed out{extra}")
     if err == _errno.ESHUTDOWN:
         return ClosedError(f"{what}: the node is closed")

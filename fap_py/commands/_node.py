@@ -14,6 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable, Dict, Iterator, List, Optional, Union
 
+from ..errors import InvalidValueError
 from ._options import EXIT_INTERRUPTED, BusError, UsageError, emit, hexbytes
 
 
@@ -68,9 +69,17 @@ class Payloads:
     one empty payload per pass (``empty``).
     """
 
-    def __init__(self, args: argparse.Namespace, *, empty: bool = True) -> None:
+    def __init__(self, args: argparse.Namespace, *, empty: bool = True,
+                 check: Optional[Callable[[bytes], Any]] = None) -> None:
         self.args = args
+        #: the protocol's own check of one payload (its size, say): an
+        #: InvalidValueError makes it a bad payload (argument: exit 2; stdin
+        #: line: reported and skipped), never the end of a stdin batch
+        self.check = check
         self.stop: Optional[threading.Event] = None   #: ends a stdin wait when set
+        #: called while a stdin wait (with :attr:`stop` set) has nothing to read,
+        #: every 0.2 s: a command keeps its own work going between lines
+        self.idle: Optional[Callable[[], None]] = None
         self.bad = 0                      #: stdin lines that were not payloads
         self.lines = 0                    #: stdin lines read (blank ones not counted)
         self._stdin: List[bytes] = []
@@ -84,14 +93,23 @@ class Payloads:
     def _parse(self, item: Union[str, bytes]) -> bytes:
         if isinstance(item, bytes):
             if self.args.text:
-                return item
+                return self._checked(item)
             item = item.decode("ascii", errors="backslashreplace")
         if self.args.text:
-            return item.encode()
+            return self._checked(item.encode())
         try:
-            return hexbytes(item)
+            data = hexbytes(item)
         except argparse.ArgumentTypeError as exc:
             raise UsageError(f"{exc} (use --text for text payloads)") from None
+        return self._checked(data)
+
+    def _checked(self, data: bytes) -> bytes:
+        if self.check is not None:
+            try:
+                self.check(data)
+            except InvalidValueError as exc:
+                raise UsageError(str(exc)) from None
+        return data
 
     def _raw_lines(self) -> Iterator[Union[str, bytes, None]]:
         """stdin line by line as each arrives (``os.read`` of what is there,
@@ -111,6 +129,8 @@ class Payloads:
                 if self.stop.is_set():
                     return
                 if not ready:
+                    if self.idle is not None:
+                        self.idle()
                     continue
             chunk = os.read(fd, 65536)
             if not chunk:
@@ -231,6 +251,62 @@ def stop_on_sigterm() -> Iterator[Stop]:
             signal.signal(s, h)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM in a client command: raised where SIGINT raises KeyboardInterrupt, so the
+    command ends the same way (its summary, ``"interrupted": true``, exit 130)."""
+
+
+@contextlib.contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """While the block runs, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt):
+    every ``except KeyboardInterrupt`` that prints a client's summary handles it."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_term(_signum: int, _frame: Any) -> None:
+        raise Terminated()
+
+    old = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+#: What ends a long-running command and with which exit code (docs/cli.md):
+#: a client (polling, scanning) ends on SIGINT or SIGTERM with its summary
+#: (``"interrupted": true``) and exit 130; a server (slave, sim) ends on
+#: either with its summary and exit 0, its normal end.
+CLIENT, SERVER = "client", "server"
+
+
+def long_running(parser: argparse.ArgumentParser, kind: str,
+                 func: Callable[[argparse.Namespace], int]) -> None:
+    """Register ``func`` as the parser's command, a long-running one of ``kind``
+    (:data:`CLIENT` or :data:`SERVER`): the CLI's registry of what runs until its
+    count, its scan or a signal ends it (``parser.get_default("long_running")``;
+    tests/python/cli/test_signals.py walks it). A client's ``func`` runs with
+    SIGTERM raising :class:`Terminated` (:func:`sigterm_interrupts`), unless it
+    handles the signals itself (``handles_signals``: :func:`stop_on_sigterm`)."""
+    if kind not in (CLIENT, SERVER):
+        raise InvalidValueError(f"long_running: kind is {CLIENT!r} or {SERVER!r}, not {kind!r}")
+    run = func
+    if kind == CLIENT and not getattr(func, "handles_signals", False):
+        def run(args: argparse.Namespace) -> int:
+            with sigterm_interrupts():
+                return func(args)
+        run.__doc__, run.__name__ = func.__doc__, func.__name__
+    parser.set_defaults(func=run, long_running=kind)
+
+
+def handles_signals(func: Callable[..., int]) -> Callable[..., int]:
+    """Mark a client command that ends on SIGINT/SIGTERM by itself (with
+    :func:`stop_on_sigterm`), so :func:`long_running` leaves its signals alone."""
+    func.handles_signals = True  # type: ignore[attr-defined]
+    return func
+
+
 class Progress:
     """A progress bar on stderr (rich) when ``enabled`` and stderr is a
     terminal; silent otherwise. Lines printed on a terminal stdout go above
@@ -307,8 +383,8 @@ class ScanResult:
 def scan(ids: List[int], probe: Callable[[int], Optional[Any]], *, label: str,
          progress: bool, found: Callable[[int, Any], None]) -> ScanResult:
     """Probe every id in turn; ``found`` is called for each that answers.
-    Ctrl-C ends the scan early (``interrupted``): the caller still prints
-    its summary."""
+    Ctrl-C or SIGTERM (a :class:`long_running` client) ends the scan early
+    (``interrupted``): the caller still prints its summary."""
     result = ScanResult([], 0)
     with Progress(len(ids), label, progress) as bar:
         try:

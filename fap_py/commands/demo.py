@@ -26,6 +26,7 @@ from typing import TYPE_CHECKING, Any, Deque, Dict, List, Optional, Tuple
 
 from .. import _protocols
 from ..rs485 import DEFAULT_BAUD
+from ._node import CLIENT, long_running
 from ._options import EXIT_INTERRUPTED, add_command, add_output_options, baud, emit, seconds
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -66,7 +67,7 @@ def register(sub: "argparse._SubParsersAction[argparse.ArgumentParser]") -> None
     p.add_argument("--seed", type=int, default=1, help="seed of traffic and faults")
     p.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
     add_output_options(p)
-    p.set_defaults(func=run)
+    long_running(p, CLIENT, run)     # SIGTERM ends it like Ctrl-C: summary, exit 130
 
 
 @dataclass

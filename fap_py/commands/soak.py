@@ -26,6 +26,8 @@ import argparse
 import dataclasses
 from typing import Any, Dict, List
 
+from ._node import CLIENT, handles_signals, long_running
+
 ALL = "all"
 
 
@@ -97,7 +99,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         p.add_argument("--" + name.replace("_", "-"), metavar=metavar, default=getattr(d, name),
                        type=baud if name == "baud" else types[metavar], help=text)
     add_output_options(p)
-    p.set_defaults(func=run)
+    long_running(p, CLIENT, handles_signals(run))   # its own SIGINT/SIGTERM stop
 
 
 def _value(v: Any) -> str:

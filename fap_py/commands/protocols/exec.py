@@ -16,8 +16,11 @@ from fap_py import _protocols
 
 from .. import _options as opt
 from .._node import (
+    CLIENT,
+    SERVER,
     Payloads,
     add_payload_options,
+    long_running,
     reply_option,
     scan,
     scan_summary,
@@ -66,13 +69,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--node", type=opt.integer, required=True, help=f"{_nodes()}, {PROTOCOL.broadcast} = broadcast (no reply)")
     opt.add_repeat_options(m)
     add_payload_options(m, what="request")
-    m.set_defaults(func=run_master)
+    long_running(m, CLIENT, run_master)
 
     b = opt.add_command(cmds, "broadcast", help=f"send to every slave (node {PROTOCOL.broadcast}), no reply",
                         example="fap exec broadcast --port /dev/ttyUSB0 ff00")
     line(b)
     add_payload_options(b)
-    b.set_defaults(func=run_broadcast)
+    long_running(b, CLIENT, run_broadcast)   # '-': until stdin ends
 
     s = opt.add_command(cmds, "slave", help="answer as a node until interrupted",
                         example="fap exec slave --port /dev/ttyUSB0 --node 5 --reply echo")
@@ -83,7 +86,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--turnaround-us", type=opt.integer, default=0,
                    help="quiet time before each reply, microseconds")
     s.add_argument("--max-requests", type=opt.integer, default=0, help="stop after N (0 = never)")
-    s.set_defaults(func=run_slave)
+    long_running(s, SERVER, run_slave)
 
     c = opt.add_command(cmds, "scan", help="find the nodes that answer (progress bar on a terminal)",
                         example="fap exec scan --port /dev/ttyUSB0 --first 1 --last 32 --timeout 0.05")
@@ -93,11 +96,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--last", type=opt.integer, default=PROTOCOL.node_max, help="last node to try")
     c.add_argument("--probe", metavar="HEX", type=opt.hexbytes, default=b"",
                    help="request payload sent to each node, hex (default: empty)")
-    c.set_defaults(func=run_scan)
+    long_running(c, CLIENT, run_scan)
 
 
 def _rs485(args: argparse.Namespace, turnaround_us: int = 0):
     return opt.rs485_from_args(args, turnaround_us=turnaround_us)
+
+
+def _size_check(most: int):
+    """Payloads' check: a request over ``most`` bytes is a bad payload (a stdin line
+    is reported and skipped), not a failed request."""
+    def check(req: bytes) -> None:
+        if len(req) > most:
+            raise opt.UsageError(f"an exec async request is 0..{most} bytes, not {len(req)}")
+    return check
 
 
 def run_encode(args: argparse.Namespace) -> int:
@@ -153,9 +165,9 @@ def _unfinished(data: bytes, frames: list) -> bytes:
 
 
 def run_master(args: argparse.Namespace) -> int:
-    from fap_py.execasync import BROADCAST, ExecAsyncError, Master
+    from fap_py.execasync import BROADCAST, MAX_DATA, ExecAsyncError, Master
 
-    data = Payloads(args)
+    data = Payloads(args, check=_size_check(MAX_DATA))
     failed = sent = 0
     interrupted = False
     with Master(args.port, args.baud, timeout=args.timeout, retries=args.retries,
@@ -193,13 +205,20 @@ def run_master(args: argparse.Namespace) -> int:
 
 
 def run_broadcast(args: argparse.Namespace) -> int:
-    from fap_py.execasync import Master
+    from fap_py.execasync import MAX_DATA, Master
 
-    data = Payloads(args)
+    data = Payloads(args, check=_size_check(MAX_DATA))
+    sent = 0
     with Master(args.port, args.baud, rs485=_rs485(args)) as master:
-        for req in data:
-            master.broadcast(req)
-            opt.emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+        try:
+            for req in data:
+                master.broadcast(req)
+                sent += 1
+                opt.emit(args, {"event": "broadcast", "data": req}, f"broadcast: {show(req)}")
+        except KeyboardInterrupt:       # Ctrl-C or SIGTERM while stdin is read: the summary
+            opt.emit(args, {"event": "summary", "broadcasts": sent, "interrupted": True},
+                     f"{opt.plural(sent, 'broadcast')} sent (interrupted)")
+            return opt.EXIT_INTERRUPTED
     data.finish()
     return 0
 

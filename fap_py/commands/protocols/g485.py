@@ -19,7 +19,7 @@ from typing import Any, Callable, Dict, Tuple, Union
 from fap_py import _protocols
 
 from .. import _options as opt
-from .._node import repetitions, scan, scan_summary, stop_on_sigterm
+from .._node import CLIENT, SERVER, long_running, repetitions, scan, scan_summary, stop_on_sigterm
 
 PROTOCOL = _protocols.get("g485")   # device IDs, broadcast ID, default baud: from the binding
 
@@ -54,14 +54,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--wake-up-loss", action="store_true",
                    help="lose the first burst after power-on/reset (baud detection)")
     s.add_argument("--seed", type=opt.integer, default=0, help="seed of bulk-mode discards")
-    s.set_defaults(func=run_sim)
+    long_running(s, SERVER, run_sim)
 
     r = opt.add_command(cmds, "read", help="read registers",
                         example="fap g485 read --port /dev/ttyUSB0 --address 1 --register 1 --registers 7")
     master(r)
     r.add_argument("--register", type=opt.integer, required=True, help="first register")
     r.add_argument("--registers", type=opt.positive, default=1, help="how many registers")
-    r.set_defaults(func=run_read)
+    long_running(r, CLIENT, run_read)
 
     w = opt.add_command(cmds, "write", help="write registers",
                         example="fap g485 write --port /dev/ttyUSB0 --address 1 --register 8 0x32 0x10")
@@ -79,12 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     e = opt.add_command(cmds, "error-word", help="read the error word",
                         example="fap g485 error-word --port /dev/ttyUSB0 --address 1")
     master(e)
-    e.set_defaults(func=run_error_word)
+    long_running(e, CLIENT, run_error_word)
 
     h = opt.add_command(cmds, "handshake", help="read the device's check byte",
                         example="fap g485 handshake --port /dev/ttyUSB0 --address 1 --count 0")
     master(h)
-    h.set_defaults(func=run_handshake)
+    long_running(h, CLIENT, run_handshake)
 
     c = opt.add_command(cmds, "scan", help="find the devices that answer a handshake "
                         "(progress bar on a terminal, devices printed as they answer)",
@@ -94,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(timeout=0.05, retries=0)
     c.add_argument("--first", type=opt.integer, default=PROTOCOL.node_min, help="first ID to try")
     c.add_argument("--last", type=opt.integer, default=PROTOCOL.node_max, help="last ID to try")
-    c.set_defaults(func=run_scan)
+    long_running(c, CLIENT, run_scan)
 
 
 def _rs485(args: argparse.Namespace) -> Any:

@@ -12,7 +12,16 @@ from typing import TYPE_CHECKING
 from fap_py import _protocols
 
 from .. import _options as opt
-from .._node import Payloads, add_payload_options, reply_option, show, stop_on_sigterm
+from .._node import (
+    CLIENT,
+    SERVER,
+    Payloads,
+    add_payload_options,
+    long_running,
+    reply_option,
+    show,
+    stop_on_sigterm,
+)
 
 if TYPE_CHECKING:  # pragma: no cover
     from fap_py.mikroc import NodeStats
@@ -35,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--address", type=opt.integer, required=True, help=f"slave address ({PROTOCOL.broadcast} = broadcast)")
     opt.add_repeat_options(m)
     add_payload_options(m, what="message", size=" (0..3 bytes each)")
-    m.set_defaults(func=run_master)
+    long_running(m, CLIENT, run_master)
 
     s = opt.add_command(cmds, "slave", help="answer as a slave until interrupted",
                         example="fap mikroc slave --port /dev/ttyUSB1 --address 5 --reply echo")
@@ -44,14 +53,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--address", type=opt.integer, required=True, help="this slave's address")
     s.add_argument("--reply", type=reply_option(3), default="echo", help="'echo', 'none' or a fixed reply in hex (0..3 bytes)")
     s.add_argument("--max-requests", type=opt.integer, default=0, help="stop after N (0 = never)")
-    s.set_defaults(func=run_slave)
+    long_running(s, SERVER, run_slave)
 
 
 def run_master(args: argparse.Namespace) -> int:
     from fap_py.errors import FapTimeoutError, FrameError
-    from fap_py.mikroc import BROADCAST, Master
+    from fap_py.mikroc import BROADCAST, MAX_DATA, Master
 
-    data = Payloads(args)
+    def check(req: bytes) -> None:      # a line over 3 bytes is skipped, not the batch's end
+        if len(req) > MAX_DATA:
+            raise opt.UsageError(f"a mikroC message is 0..{MAX_DATA} bytes, not {len(req)}")
+
+    data = Payloads(args, check=check)
     failed = sent = 0
     interrupted = False
     with Master(args.port, args.baud, rs485=opt.rs485_from_args(args)) as master:

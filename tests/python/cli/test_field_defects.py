@@ -211,10 +211,20 @@ def test_g485_read_forever_keeps_polling_after_a_missed_reply(fap, bus) -> None:
 
 
 def _children(pid: int) -> List[int]:
+    """The soak's slave processes (``... --child ...``), not a helper an import spawns
+    before the soak's signal handling is in place (ctypes' find_library)."""
     try:
-        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+        kids = [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
     except OSError:
         return []
+    found = []
+    for k in kids:
+        try:
+            if b"--child" in Path(f"/proc/{k}/cmdline").read_bytes().split(b"\0"):
+                found.append(k)
+        except OSError:
+            pass
+    return found
 
 
 def test_soak_ctrl_c_prints_the_results_so_far() -> None:
