@@ -20,6 +20,23 @@ from paho and sends them one at a time; a row that is alone in flight when
 the connection drops :data:`PROBE_STRIKES` times is counted as refused
 (reason :data:`DROPPED_REASON`), logged, and leaves the outbox like any
 refused row. Probing ends once every row that was in flight is settled.
+
+Acknowledgements are matched by paho's message id (mid), which wraps at 65,535 and
+is shared by the outbox rows and the bridge's own publications (status, health,
+Home Assistant discovery). A mid is tied to what it was sent for when
+``publish()`` returns; a PUBACK that arrives before that is held only while a
+publication is being handed to paho (:attr:`MqttLink._early`, emptied when no
+publish call is running), so a PUBACK is never kept to be matched with a later
+publication that reuses its mid.
+
+The bridge's own publications are not outbox rows: a refusal of one (an ACL
+that predates the health topic) is counted under its topic
+(:attr:`MqttLink.refused_own`), logged, and never blamed on a row: the loss of
+the connection that mosquitto 2.0 adds to it does not count towards probing.
+Its kind (status, health, discovery) is then not published again for
+:data:`OWN_BACKOFF_MIN` seconds, doubling at each new refusal up to
+:data:`OWN_BACKOFF_MAX`: one refused publication per backoff, not a reconnect
+storm.
 """
 from __future__ import annotations
 
@@ -78,6 +95,10 @@ PROBE_STRIKES = 3
 #: the ``broker.refused`` key of a row the broker never acknowledged but always dropped
 #: the connection on
 DROPPED_REASON = "Connection closed on this publication"
+#: seconds a kind of the bridge's own publications (status, health, discovery) is held
+#: back after the broker refused one; doubled at each refusal up to OWN_BACKOFF_MAX
+OWN_BACKOFF_MIN = 60.0
+OWN_BACKOFF_MAX = 3600.0
 
 
 class _Dropped:
@@ -182,7 +203,13 @@ class MqttLink:
         self.on_connected: Optional[Callable[[], None]] = None   # after each (re)connect
         self.extra: Dict[str, Callable[[bytes], None]] = {}    # more topics to subscribe: topic -> handler
         self._inflight: Dict[int, Tuple[int, str]] = {}   # paho mid -> outbox seq, topic
+        self._own: Dict[int, str] = {}            # paho mid -> topic of the bridge's own publication
         self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
+        self._publishing = 0                      # publish() calls running (while >0, _early may fill)
+        self.refused_own: Dict[str, int] = {}     # topic -> own publications the broker refused
+        self._held: Dict[str, Tuple[float, float]] = {}   # kind -> (monotonic until, backoff)
+        self._own_refused_since_connect = False   # the next loss of the connection is not the rows'
+        self.own_backoff = (OWN_BACKOFF_MIN, OWN_BACKOFF_MAX)
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
         self._handed_gen = 0                  # bumped when probing lowers _last_handed
@@ -239,7 +266,65 @@ class MqttLink:
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
         if self._connected:
-            self.client.publish(topic, payload, qos=1, retain=retain)
+            self._publish_own(topic, payload, retain)
+
+    def _kind(self, topic: str) -> str:
+        """What a refusal of ``topic`` holds back: the status or health topic itself, or
+        every topic under the same first level (all of Home Assistant's discovery)."""
+        if topic in (self.status_topic, self.health_topic):
+            return topic
+        return topic.split("/", 1)[0] + "/#"
+
+    def held(self, topic: str) -> bool:
+        """``topic`` (one of the bridge's own) is held back after a refusal."""
+        if not isinstance(topic, str):
+            raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
+        with self._cond:
+            h = self._held.get(self._kind(topic))
+            return h is not None and time.monotonic() < h[0]
+
+    def _publish_own(self, topic: str, payload: bytes, retain: bool) -> None:
+        """One of the bridge's own publications (not an outbox row): its mid is recorded
+        as such, so its PUBACK is never matched with a row."""
+        if self.held(topic):
+            return
+        with self._cond:
+            self._publishing += 1
+        info = None
+        try:
+            info = self.client.publish(topic, payload, qos=1, retain=retain)
+        except (ValueError, TypeError) as exc:   # paho refuses the topic or payload
+            log.error("cannot publish %s: %s", topic[:200], exc)
+        finally:
+            with self._cond:
+                self._publishing -= 1
+                if info is not None:
+                    self._own_handed(info, topic)
+                if self._publishing == 0:
+                    self._early.clear()   # nothing is being handed to paho: no owner will come
+
+    def _own_handed(self, info: Any, topic: str) -> None:
+        """Under ``_cond``: paho took one of the bridge's own publications under ``info.mid``."""
+        if info.mid in self._early:
+            self._own_answered(topic, self._early.pop(info.mid))
+        elif info.rc != self._mqtt.MQTT_ERR_QUEUE_SIZE:   # queued: its PUBACK will come
+            self._own[info.mid] = topic
+
+    def _own_answered(self, topic: str, reason: Any) -> None:
+        """Under ``_cond``: the broker answered one of the bridge's own publications. A
+        refusal is counted and logged under its topic, and holds its kind back."""
+        if reason is None or not getattr(reason, "is_failure", False):
+            return
+        self.refused_own[topic] = self.refused_own.get(topic, 0) + 1
+        self._own_refused_since_connect = True
+        kind = self._kind(topic)
+        lo, hi = self.own_backoff
+        prev = self._held.get(kind)
+        backoff = lo if prev is None else min(hi, prev[1] * 2)
+        self._held[kind] = (time.monotonic() + backoff, backoff)
+        log.error("broker refused the bridge's own publication on %s: %s (not an outbox row; %s "
+                  "held back for %g s; %d refused on this topic)", topic[:200], reason, kind[:200],
+                  backoff, self.refused_own[topic])
 
     def drain(self, timeout: float) -> bool:
         """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
@@ -257,8 +342,18 @@ class MqttLink:
         if self._pump_thread is not None:
             self._pump_thread.join(timeout)
         self._flush_acked()
-        if self._connected:
-            info = self.client.publish(self.status_topic, b"offline", qos=1, retain=True)
+        if self._connected and not self.held(self.status_topic):
+            with self._cond:
+                self._publishing += 1
+            try:
+                info = self.client.publish(self.status_topic, b"offline", qos=1, retain=True)
+            finally:
+                with self._cond:
+                    self._publishing -= 1
+            with self._cond:
+                self._own_handed(info, self.status_topic)
+                if self._publishing == 0:
+                    self._early.clear()
             try:
                 info.wait_for_publish(timeout)
             except (RuntimeError, ValueError):   # lost the connection meanwhile
@@ -305,7 +400,9 @@ class MqttLink:
             self._take_back(mids)
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
-        client.publish(self.status_topic, b"online", qos=1, retain=True)
+        with self._cond:
+            self._own_refused_since_connect = False
+        self._publish_own(self.status_topic, b"online", True)
         client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
@@ -324,7 +421,11 @@ class MqttLink:
             self._connected = self._subscribed = False
             if was:
                 self.disconnects += 1
-                if self._inflight and not self._stopping:
+                if self._own_refused_since_connect:
+                    # the broker closed the connection on one of the bridge's own publications
+                    # (mosquitto 2.0 does after a refusal): not the rows' fault
+                    self._own_refused_since_connect = False
+                elif self._inflight and not self._stopping:
                     mids = self._lost_with_rows()
             self._cond.notify_all()
         # taken back from paho at the next CONNACK, before paho re-sends: here paho may be
@@ -349,7 +450,12 @@ class MqttLink:
         with self._cond:
             entry = self._inflight.pop(mid, None)
             if entry is None:
-                self._early[mid] = reason
+                own = self._own.pop(mid, None)
+                if own is not None:
+                    self._own_answered(own, reason)
+                elif self._publishing:   # perhaps for the publish() call now running
+                    self._early[mid] = reason
+                # else: a mid nobody waits for (a repeated PUBACK): dropped, never kept
             else:
                 self._acked_one(entry, reason)
                 self._settled(entry[0])
@@ -519,12 +625,30 @@ class MqttLink:
                 props = self._props[0](self._props[1].PUBLISH)
                 props.UserProperty = [("host", self.config.host), ("seq", str(seq))]
             # paho keeps what it could not send (even QoS 0) and sends it on reconnect
-            info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
             with self._cond:
+                self._publishing += 1
+            try:
+                info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
+            except BaseException:
+                with self._cond:
+                    self._publishing -= 1
+                raise
+            with self._cond:
+                self._publishing -= 1
+                if info.rc == self._mqtt.MQTT_ERR_QUEUE_SIZE:
+                    # paho still holds an unanswered message under this mid: not queued,
+                    # handed again in a later round
+                    if self._publishing == 0:
+                        self._early.clear()
+                    return
+                self._own.pop(info.mid, None)   # a stale own publication's mid, reused
                 if info.mid in self._early:
                     self._acked_one((seq, topic), self._early.pop(info.mid))
+                    self._settled(seq)
                 else:
                     self._inflight[info.mid] = (seq, topic)
+                if self._publishing == 0:
+                    self._early.clear()
                 if gen != self._handed_gen:   # probing took rows back meanwhile: start again
                     return
                 self._last_handed = max(self._last_handed, seq)
