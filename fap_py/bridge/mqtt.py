@@ -29,24 +29,32 @@ publication is being handed to paho (:attr:`MqttLink._early`, emptied when no
 publish call is running), so a PUBACK is never kept to be matched with a later
 publication that reuses its mid.
 
-The bridge's own publications are not outbox rows: a refusal of one (an ACL
-that predates the health topic) is counted under its topic
-(:attr:`MqttLink.refused_own`), logged, and never blamed on a row: the loss of
-the connection that mosquitto 2.0 adds to it does not count towards probing.
-Its kind (status, health, discovery) is then not published again for
+The bridge's own publications (status, health, Home Assistant discovery) are
+not outbox rows, and a refusal of one (an ACL that predates the health topic)
+must never be blamed on a row. After each CONNACK the pump hands no row until
+the own publications of the connect (status ``online``, health, discovery)
+have been answered, sent one at a time (at most :data:`GATE_TIMEOUT` s): the
+rows paho had in flight are taken back and handed again, in order, after them.
+So a connection lost in that phase is the fault of the one own publication
+then unanswered, and a loss while any own publication is unanswered never
+counts towards probing the rows. A refusal (MQTT 5 PUBACK >= 0x80), or
+:data:`PROBE_STRIKES` losses in a row with the same kind unanswered (mosquitto
+2.0 closes the connection after a refusal and its PUBACK may be lost with the
+socket), is counted under its topic (:attr:`MqttLink.refused_own`), logged,
+and holds that kind (status, health, discovery) back for
 :data:`OWN_BACKOFF_MIN` seconds, doubling at each new refusal up to
-:data:`OWN_BACKOFF_MAX`: one refused publication per backoff, not a reconnect
-storm.
+:data:`OWN_BACKOFF_MAX`: a few reconnects, not a storm.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import socket
 import ssl
 import sys
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
 
 from .._validate import check_bool, check_bytes, check_int, check_seconds, check_timeout
 from ..errors import FapError, InvalidTypeError
@@ -99,6 +107,8 @@ DROPPED_REASON = "Connection closed on this publication"
 #: back after the broker refused one; doubled at each refusal up to OWN_BACKOFF_MAX
 OWN_BACKOFF_MIN = 60.0
 OWN_BACKOFF_MAX = 3600.0
+#: seconds after a CONNACK the rows wait at most for the own publications of the connect
+GATE_TIMEOUT = 5.0
 
 
 class _Dropped:
@@ -208,7 +218,11 @@ class MqttLink:
         self._publishing = 0                      # publish() calls running (while >0, _early may fill)
         self.refused_own: Dict[str, int] = {}     # topic -> own publications the broker refused
         self._held: Dict[str, Tuple[float, float]] = {}   # kind -> (monotonic until, backoff)
-        self._own_refused_since_connect = False   # the next loss of the connection is not the rows'
+        self._own_strikes: Dict[str, int] = {}    # kind -> losses in a row with it unanswered
+        self._gate_open = False                   # rows may be handed (the connect's own ones answered)
+        self._gate_deadline = 0.0                 # monotonic: the gate opens then whatever happened
+        self._own_queue: Deque[Tuple[str, bytes, bool]] = collections.deque()   # waiting for the gate
+        self._own_current: Optional[int] = None   # the gate's own publication in flight (mid; -1: sending)
         self.own_backoff = (OWN_BACKOFF_MIN, OWN_BACKOFF_MAX)
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
@@ -265,8 +279,18 @@ class MqttLink:
             raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
-        if self._connected:
-            self._publish_own(topic, payload, retain)
+        with self._cond:
+            if not self._connected:
+                return
+            if not self._gate_open:   # the connect phase: one at a time, after the others
+                self._own_queue.append((topic, payload, retain))
+                queued = True
+            else:
+                queued = False
+        if queued:
+            self._gate_next()
+        else:
+            self._send_own(topic, payload, retain)
 
     def _kind(self, topic: str) -> str:
         """What a refusal of ``topic`` holds back: the status or health topic itself, or
@@ -280,15 +304,19 @@ class MqttLink:
         if not isinstance(topic, str):
             raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
         with self._cond:
-            h = self._held.get(self._kind(topic))
-            return h is not None and time.monotonic() < h[0]
+            return self._held_locked(topic)
 
-    def _publish_own(self, topic: str, payload: bytes, retain: bool) -> None:
+    def _held_locked(self, topic: str) -> bool:
+        h = self._held.get(self._kind(topic))
+        return h is not None and time.monotonic() < h[0]
+
+    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False) -> bool:
         """One of the bridge's own publications (not an outbox row): its mid is recorded
-        as such, so its PUBACK is never matched with a row."""
-        if self.held(topic):
-            return
+        as such, so its PUBACK is never matched with a row. True if it waits for its
+        PUBACK (``gate``: as the connect phase's publication in flight)."""
         with self._cond:
+            if self._held_locked(topic):
+                return False
             self._publishing += 1
         info = None
         try:
@@ -298,33 +326,91 @@ class MqttLink:
         finally:
             with self._cond:
                 self._publishing -= 1
-                if info is not None:
-                    self._own_handed(info, topic)
+                waiting = info is not None and self._own_handed(info, topic)
+                if waiting and gate and self._own_current == -1:
+                    self._own_current = info.mid
                 if self._publishing == 0:
                     self._early.clear()   # nothing is being handed to paho: no owner will come
+        return waiting
 
-    def _own_handed(self, info: Any, topic: str) -> None:
-        """Under ``_cond``: paho took one of the bridge's own publications under ``info.mid``."""
+    def _own_handed(self, info: Any, topic: str) -> bool:
+        """Under ``_cond``: paho took one of the bridge's own publications under ``info.mid``;
+        True while its PUBACK is awaited."""
         if info.mid in self._early:
             self._own_answered(topic, self._early.pop(info.mid))
-        elif info.rc != self._mqtt.MQTT_ERR_QUEUE_SIZE:   # queued: its PUBACK will come
-            self._own[info.mid] = topic
+            return False
+        if info.rc == self._mqtt.MQTT_ERR_QUEUE_SIZE:   # paho did not take it
+            return False
+        self._own[info.mid] = topic
+        return True
+
+    def _gate_next(self) -> None:
+        """The connect phase: send the next own publication once the previous one is
+        answered; with none left (or at GATE_TIMEOUT), let the pump hand rows."""
+        while True:
+            with self._cond:
+                if self._gate_open or not self._connected:
+                    return
+                if self._own_current is not None and time.monotonic() < self._gate_deadline:
+                    return
+                item = None
+                while self._own_queue and time.monotonic() < self._gate_deadline:
+                    cand = self._own_queue.popleft()
+                    if not self._held_locked(cand[0]):
+                        item = cand
+                        break
+                if item is None:
+                    rest, self._own_queue = list(self._own_queue), collections.deque()
+                    self._gate_open = True
+                    self._own_current = None
+                    self._cond.notify_all()
+                else:
+                    self._own_current = -1
+            if item is None:
+                for topic, payload, retain in rest:   # past GATE_TIMEOUT: the rest at once
+                    self._send_own(topic, payload, retain)
+                return
+            if self._send_own(*item, gate=True):
+                return   # its PUBACK (or the loss of the connection) moves on
+            with self._cond:
+                if self._own_current == -1:
+                    self._own_current = None
 
     def _own_answered(self, topic: str, reason: Any) -> None:
         """Under ``_cond``: the broker answered one of the bridge's own publications. A
         refusal is counted and logged under its topic, and holds its kind back."""
-        if reason is None or not getattr(reason, "is_failure", False):
-            return
-        self.refused_own[topic] = self.refused_own.get(topic, 0) + 1
-        self._own_refused_since_connect = True
         kind = self._kind(topic)
+        if reason is None or not getattr(reason, "is_failure", False):
+            self._own_strikes.pop(kind, None)
+            return
+        self._hold(topic, str(reason))
+
+    def _hold(self, topic: str, why: str) -> None:
+        """Under ``_cond``: count a refused own publication and hold its kind back."""
+        self.refused_own[topic] = self.refused_own.get(topic, 0) + 1
+        kind = self._kind(topic)
+        self._own_strikes.pop(kind, None)
         lo, hi = self.own_backoff
         prev = self._held.get(kind)
         backoff = lo if prev is None else min(hi, prev[1] * 2)
         self._held[kind] = (time.monotonic() + backoff, backoff)
         log.error("broker refused the bridge's own publication on %s: %s (not an outbox row; %s "
-                  "held back for %g s; %d refused on this topic)", topic[:200], reason, kind[:200],
+                  "held back for %g s; %d refused on this topic)", topic[:200], why, kind[:200],
                   backoff, self.refused_own[topic])
+
+    def _lost_with_own(self) -> List[int]:
+        """Under ``_cond``, on a lost connection with own publications unanswered: the loss
+        is theirs (never the rows'); a kind unanswered at PROBE_STRIKES losses in a row is
+        counted as refused and held back. Returns their mids, to take back from paho (the
+        next connect publishes status, health and discovery afresh)."""
+        mids = list(self._own)
+        for kind in {self._kind(t) for t in self._own.values()}:
+            n = self._own_strikes[kind] = self._own_strikes.get(kind, 0) + 1
+            if n >= PROBE_STRIKES:
+                topic = next(t for t in self._own.values() if self._kind(t) == kind)
+                self._hold(topic, DROPPED_REASON)
+        self._own.clear()
+        return mids
 
     def drain(self, timeout: float) -> bool:
         """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
@@ -342,22 +428,9 @@ class MqttLink:
         if self._pump_thread is not None:
             self._pump_thread.join(timeout)
         self._flush_acked()
-        if self._connected and not self.held(self.status_topic):
+        if self._connected and self._send_own(self.status_topic, b"offline", True):
             with self._cond:
-                self._publishing += 1
-            try:
-                info = self.client.publish(self.status_topic, b"offline", qos=1, retain=True)
-            finally:
-                with self._cond:
-                    self._publishing -= 1
-            with self._cond:
-                self._own_handed(info, self.status_topic)
-                if self._publishing == 0:
-                    self._early.clear()
-            try:
-                info.wait_for_publish(timeout)
-            except (RuntimeError, ValueError):   # lost the connection meanwhile
-                pass
+                self._cond.wait_for(lambda: not self._own or not self._connected, timeout)
         if self._connected:
             self.client.disconnect()
         self.client.loop_stop()
@@ -395,24 +468,36 @@ class MqttLink:
             return
         self._failures = 0
         self.last_error = None
-        if self._take_back_mids:
+        with self._cond:
+            # the rows paho had in flight are taken back: the pump hands them again, in
+            # order, once the connect's own publications are answered (see the docstring)
             mids, self._take_back_mids = self._take_back_mids, []
+            if self._inflight:
+                mids += list(self._inflight)
+                self._last_handed = min(seq for seq, _ in self._inflight.values()) - 1
+                self._handed_gen += 1
+                self._inflight.clear()
+            mids += list(self._own)
+            self._own.clear()
+            self._gate_open = False
+            self._gate_deadline = time.monotonic() + GATE_TIMEOUT
+            self._own_queue = collections.deque([(self.status_topic, b"online", True)])
+            self._own_current = None
+        if mids:
             self._take_back(mids)
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
-        with self._cond:
-            self._own_refused_since_connect = False
-        self._publish_own(self.status_topic, b"online", True)
         client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
             self.connects += 1
             self._cond.notify_all()
-        if self.on_connected is not None:
+        if self.on_connected is not None:   # its publications queue behind status
             try:
                 self.on_connected()
             except Exception:   # never let a hook kill paho's thread
                 log.exception("after connect")
+        self._gate_next()
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         mids: List[int] = []
@@ -421,12 +506,15 @@ class MqttLink:
             self._connected = self._subscribed = False
             if was:
                 self.disconnects += 1
-                if self._own_refused_since_connect:
-                    # the broker closed the connection on one of the bridge's own publications
-                    # (mosquitto 2.0 does after a refusal): not the rows' fault
-                    self._own_refused_since_connect = False
+                if self._own and not self._stopping:
+                    # one of the bridge's own publications unanswered: the loss is its (a
+                    # refusal mosquitto 2.0 follows with a close), never the rows'
+                    mids = self._lost_with_own()
                 elif self._inflight and not self._stopping:
                     mids = self._lost_with_rows()
+            self._own_queue.clear()
+            self._own_current = None
+            self._gate_open = False
             self._cond.notify_all()
         # taken back from paho at the next CONNACK, before paho re-sends: here paho may be
         # iterating its queue (a failed re-send reports the loss from inside that loop)
@@ -447,12 +535,16 @@ class MqttLink:
             self._cond.notify_all()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        gate = False
         with self._cond:
             entry = self._inflight.pop(mid, None)
             if entry is None:
                 own = self._own.pop(mid, None)
                 if own is not None:
                     self._own_answered(own, reason)
+                    if mid == self._own_current:
+                        self._own_current = None
+                        gate = True
                 elif self._publishing:   # perhaps for the publish() call now running
                     self._early[mid] = reason
                 # else: a mid nobody waits for (a repeated PUBACK): dropped, never kept
@@ -461,8 +553,10 @@ class MqttLink:
                 self._settled(entry[0])
             # wake the pump for a batch of acknowledgements, not for each one (one disk
             # transaction per batch); the last one of a burst always wakes it
-            if len(self._acked) >= self._batch or not self._inflight:
+            if len(self._acked) >= self._batch or not self._inflight or not self._own:
                 self._cond.notify_all()
+        if gate:   # the connect phase's publication answered: the next one
+            self._gate_next()
 
     def _acked_one(self, entry: Tuple[int, str], reason: Any) -> None:
         """Under ``_cond``: the broker answered publication ``entry``. A refusal (MQTT 5
@@ -582,11 +676,16 @@ class MqttLink:
             return True
         room = self._window - len(self._inflight)
         unsent = self.store.pending - len(self._inflight) - len(self._acked)
-        return self._connected and unsent > 0 and (room >= self._batch or not self._inflight)
+        return self._rows_allowed() and unsent > 0 and (room >= self._batch or not self._inflight)
+
+    def _rows_allowed(self) -> bool:
+        """Under ``_cond``: rows may be handed: connected, and the connect's own
+        publications answered (or GATE_TIMEOUT passed: the pump opens the gate then)."""
+        return self._connected and self._gate_open
 
     def _work(self) -> bool:
         """Anything at all to do (the pump's round after ``PUMP_LINGER``)."""
-        return bool(self._acked) or (self._connected and len(self._inflight) < self._window
+        return bool(self._acked) or (self._rows_allowed() and len(self._inflight) < self._window
                                      and self.store.pending > len(self._inflight) + len(self._acked))
 
     def _pump(self) -> None:
@@ -597,7 +696,11 @@ class MqttLink:
                     self._cond.wait_for(lambda: self._stopping or self._work(), 1.0)
                 if self._stopping:
                     return
-                room = self._window - len(self._inflight) if self._connected else 0
+                late = self._connected and not self._gate_open and time.monotonic() >= self._gate_deadline
+            if late:   # an own publication's PUBACK that never came: the rows wait no longer
+                self._gate_next()
+            with self._cond:
+                room = self._window - len(self._inflight) if self._rows_allowed() else 0
             try:
                 self._pump_once(room)
             except StoreError as exc:   # a disk that fails a read: try again next round
