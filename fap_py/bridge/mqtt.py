@@ -327,7 +327,7 @@ class MqttLink:
             with self._cond:
                 self._publishing -= 1
                 waiting = info is not None and self._own_handed(info, topic)
-                if waiting and gate and self._own_current == -1:
+                if info is not None and waiting and gate and self._own_current == -1:
                     self._own_current = info.mid
                 if self._publishing == 0:
                     self._early.clear()   # nothing is being handed to paho: no owner will come
