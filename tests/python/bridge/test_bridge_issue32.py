@@ -162,8 +162,8 @@ def test_the_wal_stays_bounded_on_a_small_disk_and_recovers_after_it_filled(
         broker, observer_factory, fap_pair, tiny_tmpfs):
     """1 MiB of disk, a broker that takes everything: 1,200 rows of 600+ bytes go through the
     outbox without one failing (the WAL is checkpointed and cut back, sqlite's default let it
-    grow to 4 MB); then the disk is filled by someone else, and once the space returns the
-    outbox works again by itself and its WAL is truncated when it drains."""
+    grow to 4 MB); then, the broker away, the disk is filled by someone else, and once the
+    space returns the outbox works again by itself, delivers, and its WAL is cut back."""
     from fap_py.bridge import Bridge
 
     bus, s1 = fap_pair
@@ -181,7 +181,10 @@ def test_the_wal_stays_bounded_on_a_small_disk_and_recovers_after_it_filled(
         _count(obs, lambda m: m.topic == "fap/line1/1/rx", n)
         assert bridge.not_stored == 0, bridge.store_error
         assert os.path.getsize(wal) <= 256 << 10, os.path.getsize(wal)
-        # someone else fills the disk
+        # the broker goes away (the rows stay on disk) and someone else fills the disk
+        broker.stop()
+        with link._cond:
+            assert link._cond.wait_for(lambda: not link.connected, WAIT)
         ballast = tiny_tmpfs / "ballast"
         fd = os.open(ballast, os.O_WRONLY | os.O_CREAT)
         try:
@@ -190,14 +193,15 @@ def test_the_wal_stays_bounded_on_a_small_disk_and_recovers_after_it_filled(
                     os.write(fd, b"\0" * 4096)
         finally:
             os.close(fd)
-        for _ in range(200):
+        for _ in range(2000):
             bridge.rx_many("line1", [(1, {"data": "cd" * 300})] * 5)
             if bridge.not_stored:
                 break
         assert bridge.not_stored > 0 and bridge.store_error is not None
-        ballast.unlink()                          # space returns
+        ballast.unlink()                          # space returns, then the broker
         bridge.rx("line1", 1, {"data": "ee"})
         assert bridge.store_error is None
+        broker.start()
         with link._cond:
             assert link._cond.wait_for(lambda: bridge.store.pending == 0, WAIT)
         _count(obs, lambda m: m.topic == "fap/line1/1/rx" and b'"data":"ee"' in m.payload, 1)
