@@ -108,7 +108,7 @@ DROPPED_REASON = "Connection closed on this publication"
 OWN_BACKOFF_MIN = 60.0
 OWN_BACKOFF_MAX = 3600.0
 #: seconds after a CONNACK the rows wait at most for the own publications of the connect
-GATE_TIMEOUT = 5.0
+GATE_TIMEOUT = 1.0
 
 
 class _Dropped:
@@ -474,7 +474,9 @@ class MqttLink:
             mids, self._take_back_mids = self._take_back_mids, []
             if self._inflight:
                 mids += list(self._inflight)
-                self._last_handed = min(seq for seq, _ in self._inflight.values()) - 1
+                # never raised: probing may have lowered it already, below these rows
+                self._last_handed = min(self._last_handed,
+                                        min(seq for seq, _ in self._inflight.values()) - 1)
                 self._handed_gen += 1
                 self._inflight.clear()
             mids += list(self._own)
