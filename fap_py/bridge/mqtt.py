@@ -7,8 +7,10 @@ Delivery bus -> broker: every publication is first a row of the on-disk
 outbox (:class:`~fap_py.bridge.store.Store`); the pump hands rows to paho in
 sequence order, at most ``inflight`` unacknowledged at a time, only while
 connected, and deletes a row when its PUBACK arrives. Rows paho had sent
-when the connection dropped are re-sent by paho itself after the reconnect
-(with the DUP flag), before any newer row: order holds across outages.
+when the connection dropped are taken back from paho at the reconnect's
+CONNACK and handed again by the pump, in sequence order, before any newer row
+(after the bridge's own publications of the connect, below): order holds
+across outages, and a repeat keeps its ``seq``.
 
 Probing: a broker may close the connection instead of (or right after)
 refusing a publication; mosquitto 2.0 does so for an ACL denial, and the
@@ -19,7 +21,8 @@ rows in flight and no PUBACK between them, the pump takes those rows back
 from paho and sends them one at a time; a row that is alone in flight when
 the connection drops :data:`PROBE_STRIKES` times is counted as refused
 (reason :data:`DROPPED_REASON`), logged, and leaves the outbox like any
-refused row. Probing ends once every row that was in flight is settled.
+refused row. Probing ends once every row that was in flight is settled
+(taking rows back at every CONNACK, below, keeps paho from bursting them).
 
 Acknowledgements are matched by paho's message id (mid), which wraps at 65,535 and
 is shared by the outbox rows and the bridge's own publications (status, health,
