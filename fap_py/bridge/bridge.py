@@ -25,7 +25,8 @@ from ..errors import FapError, InvalidTypeError, InvalidValueError
 from .buses import BusAdapter, TxError, make_adapter
 from .config import BridgeConfig, check_bus_node, verify_files
 from .homeassistant import Discovery
-from .mqtt import MqttLink
+from .mqtt import MqttLink, paho
+from .ratelimit import Coalescer
 from .sparkplug import SparkplugNode
 from .store import Store, StoreError, now_iso
 
@@ -34,11 +35,30 @@ log = logging.getLogger(__name__)
 TX_MAX = 64 << 10   #: bytes: a larger tx is refused before it is parsed
 ECHO_MAX = 256      #: bytes of a refused tx echoed on the error topic
 TEXT_MAX = 300      #: characters of an error text (published and logged)
+ID_MAX = 128        #: characters of a tx id: a longer one is refused (the seen-id table stays small)
+#: seconds between two republications of the discovery configurations that Home Assistant's
+#: "online" asks for; more "online" within them are coalesced into one at their end
+HA_REPUBLISH_MIN = 30.0
 
 
 def _clip(text: str, limit: int = TEXT_MAX) -> str:
     """``text`` cut to ``limit`` characters, saying how much was cut."""
     return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+def _parse_tx(payload: bytes) -> Dict[str, Any]:
+    """A tx payload as a JSON object; TxError saying plainly what it is not."""
+    try:
+        req = json.loads(payload)
+    except UnicodeDecodeError as exc:
+        raise TxError(f"payload is not UTF-8 text (byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise TxError(f"payload is not JSON: {exc.msg} at character {exc.pos}") from None
+    except ValueError as exc:   # an integer of more than 4300 digits
+        raise TxError(f"payload is not usable JSON: {str(exc).split(':')[0]}") from None
+    if not isinstance(req, dict):
+        raise TxError("payload must be a JSON object")
+    return req
 
 
 def _describe(exc: BaseException) -> str:
@@ -62,6 +82,7 @@ class Bridge:
     def __init__(self, config: BridgeConfig) -> None:
         self.config = config
         verify_files(config, ports=False)   # a missing CA names its key before anything is created
+        paho()                              # paho-mqtt missing: said before the state file exists
         path = os.path.join(config.state_dir, f"fap-bridge-{config.host}.sqlite")
         self.store = Store(path, config.queue_max, config.seen_max)
         self._lock = threading.Lock()
@@ -70,6 +91,7 @@ class Bridge:
         self.duplicates = 0
         self.tx_refused = 0
         self.not_stored = 0                      # publications the outbox could not take
+        self.stopped = False                     # a clean stop published (health "stopped")
         self.store_error: Optional[str] = None   # the outbox's last error while it fails
         self._health_sent: Optional[Tuple[Any, ...]] = None
         self.buses: Dict[str, BusAdapter] = {b.name: make_adapter(b, self) for b in config.buses}
@@ -82,6 +104,8 @@ class Bridge:
         if self.discovery.enabled:
             self.discovery.add_configured({n: b.configured_nodes() for n, b in self.buses.items()})
             self.link.extra[self.discovery.status_topic] = self._on_ha_status
+        self.ha_republish = Coalescer(self.discovery.republish, HA_REPUBLISH_MIN,
+                                      "Home Assistant discovery republication")
         self.link.on_connected = self._on_connected
         self.sparkplug: Optional[SparkplugNode] = None
         if config.sparkplug is not None:
@@ -204,6 +228,8 @@ class Bridge:
             t.join(5.0)
         if self._stats_thread is not None:
             self._stats_thread.join(5.0)
+        self.ha_republish.close()
+        self._publish_stopped()
         if self.link.connected and not self.link.drain(drain):
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
@@ -213,6 +239,18 @@ class Bridge:
         if self.metrics is not None:
             self.metrics.close()
         self.store.close()
+
+    def _publish_stopped(self) -> None:
+        """A clean stop: every active node's retained state becomes ``inactive`` (through
+        the outbox, drained next) and the retained health says ``stopped``."""
+        with self._lock:
+            active = [(k, st[1]) for k, st in self._states.items() if st[0]]
+            for k, _ in active:
+                self._states[k][0] = False
+        for (bus, node), seen in active:
+            self._publish_state(bus, node, False, seen)
+        self.stopped = True
+        self._publish_health()
 
     def __enter__(self) -> "Bridge":
         return self.start()
@@ -264,16 +302,18 @@ class Bridge:
 
     def health(self) -> Dict[str, Any]:
         """The bridge's own state, published retained on ``<prefix>/bridge/<host>/health``."""
-        return {"host": self.config.host, "store": "ok" if self.store_error is None else "error",
+        return {"host": self.config.host, "state": "stopped" if self.stopped else "running",
+                "store": "ok" if self.store_error is None else "error",
                 "store_error": self.store_error, "not_stored": self.not_stored,
-                "buses": {name: {"state": "running" if b.open_error is None else "unavailable",
+                "buses": {name: {"state": "stopped" if self.stopped else
+                                 "running" if b.open_error is None else "unavailable",
                                  "error": b.open_error} for name, b in self.buses.items()},
                 "ts": now_iso()}
 
     def _publish_health(self, force: bool = True) -> None:
         """Publish :meth:`health` outside the outbox (it reports the outbox failing)."""
         doc = self.health()
-        key = (doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True))
+        key = (doc["state"], doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True))
         if not force and key == self._health_sent:
             return
         self._health_sent = key
@@ -323,7 +363,9 @@ class Bridge:
         return [("Bridge/Host", STRING, self.config.host), ("Bridge/Outbox rows", UINT64, self.store.pending),
                 ("Bridge/Not stored", UINT64, self.not_stored),
                 ("Bridge/MQTT refused", UINT64, self.link.refused_total),
-                ("Bridge/MQTT connected", BOOLEAN, self.link.connected)]
+                ("Bridge/MQTT connected", BOOLEAN, self.link.connected),
+                ("Bridge/Invalid commands", UINT64,
+                 0 if self.sparkplug is None else self.sparkplug.invalid_commands)]
 
     def _on_connected(self) -> None:
         self._publish_health()
@@ -332,7 +374,7 @@ class Bridge:
 
     def _on_ha_status(self, payload: bytes) -> None:
         if payload.strip() == b"online":   # Home Assistant (re)started: it wants the configs again
-            self.discovery.republish()
+            self.ha_republish.request()   # at most once per HA_REPUBLISH_MIN s (coalesced)
 
     def node_states(self) -> Dict[Tuple[str, int], bool]:
         """(bus, node) -> active, for every node whose state is known."""
@@ -380,8 +422,10 @@ class Bridge:
                        "last_seen": None if last_seen is None else now_iso(last_seen)}, retain=True)
 
     def error(self, bus: str, node: Any, tx_id: Optional[str], message: str,
-              payload: Optional[bytes] = None, node_text: Optional[str] = None) -> None:
-        """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded)."""
+              payload: Optional[bytes] = None, node_text: Optional[str] = None,
+              refused: bool = False) -> None:
+        """A tx that could not be carried out; ``payload``: the refused tx, echoed (bounded);
+        ``refused``: refused for its form (counted in ``tx_refused``)."""
         # node: any int (a tx to node 99999 is refused here, by number), None if not a number
         if not isinstance(bus, str) or isinstance(node, bool) \
                 or not (node is None or isinstance(node, int)):
@@ -391,6 +435,11 @@ class Bridge:
             raise InvalidTypeError("error(): tx_id and node_text must be str or None, message a str")
         if payload is not None:
             payload = check_bytes(payload, "payload", 0, 1 << 62)
+        if refused is not False and refused is not True:
+            raise InvalidTypeError(f"refused must be a bool, not {type(refused).__name__}")
+        if refused:
+            with self._lock:
+                self.tx_refused += 1
         message = _clip(message)
         tx_id = None if tx_id is None else _clip(tx_id, 100)
         log.warning("bus %s node %s: tx %s failed: %s", bus, node if node is not None else node_text,
@@ -412,27 +461,29 @@ class Bridge:
         tx_id: Optional[str] = None
         node: Optional[int] = None
         try:
+            # the payload first: an error names the tx's id whatever else is wrong with it
+            if len(payload) > TX_MAX:
+                raise TxError(f"payload of {len(payload)} bytes (at most {TX_MAX})")
+            req = _parse_tx(payload)
+            raw_id = req.get("id")
+            if not isinstance(raw_id, bool) and isinstance(raw_id, (str, int)) and raw_id != "":
+                tx_id = str(raw_id)
             if not (node_text.isascii() and node_text.isdigit()) or len(node_text) > 5:
                 raise TxError(f"node {_clip(node_text, 40)!r} is not a node number")
             node = int(node_text)
             bus.check_node(node)
-            if len(payload) > TX_MAX:
-                raise TxError(f"payload of {len(payload)} bytes (at most {TX_MAX})")
-            req = json.loads(payload)
-            if not isinstance(req, dict):
-                raise TxError("payload must be a JSON object")
-            raw_id = req.get("id")
-            if isinstance(raw_id, bool) or not isinstance(raw_id, (str, int)) or raw_id == "":
+            if tx_id is None:
                 raise TxError("every tx needs an \"id\" (string or integer)")
-            tx_id = str(raw_id)
+            if len(tx_id) > ID_MAX:
+                raise TxError(f"id of {len(tx_id)} characters (at most {ID_MAX})")
+            bus.check_tx(node, req)   # its form (op, hex, sizes): a refused tx uses up no id
             if not self.store.first_time(f"{bus_name}/{node}/{tx_id}"):
                 self.duplicates += 1
                 log.info("tx %s on %s: already executed (redelivery), ignored", tx_id, topic)
                 return
-            bus.submit(node, tx_id, req, deadline)
+            bus.submit(node, tx_id, req, deadline, payload)
         except Exception as exc:   # every malformed tx: bad JSON, too deep (RecursionError), store ...
-            self.tx_refused += 1
-            self.error(bus_name, node, tx_id, _describe(exc), payload, node_text=node_text)
+            self.error(bus_name, node, tx_id, _describe(exc), payload, node_text=node_text, refused=True)
 
     # -- stats --------------------------------------------------------------------------
     def stats(self, bus: str) -> Dict[str, Any]:
@@ -447,7 +498,8 @@ class Bridge:
                            "not_stored": self.not_stored, "error": self.store_error},
                 "broker": {"connected": self.link.connected, "connects": self.link.connects,
                            "disconnects": self.link.disconnects, "published": self.link.published,
-                           "refused": dict(self.link.refused_pubs)},
+                           "refused": dict(self.link.refused_pubs),
+                           "refused_own": dict(self.link.refused_own)},
                 "tx_duplicates": self.duplicates, "tx_refused": self.tx_refused}
 
     def _stats_loop(self) -> None:

@@ -77,7 +77,8 @@ class Sink(Protocol):
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None: ...
     def rx_many(self, bus: str, items: list) -> None: ...
     def state(self, bus: str, node: int, active: bool) -> None: ...
-    def error(self, bus: str, node: int, tx_id: Optional[str], message: str) -> None: ...
+    def error(self, bus: str, node: int, tx_id: Optional[str], message: str, *,
+              payload: Optional[bytes] = None, refused: bool = False) -> None: ...
 
 
 def _check_req(req: Any, key: Any) -> None:
@@ -234,28 +235,49 @@ class BusAdapter:
         if not self.running:
             raise TxError(f"bus {self.cfg.name} is unavailable: {self.open_error}")
 
-    def submit(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float] = None) -> None:
+    def check_tx(self, node: int, req: Dict[str, Any]) -> None:
+        """TxError unless ``req`` is a well-formed tx for ``node`` on this bus (its op, hex,
+        sizes, and the protocol's own rules): checked before the tx id is recorded, so a
+        refused tx uses up no id. The plug-ins add their rules in :meth:`_check_tx`."""
+        if not isinstance(req, dict):
+            raise InvalidTypeError(f"req must be a dict, not {type(req).__name__}")
+        self.check_node(node)
+        self._check_tx(node, req)
+
+    def _check_tx(self, node: int, req: Dict[str, Any]) -> None:
+        """The protocol's checks of a tx's form (nothing here: the engine checks at run time)."""
+
+    def submit(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float] = None,
+               payload: Optional[bytes] = None) -> None:
         """Queue a tx for the worker (TxError if the queue is full); ``deadline`` (monotonic):
-        the tx expires then (MQTT 5 message expiry) and is not run after it."""
+        the tx expires then (MQTT 5 message expiry) and is not run after it; ``payload``: the
+        tx as received, echoed if the worker refuses it."""
         if not isinstance(tx_id, str):
             raise InvalidTypeError(f"tx_id must be a str, not {type(tx_id).__name__}")
         if not isinstance(req, dict):
             raise InvalidTypeError(f"req must be a dict, not {type(req).__name__}")
         if deadline is not None:
             check_seconds(deadline, "deadline", hi=1e15)   # a monotonic time
+        if payload is not None and not isinstance(payload, bytes):
+            raise InvalidTypeError(f"payload must be bytes or None, not {type(payload).__name__}")
         self.check_node(node)
         try:
-            self.jobs.put_nowait((node, tx_id, req, deadline))
+            self.jobs.put_nowait((node, tx_id, req, deadline, payload))
         except queue.Full:
             raise TxError(f"bus {self.cfg.name}: {_JOBS_MAX} tx already waiting") from None
 
-    def _run_tx(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float]) -> None:
+    def _run_tx(self, node: int, tx_id: str, req: Dict[str, Any], deadline: Optional[float],
+                payload: Optional[bytes] = None) -> None:
         if deadline is not None and time.monotonic() > deadline:
             self.counters["tx_expired"] += 1
             self.sink.error(self.cfg.name, node, tx_id, "expired before it could run (MQTT message expiry)")
             return
         try:
             reply = self._execute(node, req)
+        except InvalidValueError as exc:   # the tx's form (bad hex, empty, too long): refused
+            self.sink.error(self.cfg.name, node, tx_id, f"{type(exc).__name__}: {exc}",
+                            payload=payload, refused=True)
+            return
         except FapError as exc:
             self.counters["tx_errors"] += 1
             self.sink.error(self.cfg.name, node, tx_id, f"{type(exc).__name__}: {exc}")

@@ -219,10 +219,39 @@ def bus_from_dict(table: Mapping[str, Any], index: int = 0) -> BusConfig:
     return _bus(dict(table), index)
 
 
+def is_network_port(port: str) -> bool:
+    """``port`` names one of the C port layer's network transports (``tcp://``,
+    ``rfc2217://``): the port layer's own rule (``lf_port_url_scheme``, csrc/port/port_url.h),
+    a ``://`` in the name, so no device path is ever taken for a URL or the other way."""
+    if not isinstance(port, str):
+        raise BridgeConfigTypeError(f"port must be a str, not {type(port).__name__}")
+    return "://" in port
+
+
+def _port_key(port: str, base: str) -> str:
+    """What makes two ports the same: a network port's scheme, host and port (case folded),
+    a device's real path (symlinks resolved)."""
+    if is_network_port(port):
+        parts = urlsplit(port)
+        try:
+            return f"{parts.scheme.lower()}://{(parts.hostname or '').lower()}:{parts.port}"
+        except ValueError:   # a bad port number: the open says so; compared as written
+            return port.lower()
+    return os.path.realpath(os.path.join(base, port))
+
+
+_HOST_MAX = 253   #: characters of a DNS name (RFC 1035), and so of a broker's host
+
+
 def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     """``mqtt://[user:pass@]host[:port]`` or ``mqtts://...`` -> host, port, tls, user, password."""
     if not isinstance(url, str):
         raise BridgeConfigTypeError(f"broker.url must be a string, not {type(url).__name__}")
+    try:
+        url.encode("utf-8")
+    except UnicodeEncodeError as exc:   # a lone surrogate: no broker has such a name
+        raise BridgeConfigError(f"broker.url holds a character that is not text (a lone surrogate "
+                                f"at position {exc.start}): {_show(url)}") from None
     try:
         parts = urlsplit(url)
         hostname = parts.hostname
@@ -230,6 +259,13 @@ def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
         raise BridgeConfigError(f"broker.url {_show(url)}: {exc}") from None
     if parts.scheme not in ("mqtt", "mqtts") or not hostname:
         raise BridgeConfigError(f"broker.url must be mqtt://host[:port] or mqtts://host[:port], not {_show(url)}")
+    if len(hostname) > _HOST_MAX:
+        raise BridgeConfigError(f"broker.url: a host of {len(hostname)} characters (at most {_HOST_MAX}): "
+                                f"{_show(url)}")
+    try:
+        hostname.encode("idna")
+    except UnicodeError:   # an empty label (a..b), a label over 63 characters ...
+        raise BridgeConfigError(f"broker.url: {_show(hostname)} is not a host name") from None
     tls = parts.scheme == "mqtts"
     try:
         port = parts.port or (8883 if tls else 1883)
@@ -306,6 +342,13 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
         raise BridgeConfigError(f"bus names must differ: {_show(names)}")
     if "bridge" in names:
         raise BridgeConfigError("a bus may not be called 'bridge' (that topic holds the bridge status)")
+    seen_ports: Dict[str, str] = {}
+    for b in buses:   # one engine per port: a second bus on it would stay unavailable for good
+        key = _port_key(b.port, base)
+        if key in seen_ports:
+            raise BridgeConfigError(f"bus {_show(b.name)}.port {_show(b.port)}: bus "
+                                    f"{_show(seen_ports[key])} already uses that port")
+        seen_ports[key] = b.name
     where = "bridge"
     host = _pop(bridge, "host", str, where, socket.gethostname())
     prefix = _pop(bridge, "topic_prefix", str, where, "fap").strip("/")
@@ -370,7 +413,35 @@ def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
     check_state_dir(cfg.state_dir)
     if ports:
         for bus in cfg.buses:
-            check_port(bus.port, f"bus {bus.name!r}.port")
+            if is_network_port(bus.port):   # the bridge opens it itself: checked, not connected
+                _check_network_port(bus.port, f"bus {bus.name!r}.port")
+            else:
+                check_port(bus.port, f"bus {bus.name!r}.port")
+
+
+_NETWORK_SCHEMES = ("tcp", "rfc2217")   #: the C port layer's (csrc/port/port_url.h)
+
+
+def _check_network_port(port: str, field: str) -> None:
+    """A ``tcp://`` / ``rfc2217://`` port names its scheme, a host and a port 1..65535
+    (the port layer checks its query parameters when it opens it); opens nothing."""
+    import errno
+
+    from .files import BridgeFileError
+
+    why = None
+    try:
+        parts = urlsplit(port)
+        number = parts.port
+    except ValueError:
+        parts, number, why = None, None, "a bad host or port number"
+    if why is None and parts is not None:
+        if parts.scheme.lower() not in _NETWORK_SCHEMES:
+            why = f"a URL port is tcp://HOST:PORT or rfc2217://HOST:PORT, not {_show(parts.scheme)}://"
+        elif not parts.hostname or not number:
+            why = "a URL port needs a host and a port (tcp://HOST:PORT)"
+    if why is not None:
+        raise BridgeFileError(errno.EINVAL, field, _show(port, 100), why)
 
 
 def load(path: "str | os.PathLike[str]") -> BridgeConfig:

@@ -21,6 +21,7 @@ import re
 import threading
 from typing import Any, Callable, Dict, List, Set, Tuple
 
+from .. import _protocols
 from .._project import docs_url
 from ..errors import InvalidTypeError, InvalidValueError
 from .config import BridgeConfig, BusConfig, check_bus_node
@@ -55,6 +56,15 @@ _ENTITIES: Tuple[Tuple[str, str, str, Dict[str, Any]], ...] = (
      {"state_topic": "{stats}", "value_template": "{{{{ value_json.health.crc_errors | default(0) }}}}",
       "state_class": "total_increasing", "entity_category": "diagnostic"}),
 )
+
+
+#: entities only a request/reply protocol fills (a plug-in without them says REPLY_METRICS = False)
+_REPLY_ENTITIES = frozenset({"errors", "timeouts", "reply_time"})
+
+
+def _reply_metrics(bus: BusConfig) -> bool:
+    """The bus's protocol measures requests and replies (FAP does not: its plug-in says so)."""
+    return bool(getattr(_protocols.get(bus.protocol).plugin("bridge"), "REPLY_METRICS", True))
 
 
 def slug(text: str) -> str:
@@ -101,7 +111,10 @@ class Discovery:
         availability = [{"topic": f"{c.prefix}/bridge/{c.host}/status",
                          "payload_available": "online", "payload_not_available": "offline"}]
         out = []
+        replies = _reply_metrics(b)
         for component, key, name, fields in _ENTITIES:
+            if key in _REPLY_ENTITIES and not replies:
+                continue   # never filled for this protocol: no entity that stays "unknown"
             doc: Dict[str, Any] = {k: v.format(node=node, **topics) for k, v in fields.items()}
             doc.update(name=name, unique_id=f"{dev_id}_{key}", device=device, availability=availability,
                        qos=c.qos, origin=_ORIGIN)

@@ -9,8 +9,12 @@ from __future__ import annotations
 
 import errno
 import logging
+import os
+import selectors
+import socket
 import threading
-from typing import Any, Iterator, List, Protocol
+import time
+from typing import Any, Dict, Iterator, List, Optional, Protocol
 
 from ..errors import InvalidTypeError, InvalidValueError, PortError
 from .buses import REPLY_BUCKETS
@@ -124,39 +128,207 @@ class BridgeCollector:
         for reason, n in sorted(link.refused_pubs.items()):
             refused.add_metric([reason], n)
         yield refused
+        own = CounterMetricFamily("fap_bridge_mqtt_own_refused",
+                                  "the bridge's own publications (status, health, discovery) the broker "
+                                  "refused", labels=["topic"])
+        for topic, n in sorted(getattr(link, "refused_own", {}).items()):
+            own.add_metric([topic], n)
+        yield own
+        sp = getattr(b, "sparkplug", None)
+        if sp is not None:
+            yield CounterMetricFamily("fap_bridge_sparkplug_invalid_commands",
+                                      "NCMD that were not a Sparkplug payload or asked nothing known",
+                                      value=sp.invalid_commands)
+            yield CounterMetricFamily("fap_bridge_sparkplug_rebirths_coalesced",
+                                      "rebirth requests folded into another (rate limit)",
+                                      value=sp.rebirths.coalesced)
         yield CounterMetricFamily("fap_bridge_tx_refused", "malformed tx refused", value=b.tx_refused)
         yield CounterMetricFamily("fap_bridge_tx_duplicates", "tx redeliveries dropped", value=b.duplicates)
 
 
-class MetricsServer:
-    """The HTTP endpoint (prometheus_client's server on its own registry)."""
+#: connections the endpoint serves at once; a new one past it closes the oldest
+#: (the slowest: a scrape sends its request at once)
+MAX_CLIENTS = 32
+#: seconds a connection may take to send its request and read the answer
+CLIENT_TIMEOUT = 5.0
+_REQUEST_MAX = 8192   #: bytes of a request's head
 
-    def __init__(self, bridge: MetricsSource, host: str, port: int) -> None:
+
+class _Conn:
+    __slots__ = ("sock", "inbuf", "out", "deadline")
+
+    def __init__(self, sock: socket.socket, deadline: float) -> None:
+        self.sock = sock
+        self.inbuf = b""
+        self.out: Optional[memoryview] = None
+        self.deadline = deadline
+
+
+class MetricsServer:
+    """The HTTP endpoint: one thread, one selector, at most :data:`MAX_CLIENTS`
+    connections, each closed after :data:`CLIENT_TIMEOUT` seconds; a slow or hostile
+    client costs one fd for a bounded time, never a thread, and never the bus side."""
+
+    def __init__(self, bridge: MetricsSource, host: str, port: int, *, max_clients: int = MAX_CLIENTS,
+                 timeout: float = CLIENT_TIMEOUT) -> None:
         if not all(hasattr(bridge, a) for a in _SOURCE_ATTRS) or not isinstance(host, str) \
                 or isinstance(port, bool) \
                 or not isinstance(port, int):
             raise InvalidTypeError("MetricsServer(bridge: Bridge, host: str, port: int)")
         if not 0 <= port <= 65535:
             raise InvalidValueError(f"port must be 0..65535, not {port!r:.40}")
+        if isinstance(max_clients, bool) or not isinstance(max_clients, int) or not 1 <= max_clients <= 4096:
+            raise InvalidValueError(f"max_clients must be 1..4096, not {max_clients!r:.40}")
+        if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not 0 < timeout <= 3600:
+            raise InvalidValueError(f"timeout must be 0 < s <= 3600, not {timeout!r:.40}")
         try:
-            from prometheus_client import CollectorRegistry, start_http_server
+            from prometheus_client import CollectorRegistry
+            from prometheus_client.exposition import CONTENT_TYPE_LATEST, generate_latest
         except ImportError:
             raise MissingDependencyError(METRICS_HINT) from None
+        self._generate, self._ctype = generate_latest, CONTENT_TYPE_LATEST
+        self.max_clients, self.timeout = max_clients, float(timeout)
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(BridgeCollector(bridge))
         try:
-            self._server, self._thread = start_http_server(port, addr=host, registry=self.registry)
+            infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+            family, _, _, _, addr = infos[0]
+            self._sock = socket.socket(family, socket.SOCK_STREAM)
+            try:
+                self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                self._sock.bind(addr)
+                self._sock.listen(64)
+            except BaseException:
+                self._sock.close()
+                raise
         except OSError as exc:
-            raise PortError(exc.errno or errno.EADDRNOTAVAIL,
-                            f"metrics.listen {host}:{port}: {exc.strerror or exc}") from None
-        self.port = int(self._server.server_address[1])
+            raise PortError(getattr(exc, "errno", None) or errno.EADDRNOTAVAIL,
+                            f"metrics.listen {host}:{port}: {getattr(exc, 'strerror', None) or exc}") from None
+        self._sock.setblocking(False)
+        self.port = int(self._sock.getsockname()[1])
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        self._sel = selectors.DefaultSelector()
+        self._sel.register(self._sock, selectors.EVENT_READ, None)
+        self._sel.register(self._wake_r, selectors.EVENT_READ, "wake")
+        self._conns: Dict[int, _Conn] = {}     # fd -> connection, oldest first
+        self.evicted = 0       #: connections closed to make room for a new one
+        self.timed_out = 0     #: connections closed by CLIENT_TIMEOUT
+        self.served = 0        #: answers sent
+        self._closing = False
+        self._thread = threading.Thread(target=self._serve, name="fap-bridge-metrics", daemon=True)
+        self._thread.start()
         log.info("metrics on http://%s:%d/metrics", host, self.port)
 
+    @property
+    def clients(self) -> int:
+        """Connections open now."""
+        return len(self._conns)
+
+    # -- the loop (its own thread) ----------------------------------------------------
+    def _serve(self) -> None:
+        while not self._closing:
+            now = time.monotonic()
+            wait = min([c.deadline for c in self._conns.values()], default=now + 1.0) - now
+            for key, events in self._sel.select(max(0.0, min(wait, 1.0))):
+                if key.data == "wake":
+                    return
+                if key.data is None:
+                    self._accept()
+                else:
+                    self._io(key.data, events)
+            now = time.monotonic()
+            for c in [c for c in self._conns.values() if c.deadline <= now]:
+                self.timed_out += 1
+                self._drop(c)
+
+    def _accept(self) -> None:
+        for _ in range(64):   # what is waiting now, bounded per round
+            try:
+                sock, _ = self._sock.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:   # EMFILE and friends: the listener stays, retried next round
+                log.warning("metrics: accept: %s", exc.strerror or exc)
+                return
+            while len(self._conns) >= self.max_clients:
+                self.evicted += 1
+                self._drop(next(iter(self._conns.values())))
+            sock.setblocking(False)
+            c = _Conn(sock, time.monotonic() + self.timeout)
+            self._conns[sock.fileno()] = c
+            self._sel.register(sock, selectors.EVENT_READ, c)
+
+    def _io(self, c: _Conn, events: int) -> None:
+        try:
+            if c.out is None:
+                data = c.sock.recv(4096)
+                if not data:
+                    self._drop(c)
+                    return
+                c.inbuf += data
+                if b"\r\n\r\n" not in c.inbuf and b"\n\n" not in c.inbuf:
+                    if len(c.inbuf) > _REQUEST_MAX:
+                        self._answer(c, 431, b"request too large\n")
+                    return
+                self._respond(c)
+            if c.out is not None:
+                n = c.sock.send(c.out)
+                c.out = c.out[n:]
+                if not c.out:
+                    self.served += 1
+                    self._drop(c)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            self._drop(c)
+
+    def _respond(self, c: _Conn) -> None:
+        line = c.inbuf.split(b"\n", 1)[0].strip().split()
+        if len(line) < 2 or line[0] not in (b"GET", b"HEAD"):
+            self._answer(c, 405, b"only GET\n")
+            return
+        path = line[1].split(b"?", 1)[0]
+        if path not in (b"/", b"/metrics"):
+            self._answer(c, 404, b"not found: /metrics\n")
+            return
+        try:
+            body = self._generate(self.registry)
+        except Exception:   # a collector bug must not kill the endpoint
+            log.exception("metrics: collect")
+            self._answer(c, 500, b"collect failed\n")
+            return
+        self._answer(c, 200, b"" if line[0] == b"HEAD" else body, self._ctype, len(body))
+
+    def _answer(self, c: _Conn, status: int, body: bytes, ctype: str = "text/plain; charset=utf-8",
+                length: Optional[int] = None) -> None:
+        reason = {200: "OK", 404: "Not Found", 405: "Method Not Allowed", 431: "Request Header Fields Too Large",
+                  500: "Internal Server Error"}[status]
+        head = (f"HTTP/1.1 {status} {reason}\r\nContent-Type: {ctype}\r\n"
+                f"Content-Length: {len(body) if length is None else length}\r\nConnection: close\r\n\r\n")
+        c.out = memoryview(head.encode() + body)
+        self._sel.modify(c.sock, selectors.EVENT_WRITE, c)
+
+    def _drop(self, c: _Conn) -> None:
+        self._conns.pop(c.sock.fileno(), None)
+        try:
+            self._sel.unregister(c.sock)
+        except (KeyError, ValueError):
+            pass
+        c.sock.close()
+
     def close(self) -> None:
-        self._server.shutdown()
-        self._server.server_close()
-        if isinstance(self._thread, threading.Thread):
-            self._thread.join(5.0)
+        if self._closing:
+            return
+        self._closing = True
+        os.write(self._wake_w, b"x")
+        self._thread.join(5.0)
+        for c in list(self._conns.values()):
+            self._drop(c)
+        self._sel.close()
+        self._sock.close()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
 
 
-__all__ = ["BridgeCollector", "METRICS_HINT", "MetricsServer"]
+__all__ = ["BridgeCollector", "CLIENT_TIMEOUT", "MAX_CLIENTS", "METRICS_HINT", "MetricsServer"]

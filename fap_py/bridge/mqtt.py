@@ -7,8 +7,10 @@ Delivery bus -> broker: every publication is first a row of the on-disk
 outbox (:class:`~fap_py.bridge.store.Store`); the pump hands rows to paho in
 sequence order, at most ``inflight`` unacknowledged at a time, only while
 connected, and deletes a row when its PUBACK arrives. Rows paho had sent
-when the connection dropped are re-sent by paho itself after the reconnect
-(with the DUP flag), before any newer row: order holds across outages.
+when the connection dropped are taken back from paho at the reconnect's
+CONNACK and handed again by the pump, in sequence order, before any newer row
+(after the bridge's own publications of the connect, below): order holds
+across outages, and a repeat keeps its ``seq``.
 
 Probing: a broker may close the connection instead of (or right after)
 refusing a publication; mosquitto 2.0 does so for an ACL denial, and the
@@ -19,17 +21,43 @@ rows in flight and no PUBACK between them, the pump takes those rows back
 from paho and sends them one at a time; a row that is alone in flight when
 the connection drops :data:`PROBE_STRIKES` times is counted as refused
 (reason :data:`DROPPED_REASON`), logged, and leaves the outbox like any
-refused row. Probing ends once every row that was in flight is settled.
+refused row. Probing ends once every row that was in flight is settled
+(taking rows back at every CONNACK, below, keeps paho from bursting them).
+
+Acknowledgements are matched by paho's message id (mid), which wraps at 65,535 and
+is shared by the outbox rows and the bridge's own publications (status, health,
+Home Assistant discovery). A mid is tied to what it was sent for when
+``publish()`` returns; a PUBACK that arrives before that is held only while a
+publication is being handed to paho (:attr:`MqttLink._early`, emptied when no
+publish call is running), so a PUBACK is never kept to be matched with a later
+publication that reuses its mid.
+
+The bridge's own publications (status, health, Home Assistant discovery) are
+not outbox rows, and a refusal of one (an ACL that predates the health topic)
+must never be blamed on a row. After each CONNACK the pump hands no row until
+the own publications of the connect (status ``online``, health, discovery)
+have been answered, sent one at a time (at most :data:`GATE_TIMEOUT` s): the
+rows paho had in flight are taken back and handed again, in order, after them.
+So a connection lost in that phase is the fault of the one own publication
+then unanswered, and a loss while any own publication is unanswered never
+counts towards probing the rows. A refusal (MQTT 5 PUBACK >= 0x80), or
+:data:`PROBE_STRIKES` losses in a row with the same kind unanswered (mosquitto
+2.0 closes the connection after a refusal and its PUBACK may be lost with the
+socket), is counted under its topic (:attr:`MqttLink.refused_own`), logged,
+and holds that kind (status, health, discovery) back for
+:data:`OWN_BACKOFF_MIN` seconds, doubling at each new refusal up to
+:data:`OWN_BACKOFF_MAX`: a few reconnects, not a storm.
 """
 from __future__ import annotations
 
+import collections
 import logging
 import socket
 import ssl
 import sys
 import threading
 import time
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Callable, Deque, Dict, List, Optional, Tuple
 
 from .._validate import check_bool, check_bytes, check_int, check_seconds, check_timeout
 from ..errors import FapError, InvalidTypeError
@@ -78,6 +106,12 @@ PROBE_STRIKES = 3
 #: the ``broker.refused`` key of a row the broker never acknowledged but always dropped
 #: the connection on
 DROPPED_REASON = "Connection closed on this publication"
+#: seconds a kind of the bridge's own publications (status, health, discovery) is held
+#: back after the broker refused one; doubled at each refusal up to OWN_BACKOFF_MAX
+OWN_BACKOFF_MIN = 60.0
+OWN_BACKOFF_MAX = 3600.0
+#: seconds after a CONNACK the rows wait at most for the own publications of the connect
+GATE_TIMEOUT = 1.0
 
 
 class _Dropped:
@@ -182,7 +216,17 @@ class MqttLink:
         self.on_connected: Optional[Callable[[], None]] = None   # after each (re)connect
         self.extra: Dict[str, Callable[[bytes], None]] = {}    # more topics to subscribe: topic -> handler
         self._inflight: Dict[int, Tuple[int, str]] = {}   # paho mid -> outbox seq, topic
+        self._own: Dict[int, str] = {}            # paho mid -> topic of the bridge's own publication
         self._early: Dict[int, Any] = {}          # mid -> reason, acknowledged before publish() returned
+        self._publishing = 0                      # publish() calls running (while >0, _early may fill)
+        self.refused_own: Dict[str, int] = {}     # topic -> own publications the broker refused
+        self._held: Dict[str, Tuple[float, float]] = {}   # kind -> (monotonic until, backoff)
+        self._own_strikes: Dict[str, int] = {}    # kind -> losses in a row with it unanswered
+        self._gate_open = False                   # rows may be handed (the connect's own ones answered)
+        self._gate_deadline = 0.0                 # monotonic: the gate opens then whatever happened
+        self._own_queue: Deque[Tuple[str, bytes, bool]] = collections.deque()   # waiting for the gate
+        self._own_current: Optional[int] = None   # the gate's own publication in flight (mid; -1: sending)
+        self.own_backoff = (OWN_BACKOFF_MIN, OWN_BACKOFF_MAX)
         self._acked: List[int] = []           # seqs to delete
         self._last_handed = 0                 # highest seq handed to paho
         self._handed_gen = 0                  # bumped when probing lowers _last_handed
@@ -238,8 +282,138 @@ class MqttLink:
             raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
-        if self._connected:
-            self.client.publish(topic, payload, qos=1, retain=retain)
+        with self._cond:
+            if not self._connected:
+                return
+            if not self._gate_open:   # the connect phase: one at a time, after the others
+                self._own_queue.append((topic, payload, retain))
+                queued = True
+            else:
+                queued = False
+        if queued:
+            self._gate_next()
+        else:
+            self._send_own(topic, payload, retain)
+
+    def _kind(self, topic: str) -> str:
+        """What a refusal of ``topic`` holds back: the status or health topic itself, or
+        every topic under the same first level (all of Home Assistant's discovery)."""
+        if topic in (self.status_topic, self.health_topic):
+            return topic
+        return topic.split("/", 1)[0] + "/#"
+
+    def held(self, topic: str) -> bool:
+        """``topic`` (one of the bridge's own) is held back after a refusal."""
+        if not isinstance(topic, str):
+            raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
+        with self._cond:
+            return self._held_locked(topic)
+
+    def _held_locked(self, topic: str) -> bool:
+        h = self._held.get(self._kind(topic))
+        return h is not None and time.monotonic() < h[0]
+
+    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False) -> bool:
+        """One of the bridge's own publications (not an outbox row): its mid is recorded
+        as such, so its PUBACK is never matched with a row. True if it waits for its
+        PUBACK (``gate``: as the connect phase's publication in flight)."""
+        with self._cond:
+            if self._held_locked(topic):
+                return False
+            self._publishing += 1
+        info = None
+        try:
+            info = self.client.publish(topic, payload, qos=1, retain=retain)
+        except (ValueError, TypeError) as exc:   # paho refuses the topic or payload
+            log.error("cannot publish %s: %s", topic[:200], exc)
+        finally:
+            with self._cond:
+                self._publishing -= 1
+                waiting = info is not None and self._own_handed(info, topic)
+                if info is not None and waiting and gate and self._own_current == -1:
+                    self._own_current = info.mid
+                if self._publishing == 0:
+                    self._early.clear()   # nothing is being handed to paho: no owner will come
+        return waiting
+
+    def _own_handed(self, info: Any, topic: str) -> bool:
+        """Under ``_cond``: paho took one of the bridge's own publications under ``info.mid``;
+        True while its PUBACK is awaited."""
+        if info.mid in self._early:
+            self._own_answered(topic, self._early.pop(info.mid))
+            return False
+        if info.rc == self._mqtt.MQTT_ERR_QUEUE_SIZE:   # paho did not take it
+            return False
+        self._own[info.mid] = topic
+        return True
+
+    def _gate_next(self) -> None:
+        """The connect phase: send the next own publication once the previous one is
+        answered; with none left (or at GATE_TIMEOUT), let the pump hand rows."""
+        while True:
+            with self._cond:
+                if self._gate_open or not self._connected:
+                    return
+                if self._own_current is not None and time.monotonic() < self._gate_deadline:
+                    return
+                item = None
+                while self._own_queue and time.monotonic() < self._gate_deadline:
+                    cand = self._own_queue.popleft()
+                    if not self._held_locked(cand[0]):
+                        item = cand
+                        break
+                if item is None:
+                    rest, self._own_queue = list(self._own_queue), collections.deque()
+                    self._gate_open = True
+                    self._own_current = None
+                    self._cond.notify_all()
+                else:
+                    self._own_current = -1
+            if item is None:
+                for topic, payload, retain in rest:   # past GATE_TIMEOUT: the rest at once
+                    self._send_own(topic, payload, retain)
+                return
+            if self._send_own(*item, gate=True):
+                return   # its PUBACK (or the loss of the connection) moves on
+            with self._cond:
+                if self._own_current == -1:
+                    self._own_current = None
+
+    def _own_answered(self, topic: str, reason: Any) -> None:
+        """Under ``_cond``: the broker answered one of the bridge's own publications. A
+        refusal is counted and logged under its topic, and holds its kind back."""
+        kind = self._kind(topic)
+        if reason is None or not getattr(reason, "is_failure", False):
+            self._own_strikes.pop(kind, None)
+            return
+        self._hold(topic, str(reason))
+
+    def _hold(self, topic: str, why: str) -> None:
+        """Under ``_cond``: count a refused own publication and hold its kind back."""
+        self.refused_own[topic] = self.refused_own.get(topic, 0) + 1
+        kind = self._kind(topic)
+        self._own_strikes.pop(kind, None)
+        lo, hi = self.own_backoff
+        prev = self._held.get(kind)
+        backoff = lo if prev is None else min(hi, prev[1] * 2)
+        self._held[kind] = (time.monotonic() + backoff, backoff)
+        log.error("broker refused the bridge's own publication on %s: %s (not an outbox row; %s "
+                  "held back for %g s; %d refused on this topic)", topic[:200], why, kind[:200],
+                  backoff, self.refused_own[topic])
+
+    def _lost_with_own(self) -> List[int]:
+        """Under ``_cond``, on a lost connection with own publications unanswered: the loss
+        is theirs (never the rows'); a kind unanswered at PROBE_STRIKES losses in a row is
+        counted as refused and held back. Returns their mids, to take back from paho (the
+        next connect publishes status, health and discovery afresh)."""
+        mids = list(self._own)
+        for kind in {self._kind(t) for t in self._own.values()}:
+            n = self._own_strikes[kind] = self._own_strikes.get(kind, 0) + 1
+            if n >= PROBE_STRIKES:
+                topic = next(t for t in self._own.values() if self._kind(t) == kind)
+                self._hold(topic, DROPPED_REASON)
+        self._own.clear()
+        return mids
 
     def drain(self, timeout: float) -> bool:
         """Wait until every outbox row is acknowledged (True) or ``timeout`` passes."""
@@ -257,12 +431,9 @@ class MqttLink:
         if self._pump_thread is not None:
             self._pump_thread.join(timeout)
         self._flush_acked()
-        if self._connected:
-            info = self.client.publish(self.status_topic, b"offline", qos=1, retain=True)
-            try:
-                info.wait_for_publish(timeout)
-            except (RuntimeError, ValueError):   # lost the connection meanwhile
-                pass
+        if self._connected and self._send_own(self.status_topic, b"offline", True):
+            with self._cond:
+                self._cond.wait_for(lambda: not self._own or not self._connected, timeout)
         if self._connected:
             self.client.disconnect()
         self.client.loop_stop()
@@ -300,22 +471,38 @@ class MqttLink:
             return
         self._failures = 0
         self.last_error = None
-        if self._take_back_mids:
+        with self._cond:
+            # the rows paho had in flight are taken back: the pump hands them again, in
+            # order, once the connect's own publications are answered (see the docstring)
             mids, self._take_back_mids = self._take_back_mids, []
+            if self._inflight:
+                mids += list(self._inflight)
+                # never raised: probing may have lowered it already, below these rows
+                self._last_handed = min(self._last_handed,
+                                        min(seq for seq, _ in self._inflight.values()) - 1)
+                self._handed_gen += 1
+                self._inflight.clear()
+            mids += list(self._own)
+            self._own.clear()
+            self._gate_open = False
+            self._gate_deadline = time.monotonic() + GATE_TIMEOUT
+            self._own_queue = collections.deque([(self.status_topic, b"online", True)])
+            self._own_current = None
+        if mids:
             self._take_back(mids)
         log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
                  self.config.broker.port, flags.session_present)
-        client.publish(self.status_topic, b"online", qos=1, retain=True)
         client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
             self.connects += 1
             self._cond.notify_all()
-        if self.on_connected is not None:
+        if self.on_connected is not None:   # its publications queue behind status
             try:
                 self.on_connected()
             except Exception:   # never let a hook kill paho's thread
                 log.exception("after connect")
+        self._gate_next()
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         mids: List[int] = []
@@ -324,8 +511,15 @@ class MqttLink:
             self._connected = self._subscribed = False
             if was:
                 self.disconnects += 1
-                if self._inflight and not self._stopping:
+                if self._own and not self._stopping:
+                    # one of the bridge's own publications unanswered: the loss is its (a
+                    # refusal mosquitto 2.0 follows with a close), never the rows'
+                    mids = self._lost_with_own()
+                elif self._inflight and not self._stopping:
                     mids = self._lost_with_rows()
+            self._own_queue.clear()
+            self._own_current = None
+            self._gate_open = False
             self._cond.notify_all()
         # taken back from paho at the next CONNACK, before paho re-sends: here paho may be
         # iterating its queue (a failed re-send reports the loss from inside that loop)
@@ -346,17 +540,28 @@ class MqttLink:
             self._cond.notify_all()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        gate = False
         with self._cond:
             entry = self._inflight.pop(mid, None)
             if entry is None:
-                self._early[mid] = reason
+                own = self._own.pop(mid, None)
+                if own is not None:
+                    self._own_answered(own, reason)
+                    if mid == self._own_current:
+                        self._own_current = None
+                        gate = True
+                elif self._publishing:   # perhaps for the publish() call now running
+                    self._early[mid] = reason
+                # else: a mid nobody waits for (a repeated PUBACK): dropped, never kept
             else:
                 self._acked_one(entry, reason)
                 self._settled(entry[0])
             # wake the pump for a batch of acknowledgements, not for each one (one disk
             # transaction per batch); the last one of a burst always wakes it
-            if len(self._acked) >= self._batch or not self._inflight:
+            if len(self._acked) >= self._batch or not self._inflight or not self._own:
                 self._cond.notify_all()
+        if gate:   # the connect phase's publication answered: the next one
+            self._gate_next()
 
     def _acked_one(self, entry: Tuple[int, str], reason: Any) -> None:
         """Under ``_cond``: the broker answered publication ``entry``. A refusal (MQTT 5
@@ -476,11 +681,16 @@ class MqttLink:
             return True
         room = self._window - len(self._inflight)
         unsent = self.store.pending - len(self._inflight) - len(self._acked)
-        return self._connected and unsent > 0 and (room >= self._batch or not self._inflight)
+        return self._rows_allowed() and unsent > 0 and (room >= self._batch or not self._inflight)
+
+    def _rows_allowed(self) -> bool:
+        """Under ``_cond``: rows may be handed: connected, and the connect's own
+        publications answered (or GATE_TIMEOUT passed: the pump opens the gate then)."""
+        return self._connected and self._gate_open
 
     def _work(self) -> bool:
         """Anything at all to do (the pump's round after ``PUMP_LINGER``)."""
-        return bool(self._acked) or (self._connected and len(self._inflight) < self._window
+        return bool(self._acked) or (self._rows_allowed() and len(self._inflight) < self._window
                                      and self.store.pending > len(self._inflight) + len(self._acked))
 
     def _pump(self) -> None:
@@ -491,7 +701,11 @@ class MqttLink:
                     self._cond.wait_for(lambda: self._stopping or self._work(), 1.0)
                 if self._stopping:
                     return
-                room = self._window - len(self._inflight) if self._connected else 0
+                late = self._connected and not self._gate_open and time.monotonic() >= self._gate_deadline
+            if late:   # an own publication's PUBACK that never came: the rows wait no longer
+                self._gate_next()
+            with self._cond:
+                room = self._window - len(self._inflight) if self._rows_allowed() else 0
             try:
                 self._pump_once(room)
             except StoreError as exc:   # a disk that fails a read: try again next round
@@ -519,12 +733,30 @@ class MqttLink:
                 props = self._props[0](self._props[1].PUBLISH)
                 props.UserProperty = [("host", self.config.host), ("seq", str(seq))]
             # paho keeps what it could not send (even QoS 0) and sends it on reconnect
-            info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
             with self._cond:
+                self._publishing += 1
+            try:
+                info = self.client.publish(topic, payload, qos=qos, retain=retain, properties=props)
+            except BaseException:
+                with self._cond:
+                    self._publishing -= 1
+                raise
+            with self._cond:
+                self._publishing -= 1
+                if info.rc == self._mqtt.MQTT_ERR_QUEUE_SIZE:
+                    # paho still holds an unanswered message under this mid: not queued,
+                    # handed again in a later round
+                    if self._publishing == 0:
+                        self._early.clear()
+                    return
+                self._own.pop(info.mid, None)   # a stale own publication's mid, reused
                 if info.mid in self._early:
                     self._acked_one((seq, topic), self._early.pop(info.mid))
+                    self._settled(seq)
                 else:
                     self._inflight[info.mid] = (seq, topic)
+                if self._publishing == 0:
+                    self._early.clear()
                 if gen != self._handed_gen:   # probing took rows back meanwhile: start again
                     return
                 self._last_handed = max(self._last_handed, seq)

@@ -59,11 +59,17 @@ class PolledAdapter(BusAdapter):
             else:
                 self._polled(node, {"data": reply.hex()}, None)
 
-    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _check_tx(self, node: int, req: Dict[str, Any]) -> None:
+        self._data(req)
+
+    def _data(self, req: Dict[str, Any]) -> bytes:
         op = req.get("op", "send")
         if op != "send":
-            raise TxError(f"op {op!r}: a {self.proto.name} bus only sends")
-        data = hex_field(req)
+            raise TxError(f"op {str(op)[:40]!r}: a {self.proto.name} bus only sends")
+        return hex_field(req)
+
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        data = self._data(req)
         if node == self.proto.broadcast:
             self._broadcast(data)
             return {"data": ""}

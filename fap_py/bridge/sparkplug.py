@@ -44,6 +44,8 @@ log = logging.getLogger(__name__)
 SPARKPLUG_HINT = "[sparkplug] needs protobuf: pip install 'fap_py[bridge]'"
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
+#: seconds between two rebirths the host asks for (NCMD); more within them: one at their end
+REBIRTH_MIN = 5.0
 QUEUE_MAX = 10_000    # DDATA kept while disconnected (oldest dropped past it, counted)
 
 # Sparkplug B DataType values (the specification's enumeration)
@@ -145,6 +147,10 @@ class SparkplugNode:
         self._queue: Deque[Tuple[str, List[Metric], int]] = collections.deque()
         self._node_sent: Dict[str, Metric] = {}    # the node metrics as last sent
         self.queue_dropped = 0
+        self.invalid_commands = 0                  # NCMD that are not a Sparkplug payload or ask nothing
+        from .ratelimit import Coalescer
+
+        self.rebirths = Coalescer(self._rebirth, REBIRTH_MIN, "Sparkplug rebirth")
         self._connected = False
         self.births = 0
         mqtt = paho()
@@ -188,6 +194,7 @@ class SparkplugNode:
     def stop(self, timeout: float = 5.0) -> None:
         """NDEATH (the spec's clean goodbye), then disconnect."""
         timeout = check_seconds(timeout, "timeout")
+        self.rebirths.close()
         if self._connected:
             info = self.client.publish(self.topic("NDEATH"), encode([("bdSeq", INT64, self.bd_seq)], None), qos=1)
             try:
@@ -226,13 +233,24 @@ class SparkplugNode:
         try:
             p = payload_class().FromString(msg.payload)
         except Exception as exc:   # protobuf's DecodeError and friends: a bad NCMD is ignored
-            log.warning("sparkplug: NCMD not a Sparkplug payload: %s", str(exc)[:200])
+            self.invalid_commands += 1
+            if self.invalid_commands <= 10 or self.invalid_commands % 1000 == 0:
+                log.warning("sparkplug: NCMD not a Sparkplug payload: %s (%d invalid so far)",
+                            str(exc)[:200], self.invalid_commands)
             return
         if any(m.name == REBIRTH and m.boolean_value for m in p.metrics):
             log.info("sparkplug: rebirth requested")
-            with self._lock:
-                if self._connected:
-                    self.birth()
+            self.rebirths.request()   # at most once per REBIRTH_MIN s (coalesced)
+        else:
+            self.invalid_commands += 1
+            if self.invalid_commands <= 10 or self.invalid_commands % 1000 == 0:
+                log.warning("sparkplug: NCMD with no command this edge node knows (%d invalid so far)",
+                            self.invalid_commands)
+
+    def _rebirth(self) -> None:
+        with self._lock:
+            if self._connected:
+                self.birth()
 
     # -- publications ------------------------------------------------------------------
     def _send(self, kind: str, device: Optional[str], metrics: List[Metric], ts_ms: Optional[int] = None,

@@ -7,6 +7,16 @@ acknowledged it (PUBACK). It is bounded: past ``queue_max`` rows the oldest
 rows are dropped (and counted), so a bridge cut off for days cannot fill
 the disk. The seen-id set makes a QoS 1 redelivery of a tx run once; it
 keeps the newest ``seen_max`` ids.
+
+The write-ahead log is bounded: sqlite's default checkpoints it only past
+1000 pages (4 MB), so on a small filesystem the WAL alone could fill the
+disk and, holding every page, never let it go. Here the automatic
+checkpoint runs every :func:`wal_pages` pages (a sixteenth of the
+filesystem, 16..1000 pages), the file is cut back to that size after each
+checkpoint (``journal_size_limit``), and it is checkpointed and truncated
+to nothing when a write fails with SQLITE_FULL and when the outbox
+drains with a WAL larger than that: the space comes back and delivery
+resumes by itself.
 """
 from __future__ import annotations
 
@@ -66,6 +76,27 @@ def _seqs(seqs: object) -> List[int]:
     return [check_int(s, "seqs item", 0, _SEQ_MAX) for s in seqs]
 
 
+WAL_PAGES_MIN = 16      #: the WAL's checkpoint size on the smallest filesystem (pages)
+WAL_PAGES_MAX = 1000    #: ... and on a large one: sqlite's own default
+
+
+def wal_pages(directory: str, page_size: int = 4096) -> int:
+    """Pages of WAL between automatic checkpoints for a state file in ``directory``: a
+    sixteenth of its filesystem, within WAL_PAGES_MIN..WAL_PAGES_MAX."""
+    directory = check_path(directory, "directory")
+    page_size = check_int(page_size, "page_size", 512, 65536)
+    try:
+        st = os.statvfs(directory)
+        total = st.f_blocks * st.f_frsize
+    except OSError:
+        return WAL_PAGES_MAX
+    return max(WAL_PAGES_MIN, min(WAL_PAGES_MAX, total // 16 // max(512, page_size)))
+
+
+def _is_full(exc: sqlite3.Error) -> bool:
+    return getattr(exc, "sqlite_errorcode", None) == 13 or "full" in str(exc)
+
+
 def _errno_of(exc: sqlite3.Error) -> int:
     code = getattr(exc, "sqlite_errorcode", None)
     return errno.ENOSPC if code == 13 or "full" in str(exc) else errno.EIO   # 13: SQLITE_FULL
@@ -87,6 +118,11 @@ class Store(Closing):
             # (no fsync per row); a power cut may lose the last commits.
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
+            page = int(self._db.execute("PRAGMA page_size").fetchone()[0])
+            self.wal_pages = wal_pages(os.path.dirname(os.path.abspath(path)), page)
+            self.wal_limit = self.wal_pages * page   #: bytes the WAL is cut back to
+            self._db.execute(f"PRAGMA wal_autocheckpoint={self.wal_pages}")
+            self._db.execute(f"PRAGMA journal_size_limit={self.wal_limit}")
             self._db.executescript(_SCHEMA)
         except (OSError, sqlite3.Error) as exc:
             raise PortError(getattr(exc, "errno", None) or 5, f"bridge state {path}: {exc}", path) from exc
@@ -116,6 +152,8 @@ class Store(Closing):
                     self._db.execute("ROLLBACK")
                 except sqlite3.Error:   # no transaction left to roll back
                     pass
+                if _is_full(exc):
+                    self._truncate_wal()
                 raise StoreError(_errno_of(exc), f"bridge state {self.path}: {what}: {exc}") from exc
 
     # -- outbox ---------------------------------------------------------------
@@ -183,6 +221,25 @@ class Store(Closing):
             cur = self._db.executemany("DELETE FROM outbox WHERE seq=?", [(q,) for q in seqs])
             gone = max(0, cur.rowcount)
         self._rows -= gone
+        if self._rows == 0 and self.wal_size() > self.wal_limit:
+            with self._lock:
+                self._truncate_wal()
+
+    def wal_size(self) -> int:
+        """Bytes of the write-ahead log file now (0 when there is none)."""
+        try:
+            return os.stat(self.path + "-wal").st_size
+        except OSError:
+            return 0
+
+    def _truncate_wal(self) -> None:
+        """Under the lock, outside a transaction: copy the WAL into the database and cut
+        it to nothing (best effort: on a full disk the copy may fail, then it is retried
+        at the next failure or drain)."""
+        try:
+            self._db.execute("PRAGMA wal_checkpoint(TRUNCATE)").fetchall()
+        except sqlite3.Error as exc:
+            log.debug("bridge state %s: checkpoint: %s", self.path, exc)
 
     @property
     def pending(self) -> int:

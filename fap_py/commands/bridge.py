@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         config = load_config(args.config)
     except BridgeConfigError as exc:            # a bad file is a usage error (exit 2)
-        raise UsageError(f"{args.config}: {exc}") from exc
+        text = str(exc)                          # named once: the reader's own errors name it already
+        raise UsageError(text if text.startswith(f"{args.config}: ") else f"{args.config}: {text}") from exc
     broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
     if args.check:   # every file the configuration names: BridgeFileError (exit 3) names the key
         verify_files(config, ports=True)

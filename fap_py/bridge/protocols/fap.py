@@ -11,13 +11,15 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from ... import _protocols
 from ...errors import FapError
-from ...fap import MASTER_ID
+from ...fap import MASTER_ID, MAX_DATA
 from .._schema import check_plugin_args, id_list, in_range, pop
 from ..buses import BusAdapter, TxError, hex_field
 
 log = logging.getLogger(__name__)
 
 ROLES = ("master", "slave")
+#: Home Assistant: a FAP node has no request/reply, so no reply time, errors or timeouts
+REPLY_METRICS = False
 DEFAULT_TIMEOUT = 1.0   #: how long a tx waits for room in the engine's transmit queue
 #: received messages the engine holds for the bridge: slack for the moments the bridge's
 #: threads are not scheduled (a loaded host); the engine's own default is 256
@@ -92,11 +94,24 @@ class Adapter(BusAdapter):
                 os.close(fd)
             self._wake = None
 
-    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+    def _check_tx(self, node: int, req: Dict[str, Any]) -> None:
+        self._data(node, req)
+
+    def _data(self, node: int, req: Dict[str, Any]) -> bytes:
+        """A FAP tx's bytes: op ``send``, 1..MAX_DATA bytes of hex, to a listed slave."""
         op = req.get("op", "send")
         if op != "send":
-            raise TxError(f"op {op!r}: a {self.proto.name} bus only sends")
-        self.engine.send(hex_field(req), to=node, timeout=self.cfg.timeout)
+            raise TxError(f"op {str(op)[:40]!r}: a {self.proto.name} bus only sends")
+        data = hex_field(req)
+        if not 1 <= len(data) <= MAX_DATA:
+            raise TxError(f"data of {len(data)} bytes (a FAP message is 1..{MAX_DATA})")
+        if self.cfg.role == "master" and node not in self.cfg.options.slaves:
+            raise TxError(f"node {node} is not one of this bus's slaves "
+                          f"({', '.join(map(str, self.cfg.options.slaves))})")
+        return data
+
+    def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
+        self.engine.send(self._data(node, req), to=node, timeout=self.cfg.timeout)
         return None
 
     def _reader(self) -> None:

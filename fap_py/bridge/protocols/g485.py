@@ -91,6 +91,19 @@ class Adapter(BusAdapter):
                     break          # the device is not answering: skip its other runs this round
                 self._polled(dev.address, {"op": "read", "register": first, "data": data.hex()}, None)
 
+    def _check_tx(self, node: int, req: Dict[str, Any]) -> None:
+        op = req.get("op")
+        if op == "read":
+            int_field(req, "register"), int_field(req, "count", 1)
+        elif op == "write":
+            int_field(req, "register"), hex_field(req)
+        elif op == "set":
+            command = req.get("command")
+            if not isinstance(command, (str, int)) or isinstance(command, bool):
+                raise TxError("set needs a command (a SetCommand name or value)")
+        elif op != "error_word":
+            raise TxError(f"op {str(op)[:40]!r}: a {self.proto.name} bus takes read, write, set or error_word")
+
     def _execute(self, node: int, req: Dict[str, Any]) -> Optional[Dict[str, Any]]:
         m = self.engine
         op = req.get("op")

@@ -17,7 +17,7 @@ def test_the_pump_waits_for_a_batch_of_acknowledgements(tmp_path, paho_mqtt):
         batch = cfg.inflight // 4
         assert link._batch == batch
         store.put_many([("t", b"x", False)] * cfg.inflight)
-        link._connected = True
+        link._connected = link._gate_open = True   # connected, the connect's own publications answered
         assert link._ready()                       # new rows and an empty window: at once
         link._inflight = {mid: (mid, "t") for mid in range(1, cfg.inflight + 1)}   # all handed to paho
         link._last_handed = cfg.inflight
@@ -78,6 +78,10 @@ def test_probing_gets_past_a_broker_that_drops_the_connection_on_a_row(tmp_path,
         assert link.probing and not link._inflight and link._last_handed == 0
         reconnect()
         assert 99 in paho_queue and not {11, 12, 13} & set(paho_queue)   # paho will not burst them
+        assert not link._gate_open and list(link._own.values()) == [link.status_topic]
+        for mid in list(link._own):   # status "online" answered: the rows may go
+            link._on_publish(None, None, mid, _Reason(False, "Success"), None)
+        assert link._gate_open
         assert link._window == 1
         # the pump hands them again one at a time: 1 is acknowledged, 2 kills the connection
         link._inflight = {21: (1, "t")}
