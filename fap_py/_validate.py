@@ -128,7 +128,7 @@ def baud_rates() -> "tuple[int, ...]":
     if _BAUD_RATES is None:
         from ._native import lib
 
-        rates = []
+        rates: "list[int]" = []
         while True:
             r = int(lib.fap_port_baud_rate(len(rates)))
             if r == 0:

@@ -32,8 +32,7 @@ from ._handle import NativeHandle
 from ._native import ffi, lib
 from ._stats import Counters, stats_from_c
 from ._validate import check_bool, check_int, check_path, check_probability, check_seconds
-from .errors import (FileError, InvalidTypeError, InvalidValueError, PortBusyError,
-                     error_from_code)
+from .errors import FileError, InvalidTypeError, InvalidValueError, PortBusyError, error_from_code
 
 __all__ = [
     "MAX_CAPTURE_BYTES",

@@ -15,8 +15,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
 
 from .. import _protocols
-from .._native import lib as _lib
-from .._validate import check_int
+from .._validate import baud_rates, check_int
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
 from ..rs485 import DEFAULT_BAUD, parse_realtime
@@ -129,14 +128,6 @@ def check_bus_node(bus: Any, node: Any) -> None:
 
 # -- the common keys (a protocol's own keys are checked by its plug-in) --------------
 
-def _baud_rates() -> Tuple[int, ...]:
-    """The rates the C port layer accepts (its termios table, ascending, 0-terminated)."""
-    rates: list = []
-    while _lib.fap_port_baud_rate(len(rates)):
-        rates.append(int(_lib.fap_port_baud_rate(len(rates))))
-    return tuple(rates)
-
-
 def _rs485(t: Dict[str, Any], where: str) -> RS485:
     mode = _pop(t, "rs485", str, where, "auto")
     if mode not in _RS485_MODES:
@@ -193,9 +184,9 @@ def _bus(t: Dict[str, Any], index: int) -> BusConfig:
                                 f"{' or '.join(plugin.ROLES)}")
     kw: Dict[str, Any] = {"name": name, "port": port, "protocol": proto.name, "role": role}
     kw["baud"] = _pop(t, "baud", int, where, proto.default_baud)
-    if kw["baud"] not in _baud_rates():
+    if kw["baud"] not in baud_rates():
         raise BridgeConfigError(f"{where}.baud {_show(kw['baud'])} is not a rate the serial port layer "
-                                f"supports ({', '.join(map(str, _baud_rates()))})")
+                                f"supports ({', '.join(map(str, baud_rates()))})")
     kw["rs485"] = _rs485(t, where)   # every protocol opens its port through the C port layer
     kw["timeout"] = _range(float(_pop(t, "timeout", (int, float), where, plugin.DEFAULT_TIMEOUT)),
                            0.001, 3600, f"{where}.timeout")

@@ -32,6 +32,7 @@ from dataclasses import asdict, is_dataclass
 from enum import Enum
 from typing import Any, Callable, Dict, List, NoReturn, Optional, Sequence, Tuple
 
+from .._validate import baud_rates
 from ..errors import FapError, FileError, InvalidValueError
 from ..rs485 import DEFAULT_BAUD
 
@@ -144,18 +145,6 @@ def add_actions(parser: argparse.ArgumentParser, dest: str) -> "argparse._SubPar
 
 
 # -- option groups -----------------------------------------------------------
-
-def baud_rates() -> List[int]:
-    """The rates the C port layer accepts (its termios table)."""
-    from .._native import lib
-
-    rates: List[int] = []
-    while True:
-        r = int(lib.fap_port_baud_rate(len(rates)))
-        if r == 0:
-            return rates
-        rates.append(r)
-
 
 def baud(text: str) -> int:
     """argparse type of ``--baud``: an int in the C core's baud table."""
@@ -313,7 +302,7 @@ def rs485_from_args(args: argparse.Namespace, **extra: Any) -> Any:
         except InvalidValueError as exc:
             raise UsageError(str(exc).replace("gpio_line", "--gpio-line", 1)) from None
         except FileError as exc:          # exit 3, naming the chip
-            raise FileError(exc.errno, f"--gpio-chip: {exc.why}", chip) from None
+            raise FileError(exc.errno or 0, f"--gpio-chip: {exc.why}", chip) from None
         extra.update(gpio_chip=chip, gpio_line=args.gpio_line)
     if getattr(args, "realtime", None):
         extra.setdefault("realtime", args.realtime)

@@ -17,8 +17,7 @@ from typing import Any, Callable, Dict, List
 
 from .. import sysfs_ports
 from ..rs485 import DEFAULT_BAUD
-from ._options import (BusError, UsageError, add_command, add_output_options, baud, count, emit,
-                       seconds)
+from ._options import BusError, UsageError, add_command, add_output_options, baud, count, emit, seconds
 
 #: where ports are looked up (tests point these at a fake tree)
 SYSFS_ROOT = "/sys"

@@ -15,8 +15,8 @@ from .core import Record
 from .decoders import plugin
 
 
-def plural(n: int, word: str) -> str:
-    """``1 frame``, ``2 frames``."""
+def _plural(n: int, word: str) -> str:
+    """``1 frame``, ``2 frames`` (a report's wording, not API)."""
     return f"{n} {word if n == 1 else word + 's'}"
 
 
@@ -161,7 +161,7 @@ class Stats:
         s = self.summary()
         errs = ", ".join(f"{k} {v}" for k, v in sorted(s["errors"].items())) or "none"
         util = "unknown" if s["utilisation"] is None else f"{s['utilisation'] * 100:.1f} %"
-        lines = [f"-- {plural(s['frames'], 'frame')}, errors: {errs}; {plural(s['bytes'], 'byte')}; "
+        lines = [f"-- {_plural(s['frames'], 'frame')}, errors: {errs}; {_plural(s['bytes'], 'byte')}; "
                  f"bus utilisation {util}"]
         for name, n in s["nodes"].items():
             e = ", ".join(f"{k} {v}" for k, v in sorted(n["errors"].items())) or "no errors"
@@ -169,7 +169,7 @@ class Stats:
                 f"; reply ms p50 {n['reply_p50_ms']} p99 {n['reply_p99_ms']} "
                 f"max {n['reply_max_ms']} ({n['replies']})")
             label = "unattributed" if name == "?" else f"node {name}"
-            lines.append(f"   {label}: {plural(n['frames'], 'frame')}, {e}{reply}")
+            lines.append(f"   {label}: {_plural(n['frames'], 'frame')}, {e}{reply}")
         return "\n".join(lines)
 
 

@@ -68,9 +68,11 @@ if [ -n "$examples" ]; then
     ld=$([ $way = pc ] && echo "$libdir" || true)
     out=$(LD_LIBRARY_PATH=$ld "$dest/ex-$way/fap/fap_slave" /nonexistent/ttyFAP 7 2>&1) || true
     case $out in *"fapInit() Failed"*) ;; *) echo "ex-$way fap_slave: $out"; exit 1 ;; esac
-    for bin in execasync/exec_master execasync/exec_slave execasync/exec_demo \
-               mikroc/mikroc_master mikroc/mikroc_slave; do
-      [ -x "$dest/ex-$way/$bin" ] || { echo "ex-$way: $bin not built"; exit 1; }
+    for mk in "$examples"/*/Makefile; do   # every program its makefile's `all:` names
+      ex=$(basename "$(dirname "$mk")")
+      for bin in $(sed -n 's/^all:[[:space:]]*//p' "$mk"); do
+        [ -x "$dest/ex-$way/$ex/$bin" ] || { echo "ex-$way: $ex/$bin not built"; exit 1; }
+      done
     done
   done
   passed=5

@@ -13,10 +13,9 @@ import os
 import queue
 import signal
 import subprocess
-import sys
 import threading
 from pathlib import Path
-from typing import Callable, Dict, Iterator, List, Tuple
+from typing import Callable, Dict, List, Tuple
 
 import pytest
 

@@ -29,7 +29,7 @@ def test_bus_ber_is_a_probability(fap) -> None:
 def test_mikroc_says_0_3_once(fap, bus) -> None:
     r = fap("mikroc", "master", "--port", bus.paths[0], "--address", "5", "01020304")
     assert r.code == 2, r
-    assert r.err == "fap: error: data of a mikroC frame must hold 0..3 bytes, not 4\n"
+    assert r.err == "fap: error: a mikroC message is 0..3 bytes, not 4\n"
     assert r.err.count("0..3") == 1
 
 

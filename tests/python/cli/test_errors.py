@@ -52,7 +52,7 @@ def test_baud_rates_are_the_c_table() -> None:
     from fap_py.vbus import VirtualBus
 
     rates = baud_rates()
-    assert rates == sorted(rates) and len(rates) > 10
+    assert list(rates) == sorted(rates) and len(rates) > 10
 
     def open_at(path: str, rate: int) -> int:
         po = ffi.new("fap_port_options *")

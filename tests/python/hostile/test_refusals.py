@@ -120,7 +120,7 @@ def test_port_options_takes_every_rate_the_port_layer_opens() -> None:
 
 def test_port_refuses_the_rate_before_opening(tmp_path: Path) -> None:
     # the path does not exist: the rate is refused first, in Python
-    refused(lambda: Port(str(tmp_path / "nope"), 2**31), InvalidValueError, "not a rate")
+    refused(lambda: Port(str(tmp_path / "nope"), 2**31), InvalidValueError, "not a supported rate")
 
 
 HEAD = "# fap-vbus-capture 1 "

@@ -22,7 +22,7 @@ import subprocess
 import sys
 import threading
 import time
-from typing import Iterator, Optional
+from typing import Optional
 
 import pytest
 
