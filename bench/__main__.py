@@ -51,8 +51,8 @@ from typing import Any, Callable, Dict, List, Optional
 
 from bench import ROOT, issue24, results_home, syscalls, use_installed_fap_py
 from bench.kinds import ALL_KINDS, BASE, QUICK_KINDS
-from bench.progress import Progress
 from bench.stats import loadavg
+from fap_py.progress import Progress
 
 log = logging.getLogger("bench")
 

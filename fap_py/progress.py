@@ -1,16 +1,21 @@
-"""A progress bar on stderr (rich, a dependency of fap_py) when stderr is a
-terminal; silent otherwise. The bench's own, so that it imports nothing of
-the CLI's private modules (the CLI's bar, ``fap soak``'s, looks the same)."""
+"""Progress bars on stderr (rich) for long runs: ``fap`` scans and soaks,
+``python -m bench``. Silent when stderr is not a terminal, so piped and
+logged output stays clean."""
 from __future__ import annotations
 
+import contextlib
 import sys
-from typing import Any, Optional
+import threading
+import time
+from typing import Any, Iterator, Optional
+
+__all__ = ["Progress", "timed_progress"]
 
 
 class Progress:
-    """``with Progress(steps, "bench") as bar: bar.advance("what runs now")``.
-    Lines printed on a terminal stdout go above the bar; a redirected stdout
-    keeps them."""
+    """A progress bar on stderr (rich) when ``enabled`` and stderr is a
+    terminal; silent otherwise. Lines printed on a terminal stdout go above
+    the bar (rich's live display); a redirected stdout keeps them."""
 
     def __init__(self, total: float, label: str, enabled: bool = True) -> None:
         self._bar: Any = None
@@ -40,3 +45,34 @@ class Progress:
         if self._bar is not None:
             self._bar.update(self._task, advance=1,
                              **({"description": description} if description else {}))
+
+    def set(self, completed: float) -> None:
+        if self._bar is not None:
+            self._bar.update(self._task, completed=completed)
+
+
+@contextlib.contextmanager
+def timed_progress(label: str, seconds: float, enabled: bool = True) -> Iterator[None]:
+    """A bar that fills with the wall clock over ``seconds`` (a soak runs
+    for a set time) while the block runs; nothing without a terminal."""
+    bar = Progress(round(seconds), label, enabled)
+    if bar._bar is None:
+        yield
+        return
+    stop = threading.Event()
+    t0 = time.monotonic()
+
+    def tick() -> None:
+        while not stop.wait(0.25):
+            bar.set(min(seconds, time.monotonic() - t0))
+
+    ticker = threading.Thread(target=tick, daemon=True)
+    with bar:
+        ticker.start()
+        try:
+            yield
+        finally:
+            stop.set()
+            ticker.join()
+
+
