@@ -1,7 +1,7 @@
 """Ctrl-C ends an engine's network open at once (issue 32 items 10-11, "every
 Ctrl-C ends within 0.5 s whatever the server does").
 
-``fap.Master``, ``execasync.Master`` / ``Slave`` and ``mikroc.Master`` open
+``fap.Master``, ``execasync.Master`` / ``Slave`` and ``mikroc.Master`` / ``Slave`` open
 with one C call; on the calling thread that call held off Ctrl-C until it
 returned (against a Telnet flood: 2 x option_ms, here 10 minutes). Now the
 open runs in a helper thread and KeyboardInterrupt writes the open's cancel
@@ -30,6 +30,7 @@ _OPENS = {
     "exec_master": "from fap_py.execasync import Master\nMaster(url)",
     "exec_slave": "from fap_py.execasync import Slave\nSlave(url, node=1, handler=lambda n, d: d)",
     "mikroc": "from fap_py.mikroc import Master\nMaster(url)",
+    "mikroc_slave": "from fap_py.mikroc import Slave\nSlave(url, address=1)",
 }
 
 _CHILD = r"""
