@@ -36,6 +36,7 @@ from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple
 
 from . import _trace  # wire bytes on fap_py.wire.exec at DEBUG
 from ._handle import NativeHandle, deadline_of
+from ._interruptible import open_interruptibly
 from ._native import ffi, lib
 from ._stats import Counters, stats_from_c
 from ._validate import check_bytes, check_int, check_path, check_seconds, timeout_ms
@@ -445,7 +446,15 @@ class Master(NativeHandle):
             mopts.retries = self._retries_checked(retries)
         self._retries = int(mopts.retries)
         out = ffi.new("execMaster **")
-        _raise_for(lib.execMasterOpen(out, os.fsencode(self.path), popts, mopts), "open", self.path)
+        raw = os.fsencode(self.path)
+
+        def open_with(cancel_fd: int) -> int:   # a network open: Ctrl-C ends it (mopts.cancel_fd)
+            mopts.cancel_fd = cancel_fd
+            return int(lib.execMasterOpen(out, raw, popts, mopts))
+
+        _raise_for(open_interruptibly(raw, open_with,
+                                      lambda rc: rc == 0 and lib.execMasterClose(out[0])),
+                   "open", self.path)
         self._adopt(out[0])
         self._tap = _trace.attach(lib.execMasterSetTrace, self._h, "exec", self.path)
         self._reply = ffi.new("byte[]", MAX_DATA)
@@ -687,8 +696,15 @@ class Slave(NativeHandle):
         sopts.node = node
         self._self_handle = ffi.new_handle(self)
         out = ffi.new("execSlave **")
-        _raise_for(lib.execSlaveOpen(out, os.fsencode(self.path), popts, sopts,
-                                     lib.fap_py_exec_slave_handler, self._self_handle),
+        raw = os.fsencode(self.path)
+
+        def open_with(cancel_fd: int) -> int:   # a network open: Ctrl-C ends it (sopts.cancel_fd)
+            sopts.cancel_fd = cancel_fd
+            return int(lib.execSlaveOpen(out, raw, popts, sopts,
+                                         lib.fap_py_exec_slave_handler, self._self_handle))
+
+        _raise_for(open_interruptibly(raw, open_with,
+                                      lambda rc: rc == 0 and lib.execSlaveClose(out[0])),
                    "open", self.path)
         self._adopt(out[0])
         self._tap = _trace.attach(lib.execSlaveSetTrace, self._h, "exec", self.path)

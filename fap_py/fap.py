@@ -40,6 +40,7 @@ from asyncio import get_running_loop as _running_loop
 from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
+from ._interruptible import open_interruptibly
 from ._native import ffi as _ffi
 from ._native import lib as _lib
 from ._stats import stats_from_c
@@ -261,7 +262,13 @@ class Node(NativeHandle):
         if self._tap is not None:                      # set before open: sees the first frame
             opts.trace, opts.trace_ctx = lib.fap_py_trace, self._tap.handle
         out = ffi.new("fapx **")
-        code = lib.fapx_open(out, os.fsencode(self.path), opts)
+        raw = os.fsencode(self.path)
+
+        def open_with(cancel_fd: int) -> int:   # a network open: Ctrl-C ends it (opts.cancel_fd)
+            opts.cancel_fd = cancel_fd
+            return int(lib.fapx_open(out, raw, opts))
+
+        code = open_interruptibly(raw, open_with, lambda rc: rc == 0 and lib.fapx_close(out[0]))
         if code < 0:
             raise _error(code, "open", self.path,
                          ffi.string(lib.fapx_strerror(code)).decode(errors="replace"))

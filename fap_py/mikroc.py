@@ -40,6 +40,7 @@ from typing import Any, List, Optional, Union
 
 from . import _trace  # wire bytes on fap_py.wire.mikroc at DEBUG
 from ._handle import NativeHandle, deadline_of, slice_ms
+from ._interruptible import open_interruptibly
 from ._native import ffi, lib
 from ._stats import Counters, stats_from_c
 from ._validate import check_bool, check_bytes, check_int, check_path, check_timeout
@@ -258,7 +259,19 @@ class _Node(NativeHandle):
         self._init_ctx()
         opts = port_options(baudrate, rs485)
         out = ffi.new("fap_port **")
-        r = lib.fap_port_open(out, os.fsencode(self.path), opts)
+        raw = os.fsencode(self.path)
+        # the port keeps &cancel_ref[0] and reads it at each wait: the open's
+        # eventfd while it runs (a network open: Ctrl-C ends it), then -1 (none)
+        self._cancel_ref = ffi.new("int *", -1)
+
+        def open_with(cancel_fd: int) -> int:
+            self._cancel_ref[0] = cancel_fd or -1
+            try:
+                return int(lib.fap_port_open_cancellable(out, raw, opts, self._cancel_ref))
+            finally:
+                self._cancel_ref[0] = -1
+
+        r = open_interruptibly(raw, open_with, lambda rc: rc == 0 and lib.fap_port_close(out[0]))
         if r < 0:
             raise error_from_code(r, "open", self.path)
         r = lib.mikrocRS485_CtxBind(self._ctx, out[0])

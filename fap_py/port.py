@@ -20,12 +20,12 @@ import errno as _errno
 import logging
 import math
 import os
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Optional, Union
 
 from ._handle import WAIT_SLICE, NativeHandle
+from ._interruptible import interruptibly as _interruptibly  # the one rule (fap_py/_interruptible.py)
 from ._stats import Counters, stats_from_c
 from ._validate import check_bytes, check_seconds
 from .errors import (  # PortBusyError, PortGoneError: re-exported, they used to live here
@@ -71,38 +71,6 @@ def port_error(code: int, what: str, path: Optional[str]) -> FapError:
     if code == -_errno.ECANCELED:
         return ClosedError(f"{path or 'port'}: {what}: port closed")
     return error_from_code(code, what, path)
-
-
-def _interruptibly(call: Any, cancel_fd: int, undo: Any = None) -> int:
-    """``call()`` (one blocking C call returning an int) in a helper thread while
-    this one waits in slices: on the main thread the C call would hold off
-    Ctrl-C for as long as a network open or reopen waits (a name lookup, a
-    connect, an RFC 2217 negotiation: up to connect_ms + 2 x option_ms). On
-    KeyboardInterrupt (or any exception here) the cancel fd ends the call at
-    once, ``undo(rc)`` cleans up after it, and the exception goes on."""
-    result: list = []
-    failed: list = []
-
-    def run() -> None:
-        try:
-            result.append(int(call()))
-        except BaseException as exc:   # handed to the waiting thread
-            failed.append(exc)
-
-    t = threading.Thread(target=run, name="fap-port-open", daemon=True)
-    t.start()
-    try:
-        while t.is_alive():
-            t.join(WAIT_SLICE)
-    except BaseException:
-        os.eventfd_write(cancel_fd, 1)
-        t.join()   # every wait of a network open watches the cancel fd: it returns at once
-        if undo is not None and result:
-            undo(result[0])
-        raise
-    if failed:
-        raise failed[0]
-    return result[0]
 
 
 @dataclass(frozen=True)

@@ -54,6 +54,14 @@ typedef struct execMasterOptions {
                                    end of the reply; 0 = 100 ms. At 9600 baud a
                                    255-byte reply alone takes ~540 ms: raise it */
     unsigned retries;           /* extra attempts after the first; default 3 */
+    int cancel_fd;              /* the open's external cancel: while the open
+                                   runs (name lookup, connect, RFC 2217
+                                   negotiation), this fd turning readable (an
+                                   eventfd written from another thread, a
+                                   signal handler) ends it with -ECANCELED.
+                                   Watched only during the open; the caller
+                                   keeps it open until the open returns.
+                                   0 = none */
 } execMasterOptions;
 
 typedef struct execMasterStats {
@@ -144,6 +152,14 @@ void execMasterSetTrace(execMaster *m, fap_trace_fn fn, void *ctx);
 
 typedef struct execSlaveOptions {
     byte node;                  /* 1..254 */
+    int cancel_fd;              /* the open's external cancel: while the open
+                                   runs (name lookup, connect, RFC 2217
+                                   negotiation), this fd turning readable (an
+                                   eventfd written from another thread, a
+                                   signal handler) ends it with -ECANCELED.
+                                   Watched only during the open; the caller
+                                   keeps it open until the open returns.
+                                   0 = none */
 } execSlaveOptions;
 
 typedef struct execSlaveStats {

@@ -60,6 +60,14 @@ typedef struct fapx_options {
     fap_trace_fn trace;       /* wire trace hook from the very first frame
                                  (NULL = none; see fapx_set_trace) */
     void *trace_ctx;
+    int cancel_fd;            /* the open's external cancel: while fapx_open
+                                 runs (name lookup, connect, RFC 2217
+                                 negotiation), this fd turning readable (an
+                                 eventfd written from another thread, a
+                                 signal handler) ends it with -ECANCELED.
+                                 Watched only during the open; the caller
+                                 keeps it open until fapx_open returns.
+                                 0 = none */
 } fapx_options;
 
 /* Events, read with fapx_event_get() (and optionally passed to the callback). */

@@ -49,6 +49,8 @@ struct execMaster {
     int fresh;                       /* nothing read since the attempt was sent */
     lf_ns req_end;                   /* when the attempt's request can have ended */
     int stop_fd;                     /* eventfd: execMasterStop ends the port's waits */
+    int port_cancel;                 /* the fd the port watches (it keeps &port_cancel):
+                                        o->cancel_fd during the open, then stop_fd */
     int stopped;                     /* atomic: execMasterStop was called */
 };
 
@@ -79,7 +81,12 @@ int execMasterOpen(execMaster **out, const char *path, const fap_port_options *p
         free(m);
         return e;
     }
-    int err = lf_port_open_cancellable(&m->port, path, port, &m->stop_fd);
+    /* the caller's cancel ends the open; then the port is the engine's (the
+     * port reads the int at each wait, and nothing else uses it before
+     * execMasterOpen returns) */
+    m->port_cancel = o->cancel_fd > 0 ? o->cancel_fd : m->stop_fd;
+    int err = lf_port_open_cancellable(&m->port, path, port, &m->port_cancel);
+    m->port_cancel = m->stop_fd;
     if (err) {
         close(m->stop_fd);
         free(m);

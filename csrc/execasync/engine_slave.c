@@ -3,7 +3,10 @@
  * Receives on the port, feeds execAsyncByteIn, calls the application's
  * handler in the serving thread, sends (or resends) the reply. Every wait
  * is the port's (fap_port_read, lf_port_read_frame), and execSlaveStop is
- * the port's interrupt (port/port_cancel.h): it ends whichever is running.
+ * the port's interrupt (port/port_cancel.h: the flag) plus the slave's own
+ * cancel fd the port watches (the wait): it ends whichever is running. The
+ * open is cancellable too (execSlaveOptions.cancel_fd): the port handle does
+ * not exist until it returns, so the caller's fd is the one watched then.
  *
  * A frame with a byte in the reply window is dropped (stats.rx_during_tx).
  * Bytes that arrive during the write itself are only seen on a bus that
@@ -16,6 +19,8 @@
 #include <errno.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/eventfd.h>
+#include <unistd.h>
 
 #include "common/mono_clock.h"
 #include "execasync/codec_internal.h"
@@ -28,6 +33,9 @@
 
 struct execSlave {
     fap_port *port;                    /* interruptible: execSlaveStop */
+    int stop_fd;                       /* eventfd: execSlaveStop ends the port's waits */
+    int port_cancel;                   /* the fd the port watches (it keeps &port_cancel):
+                                          o->cancel_fd during the open, then stop_fd */
     execSlaveHandler handler;
     void *ctx;
     lf_ns turnaround;                  /* the port's turnaround_us, in ns */
@@ -70,9 +78,20 @@ int execSlaveOpen(execSlave **out, const char *path, const fap_port_options *por
     execSlave *s = calloc(1, sizeof *s);
     if (!s)
         return -ENOMEM;
-    /* a reply the line does not take ends at execSlaveStop too */
-    int err = lf_port_open_interruptible(&s->port, path, port);
+    s->stop_fd = eventfd(0, EFD_CLOEXEC | EFD_NONBLOCK);
+    if (s->stop_fd < 0) {
+        int e = -errno;
+        free(s);
+        return e;
+    }
+    /* a reply the line does not take ends at execSlaveStop too; the open
+     * ends on the caller's cancel, then the port is the slave's (the port
+     * reads the int at each wait; nothing else uses it before we return) */
+    s->port_cancel = o->cancel_fd > 0 ? o->cancel_fd : s->stop_fd;
+    int err = lf_port_open_cancellable(&s->port, path, port, &s->port_cancel);
+    s->port_cancel = s->stop_fd;
     if (err) {
+        close(s->stop_fd);
         free(s);
         return err;
     }
@@ -247,8 +266,12 @@ int execSlaveServe(execSlave *s, int timeout_ms)
 
 void execSlaveStop(execSlave *s)
 {
-    if (s)
-        lf_port_interrupt(s->port);   /* async-signal-safe */
+    if (!s)
+        return;
+    lf_port_interrupt(s->port);   /* the flag (lf_port_interrupted): async-signal-safe */
+    uint64_t one = 1;             /* ... and the wait in progress: one write */
+    ssize_t w = write(s->stop_fd, &one, sizeof one);
+    (void)w;   /* EAGAIN: already signalled */
 }
 
 void execSlaveGetStats(execSlave *s, execSlaveStats *out)
@@ -262,6 +285,7 @@ void execSlaveClose(execSlave *s)
     if (!s)
         return;
     fap_port_close(s->port);
+    close(s->stop_fd);   /* after the port: it watched it */
     lf_trace_destroy(&s->trace);
     free(s);
 }

@@ -1,5 +1,5 @@
 /* stop_signal.h - execMasterStop: one flag, one eventfd (the slave stops
- * through its port's own interrupt instead, port/port_cancel.h). */
+ * through its port's interrupt flag and its own eventfd, engine_slave.c). */
 #ifndef LF_EXEC_STOP_SIGNAL_H
 #define LF_EXEC_STOP_SIGNAL_H
 

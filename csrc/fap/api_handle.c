@@ -106,8 +106,14 @@ int lf_fapx_create(fapx **out, const char *path, const fapx_options *opts)
     lf_trace_init(&h->trace);
     if (o.trace)   /* before the engine starts: it sees the first frame */
         lf_trace_set(&h->trace, o.trace, o.trace_ctx);
-    /* a stop's grace period over, cancel_fd ends the write in progress */
-    err = lf_port_open_cancellable(&h->port, path, &o.port, &h->cancel_fd);
+    /* a stop's grace period over, cancel_fd ends the write in progress; during
+     * the open the caller's cancel (o.cancel_fd) is the one watched: the
+     * port reads *(&port_cancel) at each wait, so switching the int after
+     * the open hands the port to the engine's own fd (no thread but this
+     * one uses the port before the engine thread starts) */
+    h->port_cancel = o.cancel_fd > 0 ? o.cancel_fd : h->cancel_fd;
+    err = lf_port_open_cancellable(&h->port, path, &o.port, &h->port_cancel);
+    h->port_cancel = h->cancel_fd;
     if (err < 0) {
         pthread_cond_destroy(&h->cond);
         pthread_mutex_destroy(&h->lock);

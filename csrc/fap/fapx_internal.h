@@ -60,6 +60,8 @@ struct fapx {
     int hold_epoll_fd;            /* ... or here while a frame is held (wake, timer) */
     int cancel_fd;                /* eventfd: readable = abandon the write in
                                      progress (stop grace period over) */
+    int port_cancel;              /* the fd the port watches (it keeps &port_cancel):
+                                     o.cancel_fd during the open, then cancel_fd */
     pthread_t thread;
 
     /* ---- engine thread only ---- */

@@ -174,7 +174,12 @@ def _interrupt_child(code: str, url: str, ready: threading.Event) -> float:
     child = subprocess.Popen([sys.executable, "-c", code, url], stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)
     try:
-        assert ready.wait(30), "the child never connected"
+        for _ in range(300):                # a child that failed at once says why, now
+            if ready.wait(0.1) or child.poll() is not None:
+                break
+        if not ready.is_set():
+            out, err = child.communicate(timeout=10) if child.poll() is not None else ("", "")
+            raise AssertionError(f"the child never connected: {child.returncode} {out} {err}")
         t0 = time.monotonic()
         child.send_signal(signal.SIGINT)
         out, err = child.communicate(timeout=10)
