@@ -160,7 +160,7 @@ def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
     network = kind in (lib.FAP_PORT_KIND_TCP, lib.FAP_PORT_KIND_RFC2217)
     if code == -_errno.ETIMEDOUT and network and "open" in prefix:
         return PortError(_errno.ETIMEDOUT, f"{prefix}connection timed out", path)
-    if code == -_errno.EPROTO and kind == lib.FAP_PORT_KIND_RFC2217:
+    if code == -_errno.EPROTO and path and kind == lib.FAP_PORT_KIND_RFC2217:
         raw = "tcp://" + path[len("rfc2217://"):].split("?", 1)[0]
         return PortError(_errno.EPROTO, f"{prefix}the server sent no Telnet negotiation within "
                          f"option_ms: not an RFC 2217 server (a raw TCP port? use {raw})", path)
