@@ -152,13 +152,19 @@ def _net_error(code: int, prefix: str, path: str | None) -> FapError | None:
         return PortError(_errno.EHOSTUNREACH, text, path)
     if code == codes["FAP_PORT_EREFUSED"]:
         return PortError(_errno.EPROTO, text, path)
-    if code == -_errno.ETIMEDOUT and path and "://" in path and "open" in prefix:
+    # what the path is: the C core's one reading (fap_port_kind), not a guess here
+    try:
+        kind = lib.fap_port_kind(os.fsencode(path)) if path and "\0" not in path else None
+    except (TypeError, UnicodeError):
+        kind = None
+    network = kind in (lib.FAP_PORT_KIND_TCP, lib.FAP_PORT_KIND_RFC2217)
+    if code == -_errno.ETIMEDOUT and network and "open" in prefix:
         return PortError(_errno.ETIMEDOUT, f"{prefix}connection timed out", path)
-    if code == -_errno.EPROTO and path and path.startswith("rfc2217://"):
+    if code == -_errno.EPROTO and path and kind == lib.FAP_PORT_KIND_RFC2217:
         raw = "tcp://" + path[len("rfc2217://"):].split("?", 1)[0]
         return PortError(_errno.EPROTO, f"{prefix}the server sent no Telnet negotiation within "
                          f"option_ms: not an RFC 2217 server (a raw TCP port? use {raw})", path)
-    if code == -_errno.EIO and path and "://" in path:
+    if code == -_errno.EIO and network:
         text = f"{prefix}connection closed by the server"
         return PortError(_errno.EIO, text, path) if "open" in prefix \
             else PortGoneError(_errno.EIO, text, path)

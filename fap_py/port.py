@@ -357,10 +357,54 @@ class Port(NativeHandle):
                 pass
 
 
+#: what :func:`port_kind` answers, from fap_port_kind (include/fap_port.h)
+PORT_KINDS = ("device", "tcp", "rfc2217", "other", "invalid")
+
+
+def port_kind(path: PathLike) -> str:
+    """What a port string names, as the C port layer opens it (``fap_port_kind``).
+
+    ``"device"``: no ``://`` (a tty, a pty; it may still not exist);
+    ``"tcp"`` / ``"rfc2217"``: a network URL that parses (``tcp://HOST:PORT``,
+    ``rfc2217://HOST:PORT``, query ``connect_ms`` / ``rtt_ms`` / ``option_ms``);
+    ``"other"``: a URL of a scheme libfap does not open (pyserial's
+    ``socket://``, ``loop://``); ``"invalid"``: a ``tcp://`` / ``rfc2217://``
+    URL that does not parse, or a path with a NUL. Opens and looks up
+    nothing. The one reading of a port string: code that needs to know what
+    a path is asks here, not ``"://" in path``.
+
+    >>> port_kind("/dev/ttyUSB0"), port_kind("rfc2217://10.0.0.5:4001")   # doctest: +SKIP
+    ('device', 'rfc2217')
+    """
+    if isinstance(path, os.PathLike):
+        path = os.fspath(path)
+    if isinstance(path, str):
+        try:
+            raw = os.fsencode(path)
+        except UnicodeError:
+            return "invalid"
+    elif isinstance(path, bytes):
+        raw = path
+    else:
+        raise InvalidTypeError(f"port must be a path or URL string, not {type(path).__name__}")
+    if b"\0" in raw:
+        return "invalid"
+    from ._native import lib
+
+    k = lib.fap_port_kind(raw)
+    return {lib.FAP_PORT_KIND_DEVICE: "device", lib.FAP_PORT_KIND_TCP: "tcp",
+            lib.FAP_PORT_KIND_RFC2217: "rfc2217", lib.FAP_PORT_KIND_OTHER: "other"}.get(k, "invalid")
+
+
+def is_network(path: PathLike) -> bool:
+    """A ``tcp://`` or ``rfc2217://`` URL that parses (an Ethernet serial server)."""
+    return port_kind(path) in ("tcp", "rfc2217")
+
+
 def now_ns() -> int:
     """CLOCK_MONOTONIC now in ns: the clock of ``deadline_ns`` (same as ``time.monotonic_ns``)."""
     return time.monotonic_ns()
 
 
-__all__ = ["MAX_READ", "Port", "PortBusyError", "PortGoneError", "PortStats", "RS485", "RS485Mode",
-           "check_timeout", "now_ns", "port_error"]
+__all__ = ["MAX_READ", "PORT_KINDS", "Port", "PortBusyError", "PortGoneError", "PortStats",
+           "RS485", "RS485Mode", "check_timeout", "is_network", "now_ns", "port_error", "port_kind"]

@@ -152,6 +152,31 @@ int fap_port_fd(const fap_port *p);
 const char *fap_port_path(const fap_port *p);
 unsigned fap_port_baud(const fap_port *p);
 
+/* What a port string names, as fap_port_open reads it (docs/port.md,
+ * "What a port string is"): FAP_PORT_KIND_DEVICE for a path without "://"
+ * (a tty, a pty), FAP_PORT_KIND_TCP / FAP_PORT_KIND_RFC2217 for a URL that
+ * parses, FAP_PORT_KIND_OTHER for a URL of a scheme libfap does not open
+ * (pyserial's socket://, loop://), FAP_PORT_KIND_INVALID for NULL or a
+ * tcp:// / rfc2217:// URL that does not parse. Sans-I/O: no name lookup, no
+ * stat. fap_port_open refuses OTHER and INVALID with FAP_PORT_EURL. */
+#define FAP_PORT_KIND_DEVICE   0
+#define FAP_PORT_KIND_TCP      1
+#define FAP_PORT_KIND_RFC2217  2
+#define FAP_PORT_KIND_OTHER    (-1)
+#define FAP_PORT_KIND_INVALID  (-2)
+int fap_port_kind(const char *path);
+
+/* What an open port's transport can do (FAP_PORT_CAP_* bits; 0 for NULL):
+ * the transport's, not the settings in force (fap_port_mode says which
+ * direction mode an open settled on). A device has kernel RS-485, RTS,
+ * the lock and is paced; a network transport is only NETWORK. */
+#define FAP_PORT_CAP_RS485    0x01u  /* kernel RS-485 (TIOCSRS485) can be asked */
+#define FAP_PORT_CAP_RTS      0x02u  /* the port can drive a direction line (soft RTS, GPIO) */
+#define FAP_PORT_CAP_LOCK     0x04u  /* an exclusive lock holds the line (flock, TIOCEXCL) */
+#define FAP_PORT_CAP_PACED    0x08u  /* bytes come at the line's baud: wire times predict replies */
+#define FAP_PORT_CAP_NETWORK  0x10u  /* a network link: a round trip (rtt_ms) on top of the wire */
+unsigned fap_port_caps(const fap_port *p);
+
 /* Network transports: the last note of the connection's set-up (an RFC
  * 2217 server that did not answer a setting: the open went on), copied
  * into buf (n bytes, always terminated). Returns its length, 0 when there

@@ -11,8 +11,7 @@
 #include "fap/fapx_internal.h"
 #include "fap/reply_predict.h"
 #include "common/mono_timerfd.h"
-#include "port/port_internal.h"   /* the backend: a device, or a network transport */
-#include "port/port_net.h"
+#include "port/port_link.h"   /* the link's slack; fap_port_caps says what it is */
 #include "port/rx_pacing.h"
 #include <errno.h>
 #include <linux/time_types.h>   /* struct __kernel_timespec */
@@ -400,7 +399,7 @@ static void engine_init(engine *e, fapx *h)
     lf_ns now = lf_now_ns();
     lf_fap_timing t = {
         .idc = us_ns(h->o.idc_us),
-        /* a network transport's round trip on top (port/port_net.h) */
+        /* a network transport's round trip on top (port/port_link.h) */
         .id_answer = us_ns(h->o.id_answer_us) + lf_port_link_slack_ns(h->port),
         .data_done = us_ns(h->o.data_done_us),
         .send_budget = us_ns(h->o.send_budget_us),
@@ -425,7 +424,7 @@ static void engine_init(engine *e, fapx *h)
     e->reg_port = -1;
     e->baud = fap_port_baud(h->port);
     /* a device at a known baud (a network transport paces nothing here) */
-    int device = h->port->be == &lf_port_posix_backend && lf_port_link_slack_ns(h->port) == 0;
+    int device = (fap_port_caps(h->port) & FAP_PORT_CAP_PACED) && lf_port_link_slack_ns(h->port) == 0;
     lf_reply_predict_init(&e->rp, e->baud, device);
 }
 

@@ -11,8 +11,7 @@
 
 #include "common/fd_util.h"
 #include "common/mono_clock.h"
-#include "port/port_net.h"
-#include "port/port_url.h"
+#include "port/port_link.h"
 
 void fap_port_options_init(fap_port_options *o)
 {
@@ -172,17 +171,25 @@ int lf_port_open_backend_cancel(fap_port **out, const char *path, const fap_port
     return 0;
 }
 
-int lf_port_open_cancel(fap_port **out, const char *path, const fap_port_options *o,
-                        const int *cancel_fd)
+/* (fap_port_open and the choice of a transport: port_transport.c) */
+
+unsigned fap_port_caps(const fap_port *p)
 {
-    if (path && lf_port_url_scheme(path) != LF_PORT_DEVICE)   /* tcp://, rfc2217:// (port_net.c) */
-        return lf_port_net_open(out, path, o, cancel_fd);
-    return lf_port_open_backend_cancel(out, path, o, &lf_port_posix_backend, NULL, cancel_fd);
+    return p ? p->be->caps : 0;
 }
 
-int fap_port_open(fap_port **out, const char *path, const fap_port_options *o)
+lf_ns lf_port_link_slack_ns(const fap_port *p)
 {
-    return lf_port_open_cancel(out, path, o, NULL);
+    return p && p->be->slack_ns ? (lf_ns)p->be->slack_ns(p->ctx) : 0;
+}
+
+size_t fap_port_warning(const fap_port *p, char *buf, size_t n)
+{
+    if (buf && n)
+        buf[0] = '\0';
+    if (!p || !p->be->warning)
+        return 0;
+    return p->be->warning(p->ctx, buf, n);
 }
 
 void fap_port_close(fap_port *p)

@@ -54,6 +54,15 @@ typedef struct lf_port_backend {
      * backend whose open waits (port_net.c: name lookup, connect, RFC 2217
      * negotiation) ends those waits too. */
     void (*attach)(void *ctx, const int *const *cancel_fd);
+    /* What the transport can do: FAP_PORT_CAP_* (fap_port_caps). A fake
+     * that leaves it 0 is neither paced nor a network link. */
+    unsigned caps;
+    /* Optional: what a reply timeout must allow on top of the wire time for
+     * the link's round trip, in ns (lf_port_link_slack_ns); NULL = 0. */
+    int64_t (*slack_ns)(void *ctx);
+    /* Optional: the connection's last set-up note into buf (fap_port_warning:
+     * n bytes, always terminated), returning its length; NULL = none. */
+    size_t (*warning)(void *ctx, char *buf, size_t n);
 } lf_port_backend;
 
 extern const lf_port_backend lf_port_posix_backend;
@@ -61,6 +70,11 @@ extern const lf_port_backend lf_port_posix_backend;
  * (port_net.c: a socket). */
 int lf_port_posix_poll(void *ctx, struct pollfd *fds, nfds_t n, int timeout_ms);
 void lf_port_posix_sleep_until(void *ctx, int64_t deadline_ns);
+
+/* termios speed <-> baud (port_config.c), for backends that read a
+ * struct termios (port_net.c's tcsetattr). */
+int lf_port_baud_to_speed(unsigned baud, speed_t *out);
+unsigned lf_port_speed_to_baud(speed_t speed);   /* 0 if not in the table */
 
 /* The posix backend's GPIO functions (port_gpio.c, uAPI v2 ioctls). */
 int lf_port_gpio_open(void *ctx, const char *chip, unsigned line, int value);
@@ -74,7 +88,9 @@ int lf_port_open_with_backend(fap_port **out, const char *path,
 /* The same, whose open already watches *cancel_fd (NULL: none). */
 int lf_port_open_backend_cancel(fap_port **out, const char *path, const fap_port_options *o,
                                 const lf_port_backend *be, void *ctx, const int *cancel_fd);
-/* fap_port_open (device or URL) whose open already watches *cancel_fd. */
+/* fap_port_open (device or URL) whose open already watches *cancel_fd
+ * (NULL: none): port_transport.c, the one place that maps a port string to
+ * its transport and calls both sides. */
 int lf_port_open_cancel(fap_port **out, const char *path, const fap_port_options *o,
                         const int *cancel_fd);
 

@@ -77,8 +77,7 @@ struct fap_port {
 };
 
 /* port_config.c */
-int lf_port_baud_to_speed(unsigned baud, speed_t *out);
-unsigned lf_port_speed_to_baud(speed_t speed);   /* 0 if not in the table */
+/* (lf_port_baud_to_speed, lf_port_speed_to_baud: port_backend.h) */
 /* Open p->path per p->opt into *c. On error nothing stays open and the
  * negative errno is returned. */
 int lf_port_conn_open(const fap_port *p, lf_port_conn *c);

@@ -25,9 +25,12 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
-#include "port/port_internal.h"
+#include <errno.h>
+#include <pthread.h>
+#include <termios.h>
+
+#include "common/mono_clock.h"
 #include "port/port_telnet.h"
-#include "port/port_url.h"
 
 /* Keepalive: a server that vanished without a reset (power cut, cable)
  * is found within about 5 s of silence; unacknowledged data, within
@@ -602,7 +605,7 @@ static int rfc2217_start(lf_net *c, int fd)
 
 static int net_open(void *ctx, const char *path, int flags)
 {
-    (void)path;   /* parsed into ctx by lf_port_net_open */
+    (void)path;   /* parsed into ctx by the transport map (lf_port_net_prepare) */
     (void)flags;
     lf_net *c = ctx;
     set_warning(c, "");   /* a new connection: earlier notes are stale */
@@ -809,6 +812,22 @@ static void net_attach(void *ctx, const int *const *cancel_fd)
     ((lf_net *)ctx)->cancel = cancel_fd;
 }
 
+static int64_t net_slack_ns(void *ctx)
+{
+    return (int64_t)((const lf_net *)ctx)->url.rtt_ms * LF_NS_PER_MS;
+}
+
+static size_t net_warning(void *ctx, char *buf, size_t n)
+{
+    lf_net *c = ctx;
+    pthread_mutex_lock(&c->st_mu);
+    size_t len = strlen(c->warning);
+    if (buf && n)
+        snprintf(buf, n, "%s", c->warning);
+    pthread_mutex_unlock(&c->st_mu);
+    return len;
+}
+
 static const lf_port_backend net_backend = {
     .open = net_open,
     .close = net_close,
@@ -824,50 +843,28 @@ static const lf_port_backend net_backend = {
     .sleep_until = lf_port_posix_sleep_until,
     .destroy = net_destroy,
     .attach = net_attach,
+    .caps = FAP_PORT_CAP_NETWORK,
+    .slack_ns = net_slack_ns,
+    .warning = net_warning,
 };
 
-int lf_port_net_open(fap_port **out, const char *url, const fap_port_options *o,
-                     const int *cancel_fd)
+int lf_port_net_prepare(const lf_port_url *u, const fap_port_options *o,
+                        const lf_port_backend **be, void **ctx)
 {
-    if (!out || !url)
+    if (!u || !be || !ctx)
         return -EINVAL;
+    if (o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS
+              || o->rs485_mode == FAP_RS485_GPIO))
+        return FAP_PORT_ENET485;
     lf_net *c = calloc(1, sizeof *c);
     if (!c)
         return -ENOMEM;
-    int err = lf_port_url_parse(url, &c->url);
-    if (!err && o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS
-                      || o->rs485_mode == FAP_RS485_GPIO))
-        err = FAP_PORT_ENET485;
-    if (err) {
-        free(c);
-        return err;
-    }
+    c->url = *u;
     c->fd = -1;
     pthread_mutex_init(&c->tx_mu, NULL);
     pthread_mutex_init(&c->st_mu, NULL);
     pthread_mutex_init(&c->ans_mu, NULL);
-    /* the port owns c from here: freed by net_destroy, also on failure */
-    return lf_port_open_backend_cancel(out, url, o, &net_backend, c, cancel_fd);
-}
-
-lf_ns lf_port_link_slack_ns(const fap_port *p)
-{
-    if (!p || p->be != &net_backend)
-        return 0;
-    return (lf_ns)((const lf_net *)p->ctx)->url.rtt_ms * LF_NS_PER_MS;
-}
-
-size_t fap_port_warning(const fap_port *p, char *buf, size_t n)
-{
-    if (buf && n)
-        buf[0] = '\0';
-    if (!p || p->be != &net_backend)
-        return 0;
-    lf_net *c = p->ctx;
-    pthread_mutex_lock(&c->st_mu);
-    size_t len = strlen(c->warning);
-    if (buf && n)
-        snprintf(buf, n, "%s", c->warning);
-    pthread_mutex_unlock(&c->st_mu);
-    return len;
+    *be = &net_backend;
+    *ctx = c;
+    return 0;
 }

@@ -96,4 +96,5 @@ const lf_port_backend lf_port_posix_backend = {
     .sleep_until = lf_port_posix_sleep_until,
     .gpio_open = lf_port_gpio_open,   /* port_gpio.c */
     .gpio_set = lf_port_gpio_set,
+    .caps = FAP_PORT_CAP_RS485 | FAP_PORT_CAP_RTS | FAP_PORT_CAP_LOCK | FAP_PORT_CAP_PACED,
 };

@@ -14,14 +14,16 @@ static const struct {
     {"rfc2217://", LF_PORT_RFC2217},
 };
 
-int lf_port_url_scheme(const char *s)
+static lf_port_scheme url_scheme(const char *s)
 {
-    if (!s || !strstr(s, "://"))
+    if (!s)
+        return LF_PORT_OTHER;
+    if (!strstr(s, "://"))
         return LF_PORT_DEVICE;
     for (size_t i = 0; i < sizeof schemes / sizeof schemes[0]; i++)
         if (strncmp(s, schemes[i].prefix, strlen(schemes[i].prefix)) == 0)
-            return (int)schemes[i].scheme;
-    return -1;
+            return schemes[i].scheme;
+    return LF_PORT_OTHER;
 }
 
 /* Decimal digits [s, e) as a number <= max; -1 if empty, not digits or larger. */
@@ -79,10 +81,9 @@ static int parse_query(const char *q, lf_port_url *u)
 int lf_port_url_parse(const char *s, lf_port_url *u)
 {
     memset(u, 0, sizeof *u);
-    int sch = lf_port_url_scheme(s);
-    if (sch <= 0)
+    u->scheme = url_scheme(s);
+    if (u->scheme == LF_PORT_DEVICE || u->scheme == LF_PORT_OTHER)
         return FAP_PORT_EURL;
-    u->scheme = (lf_port_scheme)sch;
     u->connect_ms = LF_URL_CONNECT_MS_DEFAULT;
     u->rtt_ms = LF_URL_RTT_MS_DEFAULT;
     u->option_ms = LF_URL_OPTION_MS_DEFAULT;

@@ -5,6 +5,7 @@
 #define LF_PORT_URL_H
 
 typedef enum lf_port_scheme {
+    LF_PORT_OTHER = -1,      /* a "://" with a scheme we do not open */
     LF_PORT_DEVICE = 0,      /* no "://": a device path */
     LF_PORT_TCP = 1,         /* raw TCP: ser2net raw, NPort "TCP server" */
     LF_PORT_RFC2217 = 2      /* Telnet COM-PORT-CONTROL */
@@ -25,12 +26,12 @@ typedef struct lf_port_url {
     unsigned option_ms;
 } lf_port_url;
 
-/* The scheme of s: LF_PORT_DEVICE when s has no "://"; -1 for a "://" with
- * a scheme we do not know. */
-int lf_port_url_scheme(const char *s);
-
-/* Parse s into *u. 0, or FAP_PORT_EURL: unknown scheme, no host, no or bad
- * port (not 1..65535), unknown or bad query parameter, too long. */
+/* Parse s into *u: the one reading of a port string (fap_port_kind and
+ * the transport map, port_transport.c, both call it). 0 for a URL that
+ * parses; else FAP_PORT_EURL, with u->scheme still saying what s is:
+ * LF_PORT_DEVICE (no "://", a device path), LF_PORT_OTHER (a scheme we do
+ * not know, or NULL), or the scheme of a URL that does not parse (no host,
+ * no or bad port, unknown or bad query parameter, too long). */
 int lf_port_url_parse(const char *s, lf_port_url *u);
 
 #endif

@@ -29,7 +29,7 @@ import serial
 
 from .._handle import WAIT_SLICE
 from ..errors import BusCollisionError, ClosedError, InvalidValueError, PortError
-from ..port import Port
+from ..port import Port, port_kind
 from ..rs485 import RS485
 from .errors import EchoMismatchError, G485ValueError
 
@@ -63,14 +63,12 @@ def _data(data: bytes) -> bytes:
     raise G485ValueError(f"data must be bytes-like, not {type(data).__name__}")
 
 
-#: URL schemes the C port layer opens itself (docs/port.md, "Network transports")
-_NATIVE_SCHEMES = ("tcp://", "rfc2217://")
-
-
 def _is_url(name: str) -> bool:
-    """A pyserial URL (``socket://`` ...); libfap's own ``tcp://`` and
-    ``rfc2217://`` go through the C port layer like a device path."""
-    return "://" in name and not name.startswith(_NATIVE_SCHEMES)
+    """A pyserial URL (``socket://`` ...): a scheme the C port layer does not
+    open (fap_port_kind: "other"); libfap's own ``tcp://`` and ``rfc2217://``
+    (also a malformed one: the C open says why) go through the C port layer
+    like a device path."""
+    return port_kind(name) == "other"
 
 
 class PortIO:

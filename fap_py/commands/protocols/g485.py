@@ -100,7 +100,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _rs485(args: argparse.Namespace) -> Any:
     """Line options for a device path or libfap's tcp:// / rfc2217:// (the C port
     layer); None for a pyserial URL (it has its own)."""
-    pyserial_url = "://" in args.port and not args.port.startswith(("tcp://", "rfc2217://"))
+    from fap_py.port import port_kind
+
+    pyserial_url = port_kind(args.port) == "other"   # a scheme the C port layer does not open
     return None if pyserial_url else opt.rs485_from_args(args)
 
 

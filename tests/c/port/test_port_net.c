@@ -27,10 +27,17 @@
 static void test_url_parse(void)
 {
     lf_port_url u;
-    CHECK_EQ(lf_port_url_scheme("/dev/ttyUSB0"), LF_PORT_DEVICE);
-    CHECK_EQ(lf_port_url_scheme("tcp://h:1"), LF_PORT_TCP);
-    CHECK_EQ(lf_port_url_scheme("rfc2217://h:1"), LF_PORT_RFC2217);
-    CHECK_EQ(lf_port_url_scheme("socket://h:1"), -1);
+    /* a refused string still says what it is: the one parse classifies */
+    CHECK_EQ(lf_port_url_parse("/dev/ttyUSB0", &u), FAP_PORT_EURL);
+    CHECK_EQ(u.scheme, LF_PORT_DEVICE);
+    CHECK_EQ(lf_port_url_parse("socket://h:1", &u), FAP_PORT_EURL);
+    CHECK_EQ(u.scheme, LF_PORT_OTHER);
+    CHECK_EQ(lf_port_url_parse(NULL, &u), FAP_PORT_EURL);
+    CHECK_EQ(u.scheme, LF_PORT_OTHER);
+    CHECK_EQ(lf_port_url_parse("tcp://h", &u), FAP_PORT_EURL);
+    CHECK_EQ(u.scheme, LF_PORT_TCP);
+    CHECK_EQ(lf_port_url_parse("rfc2217://h:1", &u), 0);
+    CHECK_EQ(u.scheme, LF_PORT_RFC2217);
     CHECK_EQ(lf_port_url_parse("tcp://192.0.2.7:4001", &u), 0);
     CHECK_EQ(u.scheme, LF_PORT_TCP);
     CHECK(strcmp(u.host, "192.0.2.7") == 0 && strcmp(u.port, "4001") == 0);
@@ -340,6 +347,7 @@ static void test_tcp_echo_and_drop(void)
     CHECK_EQ(echo_all_bytes(p), 0);
     CHECK_EQ(fap_port_warning(p, NULL, 0), 0);
     CHECK_EQ(lf_port_link_slack_ns(p), (lf_ns)LF_URL_RTT_MS_DEFAULT * LF_NS_PER_MS);
+    CHECK_EQ(fap_port_caps(p), FAP_PORT_CAP_NETWORK);   /* not paced, no lock, no RTS */
     CHECK_EQ(fap_port_flush(p), 0);
     /* the server resets the connection: a vanished device, then a reopen */
     atomic_store(&s.drop, 1);
