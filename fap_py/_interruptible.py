@@ -17,6 +17,7 @@ import threading
 from typing import Any, Callable, Optional
 
 from ._handle import WAIT_SLICE
+from ._native import lib
 
 
 def interruptibly(call: Callable[[], Any], cancel_fd: int,
@@ -53,10 +54,10 @@ def open_interruptibly(path: bytes, open_with: Callable[[int], Any],
                        undo: Optional[Callable[[int], Any]] = None) -> int:
     """``open_with(cancel_fd)``: an engine open whose options take a cancel fd
     watched only while it runs (``fapx_options.cancel_fd``,
-    ``exec*Options.cancel_fd``; 0 = none). A network URL (``://``) opens in a
+    ``exec*Options.cancel_fd``; 0 = none). A URL (not a device, ``fap_port_kind``) opens in a
     helper thread with a fresh eventfd (:func:`interruptibly`), closed once the
     open returned; a device opens here (it does not wait)."""
-    if b"://" not in path:
+    if lib.fap_port_kind(path) == lib.FAP_PORT_KIND_DEVICE:   # the port layer's reading
         return int(open_with(0))
     fd = os.eventfd(0, os.EFD_CLOEXEC | os.EFD_NONBLOCK)
     try:

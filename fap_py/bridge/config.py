@@ -18,6 +18,7 @@ from .. import _protocols
 from .._validate import baud_rates, check_int
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from ..fap import RS485, RS485Mode
+from ..port import port_kind
 from ..rs485 import DEFAULT_BAUD, parse_realtime
 from ._schema import BridgeConfigError, BridgeConfigTypeError
 from ._schema import done as _done
@@ -211,12 +212,13 @@ def bus_from_dict(table: Mapping[str, Any], index: int = 0) -> BusConfig:
 
 
 def is_network_port(port: str) -> bool:
-    """``port`` names one of the C port layer's network transports (``tcp://``,
-    ``rfc2217://``): the port layer's own rule (``lf_port_url_scheme``, csrc/port/port_url.h),
-    a ``://`` in the name, so no device path is ever taken for a URL or the other way."""
+    """``port`` is a URL, not a device path: the C port layer's own reading
+    (:func:`fap_py.port.port_kind`), so no device path is ever taken for a
+    URL or the other way. A URL libfap does not open is still a URL here,
+    refused by :func:`_check_network_port` with the reason."""
     if not isinstance(port, str):
         raise BridgeConfigTypeError(f"port must be a str, not {type(port).__name__}")
-    return "://" in port
+    return port_kind(port) != "device"
 
 
 def _port_key(port: str, base: str) -> str:
@@ -410,29 +412,22 @@ def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
                 check_port(bus.port, f"bus {bus.name!r}.port")
 
 
-_NETWORK_SCHEMES = ("tcp", "rfc2217")   #: the C port layer's (csrc/port/port_url.h)
-
-
 def _check_network_port(port: str, field: str) -> None:
-    """A ``tcp://`` / ``rfc2217://`` port names its scheme, a host and a port 1..65535
-    (the port layer checks its query parameters when it opens it); opens nothing."""
+    """A ``tcp://`` / ``rfc2217://`` port the C port layer can parse (a host and a
+    port 1..65535, known query parameters: ``fap_port_kind``); opens nothing."""
     import errno
 
     from .files import BridgeFileError
 
-    why = None
-    try:
-        parts = urlsplit(port)
-        number = parts.port
-    except ValueError:
-        parts, number, why = None, None, "a bad host or port number"
-    if why is None and parts is not None:
-        if parts.scheme.lower() not in _NETWORK_SCHEMES:
-            why = f"a URL port is tcp://HOST:PORT or rfc2217://HOST:PORT, not {_show(parts.scheme)}://"
-        elif not parts.hostname or not number:
-            why = "a URL port needs a host and a port (tcp://HOST:PORT)"
-    if why is not None:
-        raise BridgeFileError(errno.EINVAL, field, _show(port, 100), why)
+    kind = port_kind(port)
+    if kind in ("tcp", "rfc2217"):
+        return
+    if kind == "other":
+        why = (f"a URL port is tcp://HOST:PORT or rfc2217://HOST:PORT, "
+               f"not {_show(port.split('://', 1)[0])}://")
+    else:
+        why = "a URL port needs a host and a port 1..65535 (tcp://HOST:PORT) and known options"
+    raise BridgeFileError(errno.EINVAL, field, _show(port, 100), why)
 
 
 def load(path: "str | os.PathLike[str]") -> BridgeConfig:

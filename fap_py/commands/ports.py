@@ -16,6 +16,7 @@ import os
 from typing import Any, Callable, Dict, List
 
 from .. import sysfs_ports
+from ..port import port_kind
 from ..rs485 import DEFAULT_BAUD
 from ._options import BusError, UsageError, add_command, add_output_options, baud, count, emit, seconds
 
@@ -56,13 +57,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-#: the schemes of a network port (docs/port.md): no local RS-485 direction to probe or time
-NETWORK_SCHEMES = ("tcp://", "rfc2217://")
-
-
 def is_network(path: str) -> bool:
-    """A ``tcp://`` or ``rfc2217://`` URL (an Ethernet serial server), not a device path."""
-    return path.lower().startswith(NETWORK_SCHEMES)
+    """A URL (an Ethernet serial server), not a device path: the port layer's
+    own reading (:func:`fap_py.port.port_kind`). No local RS-485 direction to
+    probe or time; a URL libfap cannot open is refused by the open, naming why."""
+    return port_kind(path) != "device"
 
 
 def _path(option: str) -> "Callable[[str], str]":
