@@ -52,7 +52,6 @@ from typing import Any, Callable, Dict, List, Optional
 from bench import ROOT, issue24, results_home, syscalls, use_installed_fap_py
 from bench.kinds import ALL_KINDS, BASE, QUICK_KINDS
 from bench.stats import loadavg
-from fap_py.progress import Progress
 
 log = logging.getLogger("bench")
 
@@ -256,6 +255,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     steps = (("paced" in sections) * len(bauds) * len(kinds) + ("unpaced" in sections) * len(kinds)
              + ("scale" in sections) * len(scale_bauds)
              + sum(s in sections for s in SECTIONS[3:]))
+    from fap_py.progress import Progress  # the installed fap_py (use_installed_fap_py, in main)
+
     with Progress(steps, "bench", enabled=True) as bar:
         for baud in bauds:
             for kind in kinds:
