@@ -78,7 +78,7 @@ def rs485(ctx: Context) -> Iterator[Finding]:
             yield Finding("adapter.rs485", "info", "a pseudo-terminal: no RS-485 line, use --rs485 none",
                           ev, "--rs485 none", port=port.device)
         elif verdict == "no":
-            yield Finding("adapter.rs485", "warning",
+            yield Finding("adapter.rs485", "info",
                           "no kernel RS-485 ioctls (TIOCSRS485 refused): programs that need them "
                           "(mbusd, --rs485 kernel) fail; the direction must come from RTS or the "
                           "transceiver", ev, f"--rs485 soft (RTS) or --rs485 none with an "
