@@ -20,6 +20,8 @@ from .finding import Finding
 #: the largest file put in the bundle (its start)
 BUNDLE_FILE_MAX = 1 << 20
 MASK = "********"
+#: files never put in a bundle, whatever a config's include line named
+NEVER = {"/etc/shadow", "/etc/gshadow", "/etc/shadow-", "/etc/gshadow-"}
 
 _KEY = r"[\w.-]*(?:pass(?:word|wd|phrase)?|token|secret|api[_-]?key|private[_-]?key|psk|auth\w*|credential\w*)[\w.-]*"
 _KV_RE = re.compile(r'(?im)^(\s*["\']?' + _KEY + r'["\']?\s*(?:=|:|\s)\s*)("?)([^"\n#]*)("?)')
@@ -53,6 +55,8 @@ def write(path: str, ctx: Context, findings: Iterable[Finding]) -> int:
             report = "\n".join(json.dumps(f.as_event(), sort_keys=True) for f in findings)
             _add(tar, "fap-doctor/report.json", report + "\n")
             for analysed, host in sorted(ctx.files_read.items()):
+                if analysed in NEVER:
+                    continue
                 text = _read_regular(host, BUNDLE_FILE_MAX,
                                      tail=analysed in ("kernel-log", "/var/log/kern.log", "/dmesg",
                                                        "/var/log/dmesg"))

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import os
 import statistics
+import termios
 import time
 from typing import Any, Dict, List, Optional, Sequence, Tuple
 
@@ -47,6 +48,7 @@ def capture(path: str, baud: int, seconds: float) -> Capture:
     from ..monitor.sources import LivePort
 
     out: Capture = []
+    _flush_input(path)
     end = time.monotonic() + seconds
     with LivePort(path, baud) as port:
         for chunk in port.chunks(lambda: None, None, lambda: time.monotonic() >= end):
@@ -55,17 +57,33 @@ def capture(path: str, baud: int, seconds: float) -> Capture:
     return out
 
 
+def _flush_input(path: str) -> None:
+    """Drop what the tty buffered before we listen (bytes kept while nobody read,
+    with holes where the buffer overflowed): the report is about the bus now."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError:
+        return          # LivePort's open says why
+    try:
+        termios.tcflush(fd, termios.TCIFLUSH)
+    except termios.error:
+        pass
+    finally:
+        os.close(fd)
+
+
 def measured_baud(cap: Capture) -> Optional[Tuple[int, float]]:
     """(nearest standard baud, measured character time s) from the arrival times, or
-    None: per read, the time since the previous read over its bytes; the median
-    of those is one character time when the bytes come paced."""
-    per_byte = []
-    for (t0, _), (t1, data) in zip(cap, cap[1:]):
-        if data and t1 > t0:
-            per_byte.extend([(t1 - t0) / len(data) / 1e9] * len(data))
-    if len(per_byte) < 8:
+    None: per read, the time since the previous read over its bytes; the bulk of
+    those is one character time when the bytes come paced."""
+    per_read = [(t1 - t0) / len(data) / 1e9
+                for (t0, _), (t1, data) in zip(cap, cap[1:]) if data and t1 > t0]
+    if len(per_read) < 8:
         return None
-    char_s = statistics.median(per_byte)
+    # the gaps between frames (and a late read) are the long tail: drop what is far
+    # above the lower quartile, the median of the rest is one character time
+    q25 = statistics.quantiles(per_read, n=4)[0]
+    char_s = statistics.median([v for v in per_read if v <= 3 * q25])
     if char_s <= 0:
         return None
     best = min(STANDARD_BAUDS, key=lambda b: abs(math.log(char_s * b / 10.0)))
@@ -75,25 +93,58 @@ def measured_baud(cap: Capture) -> Optional[Tuple[int, float]]:
     return best, char_s
 
 
+#: an arrival this much later than the bytes before it could have come (beyond the
+#: character times) starts a new burst; closer ones are the same burst, re-timed. A
+#: USB adapter hands bytes on in chunks up to its latency timer (16 ms), and a loaded
+#: machine delivers late by as much: neither is a gap on the wire
+BURST_SLACK_NS = 20_000_000
+
+
+def wire_times(cap: Capture, baud: int) -> Capture:
+    """The capture with each read re-dated to when its last byte left the wire: within a
+    burst (reads closer than the bytes' wire time plus :data:`BURST_SLACK_NS`) byte after
+    byte at the character time, so a reader's scheduling jitter is not taken for a gap
+    in the frame; a later read starts a new burst at its arrival."""
+    if not baud:
+        return cap
+    char_ns = 10e9 / baud
+    out: Capture = []
+    end = None
+    for now_ns, data in cap:
+        due = None if end is None else end + len(data) * char_ns
+        if due is not None and now_ns <= due + BURST_SLACK_NS:
+            end = due
+        else:
+            end = float(now_ns)
+        out.append((int(end), data))
+    return out
+
+
 def decode(cap: Capture, protocol: str, baud: int) -> Dict[str, Any]:
     """The capture through ``protocol``'s monitor decoder: Stats' summary."""
     mon = Monitor(protocol, baud)
     stats = Stats(baud)
     char_s = 10.0 / baud if baud else 0.0
+    cap = wire_times(cap, baud)
     t0 = cap[0][0] if cap else 0
+    recs = []
     for now_ns, data in cap:
         dl = mon.idle_deadline()
         if dl is not None and dl < now_ns:
-            for rec in mon.idle(dl):
-                stats.add(rec)
+            recs += mon.idle(dl)
         t = max(0.0, (now_ns - t0) / 1e9 - len(data) * char_s)
-        for rec in mon.feed(data, t=t, char_s=char_s, now_ns=now_ns):
-            stats.add(rec)
-    for rec in mon.finish():
+        recs += mon.feed(data, t=t, char_s=char_s, now_ns=now_ns)
+    recs += mon.finish()
+    for rec in recs:
         stats.add(rec)
     s = stats.summary()
-    bad = sum(s["errors"].values())
-    s["share"] = s["frames"] / (s["frames"] + bad) if s["frames"] + bad else 0.0
+    # the listening began and ended at any moment: a cut frame at either end is not
+    # the bus's fault, so the share counts the records between the first and the
+    # last good frame
+    good = [i for i, r in enumerate(recs) if r.ok]
+    inner = recs[good[0]:good[-1] + 1] if good else recs
+    ok = sum(1 for r in inner if r.ok)
+    s["share"] = ok / len(inner) if inner else 0.0
     return s
 
 
@@ -164,4 +215,5 @@ def listen(path: str, seconds: float, pty: Optional[bool] = None) -> Finding:
                    + (f" --baud {res['baud']}" if res["baud"] else ""), port=path,
                    detail={"protocol": res["protocol"], "baud": res["baud"] or None,
                            "frames": res["frames"], "share": round(res["share"], 4),
-                           "nodes": nodes, "reply_p50_ms": replies, "bytes": n_bytes})
+                           "nodes": nodes, "reply_p50_ms": replies, "bytes": n_bytes,
+                           "errors": s["errors"]})

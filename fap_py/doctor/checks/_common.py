@@ -9,6 +9,8 @@ from typing import List, Optional, Set, Tuple
 from ..context import Context, PortInfo
 
 USB_NAME_RE = re.compile(r"^tty(USB|ACM)\d+$")
+#: a name a unit file may give without /dev/ (ttyS0, ttyAMA0, ttyUSB0, ttymxc1 ...)
+TTY_NAME_RE = re.compile(r"^tty[A-Za-z]+\d+$")
 
 
 def device_owner(ctx: Context, port: PortInfo) -> Optional[Tuple[int, int, int, str]]:
@@ -52,7 +54,8 @@ def refers_to(ctx: Context, link: str, port: PortInfo, names: Set[str]) -> bool:
 
 def mentions(text: str, port: PortInfo, names: Set[str]) -> Optional[int]:
     """The first line (1-based) of ``text`` that names the port, or None."""
-    pat = re.compile(r"(?<![\w.-])(" + "|".join(re.escape(n) for n in sorted(names | {port.name}))
+    words = names | ({port.name} if TTY_NAME_RE.match(port.name) else set())
+    pat = re.compile(r"(?<![\w./-])(" + "|".join(re.escape(n) for n in sorted(words))
                      + r")(?![\w.-])")
     for n, line in enumerate(text.splitlines(), 1):
         if pat.search(line):

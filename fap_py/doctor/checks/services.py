@@ -9,7 +9,7 @@ from typing import Iterator, List, Tuple
 from ..context import Context
 from ..finding import Finding
 from ..registry import check
-from ._common import USB_NAME_RE
+from ._common import TTY_NAME_RE, USB_NAME_RE
 
 UDEV_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/lib/udev/rules.d", "/usr/lib/udev/rules.d")
 #: USB serial adapters brltty's udev rules claim as braille displays
@@ -104,8 +104,8 @@ def _port_names(ctx: Context) -> List[Tuple[str, str]]:
 @check("getty.unit", "no getty runs on the port")
 def getty_unit(ctx: Context) -> Iterator[Finding]:
     for name, device in _port_names(ctx):
-        if name.startswith("serial"):
-            continue
+        if not TTY_NAME_RE.match(name):
+            continue        # serial0 (its target is checked), a pty
         for unit in (f"serial-getty@{name}.service", f"getty@{name}.service"):
             enabled, ev = ctx.unit_enabled(unit)
             if enabled:
