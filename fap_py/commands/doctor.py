@@ -104,7 +104,7 @@ def _rich(findings: List, ctx: object, code: int) -> None:
     from rich.console import Console
     from rich.markup import escape
 
-    con = Console()
+    con = Console(highlight=False)
     for f in findings:
         head = f"[{_STYLE[f.severity]}]{f.severity.upper():<7}[/] [bold]{escape(f.id)}[/]"
         if f.port:

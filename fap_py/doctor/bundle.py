@@ -3,7 +3,7 @@
 Every file a check read (under its analysed path), the kernel log read and the
 report (``report.json``, one finding per line). Secrets are masked in every text:
 ``password``/``passwd``/``token``/``secret``/``key``/``psk``/``auth`` values (``k=v``,
-``k: v``, ``k v``, TOML and JSON forms) and a URL's ``user:password@``."""
+``k: v``, ``k v``, TOML and JSON forms) and a URL's ``user:password@`` and a command line's ``--password VALUE``."""
 from __future__ import annotations
 
 import io
@@ -26,12 +26,14 @@ NEVER = {"/etc/shadow", "/etc/gshadow", "/etc/shadow-", "/etc/gshadow-"}
 _KEY = r"[\w.-]*(?:pass(?:word|wd|phrase)?|token|secret|api[_-]?key|private[_-]?key|psk|auth\w*|credential\w*)[\w.-]*"
 _KV_RE = re.compile(r'(?im)^(\s*["\']?' + _KEY + r'["\']?\s*(?:=|:|\s)\s*)("?)([^"\n#]*)("?)')
 _INLINE_RE = re.compile(r'(?i)(["\']?' + _KEY + r'["\']?\s*[=:]\s*)("?)([^"\s,}]+)("?)')
+_OPT_RE = re.compile(r"(?i)(--?" + _KEY + r"[ =])(\S+)")
 _URL_RE = re.compile(r"(?i)(\b[a-z][a-z0-9+.-]*://[^/\s:@]+:)([^@\s/]+)(@)")
 
 
 def mask(text: str) -> str:
     """``text`` with the values of secret-looking keys and URL passwords masked."""
     text = _URL_RE.sub(lambda m: m.group(1) + MASK + m.group(3), text)
+    text = _OPT_RE.sub(lambda m: m.group(1) + MASK, text)
     text = _KV_RE.sub(lambda m: m.group(1) + m.group(2) + (MASK if m.group(3).strip() else "")
                       + m.group(4), text)
     return _INLINE_RE.sub(lambda m: m.group(1) + m.group(2) + MASK + m.group(4), text)
