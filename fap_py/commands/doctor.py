@@ -47,8 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..doctor import Context, exit_code, ordered, run as run_checks
-    from ..doctor import bundle, listen
+    from ..doctor import Context, bundle, exit_code, listen, ordered
+    from ..doctor import run as run_checks
 
     if not os.path.isdir(args.root):
         raise UsageError(f"--root {args.root}: not a directory")

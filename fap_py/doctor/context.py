@@ -129,7 +129,7 @@ class Context:
                 return os.path.realpath(path, strict=False)
             except (OSError, ValueError):
                 return None
-        todo = [c for c in reversed(path.split("/"))]
+        todo = list(reversed(path.split("/")))
         cur = "/"
         links = 0
         while todo:

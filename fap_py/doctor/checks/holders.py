@@ -28,7 +28,8 @@ def _pids(ctx: Context) -> List[str]:
 def holders(ctx: Context, port: PortInfo) -> List[Tuple[str, str, str]]:
     """(pid, fd, link text) of every descriptor open on the port."""
     names = names_of(ctx, port)
-    out, seen = [], 0
+    out: List[Tuple[str, str, str]] = []
+    seen = 0
     for pid in _pids(ctx):
         for fd in ctx.listdir(f"/proc/{pid}/fd"):
             seen += 1

@@ -7,7 +7,7 @@ import os
 import re
 from typing import Iterator, List, Optional, Set
 
-from ..context import Context, PortInfo
+from ..context import Context
 from ..finding import Finding
 from ..registry import check
 from ._common import device_owner, group_line, group_name, mentions, names_of
@@ -70,12 +70,12 @@ def _process_groups(ctx: Context, uid: int) -> Optional[tuple]:
         gids = set(os.getgroups()) | {os.getgid()}
         return gids, f"this process (uid {uid}): groups {' '.join(map(str, sorted(gids)))}"
     status = ctx.lines("/proc/self/status")
-    uid_line = next((l for l in status if l.startswith("Uid:")), None)
-    groups_line = next((l for l in status if l.startswith("Groups:")), None)
+    uid_line = next((ln for ln in status if ln.startswith("Uid:")), None)
+    groups_line = next((ln for ln in status if ln.startswith("Groups:")), None)
     if not uid_line or groups_line is None or uid_line.split()[1:2] != [str(uid)]:
         return None
     gids = {int(x) for x in groups_line.split()[1:] if x.isdigit()}
-    gid_line = next((l for l in status if l.startswith("Gid:")), "")
+    gid_line = next((ln for ln in status if ln.startswith("Gid:")), "")
     gids |= {int(x) for x in gid_line.split()[1:2] if x.isdigit()}
     return gids, f"/proc/self/status: {groups_line.strip()}"
 

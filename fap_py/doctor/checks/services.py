@@ -31,7 +31,7 @@ def _udev_rules(ctx: Context) -> List[Tuple[str, str]]:
 def brltty(ctx: Context) -> Iterator[Finding]:
     installed = [u.path for n, u in ctx.units().items() if n.startswith("brltty")]
     installed += [p for p, _ in _udev_rules(ctx) if "brltty" in p]
-    log = [(n, l) for n, l in enumerate(ctx.kernel_log(), 1) if "brltty" in l]
+    log = [(n, ln) for n, ln in enumerate(ctx.kernel_log(), 1) if "brltty" in ln]
     adapters = [(p.name, p.vid_pid) for p in ctx.all_ports() if p.vid_pid in BRLTTY_IDS]
     fix = ("sudo systemctl mask brltty.service brltty-udev.service && "
            "sudo ln -s /dev/null /etc/udev/rules.d/85-brltty.rules   # or: sudo apt remove brltty; "
@@ -40,7 +40,7 @@ def brltty(ctx: Context) -> Iterator[Finding]:
         yield Finding("brltty", "error",
                       "brltty took the USB serial adapter (it claims CH340, CP210x and FT232 ids "
                       "as braille displays): the tty vanishes right after plug-in",
-                      [f"{ctx.kernel_log_source}:{n}: {l.strip()[:200]}" for n, l in log[:4]]
+                      [f"{ctx.kernel_log_source}:{n}: {ln.strip()[:200]}" for n, ln in log[:4]]
                       + installed[:3], fix)
     elif installed and adapters:
         yield Finding("brltty", "warning",

@@ -50,7 +50,7 @@ def test_user_not_in_group(fap_main, tree):
 def test_added_but_not_logged_in_again(fap_main, tree):
     tree.usb_tty("ttyUSB0", "ftdi_sio", "0403:6001", serial="A1", by_id="x-if00")
     tree.write("/proc/self/status", "Name:\tbash\nUid:\t1000\t1000\t1000\t1000\n"
-               f"Gid:\t4001\t4001\t4001\t4001\nGroups:\t4001 27\n")
+               "Gid:\t4001\t4001\t4001\t4001\nGroups:\t4001 27\n")
     code, fs, _ = run(fap_main, tree, "/dev/ttyUSB0", "--user", "pi")
     f = first(fs)
     assert f["id"] == "perm.relogin" and f["severity"] == "error", fs

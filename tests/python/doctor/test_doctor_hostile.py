@@ -93,3 +93,12 @@ def test_check_ids_are_unique_and_many():
     assert len(checks) >= 15 and len({c.id for c in checks}) == len(checks)
     with pytest.raises(InvalidValueError):
         registry.check(checks[0].id, "again")(lambda ctx: [])
+
+
+def test_docs_list_every_check():
+    from pathlib import Path
+
+    doc = (Path(__file__).resolve().parents[3] / "docs" / "doctor.md").read_text()
+    for c in registry.all_checks():
+        assert f"| `{c.id}` |" in doc, c.id
+    assert "| `listen.bus` |" in doc

@@ -193,7 +193,7 @@ def test_lock_pid_forms():
 
 def test_fd_scan_bounded(tree, monkeypatch):
     tree.usb_tty("ttyUSB0", "ftdi_sio", "0403:6001", serial="A1", by_id="x")
-    tree.process(5, "a", ["a"], {i: "/dev/null" for i in range(5)})
+    tree.process(5, "a", ["a"], dict.fromkeys(range(5), "/dev/null"))
     tree.process(6, "b", ["b"], {0: "/dev/ttyUSB0"})
     monkeypatch.setattr(holders, "FD_SCAN_MAX", 3)
     ctx = Context(root=str(tree.root), port="/dev/ttyUSB0")
