@@ -29,6 +29,9 @@ KERNEL_LOG_MAX = 4 << 20
 LIST_MAX = 20000
 #: symlinks followed resolving one path before it counts as a loop
 LINK_MAX = 40
+#: the files `fap ports`' sysfs reader opens, in a tty's directories and above
+_SYSFS_FILES = ("type", "latency_timer", "idVendor", "idProduct", "serial", "manufacturer",
+                "product")
 #: seconds a systemctl / dmesg call may take
 TOOL_TIMEOUT_S = 3.0
 
@@ -104,6 +107,9 @@ class Context:
         self._users: Optional[List[User]] = None
         self._units: Optional[Dict[str, Unit]] = None
         self._ports: Optional[List[PortInfo]] = None
+        self._all_ports: Optional[List[sysfs_ports.SerialPort]] = None
+        #: why the copied /sys was not read (an evidence line), or None
+        self.sysfs_problem: Optional[str] = None
         self.user_source = "--user"
         self.user = user if user else self._default_user()
 
@@ -344,10 +350,36 @@ class Context:
 
     # -- ports -----------------------------------------------------------------
     def all_ports(self) -> List[sysfs_ports.SerialPort]:
-        try:
-            return sysfs_ports.list_ports(self._join("/sys"), self._join("/dev"))
-        except Exception:   # a hostile /sys: no ports rather than a traceback
-            return []
+        """The ports `fap ports` lists (:func:`fap_py.sysfs_ports.list_ports`), or none when
+        a copied /sys holds a file it would block on or read whole (:attr:`sysfs_problem`)."""
+        if self._all_ports is None:
+            self._all_ports = []
+            self.sysfs_problem = None if self.live else self._sysfs_hazard()
+            if self.sysfs_problem is None:
+                try:
+                    self._all_ports = sysfs_ports.list_ports(self._join("/sys"), self._join("/dev"))
+                except Exception:   # a hostile /sys: no ports rather than a traceback
+                    self.sysfs_problem = "/sys/class/tty: unreadable"
+        return self._all_ports
+
+    def _sysfs_hazard(self) -> Optional[str]:
+        """The first file of a copied /sys that `fap ports`' reader would block on (a fifo,
+        a device) or read whole (larger than READ_MAX), as an evidence line; else None."""
+        cls = self._join("/sys/class/tty")
+        for name in self.listdir("/sys/class/tty"):
+            for base in (os.path.join(cls, name), os.path.join(cls, name, "device")):
+                d = os.path.realpath(base)
+                for _ in range(5):
+                    for f in _SYSFS_FILES:
+                        try:
+                            st = os.stat(os.path.join(d, f))
+                        except (OSError, ValueError):
+                            continue
+                        if not stat.S_ISREG(st.st_mode) or st.st_size > READ_MAX:
+                            shown = os.path.relpath(os.path.join(d, f), self.root)
+                            return f"/{shown}: not a small regular file"
+                    d = os.path.dirname(d)
+        return None
 
     def ports(self) -> List[PortInfo]:
         """The ports to check: PORT, else every port sysfs lists."""

@@ -15,6 +15,12 @@ from ._common import USB_NAME_RE
 
 @check("port.exists", "the port asked for exists")
 def port_exists(ctx: Context) -> Iterator[Finding]:
+    ctx.all_ports()
+    if ctx.sysfs_problem:
+        yield Finding("port.exists", "warning", "the copied /sys was not read: a file in it is "
+                      "not what sysfs holds", [ctx.sysfs_problem],
+                      "copy /sys again (`cp -rL` follows links into fifos and devices: copy "
+                      "/sys/class/tty and the device directories with `tar`)")
     if ctx.asked_port is None:
         if not ctx.ports():
             yield Finding("port.exists", "info", "no serial port with a device behind it found",

@@ -104,3 +104,22 @@ def test_rich_report_on_a_terminal(tree, monkeypatch, capsys):
     assert code == 4
     assert out.index("WARNING") < out.index("OK")
     assert "fix:" in out and "exit 4" in out
+
+
+@pytest.mark.timeout(60)
+def test_end_to_end_listen_on_a_real_uart():
+    """--listen on this machine's first 16550 (if it has one): every standard rate in
+    turn, nothing sent, ends within its time."""
+    from fap_py import sysfs_ports
+
+    uarts = [p.device for p in sysfs_ports.list_ports() if p.name.startswith("ttyS")]
+    if not uarts:
+        pytest.skip("no ttyS port with a UART here")
+    r = subprocess.run(_fap() + ["doctor", uarts[0], "--listen", "0.9", "--json"],
+                       capture_output=True, timeout=50, stdin=subprocess.DEVNULL)
+    assert r.returncode in (0, 4, 5) and b"Traceback" not in r.stderr, r.stderr
+    rows = [json.loads(line) for line in r.stdout.decode().splitlines()]
+    f = next(x for x in rows if x.get("id") == "listen.bus")
+    assert f["severity"] in ("ok", "warning", "error")
+    if f["severity"] != "error":        # opened: every rate tried
+        assert "9 rates tried" in f["evidence"][0]

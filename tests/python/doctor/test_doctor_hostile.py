@@ -102,3 +102,22 @@ def test_docs_list_every_check():
     for c in registry.all_checks():
         assert f"| `{c.id}` |" in doc, c.id
     assert "| `listen.bus` |" in doc
+
+
+def test_fifo_or_huge_file_in_sysfs_is_not_read(fap_main, tree):
+    """`fap ports`' sysfs reader opens files whole and blocking: a copied /sys with a
+    fifo or a huge file there is reported, not read (no hang)."""
+    tree.usb_tty("ttyUSB0", "ftdi_sio", "0403:6001", serial="A1", by_id="x-if00", latency=1)
+    lt = next(tree.p("/sys/devices").rglob("latency_timer"))
+    lt.unlink()
+    os.mkfifo(lt)
+    t0 = time.monotonic()
+    code, fs, err = doctor(fap_main, "--root", str(tree.root), "--user", "pi")
+    assert time.monotonic() - t0 < 10 and code == 4
+    f = fs[0]
+    assert f["id"] == "port.exists" and "latency_timer: not a small regular file" in f["evidence"][0]
+    lt.unlink()
+    with open(lt, "wb") as fh:
+        fh.truncate(READ_MAX + 1)
+    code, fs, err = doctor(fap_main, "--root", str(tree.root), "--user", "pi")
+    assert fs[0]["id"] == "port.exists" and fs[0]["severity"] == "warning"
