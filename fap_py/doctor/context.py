@@ -94,7 +94,8 @@ class Context:
                  probe: Optional[bool] = None) -> None:
         self.root = os.path.abspath(root)
         self.live = self.root == "/"
-        self.asked_port = port
+        #: a bare name (``ttyUSB0``) is a /dev name
+        self.asked_port = f"/dev/{port}" if port and "/" not in port else port
         self.baud = baud
         #: open the ports (RS-485 ioctls, termios): only on this machine
         self.probe = self.live if probe is None else probe

@@ -103,8 +103,8 @@ BURST_SLACK_NS = 20_000_000
 def wire_times(cap: Capture, baud: int) -> Capture:
     """The capture with each read re-dated to when its last byte left the wire: within a
     burst (reads closer than the bytes' wire time plus :data:`BURST_SLACK_NS`) byte after
-    byte at the character time, so a reader's scheduling jitter is not taken for a gap
-    in the frame; a later read starts a new burst at its arrival."""
+    byte at the character time, so a reader's scheduling jitter does not move the
+    records' times; a later read starts a new burst at its arrival."""
     if not baud:
         return cap
     char_ns = 10e9 / baud
@@ -129,11 +129,11 @@ def decode(cap: Capture, protocol: str, baud: int) -> Dict[str, Any]:
     t0 = cap[0][0] if cap else 0
     recs = []
     for now_ns, data in cap:
-        dl = mon.idle_deadline()
-        if dl is not None and dl < now_ns:
-            recs += mon.idle(dl)
         t = max(0.0, (now_ns - t0) / 1e9 - len(data) * char_s)
-        recs += mon.feed(data, t=t, char_s=char_s, now_ns=now_ns)
+        # no arrival clock for the decoders (now_ns 0): what the reader's scheduling or
+        # the adapter's latency stretch is no inter-byte gap; frames are told apart by
+        # their framing, and the times (reply times) come with t
+        recs += mon.feed(data, t=t, char_s=char_s)
     recs += mon.finish()
     for rec in recs:
         stats.add(rec)

@@ -353,3 +353,9 @@ def test_no_ports_and_no_user(fap_main, tree):
 def test_usage_errors(fap_main, argv, msg):
     code, _, err = fap_main("doctor", *argv)
     assert code == 2 and msg in err
+
+
+def test_bare_port_name_is_a_dev_name(fap_main, tree):
+    tree.usb_tty("ttyUSB0", "ftdi_sio", "0403:6001", serial="A1", by_id="x-if00")
+    code, fs, _ = run(fap_main, tree, "ttyUSB0", "--user", "pi")
+    assert next(f for f in fs if f["id"] == "port.exists")["severity"] == "ok"

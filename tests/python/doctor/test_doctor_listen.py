@@ -69,7 +69,7 @@ def test_listen_names_protocol_and_baud(fap_main, protocol, baud):
             t.stop()
         sent_back = bus.stats.bytes_in
     f = next(x for x in fs if x["id"] == "listen.bus")
-    assert f["severity"] == "ok", f
+    assert f["severity"] == "ok", (f["detail"]["errors"], f["detail"]["share"])
     assert f["detail"]["protocol"] == protocol, f
     assert f["detail"]["baud"] == baud, f
     assert f["detail"]["share"] >= 0.9 and f["detail"]["frames"] >= 2
