@@ -49,6 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..doctor import Context, bundle, exit_code, listen, ordered
     from ..doctor import run as run_checks
+    from .ports import probe as ports_probe
 
     if not os.path.isdir(args.root):
         raise UsageError(f"--root {args.root}: not a directory")
@@ -60,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         if not 0 < args.listen <= LISTEN_MAX_S:
             raise UsageError(f"--listen must be in 0..{LISTEN_MAX_S:g} seconds")
     ctx = Context(root=args.root, port=args.port, user=args.user, kernel_log=args.kernel_log,
-                  baud=args.baud)
+                  baud=args.baud, prober=ports_probe)   # `fap ports`' verdict, one probe
     findings = run_checks(ctx)
     if args.listen is not None:
         host = ctx.host(args.port) or args.port

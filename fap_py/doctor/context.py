@@ -17,7 +17,7 @@ import re
 import stat
 import subprocess
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from .. import sysfs_ports
 
@@ -91,14 +91,18 @@ class Context:
 
     def __init__(self, root: str = "/", port: Optional[str] = None, user: Optional[str] = None,
                  kernel_log: Optional[str] = None, baud: Optional[int] = None,
-                 probe: Optional[bool] = None) -> None:
+                 probe: Optional[bool] = None,
+                 prober: Optional[Callable[[str], Dict[str, Any]]] = None) -> None:
         self.root = os.path.abspath(root)
         self.live = self.root == "/"
         #: a bare name (``ttyUSB0``) is a /dev name
         self.asked_port = f"/dev/{port}" if port and "/" not in port else port
         self.baud = baud
+        #: `fap ports`' probe of a device (RS-485 ioctls, baud, busy), handed in by the
+        #: command line (a library room does not import it); None: not probed
+        self.prober = prober
         #: open the ports (RS-485 ioctls, termios): only on this machine
-        self.probe = self.live if probe is None else probe
+        self.probe = (self.live and prober is not None) if probe is None else probe
         self.kernel_log_file = kernel_log
         self.files_read: Dict[str, str] = {}    # analysed path -> host path
         self._cache: Dict[str, Optional[str]] = {}
