@@ -46,8 +46,11 @@ def port_holder(ctx: Context) -> Iterator[Finding]:
     for port in ctx.ports():
         found = holders(ctx, port)
         if not found:
+            blind = [] if not ctx.live or os.geteuid() == 0 else [
+                f"as uid {os.geteuid()}: other users' /proc/PID/fd are not readable "
+                "(run with sudo to see every process)"]
             yield Finding("port.holder", "ok", f"no other process has {port.device} open",
-                          port=port.device)
+                          blind, port=port.device)
             continue
         for pid, fd, link in found:
             who = _who(ctx, pid)

@@ -240,3 +240,12 @@ def test_listen_bounds(fap_main):
 def test_wire_times_unknown_baud():
     cap = [(1, b"a"), (5, b"b")]
     assert listen.wire_times(cap, 0) is cap
+
+
+def test_holder_scan_says_when_it_is_blind(monkeypatch, tmp_path):
+    node = tmp_path / "ttyX0"
+    node.write_text("")
+    monkeypatch.setattr(os, "geteuid", lambda: 4242)
+    ctx = Context(root="/", port=str(node))
+    f = run(ctx, "port.holder")[0]
+    assert f.severity == "ok" and "not readable" in f.evidence[0]
