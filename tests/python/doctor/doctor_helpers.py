@@ -11,6 +11,8 @@ from typing import Dict, List, Optional, Tuple
 #: the group id the fixture's device nodes have (chown needs root; else ours)
 DIALOUT = 20 if os.geteuid() == 0 else os.getgid()
 PI_GID = 4001 if DIALOUT != 4001 else 4002
+#: the fixture user: never the uid running the tests (an owner may open its node)
+PI_UID = 31001 if os.getuid() != 31001 else 31002
 
 
 class Tree:
@@ -19,7 +21,7 @@ class Tree:
     def __init__(self, root: Path) -> None:
         self.root = root
         self.write("/etc/passwd", "root:x:0:0:root:/root:/bin/bash\n"
-                   f"pi:x:1000:{PI_GID}::/home/pi:/bin/bash\n")
+                   f"pi:x:{PI_UID}:{PI_GID}::/home/pi:/bin/bash\n")
         self.groups: Dict[str, Tuple[int, List[str]]] = {
             "root": (0, []), "dialout": (DIALOUT, ["pi"]), "pi": (PI_GID, [])}
         if DIALOUT == 0:      # not root and in group 0: keep the names apart

@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 
 import pytest
-from doctor_helpers import DIALOUT, doctor
+from doctor_helpers import DIALOUT, PI_GID, PI_UID, doctor
 
 ERROR, WARNING = 5, 4
 
@@ -49,8 +49,8 @@ def test_user_not_in_group(fap_main, tree):
 
 def test_added_but_not_logged_in_again(fap_main, tree):
     tree.usb_tty("ttyUSB0", "ftdi_sio", "0403:6001", serial="A1", by_id="x-if00")
-    tree.write("/proc/self/status", "Name:\tbash\nUid:\t1000\t1000\t1000\t1000\n"
-               "Gid:\t4001\t4001\t4001\t4001\nGroups:\t4001 27\n")
+    tree.write("/proc/self/status", f"Name:\tbash\nUid:\t{PI_UID}\t{PI_UID}\t{PI_UID}\t{PI_UID}\n"
+               f"Gid:\t{PI_GID}\t{PI_GID}\t{PI_GID}\t{PI_GID}\nGroups:\t{PI_GID} 27\n")
     code, fs, _ = run(fap_main, tree, "/dev/ttyUSB0", "--user", "pi")
     f = first(fs)
     assert f["id"] == "perm.relogin" and f["severity"] == "error", fs
@@ -58,7 +58,7 @@ def test_added_but_not_logged_in_again(fap_main, tree):
     assert f["evidence"][0].startswith("/proc/self/status: Groups:")
     assert "newgrp dialout" in f["fix"]
     # logged in again: the group is active
-    tree.write("/proc/self/status", f"Uid:\t1000\t1000\t1000\t1000\nGroups:\t4001 {DIALOUT}\n")
+    tree.write("/proc/self/status", f"Uid:\t{PI_UID}\t{PI_UID}\t{PI_UID}\t{PI_UID}\nGroups:\t{PI_GID} {DIALOUT}\n")
     code, fs, _ = run(fap_main, tree, "/dev/ttyUSB0", "--user", "pi")
     assert code == 0 and "ok" == next(f for f in fs if f["id"] == "perm.relogin")["severity"]
 
