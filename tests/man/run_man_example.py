@@ -57,6 +57,19 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def sanitizer_flags(so: str) -> list:
+    """A libfap built with -Db_sanitize (CI's ASan and TSan builds) needs its
+    program built with the same runtime first in line: the flags that match
+    the runtimes the library links (the vendor compile line otherwise)."""
+    with open(os.path.realpath(so), "rb") as f:
+        blob = f.read()
+    if b"libtsan.so" in blob:
+        return ["-fsanitize=thread"]
+    return ["-fsanitize=" + ",".join(name for name, lib in (("address", b"libasan.so"),
+                                                            ("undefined", b"libubsan.so"))
+                                     if lib in blob)] if b"libasan.so" in blob else []
+
+
 def main(page: str, dest: str, work: str) -> None:
     roff = open(page, encoding="utf-8").read()
     incdir, libdir = synopsis_dirs(roff)
@@ -68,7 +81,7 @@ def main(page: str, dest: str, work: str) -> None:
     src, exe = os.path.join(work, "example.c"), os.path.join(work, "example")
     with open(src, "w", encoding="utf-8") as f:
         f.write(example_source(roff))
-    cc = os.environ.get("CC", "cc").split()
+    cc = os.environ.get("CC", "cc").split() + sanitizer_flags(os.path.join(lib, "libfap.so"))
     r = subprocess.run(cc + ["-Wall", "-Wextra", "-Werror", f"-I{inc}", src, "-o", exe,
                              f"-L{lib}", "-lfap", "-lpthread", "-lrt"],
                        capture_output=True, text=True, timeout=120)
