@@ -199,7 +199,7 @@ def node_addresses(node: Dict[str, Any], proto: Any, where: Path) -> Tuple[List[
         if not lo <= a <= hi or a in getattr(proto, "ADDRESS_RESERVED", ()):
             reserved = getattr(proto, "ADDRESS_RESERVED", ())
             extra = f", not {', '.join(map(str, reserved))}" if reserved else ""
-            return [], Problem(key, f"address {a} is not a {proto.NAME} node address ({lo}..{hi}{extra})")
+            return [], Problem(key, f"address {a} is not a node address of {proto.NAME} ({lo}..{hi}{extra})")
     return addrs, None
 
 
