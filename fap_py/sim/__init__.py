@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import importlib
 import logging
+import threading
 from types import ModuleType
 from typing import Any, Dict, List, Optional
 
@@ -138,6 +139,25 @@ class Sim:
 
     def add_fault(self, kind: str, **kw: Any) -> Dict[str, Any]:
         return self.faults.add(kind, allowed=self.allowed, **kw).public()
+
+    def wait_for(self, predicate: Any, timeout: float = 5.0) -> bool:
+        """Wait until ``predicate(self.status())`` holds (checked whenever a responder has
+        handled requests, and every 50 ms for FAP nodes); False at the timeout."""
+        import time
+
+        deadline = time.monotonic() + timeout
+        conds = [b.runner.handled for b in self.buses if hasattr(b.runner, "handled")]
+        while True:
+            if predicate(self.status()):
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            if conds:
+                with conds[0]:
+                    conds[0].wait(min(left, 0.05))
+            else:
+                threading.Event().wait(min(left, 0.05))
 
     def status(self) -> Dict[str, Any]:
         buses = [b.status() for b in self.buses]

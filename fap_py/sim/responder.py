@@ -58,6 +58,10 @@ class Responder:
         self._thread: Optional[threading.Thread] = None
         self.error: Optional[BaseException] = None
         self.unmatched = 0     # requests for addresses no node has
+        #: notified after each batch of requests is handled (replies written): tests wait on it
+        self.handled = threading.Condition()
+        self.transactions = 0
+        self._timers: List[threading.Timer] = []
 
     def start(self) -> "Responder":
         self._thread = threading.Thread(target=self._serve, name=f"fap-sim {self.bus}", daemon=True)
@@ -66,6 +70,8 @@ class Responder:
 
     def stop(self) -> None:
         self._stop.set()
+        for t in self._timers:
+            t.cancel()
         try:
             self.port.close()
         except FapError:  # pragma: no cover
@@ -95,6 +101,10 @@ class Responder:
                 items = self.decoder.feed(data) if data else self.decoder.idle()
                 for req in items:
                     self._handle(req)
+                if items:
+                    with self.handled:
+                        self.transactions += len(items)
+                        self.handled.notify_all()
         except BaseException as exc:   # reported in status, not swallowed
             if not self._stop.is_set():
                 self.error = exc
@@ -130,14 +140,26 @@ class Responder:
         if main is not None:
             frame = self._damage(main, frame, req)
         if late is not None:
+            # sent by a timer: the other nodes of the bus go on answering meanwhile
             st.faults["late_reply"] = st.faults.get("late_reply", 0) + 1
-            if self._stop.wait(late.ms / 1000.0):
-                return
+            t = threading.Timer(late.ms / 1000.0, self._write, (frame, req.address, st))
+            t.daemon = True
+            with self.handled:
+                self._timers = [x for x in self._timers if x.is_alive()] + [t]
+            t.start()
+            return
+        self._write(frame, req.address, st)
+
+    def _write(self, frame: bytes, address: int, st: NodeStats) -> None:
+        if self._stop.is_set():
+            return
         try:
             self.port.write(frame)
             st.replies += 1
         except FapError as exc:
-            log.warning("%s node %d: reply lost: %s", self.bus, req.address, exc)
+            log.warning("%s node %d: reply lost: %s", self.bus, address, exc)
+        with self.handled:
+            self.handled.notify_all()
 
     def _damage(self, fault: Any, frame: bytes, req: Request) -> bytes:
         k = fault.kind
