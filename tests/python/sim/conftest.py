@@ -24,6 +24,28 @@ def run(*args: str, timeout: float = 30) -> subprocess.CompletedProcess:
     return subprocess.run(fap_argv(*args), capture_output=True, text=True, timeout=timeout)
 
 
+class Result:
+    def __init__(self, returncode: int, stdout: str, stderr: str) -> None:
+        self.returncode, self.stdout, self.stderr = returncode, stdout, stderr
+
+
+def cli(*args: str) -> Result:
+    """``fap ARGS`` in this process, through the console entry point (fap_py.cli.main): no
+    interpreter start-up per call, so a test of many commands stays fast."""
+    import contextlib
+    import io
+
+    from fap_py.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(list(args))
+        except SystemExit as exc:       # argparse's usage errors
+            code = int(exc.code or 0)
+    return Result(code, out.getvalue(), err.getvalue())
+
+
 class SimProcess:
     """``fap sim CONFIG --json ...`` as a process; :attr:`ready` is its ready event."""
 
