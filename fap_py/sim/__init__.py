@@ -19,6 +19,7 @@ import threading
 from types import ModuleType
 from typing import Any, Dict, List, Optional
 
+from ._plugins import plugin, plugin_name
 from .config import SimConfigError, load, loads
 from .faults import KINDS, FaultError, FaultTable
 from .generators import FastClock, ManualClock, WallClock
@@ -27,19 +28,6 @@ log = logging.getLogger("fap_py.sim")
 
 __all__ = ["Sim", "SimBus", "SimConfigError", "FaultError", "KINDS", "load", "loads", "plugin",
            "plugin_name", "WallClock", "FastClock", "ManualClock"]
-
-
-def plugin_name(protocol: str) -> str:
-    """The module name of ``protocol``'s sim plug-in (its one name or an alias)."""
-    from .. import _protocols
-
-    p = _protocols.get(protocol)
-    return f"{p.package}.sim.protocols.{p.name}"
-
-
-def plugin(protocol: str) -> ModuleType:
-    """Import ``protocol``'s sim plug-in."""
-    return importlib.import_module(plugin_name(protocol))
 
 
 class _Ctx:

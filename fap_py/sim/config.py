@@ -15,6 +15,7 @@ import re
 from typing import Any, Dict, List, Optional, Tuple, Union
 
 from ..errors import InvalidValueError
+from .generators import resolve_hook
 from .schema import Path, Problem, validate
 
 __all__ = ["MAX_CONFIG_BYTES", "SimConfigError", "load", "loads", "line_of"]
@@ -139,7 +140,7 @@ def _parse_yaml(text: str, name: str) -> Any:
 def semantic(data: Dict[str, Any]) -> List[Problem]:
     """What the schema cannot say: addresses in the protocol's range and not twice, hex that
     parses, a port or a virtual bus, hooks that import."""
-    from . import plugin
+    from ._plugins import plugin
 
     out: List[Problem] = []
     names = set()
@@ -235,23 +236,6 @@ def check_generator(g: Dict[str, Any], where: Path) -> List[Problem]:
         except InvalidValueError as exc:
             return [Problem(where + ("function",), str(exc))]
     return []
-
-
-def resolve_hook(spec: str) -> Any:
-    """Import ``module:function``; any failure (the module raising on import) is one
-    InvalidValueError."""
-    mod_name, _, fn_name = spec.partition(":")
-    try:
-        mod = importlib.import_module(mod_name)
-    except BaseException as exc:   # a hostile module may raise anything, SystemExit too
-        if isinstance(exc, KeyboardInterrupt):
-            raise
-        raise InvalidValueError(f"hook {spec!r}: importing {mod_name!r} failed: "
-                                f"{type(exc).__name__}: {exc}") from None
-    fn = getattr(mod, fn_name, None)
-    if not callable(fn):
-        raise InvalidValueError(f"hook {spec!r}: {mod_name!r} has no function {fn_name!r}")
-    return fn
 
 
 # -- where a key is in the file ----------------------------------------------------

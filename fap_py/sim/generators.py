@@ -8,6 +8,7 @@ clock and move it by hand: no sleeps).
 """
 from __future__ import annotations
 
+import importlib
 import logging
 import math
 import random
@@ -56,6 +57,23 @@ class ManualClock:
         self.t += dt
 
 
+def resolve_hook(spec: str) -> Any:
+    """Import ``module:function``; any failure (the module raising on import) is one
+    InvalidValueError."""
+    mod_name, _, fn_name = spec.partition(":")
+    try:
+        mod = importlib.import_module(mod_name)
+    except BaseException as exc:   # a hostile module may raise anything, SystemExit too
+        if isinstance(exc, KeyboardInterrupt):
+            raise
+        raise InvalidValueError(f"hook {spec!r}: importing {mod_name!r} failed: "
+                                f"{type(exc).__name__}: {exc}") from None
+    fn = getattr(mod, fn_name, None)
+    if not callable(fn):
+        raise InvalidValueError(f"hook {spec!r}: {mod_name!r} has no function {fn_name!r}")
+    return fn
+
+
 class GeneratorError(InvalidValueError):
     """A generator that cannot give a value (a hook that raised, or returned no number)."""
 
@@ -73,7 +91,6 @@ class Generator:
         self._hook: Optional[Callable[..., Any]] = None
         self.state: Dict[str, Any] = {}   # a hook's own state, kept between calls
         if self.kind == "hook":
-            from .config import resolve_hook
             self._hook = resolve_hook(spec["function"])
         self._last: float = float(g("start", 0))
 

@@ -88,7 +88,7 @@ def _protocol_names() -> List[str]:
 
 
 def _has_plugin(name: str) -> bool:
-    from . import plugin_name
+    from ._plugins import plugin_name
     import importlib.util
 
     try:
@@ -98,7 +98,7 @@ def _has_plugin(name: str) -> bool:
 
 
 def _bus_schema(name: str) -> Dict[str, Any]:
-    from . import plugin
+    from ._plugins import plugin
 
     node = {"type": "object", "additionalProperties": False,
             "properties": {**_COMMON_NODE, **plugin(name).NODE_PROPERTIES}}
