@@ -15,12 +15,21 @@ from __future__ import annotations
 import argparse
 import json
 import signal
-import sys
 import threading
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List
 
-from ._options import (EXIT_BUS, EXIT_OK, Parser, UsageError, add_command, add_output_options,
-                       add_port_options, emit, plural, rs485_from_args, seconds)
+from ._options import (
+    EXIT_OK,
+    Parser,
+    UsageError,
+    add_command,
+    add_output_options,
+    add_port_options,
+    emit,
+    plural,
+    rs485_from_args,
+    seconds,
+)
 
 _ACTIONS = ("fault", "status")
 
@@ -119,7 +128,7 @@ def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
         with Sim(cfg, port=args.port, baud=args.baud, rs485=rs485) as sim:
             server = ControlServer(sim, args.control) if args.control else None
             try:
-                buses = [{"name": b.name, "protocol": b.protocol, "master_port": b.master_port,
+                buses: List[Dict[str, Any]] = [{"name": b.name, "protocol": b.protocol, "master_port": b.master_port,
                           "nodes": len(b.addresses)} for b in sim.buses]
                 text = "\n".join(f"bus {b['name']} ({b['protocol']}): {plural(b['nodes'], 'node')}; "
                                  f"master port: {b['master_port'] or args.port or 'the config port'}"

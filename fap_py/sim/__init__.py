@@ -13,7 +13,6 @@ the request/reply responder, the control socket); each protocol's part is its pl
 """
 from __future__ import annotations
 
-import importlib
 import logging
 import threading
 from types import ModuleType

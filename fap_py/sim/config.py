@@ -8,11 +8,10 @@ wrong, so the line of a key is found by a scan of the file (:func:`line_of`).
 """
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import re
-from typing import Any, Dict, List, Optional, Tuple, Union
+from typing import Any, Dict, List, Optional, Tuple
 
 from ..errors import InvalidValueError
 from .generators import resolve_hook
@@ -118,7 +117,7 @@ def _no_constant(word: str) -> Any:
 
 def _parse_yaml(text: str, name: str) -> Any:
     try:
-        import yaml
+        import yaml  # type: ignore[import-untyped, unused-ignore]
     except ImportError:
         raise SimConfigError(name, None, "a YAML config needs PyYAML (pip install pyyaml), "
                              "or write it as TOML or JSON") from None
@@ -308,11 +307,11 @@ def _toml_lines(text: str) -> Dict[Path, int]:
                 out.setdefault(resolved, lineno)
                 current = resolved
             continue
-        k = _KEY.match(line)
-        if k:
-            path = current + tuple(_split_key(k.group(1)))
+        km = _KEY.match(line)
+        if km:
+            path = current + tuple(_split_key(km.group(1)))
             out.setdefault(path, lineno)
-            rest = line[k.end():]
+            rest = line[km.end():]
             if rest.count('"""') == 1 or rest.count("'''") == 1:
                 in_multiline = True
     return out
@@ -320,7 +319,7 @@ def _toml_lines(text: str) -> Dict[Path, int]:
 
 def _json_lines(text: str) -> Dict[Path, int]:
     """Path -> line of each value in a JSON document (a small structural scan)."""
-    from json.decoder import scanstring
+    from json.decoder import scanstring  # type: ignore[attr-defined]
 
     out: Dict[Path, int] = {}
     pos = 0
@@ -377,7 +376,7 @@ def _json_lines(text: str) -> Dict[Path, int]:
 
 
 def _yaml_lines(text: str) -> Dict[Path, int]:
-    import yaml
+    import yaml  # type: ignore[import-untyped, unused-ignore]
 
     out: Dict[Path, int] = {}
 

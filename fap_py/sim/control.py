@@ -22,7 +22,7 @@ import select
 import socket
 import stat
 import threading
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List
 
 from ..errors import FapError, FileError, InvalidValueError
 
@@ -94,7 +94,7 @@ class ControlServer:
         except FileNotFoundError:
             pass
         except OSError as exc:
-            raise FileError(exc.errno, f"control socket: {exc.strerror}", self.path) from None
+            raise FileError(exc.errno or 5, f"control socket: {exc.strerror}", self.path) from None
         else:
             if not stat.S_ISSOCK(st.st_mode):
                 raise FileError(17, "control socket: exists and is not a socket", self.path)
@@ -119,7 +119,7 @@ class ControlServer:
 
     def _accept(self) -> None:
         while True:
-            r, _, _ = select.select([self._sock, self._stop_r], [], [])
+            r, _, _ = select.select([self._sock.fileno(), self._stop_r], [], [])
             if self._stop_r in r:
                 return
             try:
@@ -140,7 +140,7 @@ class ControlServer:
         buf = b""
         try:
             while True:
-                r, _, _ = select.select([conn, self._stop_r], [], [])
+                r, _, _ = select.select([conn.fileno(), self._stop_r], [], [])
                 if self._stop_r in r:
                     return
                 data = conn.recv(65536)

@@ -70,7 +70,7 @@ class FaultTable:
         self._next = 1
         self.seed = seed
         self.changes = 0
-        self.applied_by_kind: Dict[str, int] = {k: 0 for k in KINDS}
+        self.applied_by_kind: Dict[str, int] = dict.fromkeys(KINDS, 0)
         self.events: List[Dict[str, Any]] = []   # the last changes (bounded)
         self.version = 0   # bumped on every change (a FAP node re-reads its 'off' state)
 
@@ -159,8 +159,10 @@ class FaultTable:
                         late = f
                 elif main is None and (f.probability >= 1.0 or f.rng.random() < f.probability):
                     main = f
-            for f in (main, late):
-                if f is not None:
-                    f.applied += 1
-                    self.applied_by_kind[f.kind] += 1
+            if main is not None and main.kind in ("off", "no_reply"):
+                late = None     # nothing is sent: nothing is late
+            for hit in (main, late):
+                if hit is not None:
+                    hit.applied += 1
+                    self.applied_by_kind[hit.kind] += 1
             return main, late

@@ -101,7 +101,7 @@ class Generator:
             return self._value(t, n)
 
     def _value(self, t: float, n: int) -> float:
-        g = self.spec.get
+        g: Any = self.spec.get
         k = self.kind
         if k == "const":
             return float(g("value"))

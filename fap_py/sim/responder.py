@@ -173,7 +173,7 @@ class Responder:
             return self.plugin.garbage(fault.rng, len(frame))
         return frame
 
-    def status(self) -> Dict[str, Any]:
+    def status(self) -> Dict[int, Any]:
         return {a: s.public() for a, s in self.stats.items()}
 
 

@@ -88,8 +88,9 @@ def _protocol_names() -> List[str]:
 
 
 def _has_plugin(name: str) -> bool:
-    from ._plugins import plugin_name
     import importlib.util
+
+    from ._plugins import plugin_name
 
     try:
         return importlib.util.find_spec(plugin_name(name)) is not None

@@ -89,7 +89,7 @@ class Node:
     """A :class:`SimDevice` plus generators that set its registers before each request."""
 
     def __init__(self, address: int, cfg: Dict[str, Any], seed: int) -> None:
-        private: Dict[int, RegisterSpec] = {}
+        private: Dict[int, Any] = {}
         self.gens: List[tuple] = []
         for r in cfg.get("registers", ()):
             size, signed = TYPES[r.get("type", "u8")]

@@ -7,8 +7,7 @@ import select
 import signal
 import subprocess
 import sys
-import time
-from typing import Any, Dict, Iterator, List, Optional
+from typing import Any, Dict, Iterator, List
 
 import pytest
 

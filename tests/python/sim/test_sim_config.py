@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 
 import pytest
 
@@ -87,7 +86,7 @@ def test_json_errors_have_lines(tmp_path):
     text = json.dumps(cfg, indent=2)
     path = _write(tmp_path, "site.json", text)
     msg = check_err(path)
-    want = [i for i, l in enumerate(text.splitlines(), 1) if '"address": 50' in l][0]
+    want = [i for i, ln in enumerate(text.splitlines(), 1) if '"address": 50' in ln][0]
     assert msg.startswith(f"fap: error: {path}:{want}: bus[0].node[1].address: address 50"), msg
     bad = _write(tmp_path, "broken.json", '{\n "bus": [\n  {"protocol": "exec",,}\n ]\n}\n')
     assert check_err(bad).startswith(f"fap: error: {bad}:3: JSON:")

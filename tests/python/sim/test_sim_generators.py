@@ -1,9 +1,6 @@
 """Value generators on a fake clock (no sleeps): every kind, seeded randomness, hooks."""
 from __future__ import annotations
 
-import math
-import sys
-
 import pytest
 
 from fap_py import execasync
