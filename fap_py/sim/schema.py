@@ -77,7 +77,7 @@ _COMMON_NODE: Dict[str, Any] = {
     "address": {"type": "integer", "minimum": 0, "maximum": 255, "description": "the node's address"},
     "range": {"type": "array", "minItems": 2, "maxItems": 2, "items": {"type": "integer", "minimum": 0,
               "maximum": 255}, "description": "[first, last]: one node per address (instead of address)"},
-    "name": {"type": "string", "maxLength": 64},
+    "name": {"type": "string", "maxLength": 64, "description": "a label for status"},
 }
 
 
@@ -109,15 +109,23 @@ def _bus_schema(name: str) -> Dict[str, Any]:
         "additionalProperties": False,
         "properties": {
             "protocol": {"const": name},
-            "name": {"type": "string", "maxLength": 64, "pattern": r"^[A-Za-z0-9_.-]+$"},
-            "baud": {"type": "integer", "minimum": 1, "maximum": 10_000_000},
+            "name": {"type": "string", "maxLength": 64, "pattern": r"^[A-Za-z0-9_.-]+$",
+                     "description": "the bus's name (default busN): faults and status use it"},
+            "baud": {"type": "integer", "minimum": 1, "maximum": 10_000_000,
+                     "description": "line speed of the bus's ports (default: the protocol's)"},
             "port": {"type": "string", "maxLength": 4096,
                      "description": "an existing port: device path or tcp:// / rfc2217:// URL"},
             "virtual": {"type": "object", "additionalProperties": False,
                         "description": "a new paced virtual bus; port0 is left free for your master",
-                        "properties": {"link_dir": {"type": "string", "maxLength": 4096},
-                                       "baud": {"type": "integer", "minimum": 0, "maximum": 10_000_000},
-                                       "capture": {"type": "string", "maxLength": 4096}}},
+                        "properties": {
+                            "link_dir": {"type": "string", "maxLength": 4096,
+                                         "description": "directory of the port symlinks port0.. "
+                                         "(default: a private temporary one)"},
+                            "baud": {"type": "integer", "minimum": 0, "maximum": 10_000_000,
+                                     "description": "pacing rate (default: the bus's baud; 0: unpaced)"},
+                            "capture": {"type": "string", "maxLength": 4096,
+                                        "description": "record every byte of the bus in this file "
+                                        "(docs/vbus.md format)"}}},
             "node": {"type": "array", "minItems": 1, "maxItems": MAX_NODES, "items": node},
         },
     }
@@ -134,15 +142,18 @@ def build_schema() -> Dict[str, Any]:
         "additionalProperties": False,
         "required": ["bus"],
         "properties": {
-            "sim": {"type": "object", "additionalProperties": False, "properties": {
+            "sim": {"type": "object", "additionalProperties": False,
+                    "description": "the seed and the clock", "properties": {
                 "seed": {"type": "integer", "description": "seed of every random draw (default 0)"},
                 "clock": {"enum": ["wall", "fast"], "description": "time of the generators"},
                 "speed": {"type": "number", "minimum": 0.001, "maximum": 1e6,
                           "description": "clock 'fast': simulated seconds per second"},
             }},
             "bus": {"type": "array", "minItems": 1, "maxItems": MAX_BUSES,
+                    "description": "the buses, each of one protocol (tables below)",
                     "items": {"oneOf": [{"$ref": f"#/$defs/bus_{n}"} for n in names]}},
-            "fault": {"type": "array", "maxItems": MAX_FAULTS, "items": {"$ref": "#/$defs/fault"}},
+            "fault": {"type": "array", "maxItems": MAX_FAULTS, "items": {"$ref": "#/$defs/fault"},
+                      "description": "faults active from the start"},
         },
         "$defs": {"generator": GENERATOR, "fault": FAULT, "hex": HEX, "pattern": PATTERN,
                   **{f"bus_{n}": _bus_schema(n) for n in names}},
@@ -303,3 +314,68 @@ def _describe(s: Dict[str, Any]) -> str:
 def _short(v: Any) -> str:
     text = repr(v)
     return text if len(text) <= 40 else text[:37] + "..."
+
+
+# -- the reference in docs/sim.md ---------------------------------------------------
+
+def _type_text(s: Dict[str, Any], root: Dict[str, Any]) -> str:
+    if "$ref" in s:
+        name = s["$ref"].rsplit("/", 1)[-1]
+        return {"generator": "generator table", "fault": "fault tables"}.get(
+            name, "bus tables" if name.startswith("bus_") else name)
+    if "oneOf" in s:
+        if all("$ref" in b for b in s["oneOf"]):
+            return _type_text(s["oneOf"][0], root)
+        return " or ".join(_type_text(b, root) for b in s["oneOf"])
+    if "const" in s:
+        return f"`{json_text(s['const'])}`"
+    if "enum" in s:
+        return " \\| ".join(f"`{v}`" for v in s["enum"])
+    t = s.get("type", "any")
+    if t == "array" and "items" in s:
+        item = s["items"]
+        t = f"array of {_type_text(item, root) if item.get('type') != 'object' else 'tables'}"
+    lo, hi = s.get("minimum"), s.get("maximum")
+    if lo is not None or hi is not None:
+        t += f" {'' if lo is None else lo}..{'' if hi is None else hi}"
+    if "maxItems" in s:
+        t += f" (at most {s['maxItems']})"
+    return t
+
+
+def json_text(v: Any) -> str:
+    import json
+    return json.dumps(v)
+
+
+def _rows(title: str, s: Dict[str, Any], root: Dict[str, Any], out: List[str]) -> None:
+    out.append(f"#### {title}\n")
+    out.append("| key | type | required | description |")
+    out.append("|---|---|---|---|")
+    req = set(s.get("required", ()))
+    nested = []
+    for k, v in s.get("properties", {}).items():
+        desc = v.get("description", "")
+        out.append(f"| `{k}` | {_type_text(v, root)} | {'yes' if k in req else ''} | {desc} |")
+        if v.get("type") == "object" and "properties" in v:
+            nested.append((f"{title} `{k}`", v))
+        elif v.get("type") == "array" and v.get("items", {}).get("type") == "object":
+            nested.append((f"{title} `{k}` rows", v["items"]))
+    out.append("")
+    for t, v in nested:
+        _rows(t, v, root, out)
+
+
+def reference_markdown() -> str:
+    """The schema as Markdown tables (docs/sim.md holds this text between its markers)."""
+    root = schema()
+    out: List[str] = []
+    _rows("top level", {"properties": root["properties"], "required": root["required"]}, root, out)
+    for name in _protocol_names():
+        b = root["$defs"][f"bus_{name}"]
+        _rows(f"`{name}` bus", {k: v for k, v in b.items() if k != "properties"} |
+              {"properties": {k: v for k, v in b["properties"].items() if k != "node"}}, root, out)
+        _rows(f"`{name}` node", b["properties"]["node"]["items"], root, out)
+    _rows("generator", root["$defs"]["generator"], root, out)
+    _rows("fault", root["$defs"]["fault"], root, out)
+    return "\n".join(out).rstrip() + "\n"

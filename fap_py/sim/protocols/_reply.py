@@ -15,7 +15,7 @@ REPLY_PROPERTIES: Dict[str, Any] = {
         "properties": {"request": PATTERN, "reply": HEX}},
         "description": "rows tried in order: the first whose pattern matches gives the reply"},
     "default": {**HEX, "description": "table: the reply when no row matches (default: none)"},
-    "value": {"$ref": "#/$defs/generator"},
+    "value": {"$ref": "#/$defs/generator", "description": "answer 'value': its generator"},
     "size": {"type": "integer", "minimum": 1, "maximum": 8, "description": "value: bytes (default 2)"},
     "byteorder": {"enum": ["big", "little"], "description": "value: default big"},
     "signed": {"type": "boolean", "description": "value: default false"},

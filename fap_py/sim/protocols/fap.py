@@ -34,7 +34,7 @@ NODE_PROPERTIES: Dict[str, Any] = {
             "every": {"type": "number", "minimum": 0.001, "description": "seconds (clock time)"},
             "to": {"type": "integer", "minimum": 0, "maximum": 31, "description": "default 0 (the master)"},
             "data": HEX,
-            "value": {"$ref": "#/$defs/generator"},
+            "value": {"$ref": "#/$defs/generator", "description": "a generator (instead of data/initial)"},
             "size": {"type": "integer", "minimum": 1, "maximum": 8, "description": "value: bytes (default 2)"},
         }}, "description": "messages the slave sends by itself"},
 }

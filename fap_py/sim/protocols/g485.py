@@ -33,7 +33,7 @@ NODE_PROPERTIES: Dict[str, Any] = {
             "access": {"enum": ["R", "W", "RW"], "description": "default RW"},
             "initial": {"type": "integer", "description": "default 0"},
             "saved": {"type": "boolean", "description": "kept in EEPROM (default true)"},
-            "value": {"$ref": "#/$defs/generator"},
+            "value": {"$ref": "#/$defs/generator", "description": "a generator (instead of data/initial)"},
         }}},
 }
 

@@ -181,3 +181,13 @@ def test_schema_is_json_schema():
             jsonschema.validate(cfg, s)
     # our validator refuses what the schema refuses
     assert validate({"bus": [{"protocol": "exec", "node": [{"address": "x"}]}]}, s)
+
+
+def test_docs_reference_is_the_schema():
+    from fap_py.sim.schema import reference_markdown
+
+    from .conftest import ROOT
+    text = open(os.path.join(ROOT, "docs", "sim.md"), encoding="utf-8").read()
+    begin, end = "<!-- schema-reference:begin -->\n", "<!-- schema-reference:end -->"
+    assert text[text.index(begin) + len(begin):text.index(end)] == reference_markdown(), \
+        "regenerate docs/sim.md's schema reference from fap_py.sim.schema.reference_markdown()"
