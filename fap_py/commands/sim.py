@@ -23,6 +23,7 @@ from ._options import (
     Parser,
     UsageError,
     add_command,
+    add_echo_option,
     add_output_options,
     add_port_options,
     emit,
@@ -57,9 +58,10 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true", help="validate CONFIG and exit (0: good, 2: the error)")
     p.add_argument("--schema", action="store_true", help="print the config's JSON Schema and exit")
     p.add_argument("--control", metavar="unix:PATH", help="control socket (JSON lines)")
-    add_port_options(p, baud_default=None, port_required=False,
-                     port_help="the port of the config's one bus, instead of the config's",
-                     baud_help="line speed (default: the bus's baud, or the protocol's default)")
+    g = add_port_options(p, baud_default=None, port_required=False,
+                         port_help="the port of the config's one bus, instead of the config's",
+                         baud_help="line speed (default: the bus's baud, or the protocol's default)")
+    add_echo_option(g)
     add_output_options(p)
 
 
@@ -105,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = load(args.config)
     if args.check:
         n = sum(len(b["node"]) for b in cfg["bus"])
-        emit(args, {"ok": True, "config": args.config, "buses": len(cfg["bus"])},
+        emit(args, {"event": "check", "ok": True, "config": args.config, "buses": len(cfg["bus"])},
              f"{args.config}: ok ({plural(len(cfg['bus']), 'bus', 'buses')}, {plural(n, 'node entry', 'node entries')})")
         return EXIT_OK
     return _serve(args, cfg)
@@ -166,7 +168,7 @@ def _action(args: argparse.Namespace) -> int:
                 text.append(f"  node {n['address']}: {n['requests']} requests, {n['replies']} replies"
                             + (f", faults {faults}" if faults else "") + (f", state {n['state']}" if "state" in n else ""))
         text.append("faults: " + (", ".join(_fault_text(f) for f in ans["faults"]) or "none"))
-        emit(a, ans, "\n".join(text))
+        emit(a, {"event": "status", **ans}, "\n".join(text))
         return EXIT_OK
     if a.fault_action == "add":
         req: Dict[str, Any] = {"cmd": "fault.add", "kind": a.kind, "probability": a.probability}
@@ -185,12 +187,12 @@ def _action(args: argparse.Namespace) -> int:
             req["seed"] = a.seed
         ans = request(a.control, req)
         _check(ans)
-        emit(a, ans, f"added {_fault_text(ans['fault'])}")
+        emit(a, {"event": "fault_added", **ans}, f"added {_fault_text(ans['fault'])}")
         return EXIT_OK
     if a.fault_action == "list":
         ans = request(a.control, {"cmd": "fault.list"})
         _check(ans)
-        emit(a, ans, "\n".join(_fault_text(f) for f in ans["faults"]) or "no faults")
+        emit(a, {"event": "faults", **ans}, "\n".join(_fault_text(f) for f in ans["faults"]) or "no faults")
         return EXIT_OK
     fid: Any = a.id
     if fid != "all":
@@ -200,7 +202,7 @@ def _action(args: argparse.Namespace) -> int:
             raise UsageError(f"remove takes a fault id or all, not {a.id!r}") from None
     ans = request(a.control, {"cmd": "fault.remove", "id": fid})
     _check(ans)
-    emit(a, ans, "removed " + (", ".join(_fault_text(f) for f in ans["removed"]) or "nothing"))
+    emit(a, {"event": "fault_removed", **ans}, "removed " + (", ".join(_fault_text(f) for f in ans["removed"]) or "nothing"))
     return EXIT_OK
 
 
