@@ -72,7 +72,10 @@ class FaultTable:
         self.changes = 0
         self.applied_by_kind: Dict[str, int] = dict.fromkeys(KINDS, 0)
         self.events: List[Dict[str, Any]] = []   # the last changes (bounded)
-        self.version = 0   # bumped on every change (a FAP node re-reads its 'off' state)
+        self.version = 0   # bumped on every change
+        #: called (no arguments, lock not held) after every change: a runner that does not
+        #: look at the table per transaction (FAP) wakes up and re-reads it
+        self.listeners: List[Any] = []
 
     def add(self, kind: str, *, bus: Optional[str] = None, node: Union[int, str] = "all",
             probability: float = 1.0, ms: float = 0.0, seed: Optional[int] = None,
@@ -108,6 +111,7 @@ class FaultTable:
             self._changed({"event": "add", **f.public()})
         log.warning("fault %d added: %s on bus %s node %s (p=%g%s)", fid, kind, bus or "*", node,
                     probability, f", {ms:g} ms" if kind == "late_reply" else "")
+        self._notify()
         return f
 
     def remove(self, fid: Union[int, str]) -> List[Fault]:
@@ -125,7 +129,12 @@ class FaultTable:
                 self._changed({"event": "remove", **f.public()})
         for f in gone:
             log.warning("fault %d removed: %s (applied %d times)", f.id, f.kind, f.applied)
+        self._notify()
         return gone
+
+    def _notify(self) -> None:
+        for fn in list(self.listeners):
+            fn()
 
     def _changed(self, event: Dict[str, Any]) -> None:
         self.changes += 1

@@ -80,11 +80,13 @@ class Responder:
             self._thread.join(5.0)
 
     def _serve(self) -> None:
-        idle = self.decoder.idle_timeout
         try:
             while not self._stop.is_set():
+                # a partial frame expires after the decoder's idle time; otherwise wait long
+                # (a close() from stop() ends the wait at once)
+                wait = self.decoder.idle_timeout if getattr(self.decoder, "partial", False) else 1.0
                 try:
-                    data = self.port.read(4096, timeout=idle)
+                    data = self.port.read(4096, timeout=wait)
                 except ClosedError:
                     return
                 except PortError as exc:

@@ -9,11 +9,13 @@ then active again).
 from __future__ import annotations
 
 import logging
+import os
+import select
 import threading
 from typing import Any, Dict, List, Optional
 
 from ... import fap
-from ...errors import ClosedError, FapError, FapTimeoutError, QueueFullError
+from ...errors import ClosedError, FapError, QueueFullError
 from ..generators import make, to_bytes
 from ..schema import HEX, MAX_LIST, Path, Problem
 
@@ -81,40 +83,58 @@ class _Node:
         if s is not None:
             s.close()
 
-    def step(self, stop: threading.Event) -> None:
+    def sync_off(self) -> None:
+        """Open or close the slave as the fault table's ``off`` says now."""
         off = self.ctx.faults.is_off(self.bus, self.address)
-        if off != self._off:
-            self._off = off
-            if off:
-                self.stats.faults["off"] = self.stats.faults.get("off", 0) + 1
-                self.ctx.faults.applied_by_kind["off"] += 1
-                self._close()
-                log.warning("%s node %d switched off", self.bus, self.address)
-            else:
-                self._open()
-                log.warning("%s node %d switched on", self.bus, self.address)
-        s = self.slave
-        if s is None:
-            stop.wait(0.05)
+        if off == self._off:
             return
-        t = self.ctx.clock.now()
+        self._off = off
+        if off:
+            self.stats.faults["off"] = self.stats.faults.get("off", 0) + 1
+            with self.ctx.faults._lock:
+                self.ctx.faults.applied_by_kind["off"] += 1
+                for f in self.ctx.faults._faults:
+                    if f.kind == "off" and f.matches(self.bus, self.address):
+                        f.applied += 1
+                        break
+            self._close()
+            log.warning("%s node %d switched off", self.bus, self.address)
+        else:
+            self._open()
+            log.warning("%s node %d switched on", self.bus, self.address)
+
+    def periodic_step(self, t: float) -> float:
+        """Send the periodic messages due at clock time ``t``; clock seconds to the next."""
+        s = self.slave
+        nxt = float("inf")
         for p in self.periodic:
             every, to, data, gen, size, due = p
             if due is None:
                 p[5] = due = t
             if t >= due:
                 p[5] = due + every if due + every > t else t + every
-                payload = to_bytes(gen(t), size) if gen is not None else data
-                self._send(s, payload, to)
-        try:
-            msg = s.recv(timeout=0.02)
-        except FapTimeoutError:
+                if s is not None:
+                    self._send(s, to_bytes(gen(t), size) if gen is not None else data, to)
+            nxt = min(nxt, p[5] - t)
+        return nxt
+
+    def drain(self) -> None:
+        """Take every queued message (echo it if asked) and event (not used: the master's view)."""
+        s = self.slave
+        if s is None:
             return
+        try:
+            while True:
+                msg = s.recv_nowait()
+                if msg is None:
+                    break
+                self.stats.requests += 1
+                if self.echo:
+                    self._send(s, msg.data, msg.source)
+            for _ in s.events(timeout=0.0):
+                pass
         except ClosedError:
             return
-        self.stats.requests += 1
-        if self.echo:
-            self._send(s, msg.data, msg.source)
 
     def _send(self, s: fap.Slave, data: bytes, to: int) -> None:
         try:
@@ -126,30 +146,65 @@ class _Node:
 
 
 class Runner:
-    def __init__(self, nodes: List[_Node]) -> None:
-        self.nodes = nodes
-        self._stop = threading.Event()
-        self._threads = [threading.Thread(target=self._loop, args=(n,), daemon=True,
-                                          name=f"fap-sim fap {n.address}") for n in nodes]
-        for t in self._threads:
-            t.start()
-        self.error: Optional[BaseException] = None
+    """One thread for every slave of the bus: it waits in ``poll`` on the engines'
+    notification fds (a message or event queued), a wake-up pipe (a fault changed, stop) and
+    the next periodic message's time; an idle bus costs nothing but its C engines."""
 
-    def _loop(self, node: _Node) -> None:
+    def __init__(self, nodes: List[_Node], faults: Any, clock: Any) -> None:
+        self.nodes, self.faults, self.clock = nodes, faults, clock
+        self._stop = threading.Event()
+        self._r, self._w = os.pipe()
+        os.set_blocking(self._r, False)
+        os.set_blocking(self._w, False)
+        faults.listeners.append(self._wake)
+        self.error: Optional[BaseException] = None
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="fap-sim fap")
+        self._thread.start()
+
+    def _wake(self) -> None:
+        try:
+            os.write(self._w, b"x")
+        except OSError:   # full (a wake-up is pending anyway) or closed
+            pass
+
+    def _loop(self) -> None:
+        speed = float(getattr(self.clock, "speed", 1.0))    # clock seconds per second
         try:
             while not self._stop.is_set():
-                node.step(self._stop)
+                for n in self.nodes:
+                    n.sync_off()
+                t = self.clock.now()
+                wait = min([1.0] + [n.periodic_step(t) / speed for n in self.nodes])
+                poller = select.poll()
+                poller.register(self._r, select.POLLIN)
+                for n in self.nodes:
+                    if n.slave is not None:
+                        poller.register(n.slave.fileno(), select.POLLIN)
+                ready = poller.poll(max(0.0, wait) * 1000.0)
+                if any(fd == self._r for fd, _ in ready):
+                    try:
+                        os.read(self._r, 4096)
+                    except OSError:
+                        pass
+                for n in self.nodes:
+                    n.drain()
         except BaseException as exc:   # reported in status
             if not self._stop.is_set():
                 self.error = exc
-                log.error("FAP node %d stopped: %s", node.address, exc)
+                log.error("FAP sim stopped: %s: %s", type(exc).__name__, exc)
 
     def stop(self) -> None:
         self._stop.set()
-        for t in self._threads:
-            t.join(5.0)
+        self._wake()
+        self._thread.join(5.0)
+        try:
+            self.faults.listeners.remove(self._wake)
+        except ValueError:
+            pass
         for n in self.nodes:
             n._close()
+        os.close(self._r)
+        os.close(self._w)
 
     def status(self) -> Dict[int, Dict[str, Any]]:
         return {n.address: {"requests": n.stats.requests, "replies": n.stats.replies,
@@ -167,4 +222,4 @@ def start(bus: Dict[str, Any], ctx: Any) -> Runner:
         for n in nodes:
             n._close()
         raise
-    return Runner(nodes)
+    return Runner(nodes, ctx.faults, ctx.clock)

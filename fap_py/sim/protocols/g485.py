@@ -77,6 +77,10 @@ class _Decoder:
     def feed(self, data: bytes) -> List[Request]:
         return self._items(self._p.feed(data))
 
+    @property
+    def partial(self) -> bool:
+        return bool(self._p.buffered)
+
     def idle(self) -> List[Request]:
         return self._items(self._p.expire()) if self._p.buffered else []
 
