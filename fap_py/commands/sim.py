@@ -58,6 +58,11 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true", help="validate CONFIG and exit (0: good, 2: the error)")
     p.add_argument("--schema", action="store_true", help="print the config's JSON Schema and exit")
     p.add_argument("--control", metavar="unix:PATH", help="control socket (JSON lines)")
+    p.add_argument("--replay", metavar="CAPTURE", help="answer each recorded request of a virtual "
+                   "bus capture with its recorded reply and delay (needs --protocol)")
+    p.add_argument("--protocol", choices=("exec", "mikroc", "g485"), help="--replay: the capture's protocol")
+    p.add_argument("--master-port", metavar="N", type=int, default=None,
+                   help="--replay: the capture port of the master (default: the first sender)")
     g = add_port_options(p, baud_default=None, port_required=False,
                          port_help="the port of the config's one bus, instead of the config's",
                          baud_help="line speed (default: the bus's baud, or the protocol's default)")
@@ -100,8 +105,14 @@ def run(args: argparse.Namespace) -> int:
         from fap_py.sim.schema import schema
         print(json.dumps(schema(), indent=2))
         return EXIT_OK
+    if args.replay:
+        if args.config is not None:
+            raise UsageError("--replay CAPTURE replaces CONFIG: give one of them")
+        if args.protocol is None:
+            raise UsageError("--replay needs --protocol (exec, mikroc or g485)")
+        return _replay(args)
     if args.config is None:
-        raise UsageError("fap sim needs CONFIG (or --schema, or the action fault / status)")
+        raise UsageError("fap sim needs CONFIG (or --schema, --replay, or the action fault / status)")
     from fap_py.sim import load
 
     cfg = load(args.config)
@@ -146,6 +157,35 @@ def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
         emit(args, {"event": "stopped", **st},
              f"stopped: {plural(st['requests'], 'request')} served, faults applied: "
              + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
+        return EXIT_OK
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from fap_py.sim.replay import Replay
+
+    rs485 = rs485_from_args(args) if args.port else None
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        done.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with Replay(args.replay, args.protocol, port=args.port, baud=args.baud,
+                    master_port=args.master_port, rs485=rs485) as rp:
+            summary = rp.responder.summary()
+            emit(args, {"event": "ready", "buses": [{"name": "replay", "protocol": args.protocol,
+                                                      "master_port": rp.master_port}], **summary},
+                 f"replay of {args.replay} ({args.protocol}): {plural(summary['distinct_requests'], 'request')} "
+                 f"recorded; master port: {rp.master_port or args.port}\nready")
+            while not done.wait(0.5):
+                pass
+            summary = rp.responder.summary()
+        emit(args, {"event": "stopped", **summary},
+             f"stopped: {summary['matched']} matched, {summary['unmatched']} not in the capture")
         return EXIT_OK
     finally:
         for s, h in old.items():
