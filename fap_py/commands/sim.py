@@ -60,7 +60,11 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--control", metavar="unix:PATH", help="control socket (JSON lines)")
     p.add_argument("--replay", metavar="CAPTURE", help="answer each recorded request of a virtual "
                    "bus capture with its recorded reply and delay (needs --protocol)")
-    p.add_argument("--protocol", choices=("exec", "mikroc", "g485"), help="--replay: the capture's protocol")
+    p.add_argument("--learn", metavar="CAPTURE", help="write a config that reproduces the devices "
+                   "of a virtual bus capture (needs --protocol; stdout without -o)")
+    p.add_argument("-o", "--output", metavar="FILE", help="--learn: write the config here")
+    p.add_argument("--protocol", choices=("exec", "mikroc", "g485"),
+                   help="--replay/--learn: the capture's protocol")
     p.add_argument("--master-port", metavar="N", type=int, default=None,
                    help="--replay: the capture port of the master (default: the first sender)")
     g = add_port_options(p, baud_default=None, port_required=False,
@@ -104,6 +108,24 @@ def run(args: argparse.Namespace) -> int:
     if args.schema:
         from fap_py.sim.schema import schema
         print(json.dumps(schema(), indent=2))
+        return EXIT_OK
+    if args.learn:
+        if args.protocol is None:
+            raise UsageError("--learn needs --protocol (exec, mikroc or g485)")
+        from fap_py.sim.learn import learn
+        from fap_py.vbus import read_capture
+
+        text = learn(read_capture(args.learn), args.protocol, args.master_port, args.learn)
+        if args.output:
+            from fap_py.errors import FileError
+            try:
+                with open(args.output, "w", encoding="utf-8") as f:
+                    f.write(text)
+            except OSError as exc:
+                raise FileError(exc.errno or 5, f"-o: {exc.strerror}", args.output) from None
+            emit(args, {"event": "learned", "output": args.output}, f"wrote {args.output}")
+        else:
+            print(text, end="", flush=True)
         return EXIT_OK
     if args.replay:
         if args.config is not None:
