@@ -63,7 +63,8 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--learn", metavar="CAPTURE", help="write a config that reproduces the devices "
                    "of a virtual bus capture (needs --protocol; stdout without -o)")
     p.add_argument("-o", "--output", metavar="FILE", help="--learn: write the config here")
-    p.add_argument("--protocol", choices=("exec", "mikroc", "g485"),
+    from fap_py.sim.replay import replay_protocols
+    p.add_argument("--protocol", choices=replay_protocols(),
                    help="--replay/--learn: the capture's protocol")
     p.add_argument("--master-port", metavar="N", type=int, default=None,
                    help="--replay: the capture port of the master (default: the first sender)")
@@ -111,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_OK
     if args.learn:
         if args.protocol is None:
-            raise UsageError("--learn needs --protocol (exec, mikroc or g485)")
+            raise UsageError("--learn needs --protocol")
         from fap_py.sim.learn import learn
         from fap_py.vbus import read_capture
 
@@ -131,7 +132,7 @@ def run(args: argparse.Namespace) -> int:
         if args.config is not None:
             raise UsageError("--replay CAPTURE replaces CONFIG: give one of them")
         if args.protocol is None:
-            raise UsageError("--replay needs --protocol (exec, mikroc or g485)")
+            raise UsageError("--replay needs --protocol")
         return _replay(args)
     if args.config is None:
         raise UsageError("fap sim needs CONFIG (or --schema, --replay, or the action fault / status)")

@@ -128,10 +128,10 @@ class Sim:
         """Add a fault (the kinds each bus's protocol implements); its public record."""
         if kind == "late_reply" and "ms" not in kw:
             raise FaultError("late_reply needs ms (the delay in milliseconds)")
-        fap_buses = [b.name for b in self.buses if b.protocol == "fap"
-                     and kw.get("bus") in (None, b.name)]
-        if kind == "off" and fap_buses and kw.get("probability", 1.0) < 1.0 and kw.get("bus") is not None:
-            raise FaultError("a FAP slave is switched off whole: 'off' on a FAP bus takes probability 1")
+        whole = [b.name for b in self.buses if getattr(plugin(b.protocol), "PORT_PER_NODE", False)
+                 and kw.get("bus") == b.name]
+        if kind == "off" and whole and kw.get("probability", 1.0) < 1.0:
+            raise FaultError(f"bus {whole[0]!r}: its nodes are switched off whole: 'off' takes probability 1")
         return self.faults.add(kind, allowed=self.allowed, **kw).public()
 
     def wait_for(self, predicate: Any, timeout: float = 5.0) -> bool:

@@ -165,13 +165,14 @@ def semantic(data: Dict[str, Any]) -> List[Problem]:
                 seen[a] = n
             out.extend(proto.check_node(node, where))
             out.extend(check_generators(node, where))
-        if bus["protocol"] == "fap" and "port" in bus and len(seen) > 1:
-            out.append(Problem(("bus", b, "port"), "a FAP bus on an existing port holds one slave "
-                               "(each FAP slave has its own port): use a virtual bus"))
-        if "virtual" in bus and bus["protocol"] == "fap":
+        per_node = getattr(proto, "PORT_PER_NODE", False)
+        if per_node and "port" in bus and len(seen) > 1:
+            out.append(Problem(("bus", b, "port"), f"a {proto.NAME} bus on an existing port holds one "
+                               "node (each has its own port): use a virtual bus"))
+        if per_node and "port" not in bus:
             from ..vbus import MAX_PORTS
             if len(seen) + 1 > MAX_PORTS:
-                out.append(Problem(("bus", b, "node"), f"{len(seen)} FAP slaves need {len(seen) + 1} "
+                out.append(Problem(("bus", b, "node"), f"{len(seen)} {proto.NAME} nodes need {len(seen) + 1} "
                                    f"ports, a virtual bus has at most {MAX_PORTS}"))
     for f, fault in enumerate(data.get("fault", ())):
         if fault.get("bus") is not None and fault["bus"] not in names:

@@ -19,40 +19,24 @@ from ..errors import ClosedError, FapError, InvalidValueError, PortError
 
 log = logging.getLogger("fap_py.sim")
 
-#: the protocols a capture can be replayed for (request/reply protocols)
-PROTOCOLS = ("exec", "mikroc", "g485")
+def replay_protocols() -> List[str]:
+    """The protocols a capture can be replayed for: those whose sim plug-in frames a raw
+    stream (``raw_frames``: the request/reply protocols)."""
+    from .. import _protocols
+    from ._plugins import plugin
+
+    return [n for n in _protocols.names() if hasattr(plugin(n), "raw_frames")]
 
 
 class ReplayError(InvalidValueError):
     """A capture that cannot be replayed (no master frames, an unknown protocol)."""
 
 
-class _Framer:
-    """Whole frames (their raw bytes) out of a byte stream, by the protocol's own decoder."""
+def _framer(protocol: str, baud: int) -> Any:
+    """``feed(data) -> [(end offset or None, raw frame)]`` by the protocol's own decoder."""
+    from ._plugins import plugin
 
-    def __init__(self, protocol: str, baud: int) -> None:
-        self.protocol = protocol
-        if protocol == "g485":
-            from ..g485 import codec
-
-            self._parser: Any = codec.Parser()
-            self._packet = codec.Packet
-        else:
-            from .. import _codec
-
-            self._dec = _codec.find(protocol).decoder(baud)
-            self._frame = _codec.Frame
-
-    def feed(self, data: bytes) -> List[Tuple[int, bytes]]:
-        """(offset of the frame's end in the stream so far, raw bytes) of each frame completed."""
-        if self.protocol == "g485":
-            out = []
-            for ev in self._parser.feed(data):
-                if isinstance(ev, self._packet):
-                    out.append(ev.raw)
-            return [(0, r) for r in out]
-        return [(f.offset + len(f.raw), bytes(f.raw)) for f in self._dec.feed(data, 0)
-                if isinstance(f, self._frame)]
+    return plugin(protocol).raw_frames(baud)
 
 
 class ReplayTable:
@@ -69,15 +53,16 @@ class ReplayTable:
 
 def build_table(capture: Any, protocol: str, master_port: Optional[int] = None) -> ReplayTable:
     """Pair the master's frames of ``capture`` (a :class:`fap_py.vbus.Capture`) with the replies."""
-    if protocol not in PROTOCOLS:
-        raise ReplayError(f"replay is for {', '.join(PROTOCOLS)}, not {protocol!r}")
+    names = replay_protocols()
+    if protocol not in names:
+        raise ReplayError(f"replay is for {', '.join(names)}, not {protocol!r}")
     records = capture.records
     if not records:
         raise ReplayError("the capture holds no bytes")
     master = records[0].port if master_port is None else master_port
     baud = int(capture.header.get("baud", "0") or 0)
     char_us = 10e6 / baud if baud else 0.0
-    framer = _Framer(protocol, baud)
+    framer = _framer(protocol, baud)
     table = ReplayTable()
     pending: Optional[Tuple[bytes, float]] = None     # (request, its end on the wire, us)
     reply = b""
@@ -95,7 +80,7 @@ def build_table(capture: Any, protocol: str, master_port: Optional[int] = None) 
             consumed += len(rec.data)
             for end, raw in framer.feed(rec.data):
                 close()
-                within = (end - start) if protocol != "g485" else len(rec.data)
+                within = (end - start) if end is not None else len(rec.data)
                 pending = (raw, rec.t_us + max(0, within) * char_us)
                 reply, reply_start = b"", None
         elif pending is not None:
@@ -113,7 +98,7 @@ class ReplayResponder:
 
     def __init__(self, name: str, protocol: str, port: Any, table: ReplayTable) -> None:
         self.name, self.protocol, self.port, self.table = name, protocol, port, table
-        self._framer = _Framer(protocol, port.baudrate)
+        self._framer = _framer(protocol, port.baudrate)
         self._next: Dict[bytes, int] = {}
         self.matched = 0
         self.unmatched = 0

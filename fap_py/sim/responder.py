@@ -179,6 +179,21 @@ class Responder:
         return {a: s.public() for a, s in self.stats.items()}
 
 
+class CodecFramer:
+    """Whole frames out of a byte stream by the C codec table's decoder of ``name``:
+    ``feed(data) -> [(end offset in the stream, raw bytes)]`` (replay and learn)."""
+
+    def __init__(self, name: str, baud: int) -> None:
+        from .. import _codec
+
+        self._dec = _codec.find(name).decoder(baud)
+        self._frame = _codec.Frame
+
+    def feed(self, data: bytes) -> List[Any]:
+        return [(f.offset + len(f.raw), bytes(f.raw)) for f in self._dec.feed(data, 0)
+                if isinstance(f, self._frame)]
+
+
 def flip_to(frame: bytes, wanted: Any) -> bytes:
     """``frame`` with one bit flipped, the one nearest its end for which ``wanted(candidate)``
     (the protocol's own decoder says "bad check") holds: the check bytes are at the end."""

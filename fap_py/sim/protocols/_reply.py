@@ -63,6 +63,11 @@ def check(node: Dict[str, Any], where: Path, max_data: int) -> List[Problem]:
     return out
 
 
+def table_config(rows: Dict[bytes, bytes]) -> Dict[str, Any]:
+    """The node keys of a learned reply table."""
+    return {"answer": "table", "table": [{"request": q.hex(), "reply": r.hex()} for q, r in rows.items()]}
+
+
 class Behaviour:
     """The reply data of one node for a request's data."""
 

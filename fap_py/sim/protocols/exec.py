@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional
 
 from ... import execasync
-from ..responder import Request, flip_to, garbage_without
+from ..responder import CodecFramer, Request, flip_to, garbage_without
 from ..schema import Path, Problem
 from . import _reply
 
@@ -80,6 +80,22 @@ def wrong_address(frame: bytes, address: int, req: Any) -> bytes:
     f = execasync.Decoder().feed(frame)[0]
     other = address % ADDRESS_MAX + 1
     return execasync.encode(other, f.data, f.seq)
+
+
+def raw_frames(baud: int) -> Any:
+    """The framer of replay and learn (the C codec table's exec async decoder)."""
+    return CodecFramer(NAME, baud)
+
+
+def learn(pairs: List[Any]) -> Dict[int, Dict[str, Any]]:
+    """Node configs (address -> keys) from (request frame, reply frames) pairs: reply tables."""
+    nodes: Dict[int, Dict[bytes, bytes]] = {}
+    for request, replies in pairs:
+        req = execasync.Decoder().feed(request)[0]
+        got = execasync.Decoder().feed(replies[0])[0] if replies else None
+        if got is not None and got.ok and got.node == req.node:
+            nodes.setdefault(req.node, {})[req.data] = got.data
+    return {a: _reply.table_config(rows) for a, rows in nodes.items()}
 
 
 def garbage(rng: Any, n: int) -> bytes:

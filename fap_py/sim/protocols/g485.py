@@ -141,5 +141,56 @@ def wrong_address(frame: bytes, address: int, req: Any) -> bytes:
     return codec.frame((address << 1) | 1, p.pid, p.data)
 
 
+class _RawFrames:
+    def __init__(self) -> None:
+        self._p = codec.Parser()
+
+    def feed(self, data: bytes) -> List[Any]:
+        return [(None, ev.raw) for ev in self._p.feed(data) if isinstance(ev, codec.Packet)]
+
+
+def raw_frames(baud: int) -> Any:
+    """The framer of replay and learn (``fap_py.g485.codec.Parser``; no stream offsets)."""
+    return _RawFrames()
+
+
+def learn(pairs: List[Any]) -> Dict[int, Dict[str, Any]]:
+    """Device configs from (request frame, reply frames) pairs: the register values each
+    answering device was seen to hold (read replies; writes to it) as identity and initial
+    values."""
+    devices: Dict[int, Dict[int, int]] = {}
+    writes = []
+    for request, replies in pairs:
+        pkt = codec.Parser().feed(request)[0]
+        if not isinstance(pkt, codec.Packet):
+            continue
+        if pkt.kind is codec.PacketKind.WRITE and pkt.address != codec.BROADCAST:
+            writes.append((pkt.address, pkt.register, pkt.data))
+            continue
+        if not replies:
+            continue
+        regs = devices.setdefault(pkt.address, {})
+        rep = codec.Parser().feed(replies[0])[0]
+        if pkt.kind is codec.PacketKind.READ_REQUEST and isinstance(rep, codec.Packet) \
+                and rep.kind is codec.PacketKind.READ_RESPONSE:
+            for i, v in enumerate(rep.data):
+                regs[pkt.register + i] = v
+    for address, register, data in writes:
+        if address in devices:
+            for i, v in enumerate(data):
+                devices[address].setdefault(register + i, v)
+    out: Dict[int, Dict[str, Any]] = {}
+    for address, regs in devices.items():
+        cfg: Dict[str, Any] = {}
+        ident = [regs.get(r) for r in range(1, 6)]
+        if all(v is not None for v in ident):
+            cfg["identity"] = ident
+        private = sorted(r for r in regs if 8 <= r <= 100)
+        if private:
+            cfg["registers"] = [{"register": r, "initial": regs[r]} for r in private]
+        out[address] = cfg
+    return out
+
+
 def garbage(rng: Any, n: int) -> bytes:
     return garbage_without(rng, n, b"\xff")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional
 
 from ... import mikroc
-from ..responder import Request, flip_to, garbage_without
+from ..responder import CodecFramer, Request, flip_to, garbage_without
 from ..schema import Path, Problem
 from . import _reply
 
@@ -73,6 +73,24 @@ def wrong_address(frame: bytes, address: int, req: Any) -> bytes:
     if other == mikroc.BROADCAST:
         other += 1
     return mikroc.encode(other, m.data, from_master=False)
+
+
+def raw_frames(baud: int) -> Any:
+    """The framer of replay and learn (the C codec table's mikroC decoder)."""
+    return CodecFramer(NAME, baud)
+
+
+def learn(pairs: List[Any]) -> Dict[int, Dict[str, Any]]:
+    """Node configs (address -> keys) from (request frame, reply frames) pairs: reply tables."""
+    nodes: Dict[int, Dict[bytes, bytes]] = {}
+    for request, replies in pairs:
+        req = mikroc.decode(request)
+        if not replies:
+            continue
+        rep = mikroc.decode(replies[0])
+        if not rep.from_master and rep.address == req.address:
+            nodes.setdefault(req.address, {})[req.data] = rep.data
+    return {a: _reply.table_config(rows) for a, rows in nodes.items()}
 
 
 def garbage(rng: Any, n: int) -> bytes:
