@@ -181,7 +181,19 @@ def _runs(run: Run, tmp: Path) -> Dict[Tuple[str, ...], List[str]]:
         ("demo",): run("demo", "--duration", "0.3", "--slaves", "1"),
         ("soak",): run("soak", "--protocol", "mikroc", "--seconds", "0.3",
                        "--check8-seconds", "0.1", "--slaves", "1"),
+        ("sim",): _sim(run, tmp),
     }
+
+
+def _sim(run: Run, tmp: Path) -> List[str]:
+    example = str(Path(__file__).resolve().parents[3] / "examples" / "sim" / "site.toml")
+    sock = f"unix:{tmp}/sim.sock"
+    sim = Server("sim", example, "--control", sock)
+    out = run("sim", "--check", example) + run("sim", "status", "--control", sock)
+    out += run("sim", "fault", "add", "off", "--node", "5", "--control", sock)
+    out += run("sim", "fault", "list", "--control", sock)
+    out += run("sim", "fault", "remove", "all", "--control", sock)
+    return out + sim.stop()
 
 
 GROUPS = {"exec": _exec, "mikroc": _mikroc, "g485": _g485, "fap": _fap, "tools": _tools,
@@ -194,7 +206,7 @@ COVERED: Dict[Tuple[str, ...], str] = {
     ("g485", "error-word"): "g485", ("g485", "handshake"): "g485", ("g485", "scan"): "g485",
     ("g485", "sim"): "g485", ("fap", "master"): "fap", ("fap", "slave"): "fap",
     ("version",): "tools", ("completion",): "tools", ("monitor",): "tools",
-    ("bridge",): "tools", ("demo",): "runs", ("soak",): "runs", ("ports",): "tools",
+    ("bridge",): "tools", ("demo",): "runs", ("soak",): "runs", ("sim",): "runs", ("ports",): "tools",
     ("bus",): "tools",
 }
 

@@ -1,0 +1,280 @@
+"""``fap sim``: simulated devices of every protocol from one config file (fap_py.sim).
+
+The forms (docs/sim.md)::
+
+    fap sim CONFIG [--port PATH] [--control unix:PATH] [--json]   run until Ctrl-C / SIGTERM
+    fap sim --check CONFIG                                          validate (exit 2 on an error)
+    fap sim --schema                                                the config's JSON Schema
+    fap sim fault add KIND --control unix:PATH [--node N|all] [--bus NAME] [--probability P] [--ms MS]
+    fap sim fault list --control unix:PATH [--json]
+    fap sim fault remove ID|all --control unix:PATH [--json]
+    fap sim status --control unix:PATH [--json]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import threading
+from typing import Any, Dict, List
+
+from ._options import (
+    EXIT_OK,
+    Parser,
+    UsageError,
+    add_command,
+    add_echo_option,
+    add_output_options,
+    add_port_options,
+    emit,
+    plural,
+    rs485_from_args,
+    seconds,
+)
+
+_ACTIONS = ("fault", "status")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = add_command(
+        sub, "sim", help="simulated devices of every protocol from one config file",
+        description="Run the buses and nodes a TOML/JSON/YAML config declares (exec async, "
+        "mikroC, G485 and FAP nodes; value generators; faults switched at run time through "
+        "--control). Also: --check CONFIG, --schema, and the control CLI: "
+        "'fap sim fault add|list|remove --control unix:PATH ...', "
+        "'fap sim status --control unix:PATH' (docs/sim.md).",
+        example="fap sim examples/sim/site.toml --control unix:/tmp/sim.sock\n"
+        "fap sim --check site.toml\n"
+        "fap sim fault add no_reply --node 5 --control unix:/tmp/sim.sock\n"
+        "fap sim status --control unix:/tmp/sim.sock --json")
+    p.add_argument("config", metavar="CONFIG", nargs="?",
+                   help="the config file (or the action 'fault' / 'status')")
+    p.add_argument("rest", nargs=argparse.REMAINDER, help=argparse.SUPPRESS)
+    _run_options(p)
+    p.set_defaults(func=run)
+
+
+def _run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--check", action="store_true", help="validate CONFIG and exit (0: good, 2: the error)")
+    p.add_argument("--schema", action="store_true", help="print the config's JSON Schema and exit")
+    p.add_argument("--control", metavar="unix:PATH", help="control socket (JSON lines)")
+    p.add_argument("--replay", metavar="CAPTURE", help="answer each recorded request of a virtual "
+                   "bus capture with its recorded reply and delay (needs --protocol)")
+    p.add_argument("--learn", metavar="CAPTURE", help="write a config that reproduces the devices "
+                   "of a virtual bus capture (needs --protocol; stdout without -o)")
+    p.add_argument("-o", "--output", metavar="FILE", help="--learn: write the config here")
+    from fap_py.sim.replay import replay_protocols
+    p.add_argument("--protocol", choices=replay_protocols(),
+                   help="--replay/--learn: the capture's protocol")
+    p.add_argument("--master-port", metavar="N", type=int, default=None,
+                   help="--replay: the capture port of the master (default: the first sender)")
+    g = add_port_options(p, baud_default=None, port_required=False,
+                         port_help="the port of the config's one bus, instead of the config's",
+                         baud_help="line speed (default: the bus's baud, or the protocol's default)")
+    add_echo_option(g)
+    add_output_options(p)
+
+
+def _action_parser() -> Parser:
+    ap = Parser(prog="fap sim", add_help=True)
+    acts = ap.add_subparsers(dest="action", metavar="ACTION", required=True, parser_class=Parser)
+    fault = acts.add_parser("fault", help="faults of a running sim")
+    fa = fault.add_subparsers(dest="fault_action", metavar="fault ACTION", required=True,
+                              parser_class=Parser)
+    add = fa.add_parser("add", help="add a fault")
+    from fap_py.sim.faults import KINDS
+    add.add_argument("kind", choices=list(KINDS), help="the fault kind")
+    add.add_argument("--node", default="all", help="a node address, or all")
+    add.add_argument("--bus", default=None, help="the bus's name (default: every bus)")
+    add.add_argument("--probability", type=seconds, default=1.0, help="0..1")
+    add.add_argument("--ms", type=seconds, default=None, help="late_reply: milliseconds")
+    add.add_argument("--seed", type=int, default=None, help="seed of the probability draws")
+    lst = fa.add_parser("list", help="the active faults")
+    rm = fa.add_parser("remove", help="remove a fault")
+    rm.add_argument("id", help="the fault's id, or all")
+    st = acts.add_parser("status", help="nodes, requests served, faults applied")
+    for q in (add, lst, rm, st):
+        q.add_argument("--control", metavar="unix:PATH", required=True, help="the sim's control socket")
+        add_output_options(q)
+    return ap
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.config in _ACTIONS:
+        return _action(args)
+    if args.rest:   # options after CONFIG: REMAINDER took them
+        extra = Parser(prog="fap sim", add_help=False)
+        _run_options(extra)
+        extra.parse_args(args.rest, namespace=args)
+    if args.schema:
+        from fap_py.sim.schema import schema
+        print(json.dumps(schema(), indent=2))
+        return EXIT_OK
+    if args.learn:
+        if args.protocol is None:
+            raise UsageError("--learn needs --protocol")
+        from fap_py.sim.learn import learn
+        from fap_py.vbus import read_capture
+
+        text = learn(read_capture(args.learn), args.protocol, args.master_port, args.learn)
+        if args.output:
+            from fap_py.errors import FileError
+            try:
+                with open(args.output, "w", encoding="utf-8") as f:
+                    f.write(text)
+            except OSError as exc:
+                raise FileError(exc.errno or 5, f"-o: {exc.strerror}", args.output) from None
+            emit(args, {"event": "learned", "output": args.output}, f"wrote {args.output}")
+        else:
+            print(text, end="", flush=True)
+        return EXIT_OK
+    if args.replay:
+        if args.config is not None:
+            raise UsageError("--replay CAPTURE replaces CONFIG: give one of them")
+        if args.protocol is None:
+            raise UsageError("--replay needs --protocol")
+        return _replay(args)
+    if args.config is None:
+        raise UsageError("fap sim needs CONFIG (or --schema, --replay, or the action fault / status)")
+    from fap_py.sim import load
+
+    cfg = load(args.config)
+    if args.check:
+        n = sum(len(b["node"]) for b in cfg["bus"])
+        emit(args, {"event": "check", "ok": True, "config": args.config, "buses": len(cfg["bus"])},
+             f"{args.config}: ok ({plural(len(cfg['bus']), 'bus', 'buses')}, {plural(n, 'node entry', 'node entries')})")
+        return EXIT_OK
+    return _serve(args, cfg)
+
+
+def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
+    from fap_py.sim import Sim
+    from fap_py.sim.control import ControlServer, unix_path
+
+    if args.control:
+        unix_path(args.control)    # a bad spec before anything opens
+    rs485 = rs485_from_args(args) if args.port else None
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        done.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with Sim(cfg, port=args.port, baud=args.baud, rs485=rs485) as sim:
+            server = ControlServer(sim, args.control) if args.control else None
+            try:
+                buses: List[Dict[str, Any]] = [{"name": b.name, "protocol": b.protocol, "master_port": b.master_port,
+                          "nodes": len(b.addresses)} for b in sim.buses]
+                text = "\n".join(f"bus {b['name']} ({b['protocol']}): {plural(b['nodes'], 'node')}; "
+                                 f"master port: {b['master_port'] or args.port or 'the config port'}"
+                                 for b in buses)
+                emit(args, {"event": "ready", "buses": buses, "control": args.control},
+                     text + f"\nready{' (control ' + args.control + ')' if args.control else ''}")
+                while not done.wait(0.5):
+                    pass
+                st = sim.status()
+            finally:
+                if server is not None:
+                    server.close()
+        emit(args, {"event": "stopped", **st},
+             f"stopped: {plural(st['requests'], 'request')} served, faults applied: "
+             + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
+        return EXIT_OK
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from fap_py.sim.replay import Replay
+
+    rs485 = rs485_from_args(args) if args.port else None
+    done = threading.Event()
+
+    def on_signal(signum: int, frame: object) -> None:
+        done.set()
+
+    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with Replay(args.replay, args.protocol, port=args.port, baud=args.baud,
+                    master_port=args.master_port, rs485=rs485) as rp:
+            summary = rp.responder.summary()
+            emit(args, {"event": "ready", "buses": [{"name": "replay", "protocol": args.protocol,
+                                                      "master_port": rp.master_port}], **summary},
+                 f"replay of {args.replay} ({args.protocol}): {plural(summary['distinct_requests'], 'request')} "
+                 f"recorded; master port: {rp.master_port or args.port}\nready")
+            while not done.wait(0.5):
+                pass
+            summary = rp.responder.summary()
+        emit(args, {"event": "stopped", **summary},
+             f"stopped: {summary['matched']} matched, {summary['unmatched']} not in the capture")
+        return EXIT_OK
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _action(args: argparse.Namespace) -> int:
+    from fap_py.sim.control import request
+
+    a = _action_parser().parse_args([args.config, *args.rest])
+    if a.action == "status":
+        ans = request(a.control, {"cmd": "status"})
+        _check(ans)
+        text = []
+        for b in ans["buses"]:
+            text.append(f"bus {b['name']} ({b['protocol']}): {plural(b['requests'], 'request')}, "
+                        f"master port {b['master_port'] or '-'}")
+            for n in b["nodes"]:
+                faults = ", ".join(f"{k} {v}" for k, v in n["faults"].items())
+                text.append(f"  node {n['address']}: {n['requests']} requests, {n['replies']} replies"
+                            + (f", faults {faults}" if faults else "") + (f", state {n['state']}" if "state" in n else ""))
+        text.append("faults: " + (", ".join(_fault_text(f) for f in ans["faults"]) or "none"))
+        emit(a, {"event": "status", **ans}, "\n".join(text))
+        return EXIT_OK
+    if a.fault_action == "add":
+        req: Dict[str, Any] = {"cmd": "fault.add", "kind": a.kind, "probability": a.probability}
+        if a.node != "all":
+            try:
+                req["node"] = int(a.node, 0)
+            except ValueError:
+                raise UsageError(f"--node takes an address or all, not {a.node!r}") from None
+        if a.bus is not None:
+            req["bus"] = a.bus
+        if a.ms is not None:
+            req["ms"] = a.ms
+        elif a.kind == "late_reply":
+            raise UsageError("late_reply needs --ms MS")
+        if a.seed is not None:
+            req["seed"] = a.seed
+        ans = request(a.control, req)
+        _check(ans)
+        emit(a, {"event": "fault_added", **ans}, f"added {_fault_text(ans['fault'])}")
+        return EXIT_OK
+    if a.fault_action == "list":
+        ans = request(a.control, {"cmd": "fault.list"})
+        _check(ans)
+        emit(a, {"event": "faults", **ans}, "\n".join(_fault_text(f) for f in ans["faults"]) or "no faults")
+        return EXIT_OK
+    fid: Any = a.id
+    if fid != "all":
+        try:
+            fid = int(fid, 10)
+        except ValueError:
+            raise UsageError(f"remove takes a fault id or all, not {a.id!r}") from None
+    ans = request(a.control, {"cmd": "fault.remove", "id": fid})
+    _check(ans)
+    emit(a, {"event": "fault_removed", **ans}, "removed " + (", ".join(_fault_text(f) for f in ans["removed"]) or "nothing"))
+    return EXIT_OK
+
+
+def _check(ans: Dict[str, Any]) -> None:
+    if not ans.get("ok"):
+        raise UsageError(f"the sim refused: {ans.get('error')}")
+
+
+def _fault_text(f: Dict[str, Any]) -> str:
+    ms = f" {f['ms']:g} ms" if "ms" in f else ""
+    return (f"#{f['id']} {f['kind']}{ms} bus {f['bus'] or '*'} node {f['node']} "
+            f"p={f['probability']:g} applied {f['applied']}")

@@ -1,0 +1,220 @@
+"""``fap sim --replay CAPTURE``: a recorded bus turned into responders (docs/sim.md, "Replay").
+
+The capture is the virtual bus's format (docs/vbus.md). The master's port is the sender of the
+first record (or the one named). Its bytes are cut into frames by the protocol's own decoder
+(the C codec table for exec async and mikroC, ``fap_py.g485.codec.Parser`` for G485); what the
+other ports sent after a request, until the master's next frame, is that request's reply, and
+its delay is the time from the end of the request on the wire to the start of the reply. Live,
+every frame the master sends is looked up by its exact bytes: a recorded request gets its
+recorded replies in turn (the last one again once they are used up) after the recorded delay;
+a request never recorded is counted (``unmatched``) and logged, and gets no reply.
+"""
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any, Dict, List, Optional, Tuple
+
+from ..errors import ClosedError, FapError, InvalidValueError, PortError
+
+log = logging.getLogger("fap_py.sim")
+
+def replay_protocols() -> List[str]:
+    """The protocols a capture can be replayed for: those whose sim plug-in frames a raw
+    stream (``raw_frames``: the request/reply protocols)."""
+    from .. import _protocols
+    from ._plugins import plugin
+
+    return [n for n in _protocols.names() if hasattr(plugin(n), "raw_frames")]
+
+
+class ReplayError(InvalidValueError):
+    """A capture that cannot be replayed (no master frames, an unknown protocol)."""
+
+
+def _framer(protocol: str, baud: int) -> Any:
+    """``feed(data) -> [(end offset or None, raw frame)]`` by the protocol's own decoder."""
+    from ._plugins import plugin
+
+    return plugin(protocol).raw_frames(baud)
+
+
+class ReplayTable:
+    """Recorded request bytes -> the replies and their delays (seconds), in recorded order."""
+
+    def __init__(self) -> None:
+        self.entries: Dict[bytes, List[Tuple[bytes, float]]] = {}
+        self.requests = 0
+
+    def add(self, request: bytes, reply: bytes, delay: float) -> None:
+        self.entries.setdefault(request, []).append((reply, delay))
+        self.requests += 1
+
+
+def build_table(capture: Any, protocol: str, master_port: Optional[int] = None) -> ReplayTable:
+    """Pair the master's frames of ``capture`` (a :class:`fap_py.vbus.Capture`) with the replies."""
+    names = replay_protocols()
+    if protocol not in names:
+        raise ReplayError(f"replay is for {', '.join(names)}, not {protocol!r}")
+    records = capture.records
+    if not records:
+        raise ReplayError("the capture holds no bytes")
+    master = records[0].port if master_port is None else master_port
+    baud = int(capture.header.get("baud", "0") or 0)
+    char_us = 10e6 / baud if baud else 0.0
+    framer = _framer(protocol, baud)
+    table = ReplayTable()
+    pending: Optional[Tuple[bytes, float]] = None     # (request, its end on the wire, us)
+    reply = b""
+    reply_start: Optional[float] = None
+    consumed = 0          # bytes of the master's stream fed so far
+
+    def close() -> None:
+        if pending is not None:
+            delay = 0.0 if reply_start is None else max(0.0, (reply_start - pending[1]) / 1e6)
+            table.add(pending[0], reply, delay)
+
+    for rec in records:
+        if rec.port == master:
+            start = consumed
+            consumed += len(rec.data)
+            for end, raw in framer.feed(rec.data):
+                close()
+                within = (end - start) if end is not None else len(rec.data)
+                pending = (raw, rec.t_us + max(0, within) * char_us)
+                reply, reply_start = b"", None
+        elif pending is not None:
+            if reply_start is None:
+                reply_start = float(rec.t_us)
+            reply += rec.data
+    close()
+    if not table.entries:
+        raise ReplayError(f"no {protocol} frame from port {master} in the capture")
+    return table
+
+
+class ReplayResponder:
+    """Answers the master's frames on ``port`` from a :class:`ReplayTable`."""
+
+    def __init__(self, name: str, protocol: str, port: Any, table: ReplayTable) -> None:
+        self.name, self.protocol, self.port, self.table = name, protocol, port, table
+        self._framer = _framer(protocol, port.baudrate)
+        self._next: Dict[bytes, int] = {}
+        self.matched = 0
+        self.unmatched = 0
+        self.replies = 0
+        self.handled = threading.Condition()
+        self._stop = threading.Event()
+        self._timers: List[threading.Timer] = []
+        self.error: Optional[BaseException] = None
+        self._thread = threading.Thread(target=self._serve, daemon=True, name=f"fap-sim replay {name}")
+        self._thread.start()
+
+    def _serve(self) -> None:
+        try:
+            while not self._stop.is_set():
+                try:
+                    data = self.port.read(4096, timeout=1.0)
+                except ClosedError:
+                    return
+                except PortError:
+                    if self._stop.wait(0.05):
+                        return
+                    continue
+                if not data:
+                    continue
+                for _, raw in self._framer.feed(data):
+                    self._answer(raw)
+                with self.handled:
+                    self.handled.notify_all()
+        except BaseException as exc:
+            if not self._stop.is_set():
+                self.error = exc
+                log.error("replay %s stopped: %s", self.name, exc)
+
+    def _answer(self, raw: bytes) -> None:
+        entries = self.table.entries.get(raw)
+        if entries is None:
+            self.unmatched += 1
+            log.warning("replay %s: request not in the capture: %s", self.name, raw.hex(" "))
+            return
+        self.matched += 1
+        i = self._next.get(raw, 0)
+        reply, delay = entries[min(i, len(entries) - 1)]
+        self._next[raw] = i + 1
+        if not reply:
+            return
+        if delay <= 0.0005:
+            self._write(reply)
+            return
+        t = threading.Timer(delay, self._write, (reply,))
+        t.daemon = True
+        self._timers = [x for x in self._timers if x.is_alive()] + [t]
+        t.start()
+
+    def _write(self, reply: bytes) -> None:
+        if self._stop.is_set():
+            return
+        try:
+            self.port.write(reply)
+            self.replies += 1
+        except FapError as exc:
+            log.warning("replay %s: reply lost: %s", self.name, exc)
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._timers:
+            t.cancel()
+        try:
+            self.port.close()
+        except FapError:  # pragma: no cover
+            pass
+        self._thread.join(5.0)
+
+    def status(self) -> Dict[int, Dict[str, Any]]:
+        return {}
+
+    def summary(self) -> Dict[str, Any]:
+        return {"recorded_requests": self.table.requests, "distinct_requests": len(self.table.entries),
+                "matched": self.matched, "unmatched": self.unmatched, "replies": self.replies}
+
+
+class Replay:
+    """A replay on a new virtual bus (port0 for the master) or on ``port``; a context manager."""
+
+    def __init__(self, capture_path: str, protocol: str, *, port: Optional[str] = None,
+                 baud: Optional[int] = None, master_port: Optional[int] = None,
+                 link_dir: Optional[str] = None, rs485: Any = None) -> None:
+        from .. import _protocols
+        from ..port import Port
+        from ..vbus import read_capture
+
+        proto = _protocols.get(protocol).name
+        cap = read_capture(capture_path)
+        table = build_table(cap, proto, master_port)
+        line = baud or int(cap.header.get("baud", "0") or 0) or _protocols.get(proto).default_baud
+        self.vbus = None
+        self.master_port: Optional[str] = None
+        if port is None:
+            from ..vbus import VirtualBus
+
+            self.vbus = VirtualBus(ports=2, baud=int(cap.header.get("baud", "0") or 0) or None,
+                                   link_dir=link_dir)
+            self.master_port, port = self.vbus.paths[0], self.vbus.paths[1]
+        try:
+            self.responder = ReplayResponder(proto, proto, Port(port, line, rs485), table)
+        except BaseException:
+            if self.vbus is not None:
+                self.vbus.close()
+            raise
+
+    def close(self) -> None:
+        self.responder.stop()
+        if self.vbus is not None:
+            self.vbus.close()
+
+    def __enter__(self) -> "Replay":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

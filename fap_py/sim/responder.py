@@ -1,0 +1,216 @@
+"""The Python responder of one bus: every node of a request/reply protocol on one port.
+
+One thread reads the port (``fap_py.port.Port``, the C port layer), feeds the protocol
+plug-in's request decoder, and for each request addressed to one of its nodes asks the fault
+table (:meth:`~fap_py.sim.faults.FaultTable.draw`) what to do, then has the node build its
+reply with the protocol's own encoder (the plug-in: no frame format is written here) and
+writes it, damaged or late as the fault says. Exec async, mikroC and G485 nodes run here; FAP
+slaves are the C engine's (:mod:`fap_py.sim.protocols.fap`).
+"""
+from __future__ import annotations
+
+import logging
+import random
+import threading
+from typing import Any, Dict, List, Optional
+
+from ..errors import ClosedError, FapError, PortError
+from .faults import FaultTable
+
+log = logging.getLogger("fap_py.sim")
+
+
+class NodeStats:
+    __slots__ = ("requests", "replies", "faults", "errors")
+
+    def __init__(self) -> None:
+        self.requests = 0
+        self.replies = 0
+        self.faults: Dict[str, int] = {}
+        self.errors = 0
+
+    def public(self) -> Dict[str, Any]:
+        return {"requests": self.requests, "replies": self.replies, "faults": dict(self.faults),
+                "errors": self.errors}
+
+
+class Request:
+    """A decoded request: the node address it is for (None: every node hears it, no reply)
+    and the protocol's own decoded object."""
+
+    __slots__ = ("address", "obj")
+
+    def __init__(self, address: Optional[int], obj: Any) -> None:
+        self.address, self.obj = address, obj
+
+
+class Responder:
+    """Serve the nodes ``nodes`` (address -> plug-in node) of bus ``bus`` on ``port``."""
+
+    def __init__(self, bus: str, plugin: Any, port: Any, nodes: Dict[int, Any], faults: FaultTable,
+                 clock: Any, seed: int = 0) -> None:
+        self.bus, self.plugin, self.port, self.nodes = bus, plugin, port, nodes
+        self.faults, self.clock = faults, clock
+        self.stats: Dict[int, NodeStats] = {a: NodeStats() for a in nodes}
+        self.decoder = plugin.request_decoder(port.baudrate)
+        self._rng = random.Random(seed)
+        self._stop = threading.Event()
+        self._thread: Optional[threading.Thread] = None
+        self.error: Optional[BaseException] = None
+        self.unmatched = 0     # requests for addresses no node has
+        #: notified after each batch of requests is handled (replies written): tests wait on it
+        self.handled = threading.Condition()
+        self.transactions = 0
+        self._timers: List[threading.Timer] = []
+
+    def start(self) -> "Responder":
+        self._thread = threading.Thread(target=self._serve, name=f"fap-sim {self.bus}", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        for t in self._timers:
+            t.cancel()
+        try:
+            self.port.close()
+        except FapError:  # pragma: no cover
+            pass
+        if self._thread is not None:
+            self._thread.join(5.0)
+
+    def _serve(self) -> None:
+        try:
+            while not self._stop.is_set():
+                # a partial frame expires after the decoder's idle time; otherwise wait long
+                # (a close() from stop() ends the wait at once)
+                wait = self.decoder.idle_timeout if getattr(self.decoder, "partial", False) else 1.0
+                try:
+                    data = self.port.read(4096, timeout=wait)
+                except ClosedError:
+                    return
+                except PortError as exc:
+                    if self._stop.is_set():
+                        return
+                    log.warning("%s: %s; reopening", self.bus, exc)
+                    if self._stop.wait(0.05):
+                        return
+                    try:
+                        self.port.reopen()
+                    except FapError:
+                        pass
+                    continue
+                items = self.decoder.feed(data) if data else self.decoder.idle()
+                for req in items:
+                    self._handle(req)
+                if items:
+                    with self.handled:
+                        self.transactions += len(items)
+                        self.handled.notify_all()
+        except BaseException as exc:   # reported in status, not swallowed
+            if not self._stop.is_set():
+                self.error = exc
+                log.error("%s responder stopped: %s: %s", self.bus, type(exc).__name__, exc)
+
+    def _handle(self, req: Request) -> None:
+        if req.address is None:          # heard by every node (a broadcast, a discard)
+            for node in self.nodes.values():
+                node.hear(req.obj)
+            return
+        node = self.nodes.get(req.address)
+        if node is None:
+            self.unmatched += 1
+            return
+        st = self.stats[req.address]
+        main, late = self.faults.draw(self.bus, req.address)
+        if main is not None:
+            st.faults[main.kind] = st.faults.get(main.kind, 0) + 1
+            if main.kind == "off":
+                return
+        st.requests += 1
+        if main is not None and main.kind == "no_reply":
+            node.answer(req.obj, self.clock.now())   # executed, not answered
+            return
+        try:
+            frame = node.answer(req.obj, self.clock.now())
+        except FapError as exc:        # a hook that raised: logged, counted, no reply
+            st.errors += 1
+            log.warning("%s node %d: %s", self.bus, req.address, exc)
+            return
+        if frame is None:
+            return
+        if main is not None:
+            frame = self._damage(main, frame, req)
+        if late is not None:
+            # sent by a timer: the other nodes of the bus go on answering meanwhile
+            st.faults["late_reply"] = st.faults.get("late_reply", 0) + 1
+            t = threading.Timer(late.ms / 1000.0, self._write, (frame, req.address, st))
+            t.daemon = True
+            with self.handled:
+                self._timers = [x for x in self._timers if x.is_alive()] + [t]
+            t.start()
+            return
+        self._write(frame, req.address, st)
+
+    def _write(self, frame: bytes, address: int, st: NodeStats) -> None:
+        if self._stop.is_set():
+            return
+        try:
+            self.port.write(frame)
+            st.replies += 1
+        except FapError as exc:
+            log.warning("%s node %d: reply lost: %s", self.bus, address, exc)
+        with self.handled:
+            self.handled.notify_all()
+
+    def _damage(self, fault: Any, frame: bytes, req: Request) -> bytes:
+        k = fault.kind
+        if k == "bad_crc":
+            return self.plugin.bad_check(frame)
+        if k == "wrong_address":
+            return self.plugin.wrong_address(frame, req.address, req.obj)
+        if k == "truncated":
+            return frame[:max(1, len(frame) // 2)]
+        if k == "garbage":
+            return self.plugin.garbage(fault.rng, len(frame))
+        return frame
+
+    def status(self) -> Dict[int, Any]:
+        return {a: s.public() for a, s in self.stats.items()}
+
+
+class CodecFramer:
+    """Whole frames out of a byte stream by the C codec table's decoder of ``name``:
+    ``feed(data) -> [(end offset in the stream, raw bytes)]`` (replay and learn)."""
+
+    def __init__(self, name: str, baud: int) -> None:
+        from .. import _codec
+
+        self._dec = _codec.find(name).decoder(baud)
+        self._frame = _codec.Frame
+
+    def feed(self, data: bytes) -> List[Any]:
+        return [(f.offset + len(f.raw), bytes(f.raw)) for f in self._dec.feed(data, 0)
+                if isinstance(f, self._frame)]
+
+
+def flip_to(frame: bytes, wanted: Any) -> bytes:
+    """``frame`` with one bit flipped, the one nearest its end for which ``wanted(candidate)``
+    (the protocol's own decoder says "bad check") holds: the check bytes are at the end."""
+    for pos in range(len(frame) - 1, -1, -1):
+        for bit in range(8):
+            cand = bytearray(frame)
+            cand[pos] ^= 1 << bit
+            if wanted(bytes(cand)):
+                return bytes(cand)
+    raise FapError("no single-bit change of the frame gives a bad check")  # pragma: no cover
+
+
+def garbage_without(rng: random.Random, n: int, avoid: bytes) -> bytes:
+    """``n`` random bytes (at least 3) none of which is in ``avoid`` (frame start bytes)."""
+    out = bytearray()
+    while len(out) < max(3, n):
+        b = rng.randrange(256)
+        if b not in avoid:
+            out.append(b)
+    return bytes(out)
