@@ -3,6 +3,7 @@
 
 #include <stddef.h>
 #include <string.h>
+#include <strings.h>
 
 #include "fap_port.h"
 
@@ -21,7 +22,7 @@ static lf_port_scheme url_scheme(const char *s)
     if (!strstr(s, "://"))
         return LF_PORT_DEVICE;
     for (size_t i = 0; i < sizeof schemes / sizeof schemes[0]; i++)
-        if (strncmp(s, schemes[i].prefix, strlen(schemes[i].prefix)) == 0)
+        if (strncasecmp(s, schemes[i].prefix, strlen(schemes[i].prefix)) == 0)   /* RFC 3986: a scheme is case-insensitive */
             return schemes[i].scheme;
     return LF_PORT_OTHER;
 }
