@@ -82,9 +82,9 @@ class Bridge:
     :meth:`start` opens every bus first (a port that fails is published
     ``unavailable`` and retried in the background), then the broker link
     (the outputs the configuration asks for start first: :mod:`fap_py.bridge.outputs`);
-    :meth:`stop` stops the buses, waits up
-    to ``drain`` seconds for the outbox to reach the broker, stops the
-    outputs, publishes ``offline`` and disconnects.
+    :meth:`stop` stops the buses and the outputs, waits up
+    to ``drain`` seconds for the outbox to reach the broker, publishes
+    ``offline`` and disconnects.
     """
 
     def __init__(self, config: BridgeConfig) -> None:
@@ -232,11 +232,11 @@ class Bridge:
             t.join(5.0)
         if self._stats_thread is not None:
             self._stats_thread.join(5.0)
+        self._stop_outputs()   # no more node events or ticks: nothing of theirs during the drain
         self._publish_stopped()
         if self.link.connected and not self.link.drain(drain):
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
-        self._stop_outputs()
         self.link.stop()
         self.store.close()
 

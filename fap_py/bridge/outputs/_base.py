@@ -182,7 +182,7 @@ class Output(Protocol):
         ...
 
     def stop(self) -> None:
-        """After the outbox drained, before the broker link closes."""
+        """Once the buses stopped (no more events), before the outbox drains."""
         ...
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import io
 import os
 import re
+import socket
 import tokenize
 
 import pytest
@@ -125,15 +126,23 @@ def test_a_fourth_output_plugs_in_by_name_and_is_fed(broker, observer_factory, f
 
 
 def test_an_output_that_cannot_start_stops_the_start(broker, fap_bus, tmp_path, toy):
-    """start() raising: the error reaches the caller, the outputs started are stopped and no
-    bus is opened (the port stays free)."""
+    """start() raising: the error reaches the caller, the outputs started before it (the
+    metrics endpoint) are stopped and no bus is opened."""
+    pytest.importorskip("prometheus_client")
     from fap_py.bridge import Bridge
+    from fap_py.bridge.config import from_dict
 
     bus, s1 = fap_bus
     toy.ToyOutput.fail_start = True
-    cfg = bridge_config(broker.port, str(tmp_path / "state"), _buses(bus))
+    cfg = from_dict({"broker": {"url": f"mqtt://127.0.0.1:{broker.port}"},
+                     "bridge": {"host": "test", "state_dir": str(tmp_path / "state")},
+                     "metrics": {"listen": "127.0.0.1:0"}, "bus": _buses(bus)})
     bridge = Bridge(cfg)
+    assert list(bridge.outputs) == ["metrics", "toy"]
     with pytest.raises(OSError, match="toy output: cannot start"):
         bridge.start()
+    metrics = bridge.output("metrics")
+    with pytest.raises(ConnectionRefusedError):   # started first, closed by the failed start
+        socket.create_connection(("127.0.0.1", metrics.port), timeout=WAIT).close()
     assert all(not b.running for b in bridge.buses.values())
     assert not [c for c in toy.ToyOutput.made[0].calls if c[0] == "start"]
