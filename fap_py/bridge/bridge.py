@@ -18,16 +18,15 @@ import logging
 import os
 import threading
 import time
-from typing import Any, Dict, List, Optional, Tuple
+from types import MappingProxyType
+from typing import Any, Dict, List, Mapping, Optional, Tuple
 
 from .._validate import check_bytes, check_seconds, check_timeout
 from ..errors import FapError, InvalidTypeError, InvalidValueError
 from .buses import BusAdapter, TxError, make_adapter
 from .config import BridgeConfig, check_bus_node, verify_files
-from .homeassistant import Discovery
 from .mqtt import MqttLink, paho
-from .ratelimit import Coalescer
-from .sparkplug import SparkplugNode
+from .outputs import RX, SEEN, STATE, BridgeView, NodeEvent, NodeView, Output, build
 from .store import Store, StoreError, now_iso
 
 log = logging.getLogger(__name__)
@@ -36,9 +35,6 @@ TX_MAX = 64 << 10   #: bytes: a larger tx is refused before it is parsed
 ECHO_MAX = 256      #: bytes of a refused tx echoed on the error topic
 TEXT_MAX = 300      #: characters of an error text (published and logged)
 ID_MAX = 128        #: characters of a tx id: a longer one is refused (the seen-id table stays small)
-#: seconds between two republications of the discovery configurations that Home Assistant's
-#: "online" asks for; more "online" within them are coalesced into one at their end
-HA_REPUBLISH_MIN = 30.0
 
 
 def _clip(text: str, limit: int = TEXT_MAX) -> str:
@@ -67,14 +63,26 @@ def _describe(exc: BaseException) -> str:
     return _clip(f"{type(exc).__name__}: {exc}")
 
 
+class _Handler:
+    """Messages on one topic an output subscribed to, to its ``on_message``."""
+
+    __slots__ = ("output", "topic")
+
+    def __init__(self, output: Output, topic: str) -> None:
+        self.output, self.topic = output, topic
+
+    def __call__(self, payload: bytes) -> None:
+        self.output.on_message(self.topic, payload)
+
+
 class Bridge:
     """Runs the buses of ``config`` and links them to the broker.
 
     A context manager: ``with Bridge(cfg) as b: b.wait_connected(10); ...``.
     :meth:`start` opens every bus first (a port that fails is published
     ``unavailable`` and retried in the background), then the broker link
-    (and the metrics endpoint and Sparkplug node when configured);
-    :meth:`stop` stops the buses, waits up
+    (the outputs the configuration asks for start first: :mod:`fap_py.bridge.outputs`);
+    :meth:`stop` stops the buses and the outputs, waits up
     to ``drain`` seconds for the outbox to reach the broker, publishes
     ``offline`` and disconnects.
     """
@@ -100,38 +108,36 @@ class Bridge:
         except BaseException:
             self.store.close()
             raise
-        self.discovery = Discovery(config, lambda topic, payload: self.link.publish_now(topic, payload))
-        if self.discovery.enabled:
-            self.discovery.add_configured({n: b.configured_nodes() for n, b in self.buses.items()})
-            self.link.extra[self.discovery.status_topic] = self._on_ha_status
-        self.ha_republish = Coalescer(self.discovery.republish, HA_REPUBLISH_MIN,
-                                      "Home Assistant discovery republication")
+        try:
+            self._outputs: List[Output] = build(config)
+        except BaseException:
+            self.store.close()
+            raise
+        #: the running outputs by name (read-only)
+        self.outputs: Mapping[str, Output] = MappingProxyType({o.name: o for o in self._outputs})
+        self.view = BridgeView(self)   # what the outputs read of the bridge
+        for o in self._outputs:
+            for topic in o.subscriptions():
+                self.link.extra[topic] = _Handler(o, topic)
         self.link.on_connected = self._on_connected
-        self.sparkplug: Optional[SparkplugNode] = None
-        if config.sparkplug is not None:
-            try:
-                self.sparkplug = SparkplugNode(config, self._sparkplug_node_metrics)
-            except BaseException:
-                self.store.close()
-                raise
         self._stop = threading.Event()
         self._bus_lock = threading.Lock()        # opening a bus vs stopping the bridge
         self._stats_thread: Optional[threading.Thread] = None
         self._reopeners: List[threading.Thread] = []
-        self.metrics: Any = None   # the MetricsServer, with [metrics] listen
+        self._started: List[Output] = []
 
     # -- lifetime --------------------------------------------------------------------
     def start(self) -> "Bridge":
         """Open every bus (one whose port fails is published ``unavailable`` and retried in
         the background: the others run), then connect to the broker."""
-        if self.config.metrics_listen is not None:
-            from .metrics import MetricsServer
-
+        for o in self._outputs:   # before the buses: one that fails (a port taken) stops the start
             try:
-                self.metrics = MetricsServer(self, *self.config.metrics_listen)
+                o.start(self.view)
             except BaseException:
+                self._stop_outputs()
                 self.store.close()
                 raise
+            self._started.append(o)
         for bus in self.buses.values():
             if not self._open_bus(bus):
                 t = threading.Thread(target=self._reopen_loop, args=(bus,), daemon=True,
@@ -139,8 +145,6 @@ class Bridge:
                 t.start()
                 self._reopeners.append(t)
         self.link.start()
-        if self.sparkplug is not None:
-            self.sparkplug.start()
         self._stats_thread = threading.Thread(target=self._stats_loop, name="fap-bridge-stats", daemon=True)
         self._stats_thread.start()
         log.info("bridge %s: %d bus(es), broker %s:%d", self.config.host, len(self.buses),
@@ -228,17 +232,39 @@ class Bridge:
             t.join(5.0)
         if self._stats_thread is not None:
             self._stats_thread.join(5.0)
-        self.ha_republish.close()
+        self._stop_outputs()   # no more node events or ticks: nothing of theirs during the drain
         self._publish_stopped()
         if self.link.connected and not self.link.drain(drain):
             log.warning("stopping with %d publications still in the outbox %s (sent at next start)",
                         self.store.pending, self.store.path)
-        if self.sparkplug is not None:
-            self.sparkplug.stop()
         self.link.stop()
-        if self.metrics is not None:
-            self.metrics.close()
         self.store.close()
+
+    def output(self, name: str) -> Optional[Output]:
+        """The running output called ``name`` (None when the configuration does not ask for it)."""
+        if not isinstance(name, str):
+            raise InvalidTypeError(f"name must be a str, not {type(name).__name__}")
+        return self.outputs.get(name)
+
+    def _stop_outputs(self) -> None:
+        """Stop the started outputs, the last started first."""
+        while self._started:
+            o = self._started.pop()
+            try:
+                o.stop()
+            except Exception:
+                log.exception("output %s: stop failed", o.name)
+
+    def _feed(self, bus: str, node: int, event: NodeEvent) -> None:
+        """Tell every output of a node event (a failing one is logged, the others are told)."""
+        if not self._outputs:
+            return
+        view = NodeView(self.buses[bus], node)
+        for o in self._outputs:
+            try:
+                o.on_node_event(view, event)
+            except Exception:
+                log.exception("output %s: node event %s", o.name, event.kind)
 
     def _publish_stopped(self) -> None:
         """A clean stop: every active node's retained state becomes ``inactive`` (through
@@ -340,41 +366,17 @@ class Bridge:
             self._seen(bus, node, t)
         self._publish_many([(self._topic(bus, node, "rx"), dict(fields, bus=bus, node=node, ts=ts), False)
                             for node, fields in items])
-        if self.sparkplug is not None:
+        if self._outputs:
             for node, fields in items:
-                self.sparkplug.device(bus, node, self._sparkplug_metrics(bus, node, fields))
-
-    def _sparkplug_metrics(self, bus: str, node: int, fields: Optional[Dict[str, Any]] = None) -> List[Any]:
-        """A node's Sparkplug metrics: its last message (if any) and its counters."""
-        from .sparkplug import BYTES, DOUBLE, UINT64
-
-        c = self.buses[bus].node(node)
-        out: List[Any] = []
-        if fields is not None and isinstance(fields.get("data"), str):
-            out.append(("data", BYTES, bytes.fromhex(fields["data"])))
-        out += [("rx", UINT64, c.rx), ("tx", UINT64, c.tx), ("errors", UINT64, c.errors),
-                ("timeouts", UINT64, c.timeouts),
-                ("reply_ms", DOUBLE, None if c.last_reply is None else c.last_reply * 1000)]
-        return out
-
-    def _sparkplug_node_metrics(self) -> List[Any]:
-        from .sparkplug import BOOLEAN, STRING, UINT64
-
-        return [("Bridge/Host", STRING, self.config.host), ("Bridge/Outbox rows", UINT64, self.store.pending),
-                ("Bridge/Not stored", UINT64, self.not_stored),
-                ("Bridge/MQTT refused", UINT64, self.link.refused_total),
-                ("Bridge/MQTT connected", BOOLEAN, self.link.connected),
-                ("Bridge/Invalid commands", UINT64,
-                 0 if self.sparkplug is None else self.sparkplug.invalid_commands)]
+                self._feed(bus, node, NodeEvent(RX, bus, node, fields=MappingProxyType(fields)))
 
     def _on_connected(self) -> None:
         self._publish_health()
-        if self.discovery.enabled:
-            self.discovery.republish()
-
-    def _on_ha_status(self, payload: bytes) -> None:
-        if payload.strip() == b"online":   # Home Assistant (re)started: it wants the configs again
-            self.ha_republish.request()   # at most once per HA_REPUBLISH_MIN s (coalesced)
+        for o in self._outputs:
+            try:
+                o.on_connect(self.link)
+            except Exception:
+                log.exception("output %s: on_connect", o.name)
 
     def node_states(self) -> Dict[Tuple[str, int], bool]:
         """(bus, node) -> active, for every node whose state is known."""
@@ -399,8 +401,7 @@ class Bridge:
         self._check_bus(bus, node)
         if not isinstance(active, bool):
             raise InvalidTypeError(f"active must be a bool, not {type(active).__name__}")
-        if self.discovery.enabled:
-            self.discovery.node_seen(bus, node)
+        self._feed(bus, node, NodeEvent(SEEN, bus, node))
         with self._lock:
             st = self._states.setdefault((bus, node), [None, None, None])
             if active:
@@ -410,11 +411,7 @@ class Bridge:
             st[0] = active
             st[2] = st[1]
         self._publish_state(bus, node, active, st[1])
-        if self.sparkplug is not None:
-            from .sparkplug import BOOLEAN
-
-            self.sparkplug.device(bus, node, [("active", BOOLEAN, active), *self._sparkplug_metrics(bus, node)],
-                                  alive=active)
+        self._feed(bus, node, NodeEvent(STATE, bus, node, active=active))
 
     def _publish_state(self, bus: str, node: int, active: bool, last_seen: Optional[float]) -> None:
         self._publish(self._topic(bus, node, "state"),
@@ -518,5 +515,8 @@ class Bridge:
             for (bus, node), seen in stale:
                 self._publish_state(bus, node, True, seen)
             self._publish_health(force=False)
-            if self.sparkplug is not None:
-                self.sparkplug.node_data()
+            for o in self._outputs:
+                try:
+                    o.on_tick()
+                except Exception:
+                    log.exception("output %s: on_tick", o.name)

@@ -25,12 +25,18 @@ class MetricsSource(Protocol):
     """What the collector reads of a bridge (:class:`fap_py.bridge.Bridge` is one).
     A protocol, not an import of Bridge: bridge.py imports this module."""
 
-    buses: Any
-    link: Any
-    store: Any
-    not_stored: Any
-    tx_refused: Any
-    duplicates: Any
+    @property
+    def buses(self) -> Any: ...
+    @property
+    def link(self) -> Any: ...
+    @property
+    def store(self) -> Any: ...
+    @property
+    def not_stored(self) -> Any: ...
+    @property
+    def tx_refused(self) -> Any: ...
+    @property
+    def duplicates(self) -> Any: ...
 
     def node_states(self) -> Any: ...
 
@@ -134,7 +140,8 @@ class BridgeCollector:
         for topic, n in sorted(getattr(link, "refused_own", {}).items()):
             own.add_metric([topic], n)
         yield own
-        sp = getattr(b, "sparkplug", None)
+        find = getattr(b, "output", None)   # a BridgeView: the outputs by name
+        sp = find("sparkplug") if callable(find) else getattr(b, "sparkplug", None)
         if sp is not None:
             yield CounterMetricFamily("fap_bridge_sparkplug_invalid_commands",
                                       "NCMD that were not a Sparkplug payload or asked nothing known",

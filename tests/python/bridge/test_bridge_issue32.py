@@ -296,7 +296,8 @@ def test_home_assistant_online_floods_are_coalesced(broker, observer_factory, fa
         with obs._cond:
             n = sum(1 for m in obs.messages if configs(m))
         assert first == 6 and n == 12, n
-        assert bridge.ha_republish.runs == 1 and bridge.ha_republish.coalesced == 299
+        ha = bridge.output("homeassistant")
+        assert ha.republish.runs == 1 and ha.republish.coalesced == 299
 
 
 def test_rebirth_floods_are_coalesced_and_bad_commands_counted(broker, observer_factory, fap_pair, tmp_path):
@@ -319,11 +320,11 @@ def test_rebirth_floods_are_coalesced_and_bad_commands_counted(broker, observer_
         for _ in range(300):
             obs.c.publish("spBv1.0/g/NCMD/sp", cmd, qos=0)
         obs.c.publish("spBv1.0/g/NCMD/sp", b"\xff\xff not protobuf", qos=0).wait_for_publish(WAIT)
-        sp = bridge.sparkplug
+        sp = bridge.output("sparkplug")
         with obs._cond:   # the marker is processed after the 300 (one connection, in order)
             assert obs._cond.wait_for(lambda: sp.invalid_commands == 1 and sp.rebirths.requests == 300, WAIT)
         assert sp.rebirths.runs == 1 and sp.births == 2
-        body = urllib.request.urlopen(f"http://127.0.0.1:{bridge.metrics.port}/metrics", timeout=WAIT).read()
+        body = urllib.request.urlopen(f"http://127.0.0.1:{bridge.output('metrics').port}/metrics", timeout=WAIT).read()
         assert b"fap_bridge_sparkplug_invalid_commands_total 1.0" in body
 
 
@@ -348,12 +349,12 @@ def test_slow_metrics_clients_cost_no_thread_and_a_scrape_still_works(broker, ob
         slow = []
         try:
             for _ in range(200):                      # connect and never send
-                slow.append(socket.create_connection(("127.0.0.1", bridge.metrics.port), timeout=WAIT))
-            body = urllib.request.urlopen(f"http://127.0.0.1:{bridge.metrics.port}/metrics",
+                slow.append(socket.create_connection(("127.0.0.1", bridge.output('metrics').port), timeout=WAIT))
+            body = urllib.request.urlopen(f"http://127.0.0.1:{bridge.output('metrics').port}/metrics",
                                           timeout=WAIT).read()
             assert b"fap_bridge_bus_up" in body
             assert threading.active_count() <= threads + 1
-            assert bridge.metrics.clients <= MAX_CLIENTS
+            assert bridge.output('metrics').clients <= MAX_CLIENTS
             # the test's own 200 sockets, and at most MAX_CLIENTS on the bridge's side
             assert len(os.listdir("/proc/self/fd")) <= fds + 200 + MAX_CLIENTS + 5
             s1.send(b"\x42", timeout=WAIT)           # the bus side goes on
