@@ -33,6 +33,7 @@ TOOLS: Dict[str, str] = {
     "bridge": "bridge.protocols",
     "soak": "soak",
     "cli": "commands.protocols",
+    "sim": "sim.protocols",
 }
 
 

@@ -1,18 +1,29 @@
-"""Finding a protocol's sim plug-in by name (``fap_py.sim.protocols.<name>``)."""
+"""Finding a protocol's sim plug-in by name: the protocol table's ``sim`` tool
+room (``<package>.sim.protocols.<name>``, :data:`fap_py._protocols.TOOLS`), so
+a protocol without one (an out-of-tree protocol that brings no simulator) is
+simply not offered, never an import error."""
 from __future__ import annotations
 
-import importlib
 from types import ModuleType
+from typing import List
 
 
 def plugin_name(protocol: str) -> str:
     """The module name of ``protocol``'s sim plug-in (its one name or an alias)."""
     from .. import _protocols
 
-    p = _protocols.get(protocol)
-    return f"{p.package}.sim.protocols.{p.name}"
+    return _protocols.get(protocol).plugin_name("sim")
 
 
 def plugin(protocol: str) -> ModuleType:
-    """Import ``protocol``'s sim plug-in."""
-    return importlib.import_module(plugin_name(protocol))
+    """Import ``protocol``'s sim plug-in (UnknownProtocolError if it has none)."""
+    from .. import _protocols
+
+    return _protocols.get(protocol).plugin("sim")
+
+
+def simulated() -> List[str]:
+    """The protocols of the table that have a sim plug-in, in table order."""
+    from .. import _protocols
+
+    return [n for n in _protocols.names() if _protocols.get(n).has_plugin("sim")]

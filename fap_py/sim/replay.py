@@ -22,10 +22,9 @@ log = logging.getLogger("fap_py.sim")
 def replay_protocols() -> List[str]:
     """The protocols a capture can be replayed for: those whose sim plug-in frames a raw
     stream (``raw_frames``: the request/reply protocols)."""
-    from .. import _protocols
-    from ._plugins import plugin
+    from ._plugins import plugin, simulated
 
-    return [n for n in _protocols.names() if hasattr(plugin(n), "raw_frames")]
+    return [n for n in simulated() if hasattr(plugin(n), "raw_frames")]
 
 
 class ReplayError(InvalidValueError):

@@ -82,20 +82,9 @@ _COMMON_NODE: Dict[str, Any] = {
 
 
 def _protocol_names() -> List[str]:
-    from .. import _protocols
+    from ._plugins import simulated
 
-    return [n for n in _protocols.names() if _has_plugin(n)]
-
-
-def _has_plugin(name: str) -> bool:
-    import importlib.util
-
-    from ._plugins import plugin_name
-
-    try:
-        return importlib.util.find_spec(plugin_name(name)) is not None
-    except ModuleNotFoundError:
-        return False
+    return simulated()
 
 
 def _bus_schema(name: str) -> Dict[str, Any]:

@@ -1,0 +1,1 @@
+"""The toy protocol's fap sim room (found by name through the protocol table)."""
