@@ -20,6 +20,7 @@ from typing import Any, Dict, List
 
 from ._options import (
     EXIT_OK,
+    EXIT_USAGE,
     Parser,
     UsageError,
     add_command,
@@ -105,7 +106,10 @@ def run(args: argparse.Namespace) -> int:
     if args.rest:   # options after CONFIG: REMAINDER took them
         extra = Parser(prog="fap sim", add_help=False)
         _run_options(extra)
-        extra.parse_args(args.rest, namespace=args)
+        try:
+            extra.parse_args(args.rest, namespace=args)
+        except SystemExit as exc:     # a usage error, already said in the one error style
+            return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
     if args.schema:
         from fap_py.sim.schema import schema
         print(json.dumps(schema(), indent=2))

@@ -182,7 +182,14 @@ def _runs(run: Run, tmp: Path) -> Dict[Tuple[str, ...], List[str]]:
         ("soak",): run("soak", "--protocol", "mikroc", "--seconds", "0.3",
                        "--check8-seconds", "0.1", "--slaves", "1"),
         ("sim",): _sim(run, tmp),
+        ("doctor",): _doctor(run, tmp),
     }
+
+
+def _doctor(run: Run, tmp: Path) -> List[str]:
+    root = tmp / "root"                 # an empty machine: findings, and their exit code
+    (root / "etc").mkdir(parents=True)
+    return run("doctor", "--root", str(root), codes=(0, 4, 5))
 
 
 def _sim(run: Run, tmp: Path) -> List[str]:
@@ -206,7 +213,8 @@ COVERED: Dict[Tuple[str, ...], str] = {
     ("g485", "error-word"): "g485", ("g485", "handshake"): "g485", ("g485", "scan"): "g485",
     ("g485", "sim"): "g485", ("fap", "master"): "fap", ("fap", "slave"): "fap",
     ("version",): "tools", ("completion",): "tools", ("monitor",): "tools",
-    ("bridge",): "tools", ("demo",): "runs", ("soak",): "runs", ("sim",): "runs", ("ports",): "tools",
+    ("bridge",): "tools", ("demo",): "runs", ("soak",): "runs", ("sim",): "runs", ("doctor",): "runs",
+    ("ports",): "tools",
     ("bus",): "tools",
 }
 

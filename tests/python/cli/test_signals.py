@@ -54,16 +54,17 @@ def _leaves(parser: argparse.ArgumentParser, path: tuple = ()) -> Iterator[tuple
         yield from _leaves(child, path + (name,))
 
 
+EXAMPLE_SIM = Path(__file__).resolve().parents[3] / "examples" / "sim" / "site.toml"
 LEAVES = {" ".join(words): p for words, p in _leaves(build_parser())}
 REGISTRY = {name: p.get_default("long_running") for name, p in LEAVES.items()
             if p.get_default("long_running")}
 
 #: long-running commands that install their own handlers (and do not register): the exit
 #: codes of SIGTERM and SIGINT docs/cli.md gives them
-SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130)}
+SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130), "sim": (0, 0)}
 #: commands that end by themselves and wait for nothing
 SHORT = {"exec encode", "exec decode", "g485 write", "g485 set", "ports", "version",
-         "completion"}
+         "completion", "doctor"}   # doctor: --listen SECONDS is bounded by its own time
 
 
 def test_every_command_is_classified() -> None:
@@ -145,6 +146,7 @@ CASES: Dict[str, Case] = {
     "demo": Case(lambda p: ["demo", "--json", "--duration", "60"], _ev("status"),
                  summary="summary", extra={"interrupted": True}),
     "bus": Case(lambda p: ["bus", "--ports", "2", "--json"], _ev("ready")),
+    "sim": Case(lambda p: ["sim", str(EXAMPLE_SIM), "--json"], _ev("ready"), summary="stopped"),
 }
 
 
