@@ -12,8 +12,8 @@ from typing import List
 
 from ._options import UsageError, add_command, add_output_options, baud, emit, seconds
 
-#: the longest --listen
-LISTEN_MAX_S = 3600.0
+#: the longest --listen (the library's bound: fap_py.doctor.listen)
+from ..doctor import LISTEN_MAX_S  # noqa: E402
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -47,8 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..doctor import Context, bundle, exit_code, listen, ordered
-    from ..doctor import run as run_checks
+    from ..doctor import _bundle, _listen, exit_code
+    from ..doctor._context import Context
+    from ..doctor._finding import ordered
+    from ..doctor._registry import run as run_checks
     from .ports import probe as ports_probe
 
     if not os.path.isdir(args.root):
@@ -65,10 +67,10 @@ def run(args: argparse.Namespace) -> int:
     findings = run_checks(ctx)
     if args.listen is not None:
         host = ctx.host(args.port) or args.port
-        findings.append(listen.listen(host, args.listen))
+        findings.append(_listen.listen(host, args.listen))
     findings = ordered(findings)
     if args.bundle:
-        n = bundle.write(args.bundle, ctx, findings)
+        n = _bundle.write(args.bundle, ctx, findings)
         sys.stderr.write(f"fap doctor: wrote {args.bundle} ({n} evidence files, secrets masked)\n")
     code = exit_code(findings)
     if args.json:

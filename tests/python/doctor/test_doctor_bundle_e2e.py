@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from doctor_helpers import doctor
 
-from fap_py.doctor.bundle import MASK, mask
+from fap_py.doctor._bundle import MASK, mask
 from fap_py.vbus import VirtualBus
 
 SECRETS = ("hunter2", "s3cr3t-tok", "pa55w0rd", "k3y-abc", "wifipsk99")

@@ -7,8 +7,10 @@ import time
 
 from doctor_helpers import doctor
 
-from fap_py.doctor import Context, Finding, registry
-from fap_py.doctor.context import READ_MAX
+from fap_py.doctor import Finding
+from fap_py.doctor import _registry as registry
+from fap_py.doctor._context import Context
+from fap_py.doctor._context import READ_MAX
 
 
 def test_hostile_root(fap_main, tree):

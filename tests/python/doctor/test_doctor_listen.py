@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from doctor_helpers import doctor
 
-from fap_py.doctor import listen as listen_mod
+from fap_py.doctor import _listen as listen_mod
 from fap_py.vbus import VirtualBus
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -9,8 +9,11 @@ import termios
 import pytest
 from doctor_helpers import doctor
 
-from fap_py.doctor import Context, context, listen, registry
-from fap_py.doctor.checks import holders, permissions, rpi
+from fap_py.doctor import _context as context
+from fap_py.doctor import _listen as listen
+from fap_py.doctor import _registry as registry
+from fap_py.doctor._context import Context
+from fap_py.doctor._checks import holders, permissions, rpi
 from fap_py.vbus import VirtualBus
 
 
@@ -157,7 +160,7 @@ def test_termios_of_a_live_port(fap_main):
 
 
 def test_read_termios_of_no_tty(tmp_path):
-    from fap_py.doctor.checks.adapter import read_termios
+    from fap_py.doctor._checks.adapter import read_termios
     assert read_termios(str(tmp_path / "none")) is None
     f = tmp_path / "file"
     f.write_text("")

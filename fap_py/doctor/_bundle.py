@@ -14,8 +14,8 @@ import time
 from typing import Iterable
 
 from ..errors import FileError
-from .context import Context, _read_regular
-from .finding import Finding
+from ._context import Context, _read_regular
+from ._finding import Finding
 
 #: the largest file put in the bundle (its start)
 BUNDLE_FILE_MAX = 1 << 20

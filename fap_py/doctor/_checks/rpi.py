@@ -10,9 +10,9 @@ import re
 from dataclasses import dataclass
 from typing import Iterator, List, Optional, Set
 
-from ..context import Context
-from ..finding import Finding
-from ..registry import check
+from .._context import Context
+from .._finding import Finding
+from .._registry import check
 
 CONFIGS = ("/boot/firmware/config.txt", "/boot/config.txt")
 MODEL_FILES = ("/proc/device-tree/model", "/sys/firmware/devicetree/base/model")

@@ -4,7 +4,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any, Dict, Iterable, List, Optional
 
-from ..errors import InvalidValueError
+from ..errors import InvalidTypeError, InvalidValueError
 
 #: severities, mildest first; ``rank`` orders a report worst first
 SEVERITIES = ("ok", "info", "warning", "error")
@@ -38,8 +38,26 @@ class Finding:
     detail: Optional[Dict[str, Any]] = None
 
     def __post_init__(self) -> None:
+        for what in ("id", "severity", "cause", "fix"):
+            if not isinstance(getattr(self, what), str):
+                raise InvalidTypeError(f"Finding {what} must be a str, not "
+                                       f"{type(getattr(self, what)).__name__}")
+        if not self.id:
+            raise InvalidValueError("Finding id must be a check id, not empty")
         if self.severity not in SEVERITIES:
             raise InvalidValueError(f"severity must be one of {SEVERITIES}, not {self.severity!r}")
+        if isinstance(self.evidence, (str, bytes)) or not isinstance(self.evidence, (list, tuple)):
+            raise InvalidTypeError(f"Finding evidence must be a list of str, not "
+                                   f"{type(self.evidence).__name__}")
+        if not all(isinstance(e, str) for e in self.evidence):
+            raise InvalidTypeError("Finding evidence must hold str lines")
+        object.__setattr__(self, "evidence", list(self.evidence))
+        if self.port is not None and not isinstance(self.port, str):
+            raise InvalidTypeError(f"Finding port must be a str or None, not "
+                                   f"{type(self.port).__name__}")
+        if self.detail is not None and not isinstance(self.detail, dict):
+            raise InvalidTypeError(f"Finding detail must be a dict or None, not "
+                                   f"{type(self.detail).__name__}")
 
     def as_event(self) -> Dict[str, Any]:
         """The ``--json`` object: an ``event`` key like the other commands' rows."""

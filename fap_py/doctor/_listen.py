@@ -24,7 +24,7 @@ from ..errors import FapError
 from ..monitor.core import Monitor
 from ..monitor.decoders import monitor_protocols
 from ..monitor.stats import Stats
-from .finding import Finding
+from ._finding import Finding
 
 #: the rates tried on a real UART, most common first
 STANDARD_BAUDS: Tuple[int, ...] = (9600, 19200, 38400, 57600, 115200, 4800, 2400, 1200, 230400)

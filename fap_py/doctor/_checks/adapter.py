@@ -7,9 +7,9 @@ import os
 import termios
 from typing import Any, Dict, Iterator, Optional
 
-from ..context import Context, PortInfo
-from ..finding import Finding
-from ..registry import check
+from .._context import Context, PortInfo
+from .._finding import Finding
+from .._registry import check
 
 #: drivers without TIOCSRS485 (USB adapters: direction by the transceiver or RTS)
 NO_RS485_DRIVERS = {"ftdi_sio", "ch341", "ch343", "cp210x", "pl2303", "cdc_acm", "usb_serial_simple"}

@@ -6,9 +6,9 @@ from __future__ import annotations
 import re
 from typing import Iterator, List, Tuple
 
-from ..context import Context
-from ..finding import Finding
-from ..registry import check
+from .._context import Context
+from .._finding import Finding
+from .._registry import check
 from ._common import TTY_NAME_RE, USB_NAME_RE
 
 UDEV_DIRS = ("/etc/udev/rules.d", "/run/udev/rules.d", "/lib/udev/rules.d", "/usr/lib/udev/rules.d")

@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 from typing import Iterator
 
-from ..context import Context
-from ..finding import Finding
-from ..registry import check
+from .._context import Context
+from .._finding import Finding
+from .._registry import check
 
 _UV_RE = re.compile(r"under-?\s?voltage detected", re.IGNORECASE)
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import os
 from typing import Iterator, List, Optional, Tuple
 
-from ..context import Context, PortInfo
-from ..finding import Finding
-from ..registry import check
+from .._context import Context, PortInfo
+from .._finding import Finding
+from .._registry import check
 from ._common import names_of, refers_to
 
 #: descriptors looked at in all, at most (a huge /proc stays bounded)

@@ -6,7 +6,7 @@ import re
 import stat
 from typing import List, Optional, Set, Tuple
 
-from ..context import Context, PortInfo
+from .._context import Context, PortInfo
 
 USB_NAME_RE = re.compile(r"^tty(USB|ACM)\d+$")
 #: a name a unit file may give without /dev/ (ttyS0, ttyAMA0, ttyUSB0, ttymxc1 ...)

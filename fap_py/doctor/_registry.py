@@ -1,4 +1,4 @@
-"""The checks' registry: every module of :mod:`fap_py.doctor.checks` registers its
+"""The checks' registry: every module of :mod:`fap_py.doctor._checks` registers its
 checks with :func:`check`; :func:`all_checks` imports them all (a new file there
 needs no edit elsewhere) and :func:`run` runs them, a failing check turned into
 an ``info`` finding that says it was skipped (never a traceback)."""
@@ -11,8 +11,8 @@ from dataclasses import dataclass
 from typing import Callable, Dict, Iterable, List, Optional
 
 from ..errors import InvalidValueError
-from .context import Context
-from .finding import Finding
+from ._context import Context
+from ._finding import Finding
 
 log = logging.getLogger(__name__)
 
@@ -42,10 +42,10 @@ def check(id: str, title: str) -> Callable[[CheckFn], CheckFn]:
 
 def all_checks() -> List[Check]:
     """Every check, in registration order (the modules imported by name order)."""
-    from . import checks
-    for info in pkgutil.iter_modules(checks.__path__):
+    from . import _checks
+    for info in pkgutil.iter_modules(_checks.__path__):
         if not info.name.startswith("_"):
-            importlib.import_module(f"{checks.__name__}.{info.name}")
+            importlib.import_module(f"{_checks.__name__}.{info.name}")
     return sorted(_CHECKS.values(), key=lambda c: c.order)
 
 

@@ -7,9 +7,9 @@ import os
 import re
 from typing import Iterator, List, Optional, Set
 
-from ..context import Context
-from ..finding import Finding
-from ..registry import check
+from .._context import Context
+from .._finding import Finding
+from .._registry import check
 from ._common import device_owner, group_line, group_name, mentions, names_of
 
 #: what /proc/1/cgroup says inside a container

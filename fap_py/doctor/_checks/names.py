@@ -7,9 +7,9 @@ import os
 from collections import defaultdict
 from typing import Dict, Iterator, List
 
-from ..context import Context
-from ..finding import Finding
-from ..registry import check
+from .._context import Context
+from .._finding import Finding
+from .._registry import check
 from ._common import USB_NAME_RE
 
 
