@@ -10,10 +10,8 @@ import os
 import sys
 from typing import List
 
+from ..doctor import LISTEN_MAX_S  # the longest --listen: the library's bound (doctor.listen)
 from ._options import UsageError, add_command, add_output_options, baud, emit, seconds
-
-#: the longest --listen (the library's bound: fap_py.doctor.listen)
-from ..doctor import LISTEN_MAX_S  # noqa: E402
 
 
 def register(sub: argparse._SubParsersAction) -> None:

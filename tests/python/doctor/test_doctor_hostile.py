@@ -9,8 +9,7 @@ from doctor_helpers import doctor
 
 from fap_py.doctor import Finding
 from fap_py.doctor import _registry as registry
-from fap_py.doctor._context import Context
-from fap_py.doctor._context import READ_MAX
+from fap_py.doctor._context import READ_MAX, Context
 
 
 def test_hostile_root(fap_main, tree):

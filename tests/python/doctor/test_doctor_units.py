@@ -12,8 +12,8 @@ from doctor_helpers import doctor
 from fap_py.doctor import _context as context
 from fap_py.doctor import _listen as listen
 from fap_py.doctor import _registry as registry
-from fap_py.doctor._context import Context
 from fap_py.doctor._checks import holders, permissions, rpi
+from fap_py.doctor._context import Context
 from fap_py.vbus import VirtualBus
 
 
