@@ -46,8 +46,13 @@ def echo_server() -> Iterator[str]:
     t.start()
     yield f"tcp://127.0.0.1:{srv.getsockname()[1]}"
     stop.set()
+    try:
+        srv.shutdown(socket.SHUT_RDWR)   # wakes the blocked accept() (close alone does not)
+    except OSError:
+        pass
     srv.close()
     t.join(timeout=10)
+    assert not t.is_alive()
 
 
 def test_check_on_a_tcp_url_needs_no_rs485(echo_server: str) -> None:

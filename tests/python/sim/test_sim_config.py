@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 
 import pytest
 
@@ -145,13 +146,11 @@ def test_yaml(tmp_path):
     assert "aliases" in check_err(rec)
 
 
-def test_yaml_without_pyyaml_is_one_line(tmp_path):
-    try:
-        import yaml  # noqa: F401
-        pytest.skip("PyYAML is installed")
-    except ImportError:
-        pass
-    assert "needs PyYAML" in check_err(_write(tmp_path, "site.yaml", "bus: []\n"))
+def test_yaml_without_pyyaml_is_one_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "yaml", None)     # PyYAML hidden: import yaml fails
+    with pytest.raises(SimConfigError) as e:
+        loads("bus: []\n", "site.yaml", "yaml")
+    assert "needs PyYAML" in str(e.value)
 
 
 def test_errors_are_the_package_hierarchy():
