@@ -369,26 +369,37 @@ def port_kind(path: PathLike) -> str:
     ``rfc2217://HOST:PORT``, query ``connect_ms`` / ``rtt_ms`` / ``option_ms``);
     ``"other"``: a URL of a scheme libfap does not open (pyserial's
     ``socket://``, ``loop://``); ``"invalid"``: a ``tcp://`` / ``rfc2217://``
-    URL that does not parse, or a path with a NUL. Opens and looks up
-    nothing. The one reading of a port string: code that needs to know what
-    a path is asks here, not ``"://" in path``.
+    URL that does not parse (or a str that has no bytes form). Opens and
+    looks up nothing. The one reading of a port string: code that needs to
+    know what a path is asks here, not ``"://" in path``.
+
+    ``path`` is a str, bytes or os.PathLike; anything else raises
+    :class:`~fap_py.errors.InvalidTypeError`, an empty path or one holding a
+    NUL byte (no device nor URL can have one) :class:`~fap_py.errors.InvalidValueError`.
 
     >>> port_kind("/dev/ttyUSB0"), port_kind("rfc2217://10.0.0.5:4001")   # doctest: +SKIP
     ('device', 'rfc2217')
     """
-    if isinstance(path, os.PathLike):
+    if not isinstance(path, (str, bytes, os.PathLike)):
+        raise InvalidTypeError(f"port must be a path or URL string (str, bytes or os.PathLike), "
+                               f"not {type(path).__name__}")
+    try:
         path = os.fspath(path)
+    except TypeError as exc:     # an os.PathLike whose __fspath__ returns no path
+        raise InvalidTypeError(f"port must be a path or URL string: {exc}") from None
     if isinstance(path, str):
+        if "\0" in path:
+            raise InvalidValueError(f"port {path[:60]!r} holds a NUL byte: no device or URL has one")
         try:
             raw = os.fsencode(path)
         except UnicodeError:
             return "invalid"
-    elif isinstance(path, bytes):
-        raw = path
     else:
-        raise InvalidTypeError(f"port must be a path or URL string, not {type(path).__name__}")
-    if b"\0" in raw:
-        return "invalid"
+        raw = path
+        if b"\0" in raw:
+            raise InvalidValueError(f"port {raw[:60]!r} holds a NUL byte: no device or URL has one")
+    if not raw:
+        raise InvalidValueError("port must be a device path or URL, not an empty string")
     from ._native import lib
 
     k = lib.fap_port_kind(raw)
@@ -397,7 +408,8 @@ def port_kind(path: PathLike) -> str:
 
 
 def is_network(path: PathLike) -> bool:
-    """A ``tcp://`` or ``rfc2217://`` URL that parses (an Ethernet serial server)."""
+    """A ``tcp://`` or ``rfc2217://`` URL that parses (an Ethernet serial server).
+    ``path`` is checked as :func:`port_kind` checks it (same errors)."""
     return port_kind(path) in ("tcp", "rfc2217")
 
 

@@ -16,11 +16,46 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Dict, Iterable, Mapping, Optional, Protocol, Tuple, runtime_checkable
 
+from ..._validate import check_bool, check_bytes, check_int
+from ...errors import InvalidTypeError, InvalidValueError
+
 #: the kinds of :class:`NodeEvent`
 SEEN = "seen"     #: the node is known (each time its state is set, changed or not)
 STATE = "state"   #: the node became active or inactive (``event.active``)
 RX = "rx"         #: a message or register read received (``event.fields``)
 EVENT_KINDS = (SEEN, STATE, RX)
+
+#: MQTT's largest packet (its remaining length field): no payload is longer
+PAYLOAD_MAX = 268_435_455
+#: an MQTT topic is at most 65535 bytes of UTF-8
+TOPIC_MAX = 65535
+
+
+def _text(value: Any, what: str, limit: int = 200) -> str:
+    """``value`` if it is a non-empty str without NUL of at most ``limit`` characters."""
+    if not isinstance(value, str):
+        raise InvalidTypeError(f"{what} must be a str, not {type(value).__name__}")
+    if not value or "\0" in value or len(value) > limit:
+        raise InvalidValueError(f"{what} must be a non-empty name without NUL of at most {limit} "
+                                f"characters, not {value[:60]!r}")
+    return value
+
+
+def check_topic(topic: Any, what: str = "topic") -> str:
+    """An MQTT topic to publish on: a non-empty str of at most 65535 UTF-8 bytes, no NUL and
+    no wildcard (``+``, ``#``: a subscription's, never a publication's)."""
+    if not isinstance(topic, str):
+        raise InvalidTypeError(f"{what} must be a str, not {type(topic).__name__}")
+    if not topic or "\0" in topic or "+" in topic or "#" in topic:
+        raise InvalidValueError(f"{what} {topic[:80]!r}: an MQTT topic to publish on is non-empty "
+                                "and has no NUL and no wildcard (+, #)")
+    try:
+        size = len(topic.encode("utf-8"))
+    except UnicodeError:
+        raise InvalidValueError(f"{what} {topic[:80]!r} is not valid UTF-8 (a lone surrogate)") from None
+    if size > TOPIC_MAX:
+        raise InvalidValueError(f"{what} is {size} bytes of UTF-8; an MQTT topic is at most {TOPIC_MAX}")
+    return topic
 
 
 @dataclass(frozen=True)
@@ -141,15 +176,27 @@ class BridgeView:
         return dict(self._bridge.node_states())
 
     def node(self, bus: str, node: int) -> NodeView:
-        """The read-only counters of ``node`` on ``bus``."""
-        return NodeView(self._bridge.buses[bus], node)
+        """The read-only counters of ``node`` (an address 0..255) on ``bus`` (a configured
+        bus's name: :class:`~fap_py.errors.InvalidValueError` naming the known ones if not)."""
+        _text(bus, "bus")
+        node = check_int(node, "node", 0, 0xFF)     # one address byte, as the adapters count
+        buses = self._bridge.buses
+        if bus not in buses:
+            raise InvalidValueError(f"no bus {bus[:60]!r} in this bridge (buses: "
+                                    f"{', '.join(sorted(buses)) or 'none'})")
+        return NodeView(buses[bus], node)
 
     def output(self, name: str) -> Optional["Output"]:
         """Another running output, by name (None if it is not configured)."""
-        return self._bridge.outputs.get(name)
+        return self._bridge.outputs.get(_text(name, "name"))
 
     def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> None:
-        """Publish on the main connection, outside the outbox (QoS 1, best effort)."""
+        """Publish on the main connection, outside the outbox (QoS 1, best effort; nothing
+        while the broker is not connected). ``topic``: :func:`check_topic`; ``payload``:
+        bytes-like; ``retain``: a bool."""
+        check_topic(topic)
+        payload = check_bytes(payload, "payload", 0, PAYLOAD_MAX)
+        check_bool(retain, "retain")
         self._bridge.link.publish_now(topic, payload, retain)
 
 
@@ -187,7 +234,13 @@ class Output(Protocol):
 
 
 class OutputBase:
-    """An :class:`Output` whose hooks do nothing: subclass and override what you need."""
+    """An :class:`Output` whose hooks do nothing: subclass and override what you need.
+
+    The defaults check what they are handed as the bridge hands it (``start``: a
+    :class:`BridgeView`; ``on_connect``: the broker link; ``on_node_event``: a
+    :class:`NodeView` and a :class:`NodeEvent`; ``on_message``: a str topic and
+    bytes), so a hook called by hand with something else raises
+    :class:`~fap_py.errors.InvalidTypeError` rather than doing nothing."""
 
     name = "output"
 
@@ -195,16 +248,26 @@ class OutputBase:
         return ()
 
     def start(self, ctx: BridgeView) -> None:
+        if not isinstance(ctx, BridgeView):
+            raise InvalidTypeError(f"ctx must be a BridgeView, not {type(ctx).__name__}")
         self.ctx = ctx
 
     def on_connect(self, link: Any) -> None:
-        pass
+        from ..mqtt import MqttLink     # here: the link module is not needed to define an output
+
+        if not isinstance(link, MqttLink):
+            raise InvalidTypeError(f"link must be the bridge's MqttLink, not {type(link).__name__}")
 
     def on_node_event(self, view: NodeView, event: NodeEvent) -> None:
-        pass
+        if not isinstance(view, NodeView):
+            raise InvalidTypeError(f"view must be a NodeView, not {type(view).__name__}")
+        if not isinstance(event, NodeEvent):
+            raise InvalidTypeError(f"event must be a NodeEvent, not {type(event).__name__}")
 
     def on_message(self, topic: str, payload: bytes) -> None:
-        pass
+        if not isinstance(topic, str):
+            raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
+        check_bytes(payload, "payload", 0, PAYLOAD_MAX)
 
     def on_tick(self) -> None:
         pass

@@ -146,3 +146,90 @@ def test_an_output_that_cannot_start_stops_the_start(broker, fap_bus, tmp_path, 
         socket.create_connection(("127.0.0.1", metrics.port), timeout=WAIT).close()
     assert all(not b.running for b in bridge.buses.values())
     assert not [c for c in toy.ToyOutput.made[0].calls if c[0] == "start"]
+
+
+def test_output_base_defaults_take_what_the_bridge_hands_and_the_view_checks_its_calls(
+        broker, observer_factory, fap_bus, tmp_path, caplog):
+    """An output that overrides no hook: OutputBase's defaults check their arguments, and
+    a real bridge's (a BridgeView, its MqttLink, NodeView + NodeEvent, a topic and bytes)
+    pass them, nothing logged. Its view's calls refuse bad values with the package's errors
+    (an unknown bus named with the known ones, a wildcard topic, a str payload) and publish
+    good ones."""
+    import logging
+
+    from fap_py.bridge import Bridge, outputs
+    from fap_py.errors import InvalidTypeError, InvalidValueError
+
+    import threading
+
+    class Plain(outputs.OutputBase):
+        """Each hook runs OutputBase's default (its checks), then notes the call."""
+        name = "plain"
+
+        def __init__(self):
+            self.seen, self.cond = [], threading.Condition()
+
+        def _note(self, what):
+            with self.cond:
+                self.seen.append(what)
+                self.cond.notify_all()
+
+        def wait(self, what):
+            with self.cond:
+                return self.cond.wait_for(lambda: what in self.seen, WAIT)
+
+        def subscriptions(self):
+            return ("plain/cmd",)
+
+        def start(self, ctx):
+            super().start(ctx)
+            self._note("start")
+
+        def on_connect(self, link):
+            super().on_connect(link)
+            self._note("connect")
+
+        def on_node_event(self, view, event):
+            super().on_node_event(view, event)
+            self._note(event.kind)
+
+        def on_message(self, topic, payload):
+            super().on_message(topic, payload)
+            self._note(("message", topic, payload))
+
+    made = []
+    outputs.register("plain", lambda config: made.append(Plain()) or made[-1])
+    try:
+        bus, s1 = fap_bus
+        obs = observer_factory(broker.port, "fap/#")
+        bridge = Bridge(bridge_config(broker.port, str(tmp_path / "state"), _buses(bus)))
+        (out,) = made
+        caplog.set_level(logging.ERROR, logger="fap_py.bridge")
+        with bridge:
+            assert bridge.wait_connected(WAIT)
+            ctx = out.ctx
+            assert isinstance(ctx, outputs.BridgeView)
+            s1.send(b"hello")                              # SEEN, STATE, RX: on_node_event
+            obs.wait_for("fap/line1/1/rx")
+            assert out.wait("connect") and out.wait(outputs.RX)
+            obs.c.publish("plain/cmd", b"ping", qos=1).wait_for_publish(WAIT)   # on_message
+            assert out.wait(("message", "plain/cmd", b"ping"))
+            ctx.publish_now("fap/plain/hello", b"hi", False)
+            obs.wait_raw("fap/plain/hello", b"hi")
+            assert ctx.node("line1", 1).rx >= 1 and ctx.output("plain") is out
+            with pytest.raises(InvalidValueError, match=r"no bus 'line9'.*line1"):
+                ctx.node("line9", 1)
+            with pytest.raises(InvalidValueError, match="0..255"):
+                ctx.node("line1", 256)
+            with pytest.raises(InvalidValueError, match="wildcard"):
+                ctx.publish_now("fap/+/x", b"x")
+            with pytest.raises(InvalidTypeError, match="payload must be bytes-like, not str"):
+                ctx.publish_now("fap/plain/x", "x")
+            with pytest.raises(InvalidTypeError, match="retain must be a bool"):
+                ctx.publish_now("fap/plain/x", b"x", 1)
+            with pytest.raises(InvalidTypeError, match="ctx must be a BridgeView"):
+                out.start(bridge)
+        hooks = [r.getMessage() for r in caplog.records if r.getMessage().startswith("output plain")]
+        assert not hooks, hooks
+    finally:
+        outputs.unregister("plain")

@@ -460,3 +460,82 @@ def _subclasses(cls: type) -> List[type]:
     for sub in cls.__subclasses__():
         out += [sub] + _subclasses(sub)
     return out
+
+
+# -- room "hrest": the bridge's outputs interface (fap_py.bridge.outputs) ----------------
+# BridgeView's methods and OutputBase's default hooks, called with hostile values on a
+# real Bridge that is never started (its broker is nobody's port 1: nothing connects,
+# no bus opens). fap_py.port and fap_py.progress are covered by the walk (walk_runner.py).
+
+COVERED |= {
+    "BridgeView.node", "BridgeView.output", "BridgeView.publish_now",
+    "OutputBase.start", "OutputBase.on_connect", "OutputBase.on_node_event", "OutputBase.on_message",
+}
+
+
+@pytest.fixture
+def bridge_view(tmp_path: Any) -> Iterator[Any]:
+    from fap_py.bridge import Bridge
+    from fap_py.bridge.config import from_dict
+    from fap_py.bridge.outputs import BridgeView
+
+    with VirtualBus(ports=2) as vb:
+        cfg = from_dict({"broker": {"url": "mqtt://127.0.0.1:1"},
+                         "bridge": {"host": "hostile", "state_dir": str(tmp_path / "state")},
+                         "bus": [{"name": "b", "port": vb.paths[0], "protocol": "exec", "nodes": [1]}]})
+        bridge = Bridge(cfg)
+        yield bridge, BridgeView(bridge)
+
+
+BAD_NAMES = [None, 5, 1.5, True, b"b", object(), ["b"], "", "a\0b", "x" * 1000]
+
+
+def test_bridge_view_refuses_hostile_arguments(bridge_view: Any) -> None:
+    from fap_py.bridge.outputs import NodeView
+
+    bridge, view = bridge_view
+    assert isinstance(view.node("b", 1), NodeView) and view.node("b", 1).node == 1
+    assert view.output("nope") is None
+    view.publish_now("fap/x", b"", False)        # not connected: nothing, and no error
+    cases: List[Tuple[str, Callable[[Any], Any], List[Any]]] = [
+        ("node bus", lambda v: view.node(v, 1), BAD_NAMES + ["nobus"]),
+        ("node node", lambda v: view.node("b", v), BAD_INTS + [256]),
+        ("output name", view.output, BAD_NAMES),
+        ("publish_now topic", lambda v: view.publish_now(v, b"x"),
+         BAD_NAMES[:7] + ["a\0b", "a/+/b", "a/#", "\udcff", "x" * 70000]),
+        ("publish_now payload", lambda v: view.publish_now("fap/x", v), BAD_DATA),
+        ("publish_now retain", lambda v: view.publish_now("fap/x", b"x", v), [1, 0, "yes", None, NAN]),
+    ]
+    for name, call, values in cases:
+        for v in values:
+            exc = expect_fap_error(lambda: call(v), (name, v))
+            assert isinstance(exc, (InvalidValueError, InvalidTypeError)), (name, v, exc)
+    exc = expect_fap_error(lambda: view.node("nobus", 1))
+    assert "nobus" in str(exc) and "b" in str(exc)       # names the known buses
+
+
+def test_output_base_hooks_refuse_hostile_arguments(bridge_view: Any) -> None:
+    from fap_py.bridge.outputs import SEEN, NodeEvent, OutputBase
+
+    bridge, view = bridge_view
+    out = OutputBase()
+    out.start(view)
+    assert out.ctx is view
+    nv, ev = view.node("b", 1), NodeEvent(SEEN, "b", 1)
+    out.on_connect(bridge.link)
+    out.on_node_event(nv, ev)
+    out.on_message("fap/x", b"x")
+    junk = [None, 5, "x", object(), bridge]
+    cases: List[Tuple[str, Callable[[Any], Any], List[Any]]] = [
+        ("start ctx", out.start, junk),
+        ("on_connect link", out.on_connect, junk + [view]),
+        ("on_node_event view", lambda v: out.on_node_event(v, ev), junk + [ev]),
+        ("on_node_event event", lambda v: out.on_node_event(nv, v), junk + [nv]),
+        ("on_message topic", lambda v: out.on_message(v, b"x"), [None, 5, b"t", object()]),
+        ("on_message payload", lambda v: out.on_message("fap/x", v), BAD_DATA),
+    ]
+    for name, call, values in cases:
+        for v in values:
+            exc = expect_fap_error(lambda: call(v), (name, v))
+            assert isinstance(exc, InvalidTypeError), (name, v, exc)
+# -- end of room "hrest" ------------------------------------------------------------------

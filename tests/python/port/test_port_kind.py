@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from fap_py.errors import InvalidTypeError
+from fap_py.errors import InvalidTypeError, InvalidValueError
 from fap_py.port import PORT_KINDS, is_network, port_kind
 
 ROWS = [
@@ -23,7 +23,6 @@ ROWS = [
     ("tcp://host", "invalid"),
     ("tcp://host:0", "invalid"),
     ("rfc2217://host:1?x=1", "invalid"),
-    ("/dev/tty\0S0", "invalid"),
 ]
 
 
@@ -41,7 +40,29 @@ def test_path_like_and_bad_type() -> None:
         port_kind(3)  # type: ignore[arg-type]
 
 
-@pytest.mark.parametrize("path,kind", ROWS[:-1])
+class _LyingPath:
+    """An os.PathLike whose __fspath__ returns no path."""
+
+    def __fspath__(self) -> object:
+        return 5
+
+
+@pytest.mark.parametrize("fn", [port_kind, is_network])
+@pytest.mark.parametrize("bad", [None, 3, 1.5, True, object(), [b"/dev/x"], _LyingPath()])
+def test_not_a_path_is_a_type_error(fn: object, bad: object) -> None:
+    with pytest.raises(InvalidTypeError, match="port must be a path or URL string"):
+        fn(bad)  # type: ignore[operator]
+
+
+@pytest.mark.parametrize("fn", [port_kind, is_network])
+@pytest.mark.parametrize("bad", ["", b"", "/dev/tty\0S0", b"tcp://h:1\0", Path("/dev/a\0b")])
+def test_empty_or_nul_is_refused(fn: object, bad: object) -> None:
+    """No device nor URL is empty or holds a NUL: refused, not answered "device"/"invalid"."""
+    with pytest.raises(InvalidValueError, match="empty|NUL"):
+        fn(bad)  # type: ignore[operator]
+
+
+@pytest.mark.parametrize("path,kind", ROWS)
 def test_g485_transport_routes_by_kind(path: str, kind: str) -> None:
     """g485 hands pyserial only the schemes the C port layer does not open."""
     from fap_py.g485.transport import _is_url
