@@ -8,7 +8,7 @@ import pytest
 
 from fap_py import execasync, mikroc
 from fap_py.sim import Sim, loads
-from fap_py.sim.replay import Replay, ReplayError, build_table
+from fap_py.sim._replay import Replay, ReplayError, build_table
 from fap_py.vbus import VirtualBus, read_capture
 
 from .conftest import cli
@@ -129,7 +129,7 @@ def test_learn_g485_registers(tmp_path):
 
     cap, recorded = _record(tmp_path, "g485", "[[bus.node]]\naddress = 5\nregisters = "
                             "[{ register = 21, access = \"R\", initial = 9 }]\n", exchange)
-    from fap_py.sim.learn import learn
+    from fap_py.sim._learn import learn
     text = learn(read_capture(cap), "g485")
     assert "identity = [11, 1, 1, 1, 1]" in text and "{ register = 21, initial = 9 }" in text
     with Sim(loads(text)) as sim:
