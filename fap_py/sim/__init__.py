@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import logging
 import threading
-from types import ModuleType
 from dataclasses import dataclass, field
+from types import ModuleType
 from typing import Any, Dict, List, Optional
 
 from .._validate import check_baud, check_path, check_seconds

@@ -185,11 +185,9 @@ class Replay:
                  baud: Optional[int] = None, master_port: Optional[int] = None,
                  link_dir: Optional[str] = None, rs485: Any = None) -> None:
         from .. import _protocols
-        from ..port import Port
-        from ..vbus import read_capture
-
         from .._validate import check_baud, check_int
-        from ..vbus import MAX_PORTS
+        from ..port import Port
+        from ..vbus import MAX_PORTS, read_capture
 
         if baud is not None:
             baud = check_baud(baud)
