@@ -64,7 +64,7 @@ def _run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--learn", metavar="CAPTURE", help="write a config that reproduces the devices "
                    "of a virtual bus capture (needs --protocol; stdout without -o)")
     p.add_argument("-o", "--output", metavar="FILE", help="--learn: write the config here")
-    from fap_py.sim.replay import replay_protocols
+    from fap_py.sim._replay import replay_protocols
     p.add_argument("--protocol", choices=replay_protocols(),
                    help="--replay/--learn: the capture's protocol")
     p.add_argument("--master-port", metavar="N", type=int, default=None,
@@ -83,7 +83,7 @@ def _action_parser() -> Parser:
     fa = fault.add_subparsers(dest="fault_action", metavar="fault ACTION", required=True,
                               parser_class=Parser)
     add = fa.add_parser("add", help="add a fault")
-    from fap_py.sim.faults import KINDS
+    from fap_py.sim._faults import KINDS
     add.add_argument("kind", choices=list(KINDS), help="the fault kind")
     add.add_argument("--node", default="all", help="a node address, or all")
     add.add_argument("--bus", default=None, help="the bus's name (default: every bus)")
@@ -111,13 +111,13 @@ def run(args: argparse.Namespace) -> int:
         except SystemExit as exc:     # a usage error, already said in the one error style
             return int(exc.code) if isinstance(exc.code, int) else EXIT_USAGE
     if args.schema:
-        from fap_py.sim.schema import schema
+        from fap_py.sim._schema import schema
         print(json.dumps(schema(), indent=2))
         return EXIT_OK
     if args.learn:
         if args.protocol is None:
             raise UsageError("--learn needs --protocol")
-        from fap_py.sim.learn import learn
+        from fap_py.sim._learn import learn
         from fap_py.vbus import read_capture
 
         text = learn(read_capture(args.learn), args.protocol, args.master_port, args.learn)
@@ -153,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
     from fap_py.sim import Sim
-    from fap_py.sim.control import ControlServer, unix_path
+    from fap_py.sim._control import ControlServer, unix_path
 
     if args.control:
         unix_path(args.control)    # a bad spec before anything opens
@@ -191,7 +191,7 @@ def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from fap_py.sim.replay import Replay
+    from fap_py.sim._replay import Replay
 
     rs485 = rs485_from_args(args) if args.port else None
     done = threading.Event()
@@ -220,7 +220,7 @@ def _replay(args: argparse.Namespace) -> int:
 
 
 def _action(args: argparse.Namespace) -> int:
-    from fap_py.sim.control import request
+    from fap_py.sim._control import request
 
     a = _action_parser().parse_args([args.config, *args.rest])
     if a.action == "status":

@@ -8,25 +8,31 @@ the request/reply responder, the control socket); each protocol's part is its pl
     from fap_py.sim import Sim, load
     with Sim(load("site.toml")) as sim:
         print(sim.buses[0].master_port)       # open your master here
-        sim.faults.add("no_reply", node=5)
+        sim.add_fault("no_reply", node=5)
         print(sim.status())
 """
 from __future__ import annotations
 
 import logging
 import threading
+from dataclasses import dataclass, field
 from types import ModuleType
 from typing import Any, Dict, List, Optional
 
+from .._validate import check_baud, check_path, check_seconds
+from ..errors import InvalidTypeError
+from ._config import SimConfigError, check_config, load, loads
+from ._faults import KINDS, FaultError, FaultTable
+from ._generators import FastClock, ManualClock, WallClock
 from ._plugins import plugin, plugin_name
-from .config import SimConfigError, load, loads
-from .faults import KINDS, FaultError, FaultTable
-from .generators import FastClock, ManualClock, WallClock
+from ._replay import Replay, ReplayError
 
 log = logging.getLogger("fap_py.sim")
 
-__all__ = ["Sim", "SimBus", "SimConfigError", "FaultError", "KINDS", "load", "loads", "plugin",
-           "plugin_name", "WallClock", "FastClock", "ManualClock"]
+#: the public API; every other module of fap_py.sim is private (a leading ``_``), and what a
+#: plug-in imports is in :mod:`fap_py.sim.protocols`
+__all__ = ["Sim", "SimBus", "SimConfigError", "FaultError", "ReplayError", "KINDS", "load", "loads",
+           "plugin", "plugin_name", "WallClock", "FastClock", "ManualClock", "Replay"]
 
 
 class _Ctx:
@@ -38,13 +44,17 @@ class _Ctx:
         self.faults, self.clock, self.seed, self.rs485 = faults, clock, seed, rs485
 
 
+@dataclass
 class SimBus:
-    """One running bus: its name, protocol, the port left for the user's master, its runner."""
+    """One running bus (a record :class:`Sim` makes, in ``Sim.buses``): its name, protocol,
+    the port left for the user's master, its node addresses, its runner."""
 
-    def __init__(self, name: str, protocol: str, master_port: Optional[str], runner: Any,
-                 vbus: Any, addresses: List[int]) -> None:
-        self.name, self.protocol, self.master_port = name, protocol, master_port
-        self.runner, self.vbus, self.addresses = runner, vbus, addresses
+    name: str
+    protocol: str
+    master_port: Optional[str]
+    runner: Any = field(repr=False)
+    vbus: Any = field(repr=False)
+    addresses: List[int] = field(default_factory=list)
 
     def status(self) -> Dict[str, Any]:
         nodes = self.runner.status()
@@ -66,13 +76,26 @@ class Sim:
 
     def __init__(self, config: Dict[str, Any], *, clock: Any = None, port: Optional[str] = None,
                  baud: Optional[int] = None, rs485: Any = None) -> None:
+        self.buses: List[SimBus] = []
+        config = check_config(config)
+        if port is not None:
+            port = check_path(port, "port")
+        if baud is not None:
+            baud = check_baud(baud)
+        if clock is not None and not callable(getattr(clock, "now", None)):
+            raise InvalidTypeError(f"clock must have a now() method (a WallClock, FastClock or "
+                                   f"ManualClock), not {type(clock).__name__}")
+        if rs485 is not None:
+            from ..rs485 import RS485
+
+            if not isinstance(rs485, RS485):
+                raise InvalidTypeError(f"rs485 must be a fap_py.rs485.RS485, not {type(rs485).__name__}")
         simcfg = config.get("sim", {})
         self.seed = int(simcfg.get("seed", 0))
         if clock is None:
             clock = FastClock(simcfg.get("speed", 10.0)) if simcfg.get("clock") == "fast" else WallClock()
         self.clock = clock
         self.faults = FaultTable(self.seed)
-        self.buses: List[SimBus] = []
         self.allowed: Dict[str, tuple] = {}
         buses = config["bus"]
         if port is not None and len(buses) != 1:
@@ -91,7 +114,7 @@ class Sim:
 
     def _start_bus(self, b: int, bus: Dict[str, Any], port: Optional[str], baud: Optional[int],
                    rs485: Any) -> SimBus:
-        from .config import node_addresses
+        from ._config import node_addresses
 
         proto = plugin(bus["protocol"])
         name = bus.get("name", f"bus{b}")
@@ -126,19 +149,36 @@ class Sim:
 
     def add_fault(self, kind: str, **kw: Any) -> Dict[str, Any]:
         """Add a fault (the kinds each bus's protocol implements); its public record."""
+        if not isinstance(kind, str):
+            raise InvalidTypeError(f"fault kind must be a str, not {type(kind).__name__}")
         if kind == "late_reply" and "ms" not in kw:
             raise FaultError("late_reply needs ms (the delay in milliseconds)")
         whole = [b.name for b in self.buses if getattr(plugin(b.protocol), "PORT_PER_NODE", False)
                  and kw.get("bus") == b.name]
-        if kind == "off" and whole and kw.get("probability", 1.0) < 1.0:
+        p = kw.get("probability", 1.0)
+        if kind == "off" and whole and isinstance(p, (int, float)) and p < 1.0:
             raise FaultError(f"bus {whole[0]!r}: its nodes are switched off whole: 'off' takes probability 1")
         return self.faults.add(kind, allowed=self.allowed, **kw).public()
+
+    def remove_fault(self, fid: Any) -> List[Dict[str, Any]]:
+        """Remove fault ``fid`` (an id :meth:`add_fault` returned), or every fault with
+        ``"all"``; the public records of the removed ones."""
+        if fid != "all" and (isinstance(fid, bool) or not isinstance(fid, int)):
+            raise FaultError(f"a fault id is an int or 'all', not {fid!r}")
+        return [f.public() for f in self.faults.remove(fid)]
+
+    def faults_list(self) -> List[Dict[str, Any]]:
+        """The public records of the faults in force."""
+        return self.faults.list()
 
     def wait_for(self, predicate: Any, timeout: float = 5.0) -> bool:
         """Wait until ``predicate(self.status())`` holds (checked whenever a responder has
         handled requests, and every 50 ms for FAP nodes); False at the timeout."""
         import time
 
+        if not callable(predicate):
+            raise InvalidTypeError(f"predicate must be callable, not {type(predicate).__name__}")
+        timeout = check_seconds(timeout, "timeout")
         deadline = time.monotonic() + timeout
         conds = [b.runner.handled for b in self.buses if hasattr(b.runner, "handled")]
         while True:
@@ -183,7 +223,7 @@ def _default_baud(protocol: str) -> int:
 
 def _start_responder(proto: ModuleType, ctx: _Ctx) -> Any:
     from ..port import Port
-    from .responder import Responder
+    from ._responder import Responder
 
     port = Port(ctx.paths[0], ctx.baud, ctx.rs485)
     try:

@@ -4,7 +4,21 @@
 A plug-in holds ``NAME``, ``ADDRESS_MIN``/``ADDRESS_MAX`` (and ``ADDRESS_RESERVED``),
 ``FAULTS`` (the fault kinds it implements), ``NODE_PROPERTIES`` (its node keys, JSON Schema),
 ``check_node(node, where) -> [Problem]`` and ``start(bus, ctx) -> runner`` (an object with
-``stop()`` and ``status() -> {address: counters}``). A request/reply protocol's runner is
-:class:`fap_py.sim.responder.Responder`, which asks the plug-in for ``request_decoder(baud)``,
+``stop()`` and ``status() -> {address: counters}``). A request/reply protocol's runner is the
+sim's shared responder, which asks the plug-in for ``request_decoder(baud)``,
 ``bad_check(frame)``, ``wrong_address(frame, address, request)`` and ``garbage(rng, n)``.
+
+This package is also the one documented place of what a plug-in (in tree or out of tree, in
+``<package>.sim.protocols``) imports from the sim: the names below. The modules they come from
+are private. A plug-in is the sim's own internals: the sim calls it with a checked config
+(``fap_py.sim.load``), so the hostile walk does not walk it as public API (its EXCLUDED entry in
+tests/python/hostile/walk_runner.py says why); ``fap_py.sim.Sim`` in front of it is walked.
 """
+from __future__ import annotations
+
+from .._generators import Generator, make, to_bytes
+from .._responder import CodecFramer, Request, Responder, flip_to, garbage_without
+from .._schema import HEX, MAX_LIST, MAX_TABLE, PATTERN, Path, Problem
+
+__all__ = ["CodecFramer", "Generator", "HEX", "MAX_LIST", "MAX_TABLE", "PATTERN", "Path", "Problem",
+           "Request", "Responder", "flip_to", "garbage_without", "make", "to_bytes"]

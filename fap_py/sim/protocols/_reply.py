@@ -3,8 +3,8 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Optional, Tuple
 
-from ..generators import make, to_bytes
-from ..schema import HEX, MAX_TABLE, PATTERN, Path, Problem
+from .._generators import make, to_bytes
+from .._schema import HEX, MAX_TABLE, PATTERN, Path, Problem
 
 #: the node keys both protocols share (their plug-ins' NODE_PROPERTIES)
 REPLY_PROPERTIES: Dict[str, Any] = {

@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional
 
 from ... import execasync
-from ..responder import CodecFramer, Request, flip_to, garbage_without
-from ..schema import Path, Problem
+from .._responder import CodecFramer, Request, flip_to, garbage_without
+from .._schema import Path, Problem
 from . import _reply
 
 NAME = "exec"

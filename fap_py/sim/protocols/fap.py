@@ -16,8 +16,8 @@ from typing import Any, Dict, List, Optional
 
 from ... import fap
 from ...errors import ClosedError, FapError, QueueFullError
-from ..generators import make, to_bytes
-from ..schema import HEX, MAX_LIST, Path, Problem
+from .._generators import make, to_bytes
+from .._schema import HEX, MAX_LIST, Path, Problem
 
 log = logging.getLogger("fap_py.sim")
 

@@ -6,9 +6,9 @@ from typing import Any, Dict, List, Optional
 
 from ...g485 import codec
 from ...g485.device import RegisterSpec, SimDevice
-from ..generators import make, to_bytes
-from ..responder import Request, flip_to, garbage_without
-from ..schema import MAX_LIST, Path, Problem
+from .._generators import make, to_bytes
+from .._responder import Request, flip_to, garbage_without
+from .._schema import MAX_LIST, Path, Problem
 
 NAME = "g485"
 ADDRESS_MIN, ADDRESS_MAX = codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS

@@ -391,7 +391,39 @@ COVERED = {
     "VirtualBus.drop_next", "VirtualBus.corrupt_next", "VirtualBus.silence",
     "VirtualBus.disconnect", "vbus.parse_capture", "vbus.read_capture", "Capture.data_from",
     "Capture.events_of", "fap_classic.classic_check", "AsyncPump.get_rx", "AsyncPump.get_event",
+    # --- sim: fap_py.sim's public functions and clock (test_sim_entry_points_refuse_hostile) ---
+    "sim.load", "sim.loads", "sim.plugin", "sim.plugin_name", "ManualClock.advance",
+    # --- end sim ---
 }
+
+
+# --- sim ---
+def test_sim_entry_points_refuse_hostile_arguments(tmp_path: Any) -> None:
+    """fap_py.sim's public API refuses bad values with the package's errors."""
+    from fap_py import sim
+
+    good = '[[bus]]\nprotocol = "exec"\n[[bus.node]]\naddress = 1\n'
+    clock = sim.ManualClock()
+    cases: List[Tuple[str, Callable[[Any], Any], List[Any]]] = [
+        ("sim.load path", sim.load, [5, None, 1.5, b"", "", "a\0", [1], str(tmp_path)]),
+        ("sim.loads text", sim.loads, [5, None, b"x", [1], "[[bus]]", "x = ["]),
+        ("sim.loads name", lambda v: sim.loads(good, v), [5, None, b"n"]),
+        ("sim.loads fmt", lambda v: sim.loads(good, "<c>", v), [5, None, "ini", ""]),
+        ("sim.plugin protocol", sim.plugin, [5, None, b"exec", "nope", ""]),
+        ("sim.plugin_name protocol", sim.plugin_name, [5, None, b"exec", "nope"]),
+        ("ManualClock.advance dt", clock.advance, [NAN, INF, -1, "1", None, True, 10**400]),
+        ("ManualClock t", sim.ManualClock, [NAN, -1, "0", None]),
+        ("FastClock speed", sim.FastClock, [0, -1, NAN, INF, "10", None]),
+        ("Sim config", sim.Sim, [5, None, [], {}, {"bus": 5}, {"bus": [{"protocol": "x"}]}]),
+        ("Sim port", lambda v: sim.Sim(sim.loads(good), port=v), [5, "", "a\0", 1.5]),
+        ("Sim baud", lambda v: sim.Sim(sim.loads(good), baud=v), [-1, 0, 1.5, "9600", True]),
+        ("Sim clock", lambda v: sim.Sim(sim.loads(good), clock=v), [5, "now", object()]),
+    ]
+    for name, call, values in cases:
+        for v in values:
+            expect_fap_error(lambda: call(v), (name, v))
+    assert clock.now() == 0.0
+# --- end sim ---
 
 
 def _public_modules() -> Iterator[Any]:

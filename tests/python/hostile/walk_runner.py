@@ -54,6 +54,13 @@ EXCLUDED = {
                    "soaks for cfg.seconds with slave processes, child() is a slave process's body "
                    "that runs until it is killed; reached through `fap soak`, whose argv the "
                    "random-argv test walks, and tests/python/cli/test_soak*.py",
+    # --- sim (fap sim) ---
+    "fap_py.sim.protocols": "the sim's per-protocol plug-ins, found by name through the protocol "
+                            "table's TOOLS['sim'] room: check_node/make_node/start/... are called "
+                            "by fap_py.sim.Sim with a config that fap_py.sim.load already checked "
+                            "(the sim's internals, not user API); reached through fap_py.sim.Sim "
+                            "(walked), `fap sim` (the random-argv test) and tests/python/sim",
+    # --- end sim ---
 }
 
 #: functions that are C callbacks (cffi ``extern "Python"``): called by C with C data,
@@ -285,6 +292,11 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         "fap_py.monitor.pcap.PcapWriter": lambda: PcapWriter(io.BytesIO()),
         "fap_py.monitor.sources.LivePort": lambda: LivePort(own(), 9600),
         "fap_py.monitor.decoders.CodecDecoder": lambda: CodecDecoder("fap", 9600),
+        # --- sim: one exec node on a virtual bus of its own (closed after the walk) ---
+        "fap_py.sim.Sim": lambda: __import__("fap_py.sim", fromlist=["Sim"]).Sim(
+            __import__("fap_py.sim", fromlist=["loads"]).loads(
+                '[[bus]]\nprotocol = "exec"\n[[bus.node]]\naddress = 1\n')),
+        # --- end sim ---
     }
 
 

@@ -9,7 +9,7 @@ import pytest
 
 from fap_py.errors import InvalidValueError
 from fap_py.sim import SimConfigError, load, loads
-from fap_py.sim.schema import schema, validate
+from fap_py.sim._schema import schema, validate
 
 from .conftest import EXAMPLES, run
 
@@ -183,10 +183,55 @@ def test_schema_is_json_schema():
 
 
 def test_docs_reference_is_the_schema():
-    from fap_py.sim.schema import reference_markdown
+    from fap_py.sim._schema import reference_markdown
 
     from .conftest import ROOT
     text = open(os.path.join(ROOT, "docs", "sim.md"), encoding="utf-8").read()
     begin, end = "<!-- schema-reference:begin -->\n", "<!-- schema-reference:end -->"
     assert text[text.index(begin) + len(begin):text.index(end)] == reference_markdown(), \
-        "regenerate docs/sim.md's schema reference from fap_py.sim.schema.reference_markdown()"
+        "regenerate docs/sim.md's schema reference from fap_py.sim._schema.reference_markdown()"
+
+
+def test_python_api_refuses_bad_arguments_with_package_errors(tmp_path) -> None:
+    """The sim's public Python API (fap_py.sim.__all__) checks its arguments: a dict built
+    in Python gets the checks of loads (it used to reach the bus code as a KeyError or
+    TypeError), and bad ports, bauds, clocks, texts and times are package errors."""
+    from fap_py.errors import FapError, InvalidTypeError
+    from fap_py.sim import FastClock, FaultError, ManualClock, Sim
+
+    good = '[[bus]]\nprotocol = "exec"\n[[bus.node]]\naddress = 1\n'
+    with pytest.raises(InvalidTypeError, match="config must be a dict"):
+        Sim([])
+    with pytest.raises(SimConfigError, match="bus"):
+        Sim({})
+    with pytest.raises(SimConfigError, match="protocol"):
+        Sim({"bus": [{"protocol": "nope", "node": [{"address": 1}]}]})
+    with pytest.raises(InvalidTypeError):
+        Sim(loads(good), clock="now")
+    with pytest.raises(InvalidValueError):
+        Sim(loads(good), baud=-1)
+    with pytest.raises(InvalidValueError):
+        Sim(loads(good), port="")
+    with pytest.raises(InvalidTypeError, match="config text must be a str"):
+        loads(b"x")
+    with pytest.raises(InvalidValueError, match="config format must be one of"):
+        loads(good, "<c>", "ini")
+    with pytest.raises(InvalidTypeError):
+        load(3)          # an fd: it used to be read (and closed) as the config
+    for bad in (float("nan"), -1, "1"):
+        with pytest.raises(FapError):
+            ManualClock().advance(bad)
+        with pytest.raises(FapError):
+            FastClock(bad)
+    with Sim(loads(good)) as sim:
+        f = sim.add_fault("no_reply", node=1)
+        with pytest.raises(FaultError, match="a fault id is an int"):
+            sim.remove_fault(True)
+        with pytest.raises(InvalidTypeError):
+            sim.add_fault(5)
+        with pytest.raises(InvalidTypeError):
+            sim.wait_for(5)
+        with pytest.raises(InvalidValueError):
+            sim.wait_for(lambda s: True, timeout=float("nan"))
+        assert [g["id"] for g in sim.remove_fault(f["id"])] == [f["id"]]
+        assert sim.faults_list() == []

@@ -5,7 +5,7 @@ import pytest
 
 from fap_py import execasync
 from fap_py.sim import ManualClock, Sim, loads
-from fap_py.sim.generators import GeneratorError, make, to_bytes
+from fap_py.sim._generators import GeneratorError, make, to_bytes
 
 
 def test_kinds():

@@ -134,7 +134,7 @@ def test_fault_reaches_master_and_stops(site, proto, kind):
     node["replies"] = replies
     if kind == "late_reply":      # the late reply goes out (counted) after the master gave up
         assert sim.wait_for(lambda s: _node(s, proto)["replies"] > node["replies"], 5)
-    sim.faults.remove(f["id"])
+    sim.remove_fault(f["id"])
     applied = sim.status()["faults_applied"][kind]
     ok = None
     for _ in range(2):   # a late reply still on the wire may meet the first request
@@ -157,7 +157,7 @@ def test_probability_is_seeded(site):
             outcome.append(1)
         except execasync.NoReplyError:
             outcome.append(0)
-    sim.faults.remove(f["id"])
+    sim.remove_fault(f["id"])
     assert 0 < sum(outcome) < 12
     import random
     rng = random.Random(11)
@@ -170,7 +170,7 @@ def test_fault_for_all_nodes_and_unknown_kinds(site):
     for node in (1, 5, 254):
         with pytest.raises(execasync.NoReplyError):
             em.transact(node, b"x")
-    sim.faults.remove("all")
+    sim.remove_fault("all")
     assert em.transact(5, b"x") == b"x"
     from fap_py.sim import FaultError
     with pytest.raises(FaultError, match="unknown fault kind"):
@@ -178,8 +178,8 @@ def test_fault_for_all_nodes_and_unknown_kinds(site):
     with pytest.raises(FaultError, match="no bus is named"):
         sim.add_fault("off", bus="nope")
     with pytest.raises(FaultError, match="no fault has id"):
-        sim.faults.remove(9999)
-    assert f["id"] not in [x["id"] for x in sim.faults.list()]
+        sim.remove_fault(9999)
+    assert f["id"] not in [x["id"] for x in sim.faults_list()]
 
 
 FAP_SITE = """\
@@ -216,7 +216,7 @@ def test_fap_slaves_periodic_echo_and_off():
             if ev.id == 31 and not m.is_active(31):
                 break
         assert not m.is_active(31)
-        sim.faults.remove(f["id"])
+        sim.remove_fault(f["id"])
         m.wait_active([31], timeout=5)
         st = sim.status()["buses"][0]
         assert {n["address"]: n["faults"].get("off", 0) for n in st["nodes"]} == {3: 0, 31: 1}

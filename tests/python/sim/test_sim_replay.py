@@ -7,8 +7,9 @@ import time
 import pytest
 
 from fap_py import execasync, mikroc
-from fap_py.sim import Sim, loads
-from fap_py.sim.replay import Replay, ReplayError, build_table
+from fap_py.errors import FapError
+from fap_py.sim import Replay, ReplayError, Sim, loads
+from fap_py.sim._replay import build_table
 from fap_py.vbus import VirtualBus, read_capture
 
 from .conftest import cli
@@ -129,8 +130,25 @@ def test_learn_g485_registers(tmp_path):
 
     cap, recorded = _record(tmp_path, "g485", "[[bus.node]]\naddress = 5\nregisters = "
                             "[{ register = 21, access = \"R\", initial = 9 }]\n", exchange)
-    from fap_py.sim.learn import learn
+    from fap_py.sim._learn import learn
     text = learn(read_capture(cap), "g485")
     assert "identity = [11, 1, 1, 1, 1]" in text and "{ register = 21, initial = 9 }" in text
     with Sim(loads(text)) as sim:
         assert exchange(sim.buses[0].master_port) == recorded
+
+
+def test_replay_refuses_bad_arguments(tmp_path):
+    """Replay (fap_py.sim.Replay) checks baud and master_port: an empty baud or a bool
+    port index used to be taken (as "the capture's baud" and port 1)."""
+    from fap_py.errors import InvalidTypeError, InvalidValueError
+
+    cap, _ = _record(tmp_path, "exec", NODES, lambda p: _exec_exchange(p)[:1])
+    for bad in ("", "9600", 1.5, -1, True):
+        with pytest.raises((InvalidTypeError, InvalidValueError)):
+            Replay(cap, "exec", baud=bad)
+    for bad in (True, -1, 10**6, "0", 1.5):
+        with pytest.raises((InvalidTypeError, InvalidValueError)):
+            Replay(cap, "exec", master_port=bad)
+    for bad in (5, None, b"exec", "nope"):
+        with pytest.raises(FapError):
+            Replay(cap, bad)

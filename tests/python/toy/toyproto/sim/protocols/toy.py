@@ -5,8 +5,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Optional
 
-from fap_py.sim.responder import Request, flip_to, garbage_without
-from fap_py.sim.schema import Path, Problem
+from fap_py.sim.protocols import Path, Problem, Request, flip_to, garbage_without
 
 from ... import binding as toy
 

@@ -185,9 +185,15 @@ class Replay:
                  baud: Optional[int] = None, master_port: Optional[int] = None,
                  link_dir: Optional[str] = None, rs485: Any = None) -> None:
         from .. import _protocols
+        from .._validate import check_baud, check_int
         from ..port import Port
-        from ..vbus import read_capture
+        from ..vbus import MAX_PORTS, read_capture
 
+        if baud is not None:
+            baud = check_baud(baud)
+        if master_port is not None:
+            master_port = check_int(master_port, "master_port (a port index of the capture)",
+                                    0, MAX_PORTS - 1)
         proto = _protocols.get(protocol).name
         cap = read_capture(capture_path)
         table = build_table(cap, proto, master_port)

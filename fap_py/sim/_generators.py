@@ -16,6 +16,7 @@ import threading
 import time
 from typing import Any, Callable, Dict, Optional
 
+from .._validate import check_seconds
 from ..errors import InvalidValueError
 
 log = logging.getLogger("fap_py.sim")
@@ -38,7 +39,8 @@ class FastClock(WallClock):
 
     def __init__(self, speed: float = 10.0) -> None:
         super().__init__()
-        self.speed = float(speed)
+        self.speed = check_seconds(speed, "speed (simulated seconds per second)", lo=0.0,
+                                   lo_open=True, hi=1e6)
 
     def now(self) -> float:
         return (time.monotonic() - self._t0) * self.speed
@@ -48,13 +50,14 @@ class ManualClock:
     """A clock that moves only when told (:meth:`advance`): for tests and replays."""
 
     def __init__(self, t: float = 0.0) -> None:
-        self.t = float(t)
+        self.t = check_seconds(t, "clock time", hi=1e12)
 
     def now(self) -> float:
         return self.t
 
     def advance(self, dt: float) -> None:
-        self.t += dt
+        """Move the clock ``dt`` seconds forward (0 or more, finite)."""
+        self.t += check_seconds(dt, "dt", hi=1e12)
 
 
 def resolve_hook(spec: str) -> Any:

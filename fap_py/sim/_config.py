@@ -11,16 +11,18 @@ from __future__ import annotations
 import json
 import os
 import re
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple, Union
 
-from ..errors import InvalidValueError
-from .generators import resolve_hook
-from .schema import Path, Problem, validate
+from .._validate import check_path
+from ..errors import FapError, InvalidTypeError, InvalidValueError
+from ._generators import resolve_hook
+from ._schema import Path, Problem, validate
 
 __all__ = ["MAX_CONFIG_BYTES", "SimConfigError", "load", "loads", "line_of"]
 
 #: the largest config file read
 MAX_CONFIG_BYTES = 1 << 20
+FORMATS = ("toml", "json", "yaml")
 
 
 class SimConfigError(InvalidValueError):
@@ -44,8 +46,9 @@ def _format(path: str, text: Optional[str]) -> str:
     return "toml"
 
 
-def load(path: str) -> Dict[str, Any]:
+def load(path: Union[str, "os.PathLike[str]"]) -> Dict[str, Any]:
     """Read, parse and check the config at ``path``."""
+    path = check_path(path, "config path")
     try:
         st = os.stat(path)
         if not os.path.isfile(path):
@@ -66,6 +69,14 @@ def load(path: str) -> Dict[str, Any]:
 
 def loads(text: str, name: str = "<config>", fmt: str = "toml") -> Dict[str, Any]:
     """Parse and check config ``text`` in format ``fmt`` ("toml", "json", "yaml")."""
+    if not isinstance(text, str):
+        raise InvalidTypeError(f"config text must be a str, not {type(text).__name__}")
+    if not isinstance(name, str):
+        raise InvalidTypeError(f"config name must be a str, not {type(name).__name__}")
+    if not isinstance(fmt, str):
+        raise InvalidTypeError(f"config format must be a str, not {type(fmt).__name__}")
+    if fmt not in FORMATS:
+        raise InvalidValueError(f"config format must be one of {', '.join(FORMATS)}, not {fmt!r}")
     if len(text) > MAX_CONFIG_BYTES:
         raise SimConfigError(name, None, f"longer than {MAX_CONFIG_BYTES} characters")
     data = _parse(text, name, fmt)
@@ -77,6 +88,24 @@ def loads(text: str, name: str = "<config>", fmt: str = "toml") -> Dict[str, Any
     problems = semantic(data)
     if problems:
         _raise(problems[0], text, name, fmt)
+    return data
+
+
+def check_config(data: Any, name: str = "<config>") -> Dict[str, Any]:
+    """``data`` if it is a config that passes the checks of :func:`loads` (a dict built in
+    Python, or what :func:`load` returned); else the first problem as a SimConfigError."""
+    if not isinstance(data, dict):
+        raise InvalidTypeError(f"config must be a dict (from fap_py.sim.load/loads), "
+                               f"not {type(data).__name__}")
+    for check in (validate, semantic):
+        try:
+            problems = check(data)
+        except FapError:
+            raise
+        except Exception as exc:  # a structure the checks were not written for
+            raise SimConfigError(name, None, f"not a config: {type(exc).__name__}: {exc}") from None
+        if problems:
+            raise SimConfigError(name, None, f"{problems[0].where()}: {problems[0].message}")
     return data
 
 

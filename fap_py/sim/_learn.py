@@ -13,7 +13,7 @@ import json
 from typing import Any, List, Optional
 
 from ._plugins import plugin
-from .replay import ReplayError, build_table
+from ._replay import ReplayError, build_table
 
 
 def _value(v: Any) -> str:
@@ -51,6 +51,6 @@ def learn(capture: Any, protocol: str, master_port: Optional[int] = None, source
         lines += ["", "[[bus.node]]", f"address = {address}"]
         lines += [f"{k} = {_value(v)}" for k, v in nodes[address].items()]
     text = "\n".join(lines) + "\n"
-    from .config import loads
+    from ._config import loads
     loads(text, "learned config")      # the schema's word on it, before anyone reads it
     return text

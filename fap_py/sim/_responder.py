@@ -2,7 +2,7 @@
 
 One thread reads the port (``fap_py.port.Port``, the C port layer), feeds the protocol
 plug-in's request decoder, and for each request addressed to one of its nodes asks the fault
-table (:meth:`~fap_py.sim.faults.FaultTable.draw`) what to do, then has the node build its
+table (:meth:`~fap_py.sim._faults.FaultTable.draw`) what to do, then has the node build its
 reply with the protocol's own encoder (the plug-in: no frame format is written here) and
 writes it, damaged or late as the fault says. Exec async, mikroC and G485 nodes run here; FAP
 slaves are the C engine's (:mod:`fap_py.sim.protocols.fap`).
@@ -15,7 +15,7 @@ import threading
 from typing import Any, Dict, List, Optional
 
 from ..errors import ClosedError, FapError, PortError
-from .faults import FaultTable
+from ._faults import FaultTable
 
 log = logging.getLogger("fap_py.sim")
 
