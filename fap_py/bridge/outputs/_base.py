@@ -253,7 +253,7 @@ class OutputBase:
         self.ctx = ctx
 
     def on_connect(self, link: Any) -> None:
-        from ..mqtt import MqttLink     # here: the link module is not needed to define an output
+        from ..mqtt import MqttLink  # here: the link module is not needed to define an output
 
         if not isinstance(link, MqttLink):
             raise InvalidTypeError(f"link must be the bridge's MqttLink, not {type(link).__name__}")

@@ -156,11 +156,10 @@ def test_output_base_defaults_take_what_the_bridge_hands_and_the_view_checks_its
     (an unknown bus named with the known ones, a wildcard topic, a str payload) and publish
     good ones."""
     import logging
+    import threading
 
     from fap_py.bridge import Bridge, outputs
     from fap_py.errors import InvalidTypeError, InvalidValueError
-
-    import threading
 
     class Plain(outputs.OutputBase):
         """Each hook runs OutputBase's default (its checks), then notes the call."""
