@@ -501,7 +501,8 @@ static void test_reply_one_sleep(void)
                            &at_baud);
     CHECK(r >= 1);
     CHECK_EQ(w.sleeps, 0);
-    CHECK_EQ(w.polls, 1);
+    /* at most one poll: a slow build (TSan) may find the first byte already in */
+    CHECK(w.polls <= 1);
     close_fake(&w, p);
 }
 
