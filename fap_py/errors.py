@@ -177,6 +177,18 @@ def __getattr__(name: str) -> int:
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def _held_by(path: str | None) -> str:
+    """``held by pid 123 (fap serve ...)`` when a lock file or /proc/locks names the
+    holder of a device path, else the general words."""
+    if path and "://" not in path:
+        from ._holder import describe, holder   # nothing above errors: _holder is os-only
+
+        pid = holder(path)
+        if pid is not None and pid != os.getpid():
+            return f"held by {describe(pid)}"
+    return "held by another process or port"
+
+
 def error_from_code(code: int, what: str = "", path: str | None = None) -> FapError:
     """Map a negative libfap port-layer return code to an exception instance."""
     if type(code) is not int:
@@ -202,7 +214,7 @@ def error_from_code(code: int, what: str = "", path: str | None = None) -> FapEr
     if err in (_errno.EINVAL, _errno.ERANGE):
         return InvalidValueError(f"{prefix}{os.strerror(err)}")
     if err == _errno.EBUSY:
-        return PortBusyError(err, f"{prefix}port busy (held by another process or port)", path)
+        return PortBusyError(err, f"{prefix}port busy ({_held_by(path)})", path)
     if _device_gone(code):
         return PortGoneError(err, f"{prefix}{os.strerror(err)} (device gone)", path)
     return PortError(err, f"{prefix}{os.strerror(err)}", path)

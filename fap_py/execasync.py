@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import asyncio
 import ctypes
+import dataclasses
 import errno
 import logging
 import os
@@ -416,7 +417,9 @@ class Master(NativeHandle):
     number. Sequence numbers are kept per node (0, 1..255, 1..).
 
     Args:
-        port: serial device path (or a :class:`~fap_py.vbus.VirtualBus` path).
+        port: serial device path (or a :class:`~fap_py.vbus.VirtualBus` path), or
+            a daemon's ``fapd:///path.sock`` / ``fapd://host:port`` (``fap serve``: the
+            same calls, results and exceptions; a :class:`DaemonMaster` is returned).
         baudrate: line speed.
         timeout: seconds per attempt; ``None`` = the C engine's default
             (``execMasterOptionsInit``).
@@ -429,10 +432,21 @@ class Master(NativeHandle):
 
     _kind = "exec async master"
 
+    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> Any:
+        from .serve._url import is_daemon_url
+
+        if cls is Master and is_daemon_url(port):   # fapd://: the bus a daemon owns
+            return DaemonMaster(port, *args, **kwargs)
+        return super().__new__(cls)
+
     def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
                  timeout: Optional[float] = None, retries: Optional[int] = None,
-                 rs485: Optional[RS485] = None) -> None:
+                 rs485: Optional[RS485] = None, weight: Optional[int] = None,
+                 priority: Optional[int] = None, token: Optional[str] = None) -> None:
         super().__init__()
+        if weight is not None or priority is not None or token is not None:
+            raise ExecValueError(f"{port!r}: weight, priority and token are for a fapd:// URL "
+                                 "(a bus shared through `fap serve`)")
         self._lock = threading.Lock()        # one transaction at a time
         self._alock: Optional[asyncio.Lock] = None   # the same among atransact tasks
         self._ainflight = 0                  # atransact calls between Begin and their end
@@ -616,6 +630,172 @@ class Master(NativeHandle):
     def close(self) -> None:
         """Close the port (waits for a transaction in progress). Idempotent."""
         super().close()
+
+
+#: this module's exceptions by name, as a daemon's answer names them
+_WIRE_ERRORS = {c.__name__: (lambda e, c=c: c(str(e.get("message", "")))) for c in
+                (ExecAsyncError, ExecValueError, ExecTypeError, NoReplyError, CorruptReplyError)}
+
+
+class DaemonMaster:
+    """An exec async master on a bus a daemon owns (``fap serve``, docs/daemon.md):
+    what ``Master("fapd://...")`` returns. The same calls, results and exceptions as
+    :class:`Master`; each transaction (with its retries and sequence number) runs on
+    the daemon's engine, atomically among its clients. ``weight``, ``priority`` and
+    ``token`` override the URL's query (``?weight=3``, ``?token=``, ``$FAP_SERVE_TOKEN``);
+    ``baudrate`` and ``rs485`` are the daemon's (given ones are ignored). Thread-safe:
+    several threads (or tasks) may each have a transaction queued.
+    """
+
+    _kind = "exec async master"
+
+    def __init__(self, port: Union[str, "os.PathLike[str]"], baudrate: int = 115200, *,
+                 timeout: Optional[float] = None, retries: Optional[int] = None,
+                 rs485: Optional[RS485] = None, weight: Optional[int] = None,
+                 priority: Optional[int] = None, token: Optional[str] = None) -> None:
+        from .serve._client import Connection
+
+        self._timeout = None if timeout is None else Master._timeout_us(timeout) / 1e6
+        self._retries = None if retries is None else Master._retries_checked(retries)
+        self._counts: Dict[str, int] = dict.fromkeys(f.name for f in dataclasses.fields(MasterStats))
+        for k in self._counts:
+            self._counts[k] = 0
+        self._clock = threading.Lock()
+        self._hello = {"weight": weight, "priority": priority, "token": token}
+        self._conn = Connection(port, protocol="exec", name="exec master", errors=_WIRE_ERRORS,
+                                **self._hello)
+        self._aconn: Any = None
+        self._aopening: Any = None
+        self.path = self._conn.url
+        self.closed = False
+        log.info("exec async master on %s", self.path)
+
+    def _fields(self, node: int, data: bytes) -> Dict[str, Any]:
+        out: Dict[str, Any] = {"node": node, "data": data.hex()}
+        if self._timeout is not None:
+            out["timeout"] = self._timeout
+        if self._retries is not None:
+            out["retries"] = self._retries
+        return out
+
+    def _add(self, answer: Dict[str, Any]) -> None:
+        with self._clock:
+            for k, v in (answer.get("stats") or {}).items():
+                if k in self._counts and isinstance(v, int):
+                    self._counts[k] += v
+
+    def _ask(self, op: str, **fields: Any) -> Dict[str, Any]:
+        if self.closed:
+            raise ClosedError(f"exec async master on {self.path} is closed")
+        try:
+            answer = self._conn.call(op, **fields)
+        except FapError as exc:
+            self._add(getattr(exc, "daemon_answer", {}))
+            raise
+        self._add(answer)
+        return answer
+
+    async def _aask(self, op: str, **fields: Any) -> Dict[str, Any]:
+        from .serve._client import AsyncConnection
+
+        if self.closed:
+            raise ClosedError(f"exec async master on {self.path} is closed")
+        if self._aconn is None:          # the first task opens it, the others wait for it
+            if self._aopening is None:
+                self._aopening = asyncio.ensure_future(AsyncConnection.open(
+                    self.path, protocol="exec", name="exec master", errors=_WIRE_ERRORS, **self._hello))
+            opening = self._aopening
+            try:
+                conn = await asyncio.shield(opening)
+            finally:
+                if opening.done():
+                    self._aopening = None
+            if self._aconn is None:
+                self._aconn = conn
+            elif conn is not self._aconn:
+                await conn.close()
+        try:
+            answer = await self._aconn.call(op, **fields)
+        except FapError as exc:
+            self._add(getattr(exc, "daemon_answer", {}))
+            raise
+        self._add(answer)
+        return answer
+
+    def set_timeout(self, timeout: float, retries: Optional[int] = None) -> None:
+        """The per-attempt timeout (s) and, if given, the retries of later transactions."""
+        self._timeout = Master._timeout_us(timeout) / 1e6
+        if retries is not None:
+            self._retries = Master._retries_checked(retries)
+
+    def transact(self, node: int, data: BytesLike = b"") -> bytes:
+        """As :meth:`Master.transact`, through the daemon."""
+        _check_node(node)
+        payload = _check_data(data)
+        return bytes.fromhex(self._ask("transact", **self._fields(node, payload))["data"])
+
+    async def atransact(self, node: int, data: BytesLike = b"") -> bytes:
+        """As :meth:`Master.atransact`: an asyncio connection, no thread."""
+        _check_node(node)
+        payload = _check_data(data)
+        return bytes.fromhex((await self._aask("transact", **self._fields(node, payload)))["data"])
+
+    def broadcast(self, data: BytesLike = b"") -> None:
+        """As :meth:`Master.broadcast`."""
+        self._ask("broadcast", data=_check_data(data).hex())
+
+    async def abroadcast(self, data: BytesLike = b"") -> None:
+        """As :meth:`Master.abroadcast`."""
+        await self._aask("broadcast", data=_check_data(data).hex())
+
+    def next_seq(self, node: int) -> int:
+        """The sequence number the daemon's next message to ``node`` will carry
+        (another client may take it first)."""
+        _check_node(node, allow_broadcast=True)
+        return int(self._ask("next_seq", node=node)["seq"])
+
+    def reopen(self) -> None:
+        """Nothing to do: the daemon reopens the device itself (and says so)."""
+
+    def reset_sequence(self) -> None:
+        """Refused: the sequence numbers are the daemon's, shared by its clients."""
+        raise ExecAsyncError(f"{self.path}: the daemon owns the sequence numbers; "
+                             "restart the daemon to reset them")
+
+    @property
+    def stats(self) -> MasterStats:
+        """This client's share of the engine's counters (what its transactions did)."""
+        with self._clock:
+            return MasterStats(**self._counts)
+
+    def fileno(self) -> int:
+        raise ExecValueError(f"{self.path}: a daemon connection has no port fd")
+
+    def close(self) -> None:
+        """Leave the daemon (idempotent)."""
+        self.closed = True
+        self._conn.close()
+        self._aconn = None
+
+    async def aclose(self) -> None:
+        if self._aconn is not None:
+            await self._aconn.close()
+        self.close()
+
+    def __enter__(self) -> "DaemonMaster":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> "DaemonMaster":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    def __repr__(self) -> str:
+        return f"<DaemonMaster {self.path}{' closed' if self.closed else ''}>"
 
 
 @dataclass(frozen=True)
@@ -824,7 +1004,7 @@ class Slave(NativeHandle):
 
 
 __all__ = [
-    "RS485", "RS485Mode", "BROADCAST", "NODE_MIN", "NODE_MAX", "DEFAULT_BAUD", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "Decoder", "ExecAsyncError",
+    "RS485", "RS485Mode", "BROADCAST", "NODE_MIN", "NODE_MAX", "DEFAULT_BAUD", "MAX_DATA", "MAX_FRAME", "CorruptReplyError", "DaemonMaster", "Decoder", "ExecAsyncError",
     "ExecTypeError", "ExecValueError", "Frame", "Master", "MasterStats", "NoReplyError", "Request",
     "ServeResult", "Slave", "SlaveStats", "Status", "StructLayout", "encode",
 ]

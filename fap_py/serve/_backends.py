@@ -1,0 +1,280 @@
+"""The bus side of the daemon: one engine per protocol, one transaction at a time. Private.
+
+Each backend opens the port through the protocol's own binding (the C engines:
+:class:`fap_py.execasync.Master`, :class:`fap_py.mikroc.Master`; the C port layer
+for ``raw``), so the protocol's framing rules decide where a reply ends. A backend
+turns a checked request (``check``) into one atomic transaction (``run``, a
+coroutine on the daemon's loop: no worker thread) and reports every frame it
+sends or receives to ``on_frame`` (the monitor tap).
+"""
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from dataclasses import asdict, dataclass
+from typing import Any, Callable, Dict, Optional
+
+from .. import _trace
+from ..errors import FapTimeoutError
+from ..rs485 import RS485
+from ._errors import ProtocolError
+from ._wire import hex_field, num_field
+
+log = logging.getLogger("fap_py.serve")
+
+#: on_frame(direction "tx"/"rx", status, t_ns CLOCK_MONOTONIC, bytes)
+FrameSink = Callable[[str, str, int, bytes], None]
+
+
+@dataclass(frozen=True)
+class Job:
+    """A checked request: the op and its arguments."""
+
+    op: str
+    args: Dict[str, Any]
+
+
+class _FrameTap(_trace.Tap):
+    """The C trace hook's ctx: every frame goes to the daemon's sink (and the wire log)."""
+
+    def __init__(self, sink: FrameSink, protocol: str, label: str) -> None:
+        super().__init__(_trace.wire_logger(protocol), label)
+        self.sink = sink
+
+    def log(self, f: Any) -> None:
+        from .._native import ffi
+
+        data = bytes(ffi.buffer(f.data, f.len)) if f.len else b""
+        self.sink(_trace._DIRS.get(f.dir, "?"), _trace._STATUS.get(f.status, str(f.status)),
+                  int(f.t_ns), data)
+        if self.logger.isEnabledFor(logging.DEBUG):
+            super().log(f)
+
+
+def _stats_delta(before: Any, after: Any) -> Dict[str, int]:
+    a, b = asdict(after), asdict(before)
+    return {k: a[k] - b[k] for k in a if a[k] != b[k]}
+
+
+class Backend:
+    """What the daemon needs of a protocol engine."""
+
+    name = "?"
+    #: ops answered at once, without the bus
+    quick_ops: tuple = ()
+
+    def __init__(self, port: str, baud: int, rs485: Optional[RS485], timeout: float,
+                 retries: int, on_frame: FrameSink) -> None:
+        self.port, self.baud, self.rs485 = port, baud, rs485
+        self.timeout, self.retries = timeout, retries
+        self.on_frame = on_frame
+        self.node: Any = None
+
+    def open(self) -> None:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        if self.node is not None:
+            self.node.close()
+
+    def reopen(self) -> None:
+        self.node.reopen()
+
+    def fd(self) -> int:
+        return self.node.fileno()
+
+    def flush(self) -> None:
+        """Drop input nobody asked for (a late reply)."""
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        raise NotImplementedError
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        raise NotImplementedError
+
+    def quick(self, op: str, msg: Dict[str, Any]) -> Dict[str, Any]:
+        raise ProtocolError(f"unknown op {op!r}")
+
+    def stats(self) -> Dict[str, int]:
+        return asdict(self.node.stats) if self.node is not None else {}
+
+    def info(self) -> Dict[str, Any]:
+        return {}
+
+
+class ExecBackend(Backend):
+    """exec async: :class:`fap_py.execasync.Master` (sequence numbers, retries) on the port."""
+
+    name = "exec"
+    quick_ops = ("next_seq",)
+
+    def open(self) -> None:
+        from .. import execasync
+
+        self._x = execasync
+        self.node = execasync.Master(self.port, self.baud, timeout=self.timeout,
+                                     retries=self.retries, rs485=self.rs485)
+        self._tap = _FrameTap(self.on_frame, "exec", f"fap serve {self.port}")
+        from .._native import lib
+
+        with self.node._using() as h:
+            lib.execMasterSetTrace(h, lib.fap_py_trace, self._tap.handle)
+        self._set = (self.timeout, self.retries)
+
+    def flush(self) -> None:
+        from .._native import lib
+
+        with self.node._using() as h:
+            lib.fap_port_flush(lib.execMasterPort(h))
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        x = self._x
+        if op == "transact":
+            node = num_field(msg, "node", x.NODE_MIN, x.NODE_MAX, integer=True)
+            if node is None:
+                raise ProtocolError("transact: field 'node' is missing")
+            return Job(op, {"node": node, "data": hex_field(msg, "data", x.MAX_DATA),
+                            "timeout": num_field(msg, "timeout", 1e-6, 3600.0),
+                            "retries": num_field(msg, "retries", 0, 1000, integer=True)})
+        if op == "broadcast":
+            return Job(op, {"data": hex_field(msg, "data", x.MAX_DATA)})
+        raise ProtocolError(f"unknown op {op!r} for protocol exec (transact, broadcast, next_seq)")
+
+    def quick(self, op: str, msg: Dict[str, Any]) -> Dict[str, Any]:
+        node = num_field(msg, "node", self._x.NODE_MIN, self._x.BROADCAST, integer=True)
+        if node is None:
+            raise ProtocolError("next_seq: field 'node' is missing")
+        return {"seq": self.node.next_seq(node)}
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        m = self.node
+        before = m.stats
+        out: Dict[str, Any] = {}
+        try:
+            if job.op == "broadcast":
+                await m.abroadcast(job.args["data"])
+            else:
+                a = job.args
+                want = (self.timeout if a["timeout"] is None else a["timeout"],
+                        self.retries if a["retries"] is None else a["retries"])
+                if want != self._set:
+                    m.set_timeout(*want)
+                    self._set = want
+                out["seq"] = m.next_seq(a["node"])
+                out["data"] = (await m.atransact(a["node"], a["data"])).hex()
+        except BaseException as exc:
+            exc.daemon_fields = {"stats": _stats_delta(before, m.stats), **out}   # type: ignore[attr-defined]
+            raise
+        out["stats"] = _stats_delta(before, m.stats)
+        return out
+
+
+class RawBackend(Backend):
+    """raw bytes on the C port layer (:class:`fap_py.port.Port`): a request and a reply
+    rule (``length`` bytes, a ``terminator``, or an ``idle`` gap), or a send alone."""
+
+    name = "raw"
+    MAX = 4096
+
+    def open(self) -> None:
+        from ..port import Port
+
+        self.node = Port(self.port, self.baud, self.rs485)
+
+    def flush(self) -> None:
+        self.node.flush_input()
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        data = hex_field(msg, "data", self.MAX)
+        if op == "send":
+            if not data:
+                raise ProtocolError("send: field 'data' is empty")
+            return Job(op, {"data": data})
+        if op != "transact":
+            raise ProtocolError(f"unknown op {op!r} for protocol raw (transact, send)")
+        length = num_field(msg, "length", 1, self.MAX, integer=True)
+        term = hex_field(msg, "terminator", 16, default=None) if "terminator" in msg else None
+        idle = num_field(msg, "idle", 1e-6, 10.0)
+        if sum(x is not None for x in (length, term, idle)) != 1:
+            raise ProtocolError("transact: give exactly one reply rule: length, terminator or idle")
+        if term is not None and not term:
+            raise ProtocolError("transact: an empty terminator")
+        return Job(op, {"data": data, "length": length, "terminator": term, "idle": idle,
+                        "max": num_field(msg, "max", 1, self.MAX, self.MAX, integer=True),
+                        "timeout": num_field(msg, "timeout", 1e-6, 3600.0, self.timeout)})
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        p, a = self.node, job.args
+        p.flush_input()
+        self.on_frame("tx", "ok", time.monotonic_ns(), a["data"])
+        p.write(a["data"])
+        if job.op == "send":
+            return {}
+        got = bytearray()
+        deadline = time.monotonic() + a["timeout"]
+        most = a["max"] if a["length"] is None else a["length"]
+        while len(got) < most:
+            if a["terminator"] is not None and got.find(a["terminator"]) >= 0:
+                got = got[:got.find(a["terminator"]) + len(a["terminator"])]
+                break
+            now = time.monotonic()
+            wait = deadline - now
+            if a["idle"] is not None and got:
+                wait = min(wait, a["idle"])
+            if wait <= 0 or not await p.await_readable(wait):
+                if a["idle"] is not None and got:
+                    break                       # the gap ended the reply
+                if time.monotonic() >= deadline:
+                    if got:
+                        self.on_frame("rx", "truncated", time.monotonic_ns(), bytes(got))
+                    raise FapTimeoutError(f"{self.port}: reply incomplete within {a['timeout']} s "
+                                          f"({len(got)} bytes)")
+                continue
+            got += p.read_until(min(most - len(got), self.MAX), 0)
+        self.on_frame("rx", "ok", time.monotonic_ns(), bytes(got))
+        return {"data": bytes(got).hex()}
+
+
+class MikrocBackend(Backend):
+    """mikroC: :class:`fap_py.mikroc.Master`; a request and its reply, or a send alone."""
+
+    name = "mikroc"
+
+    def open(self) -> None:
+        from .. import mikroc
+
+        self._m = mikroc
+        self.node = mikroc.Master(self.port, self.baud, rs485=self.rs485)
+        self._tap = _FrameTap(self.on_frame, "mikroc", f"fap serve {self.port}")
+        from .._native import lib
+
+        lib.mikrocRS485_CtxSetTrace(self.node._ctx, lib.fap_py_trace, self._tap.handle)
+
+    def flush(self) -> None:
+        from .._native import lib
+
+        self.node._call(lambda _h: lib.mikrocRS485_CtxResetRx(self.node._ctx))
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        m = self._m
+        if op not in ("request", "send"):
+            raise ProtocolError(f"unknown op {op!r} for protocol mikroc (request, send)")
+        address = num_field(msg, "address", m.NODE_MIN, m.NODE_MAX, integer=True)
+        if address is None:
+            raise ProtocolError(f"{op}: field 'address' is missing")
+        return Job(op, {"address": address, "data": hex_field(msg, "data", m.MAX_DATA),
+                        "timeout": num_field(msg, "timeout", 1e-6, 3600.0, self.timeout)})
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        a = job.args
+        if job.op == "send":
+            self.node.send(a["address"], a["data"])
+            return {}
+        reply = await self.node.arequest(a["address"], a["data"], a["timeout"])
+        return {"address": reply.address, "data": reply.data.hex()}
+
+
+BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend)}
+#: protocols the issue names that this daemon does not run yet
+NOT_YET = ("fap", "g485")
