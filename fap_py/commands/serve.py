@@ -57,6 +57,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the highest priority a client may ask for")
     g.add_argument("--max-clients", metavar="N", type=opt.positive, default=64,
                    help="connections at once (more are refused)")
+    g.add_argument("--client-timeout", metavar="S", type=opt.seconds, default=5.0,
+                   help="a client must say hello, and finish each message it starts, within this")
+    g.add_argument("--write-limit", metavar="BYTES", type=opt.positive, default=1 << 20,
+                   help="answers a client leaves unread before it is cut off, bytes")
     g.add_argument("--slaves", metavar="IDS", help="fap: the slave ids the daemon polls")
     opt.add_output_options(p)
     p.set_defaults(func=run)
@@ -82,7 +86,7 @@ def _config(args: argparse.Namespace) -> Dict[str, Any]:
             raise opt.UsageError(f"{args.config}: unknown key(s) {', '.join(bad)}")
     parser_defaults = {"timeout": 0.1, "retries": 3, "socket_mode": "660", "lock_dir": "/var/lock",
                        "queue": 16, "max_weight": 16, "max_priority": 3, "max_clients": 64,
-                       "rs485": "auto", "rts_before": 0.0, "rts_after": 0.0, "rts_polarity": "high",
+                       "rs485": "auto", "client_timeout": 5.0, "write_limit": 1 << 20, "rts_before": 0.0, "rts_after": 0.0, "rts_polarity": "high",
                        "gpio_line": 0}
     for k, v in vars(args).items():
         if v is None or v is False:
@@ -122,7 +126,9 @@ def _serve_config(args: argparse.Namespace):
                        socket_mode=mode, socket_owner=c.get("socket_owner"),
                        socket_group=c.get("socket_group"), lock_dir=c["lock_dir"] or None,
                        queue=int(c["queue"]), max_weight=int(c["max_weight"]),
-                       max_priority=int(c["max_priority"]), max_clients=int(c["max_clients"]))
+                       max_priority=int(c["max_priority"]), max_clients=int(c["max_clients"]),
+                       hello_timeout=float(c["client_timeout"]), body_timeout=float(c["client_timeout"]),
+                       write_limit=int(c["write_limit"]))
 
 
 def run(args: argparse.Namespace) -> int:

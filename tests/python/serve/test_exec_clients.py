@@ -1,0 +1,112 @@
+"""`fap serve --protocol exec` with real client processes on a paced bus: every answer
+goes to the client that asked, transactions never interleave on the wire, a client
+killed mid-transaction costs the others nothing, a late reply is counted and
+delivered to nobody, a second direct opener is refused with the daemon's pid."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+
+import pytest
+from serve_helpers import client_proc, fap_cmd
+
+from fap_py.execasync import Master, NoReplyError
+
+N_CLIENTS, N_EACH = 4, 40
+
+
+def test_clients_get_their_own_answers_and_never_interleave(served, vbus):
+    procs = [client_proc(served.url, c, N_EACH, "sync" if c % 2 else "async") for c in range(N_CLIENTS)]
+    results = []
+    for p in procs:
+        out, err = p.communicate(timeout=60)
+        assert p.returncode == 0, err
+        results.append(json.loads(out))
+    assert sum(r["ok"] for r in results) == N_CLIENTS * N_EACH
+    assert sum(r["bad"] for r in results) == 0                      # 0 misdelivered
+    frames = vbus.spy_frames()
+    assert len(frames) == 2 * N_CLIENTS * N_EACH, len(frames)
+    for req, rep in zip(frames[::2], frames[1::2]):                  # 0 interleaved:
+        assert (req.node, req.seq, req.data) == (rep.node, rep.seq, rep.data)   # each request, then its reply
+    st = served.status()
+    assert st["totals"]["transactions"] == N_CLIENTS * N_EACH
+    assert st["totals"]["errors"] == 0 and st["totals"]["late"] == 0
+
+
+def test_status_shows_clients_and_shares(served, vbus):
+    with Master(served.url + "?weight=3", timeout=0.2) as m:
+        for i in range(5):
+            assert m.transact(5, bytes([i])) == bytes([i])
+        st = served.status()
+        me = [c for c in st["clients"] if c["name"] == "exec master"]
+        assert len(me) == 1 and me[0]["weight"] == 3 and me[0]["transactions"] == 5
+        assert me[0]["share"] == 1.0 and me[0]["pid"] == os.getpid()
+        assert st["daemon"]["pid"] == served.pid and st["daemon"]["port_state"] == "open"
+    out = subprocess.run(fap_cmd("serve", "status", served.url, "--json"), capture_output=True,
+                         text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["totals"]["transactions"] == 5
+    text = subprocess.run(fap_cmd("serve", "status", served.url), capture_output=True, text=True,
+                          timeout=30).stdout
+    assert f"daemon pid {served.pid}: exec on {vbus.master_port}" in text
+
+
+def test_stats_and_exceptions_are_a_direct_masters(served, vbus):
+    with Master(served.url, timeout=0.02, retries=1) as m:
+        with pytest.raises(NoReplyError):
+            m.transact(9, b"x")                     # nobody is node 9
+        assert m.transact(5, b"ok") == b"ok"
+        st = m.stats
+        assert (st.transactions, st.replies, st.failures, st.retries) == (2, 1, 1, 1)
+        assert m.next_seq(5) == 1                   # 0 went with the first message
+
+
+def test_a_client_killed_mid_transaction_costs_the_others_nothing(served, vbus):
+    vbus.late_gate.clear()                          # node 6 answers when we say
+    victim = subprocess.Popen([*fap_cmd("exec", "master", "--port", served.url, "--node", "6",
+                                        "--timeout", "2", "--retries", "0", "01")],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert vbus.hold.wait(10)                       # its request is on the wire
+    served.wait_for(lambda st: any(c["in_flight"] for c in st["clients"]))
+    victim.send_signal(signal.SIGKILL)
+    victim.communicate(timeout=10)
+    vbus.late_gate.set()                            # the reply comes for a client that is gone
+    served.wait_for(lambda st: st["totals"]["dropped"] == 1)
+    with Master(served.url, timeout=0.2) as m:
+        assert [m.transact(5, bytes([i])) for i in range(10)] == [bytes([i]) for i in range(10)]
+    st = served.status()
+    assert st["totals"]["errors"] == 0 and st["totals"]["late"] == 0
+
+
+def test_a_late_reply_is_counted_and_delivered_to_nobody(served, vbus):
+    vbus.late_gate.clear()
+    with Master(served.url, timeout=0.05, retries=0) as m:
+        with pytest.raises(NoReplyError):
+            m.transact(6, b"late")
+        vbus.late_gate.set()                        # now node 6 answers: after the timeout
+        st = served.wait_for(lambda st: st["totals"]["late"] == 1)
+        assert [c["late"] for c in st["clients"] if c["name"] == "exec master"] == [1]
+        assert m.transact(5, b"next") == b"next"    # the next answer is the next request's
+
+
+def test_a_second_direct_opener_is_refused_naming_the_daemon(served, vbus):
+    r = subprocess.run(fap_cmd("exec", "master", "--port", vbus.master_port, "--rs485", "none",
+                               "--node", "5", "01"), capture_output=True, text=True, timeout=30)
+    assert r.returncode == 3
+    assert f"pid {served.pid}" in r.stderr and "serve" in r.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+
+
+def test_the_cli_works_unchanged_on_a_daemon_url(served, vbus):
+    r = subprocess.run(fap_cmd("exec", "master", "--port", served.url, "--node", "5", "0102",
+                               "--count", "3", "--json"), capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    objs = [json.loads(x) for x in r.stdout.splitlines()]
+    assert [o["data"] for o in objs if o["event"] == "reply"] == ["0102"] * 3
+    assert objs[-1]["event"] == "stats" and objs[-1]["transactions"] == 3
+    r = subprocess.run(fap_cmd("exec", "master", "--port", served.url, "--node", "9", "01",
+                               "--timeout", "0.02", "--retries", "0"),
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 1 and "no reply" in r.stdout + r.stderr   # as on a device path
