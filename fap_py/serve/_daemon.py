@@ -30,7 +30,7 @@ from typing import Any, Dict, List, Optional
 from ..errors import FapError, FapTimeoutError, InvalidValueError, PortError, PortGoneError
 from ..rs485 import RS485
 from ._backends import BACKENDS, NOT_YET, Backend, Job
-from ._errors import ClientQueueFullError, DaemonError, ProtocolError
+from ._errors import BadUrlError, ClientQueueFullError, DaemonError, ProtocolError
 from ._lock import UucpLock
 from ._sched import DEFAULT_QUANTUM, Scheduler
 from ._url import Address, is_loopback, parse_listen
@@ -76,7 +76,10 @@ class ServeConfig:
         if not self.listen:
             raise InvalidValueError("no --listen address (unix:PATH or tcp://HOST:PORT)")
         for text in self.listen:
-            a = parse_listen(text)
+            try:
+                a = parse_listen(text)
+            except BadUrlError as exc:           # a configuration error (exit 2), not a port's
+                raise InvalidValueError(str(exc)) from None
             if a.kind == "tcp" and not is_loopback(a.host) and not self.token_file:
                 raise InvalidValueError(f"--listen {text}: TCP beyond loopback needs --token-file")
         if self.token_file:

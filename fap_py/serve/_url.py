@@ -65,7 +65,7 @@ class ClientUrl:
     text: str = ""
 
 
-def _host_port(text: str, what: str) -> Tuple[str, int]:
+def _host_port(text: str, what: str, zero_ok: bool = False) -> Tuple[str, int]:
     if text.startswith("["):
         host, sep, rest = text[1:].partition("]")
         if not sep or not rest.startswith(":"):
@@ -77,8 +77,8 @@ def _host_port(text: str, what: str) -> Tuple[str, int]:
             raise BadUrlError(f"{what}: no :port (fapd://host:port, or fapd:///path for a Unix socket)", what)
     if not host:
         raise BadUrlError(f"{what}: no host", what)
-    if not port_text.isdigit() or not 0 < int(port_text) < 65536:
-        raise BadUrlError(f"{what}: port must be 1..65535, not {port_text!r}", what)
+    if not port_text.isdigit() or not (0 if zero_ok else 1) <= int(port_text) < 65536:
+        raise BadUrlError(f"{what}: port must be {0 if zero_ok else 1}..65535, not {port_text!r}", what)
     return host, int(port_text)
 
 
@@ -119,7 +119,7 @@ def parse_listen(text: Any) -> Address:
             raise BadUrlError(f"--listen {text!r}: unix:PATH, a path of 1..107 bytes", text)
         return Address("unix", path=path)
     if text.startswith("tcp://"):
-        host, port = _host_port(text[6:].rstrip("/"), text)
+        host, port = _host_port(text[6:].rstrip("/"), text, zero_ok=True)   # 0: any free port
         return Address("tcp", host=host, port=port)
     if is_daemon_url(text):
         return parse_client_url(text).address
