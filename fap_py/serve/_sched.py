@@ -86,9 +86,15 @@ class Scheduler:
         """(key, item) to run now, or None when no queue holds work."""
         for prio in sorted((p for p, r in self._rings.items() if r), reverse=True):
             ring = self._rings[prio]
-            while True:
+            while ring:
                 key = ring[0]
                 share = self._shares[key]
+                if not share.queue:              # idle: leaves the ring, keeps a debt, no credit
+                    ring.pop(0)
+                    share.deficit = min(share.deficit, 0.0)
+                    if self._turn == key:
+                        self._turn = None
+                    continue
                 if self._turn != key:            # a new turn: this client's quantum
                     self._turn = key
                     share.deficit += self.quantum * share.weight
@@ -99,7 +105,9 @@ class Scheduler:
         return None
 
     def charge(self, key: int, cost: float) -> None:
-        """Account ``cost`` seconds of wire time to ``key``'s last transaction."""
+        """Account ``cost`` seconds of wire time to ``key``'s last transaction. A client
+        whose queue is empty keeps its turn until :meth:`next` looks again: a request it
+        queues meanwhile runs on its remaining credit."""
         share = self._shares.get(key)
         if share is None:
             return
@@ -107,12 +115,6 @@ class Scheduler:
         share.wire_time += cost
         share.transactions += 1
         ring = self._rings.get(share.priority, [])
-        if not share.queue:                      # idle: leaves the ring, no credit kept
-            share.deficit = 0.0
-            if key in ring:
-                ring.remove(key)
-            if self._turn == key:
-                self._turn = None
-        elif share.deficit <= 0 and ring and ring[0] == key:
+        if share.deficit <= 0 and ring and ring[0] == key:
             ring.append(ring.pop(0))
             self._turn = None
