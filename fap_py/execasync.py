@@ -653,8 +653,9 @@ class DaemonMaster:
                  timeout: Optional[float] = None, retries: Optional[int] = None,
                  rs485: Optional[RS485] = None, weight: Optional[int] = None,
                  priority: Optional[int] = None, token: Optional[str] = None) -> None:
-        from .serve._client import Connection
+        from .serve._client import Connection, PerLoop
 
+        port_options(baudrate, rs485)            # checked as for a device (the daemon's are used)
         self._timeout = None if timeout is None else Master._timeout_us(timeout) / 1e6
         self._retries = None if retries is None else Master._retries_checked(retries)
         self._counts: Dict[str, int] = dict.fromkeys(f.name for f in dataclasses.fields(MasterStats))
@@ -664,9 +665,9 @@ class DaemonMaster:
         self._hello = {"weight": weight, "priority": priority, "token": token}
         self._conn = Connection(port, protocol="exec", name="exec master", errors=_WIRE_ERRORS,
                                 **self._hello)
-        self._aconn: Any = None
-        self._aopening: Any = None
         self.path = self._conn.url
+        self._aconn = PerLoop(self.path, protocol="exec", name="exec master", errors=_WIRE_ERRORS,
+                              **self._hello)
         self.closed = False
         log.info("exec async master on %s", self.path)
 
@@ -696,26 +697,11 @@ class DaemonMaster:
         return answer
 
     async def _aask(self, op: str, **fields: Any) -> Dict[str, Any]:
-        from .serve._client import AsyncConnection
-
         if self.closed:
             raise ClosedError(f"exec async master on {self.path} is closed")
-        if self._aconn is None:          # the first task opens it, the others wait for it
-            if self._aopening is None:
-                self._aopening = asyncio.ensure_future(AsyncConnection.open(
-                    self.path, protocol="exec", name="exec master", errors=_WIRE_ERRORS, **self._hello))
-            opening = self._aopening
-            try:
-                conn = await asyncio.shield(opening)
-            finally:
-                if opening.done():
-                    self._aopening = None
-            if self._aconn is None:
-                self._aconn = conn
-            elif conn is not self._aconn:
-                await conn.close()
+        conn = await self._aconn.get()
         try:
-            answer = await self._aconn.call(op, **fields)
+            answer = await conn.call(op, **fields)
         except FapError as exc:
             self._add(getattr(exc, "daemon_answer", {}))
             raise
@@ -775,11 +761,10 @@ class DaemonMaster:
         """Leave the daemon (idempotent)."""
         self.closed = True
         self._conn.close()
-        self._aconn = None
+        self._aconn.abandon()
 
     async def aclose(self) -> None:
-        if self._aconn is not None:
-            await self._aconn.close()
+        await self._aconn.close()
         self.close()
 
     def __enter__(self) -> "DaemonMaster":

@@ -31,6 +31,7 @@ is for this node raises a :class:`MikrocFrameError` subclass from
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
@@ -45,6 +46,7 @@ from ._native import ffi, lib
 from ._stats import Counters, stats_from_c
 from ._validate import check_bool, check_bytes, check_int, check_path, check_timeout
 from .errors import (
+    FapError,
     FapTimeoutError,
     FrameError,
     error_from_code,
@@ -61,6 +63,7 @@ __all__ = [
     "STOP_BYTE",
     "AbortedFrameError",
     "ChecksumError",
+    "DaemonMaster",
     "Decoder",
     "FormatError",
     "LongFrameError",
@@ -367,7 +370,16 @@ class _Node(NativeHandle):
 
 class Master(_Node):
     """A mikroC master on a serial port: ``send`` to a slave, ``receive`` its
-    reply. Runs the C master (``mikrocRS485_CtxInitMaster``)."""
+    reply. Runs the C master (``mikrocRS485_CtxInitMaster``). ``port_path`` may be a
+    daemon's ``fapd://`` URL (``fap serve --protocol mikroc``): a
+    :class:`DaemonMaster` is returned."""
+
+    def __new__(cls, port_path: Any = None, *args: Any, **kwargs: Any) -> Any:
+        from .serve._url import is_daemon_url
+
+        if cls is Master and is_daemon_url(port_path):
+            return DaemonMaster(port_path, *args, **kwargs)
+        return super().__new__(cls)
 
     def __init__(self, port_path: PathLike, baudrate: int = DEFAULT_BAUD, *,
                  rs485: Optional[RS485] = None) -> None:
@@ -425,6 +437,131 @@ class Master(_Node):
         if reply.address != address:
             raise FrameError(f"reply from slave {reply.address}, expected {address}")
         return reply
+
+
+#: this module's exceptions by name, as a daemon's answer names them
+_WIRE_ERRORS = {c.__name__: (lambda e: _frame_error(int(e.get("code", 0)), e.get("address")))
+                for c in [MikrocFrameError, *_ERRORS.values()]}
+
+
+class DaemonMaster:
+    """A mikroC master on a bus a daemon owns (``fap serve --protocol mikroc``,
+    docs/daemon.md): what ``Master("fapd://...")`` returns.
+
+    :meth:`request` is one atomic transaction on the daemon. :meth:`send` to a slave
+    queues that transaction at once (reply window: the daemon's ``--timeout``) and
+    :meth:`receive` returns its reply (or raises its error); with no request of ours
+    outstanding, ``receive`` raises FapTimeoutError at once (the daemon delivers no
+    frame nobody asked for). A broadcast (address 50) is sent, no reply awaited.
+    ``weight``, ``priority``, ``token`` as for :class:`fap_py.execasync.DaemonMaster`.
+    """
+
+    def __init__(self, port_path: PathLike, baudrate: int = DEFAULT_BAUD, *,
+                 rs485: Optional[RS485] = None, weight: Optional[int] = None,
+                 priority: Optional[int] = None, token: Optional[str] = None) -> None:
+        from .serve._client import Connection, PerLoop
+
+        port_options(baudrate, rs485)            # checked as for a device (the daemon's are used)
+        self._conn = Connection(port_path, protocol="mikroc", weight=weight, priority=priority,
+                                token=token, name="mikroc master", errors=_WIRE_ERRORS)
+        self.path = self._conn.url
+        self._outstanding: List[Any] = []
+        self._olock = threading.Lock()
+        self._hello = {"weight": weight, "priority": priority, "token": token}
+        self._aconn = PerLoop(self.path, protocol="mikroc", name="mikroc master",
+                              errors=_WIRE_ERRORS, **self._hello)
+        self._counts = dict.fromkeys((f.name for f in dataclasses.fields(NodeStats)), 0)
+
+    def send(self, address: int, data: bytes = b"") -> None:
+        """Send 0..3 bytes to slave ``address``; a reply is awaited by the daemon for
+        :meth:`receive` (none for :data:`BROADCAST`)."""
+        _check_address(address)
+        data = _check_data(data)
+        if address == BROADCAST:
+            self._add(self._call("send", address=address, data=data.hex()))
+            return
+        with self._olock:
+            self._outstanding.append(self._conn.submit("request", address=address, data=data.hex()))
+
+    def receive(self, timeout: Optional[float] = 1.0) -> Message:
+        """The reply to the oldest :meth:`send` still unanswered."""
+        t = check_timeout(timeout)
+        with self._olock:
+            answer = self._outstanding.pop(0) if self._outstanding else None
+        if answer is None:
+            raise FapTimeoutError(f"{self.path}: no mikroC frame within {timeout} s "
+                                  "(no request of ours outstanding on the daemon)")
+        try:
+            return self._message(answer.result(timeout=None if t is None else max(t, 0) + 5.0))
+        except FapError as exc:
+            self._add(getattr(exc, "daemon_answer", {}))
+            raise
+
+    def request(self, address: int, data: bytes = b"", timeout: Optional[float] = 1.0) -> Message:
+        """``send`` then ``receive`` as one transaction on the daemon."""
+        _check_address(address)
+        data = _check_data(data)
+        fields: dict = {"address": address, "data": data.hex()}
+        t = check_timeout(timeout)
+        if t is not None:
+            fields["timeout"] = max(t, 1e-6)
+        return self._message(self._call("request", **fields))
+
+    async def arequest(self, address: int, data: bytes = b"",
+                       timeout: Optional[float] = 1.0) -> Message:
+        """``await``-able :meth:`request` (an asyncio connection, no thread)."""
+        _check_address(address)
+        data = _check_data(data)
+        fields: dict = {"address": address, "data": data.hex()}
+        t = check_timeout(timeout)
+        if t is not None:
+            fields["timeout"] = max(t, 1e-6)
+        conn = await self._aconn.get()
+        return self._message(await conn.call("request", **fields))
+
+    def _message(self, answer: dict) -> Message:
+        self._add(answer)
+        return Message(int(answer["address"]), bytes.fromhex(answer["data"]), False)
+
+    def _add(self, answer: dict) -> None:
+        with self._olock:
+            for k, v in (answer.get("stats") or {}).items():
+                if k in self._counts and isinstance(v, int):
+                    self._counts[k] += v
+
+    def _call(self, op: str, **fields: Any) -> dict:
+        try:
+            return self._conn.call(op, **fields)
+        except FapError as exc:
+            self._add(getattr(exc, "daemon_answer", {}))
+            raise
+
+    @property
+    def stats(self) -> NodeStats:
+        """This client's share of the daemon engine's counters."""
+        with self._olock:
+            return NodeStats(**self._counts)
+
+    def close(self) -> None:
+        """Leave the daemon (idempotent)."""
+        self._conn.close()
+        self._aconn.abandon()
+
+    async def aclose(self) -> None:
+        await self._aconn.close()
+        self.close()
+
+    def __enter__(self) -> "DaemonMaster":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> "DaemonMaster":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
 
 
 class Slave(_Node):

@@ -12,6 +12,7 @@ import sys
 from typing import Any, Dict
 
 from .. import _protocols
+from ..rs485 import DEFAULT_BAUD
 from . import _options as opt
 
 #: protocols the daemon may run: the table's, and raw bytes with a reply rule
@@ -119,7 +120,7 @@ def _serve_config(args: argparse.Namespace):
         raise opt.UsageError(f"--socket-mode {c['socket_mode']!r}: octal, e.g. 660") from None
     baud = c.get("baud")
     if baud is None:
-        baud = _protocols.get(c["protocol"]).default_baud if c["protocol"] != RAW else 115200
+        baud = _protocols.get(c["protocol"]).default_baud if c["protocol"] != RAW else DEFAULT_BAUD
     return ServeConfig(protocol=c["protocol"], port=str(c["port"]), listen=[str(x) for x in listen],
                        baud=int(baud), rs485=opt.rs485_from_args(ns), timeout=float(c["timeout"]),
                        retries=int(c["retries"]), token_file=c.get("token_file"),

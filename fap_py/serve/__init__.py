@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from typing import Any, Dict, Optional
 
-from ._client import TOKEN_ENV, AsyncConnection, Connection
+from ._client import TOKEN_ENV, Connection
 from ._daemon import Daemon, ServeConfig, run
 from ._errors import (
     BadUrlError,
@@ -39,7 +39,13 @@ def status(url: Any, *, token: Optional[str] = None) -> Dict[str, Any]:
         return conn.call("status")["status"]
 
 
-__all__ = ["AsyncConnection", "BadUrlError", "ClientQueueFullError", "Connection", "Daemon",
+# the public names are this package's (the walk, pickling and help() name them so)
+for _obj in (Connection, Daemon, ServeConfig, run, is_daemon_url, BadUrlError, ClientQueueFullError,
+             DaemonError, DaemonGoneError, DaemonRefusedError, ProtocolError):
+    _obj.__module__ = __name__
+del _obj
+
+__all__ = ["BadUrlError", "ClientQueueFullError", "Connection", "Daemon",
            "DaemonError", "DaemonGoneError", "DaemonRefusedError", "MAX_MESSAGE",
            "PROTOCOL_VERSION", "ProtocolError", "ServeConfig", "TOKEN_ENV", "is_daemon_url",
            "run", "status"]

@@ -96,7 +96,8 @@ class Backend:
     def quick(self, op: str, msg: Dict[str, Any]) -> Dict[str, Any]:
         raise ProtocolError(f"unknown op {op!r}")
 
-    def stats(self) -> Dict[str, int]:
+    def counters(self) -> Dict[str, int]:
+        """The engine's counters (its ``stats``) as a dict."""
         return asdict(self.node.stats) if self.node is not None else {}
 
     def info(self) -> Dict[str, Any]:
@@ -268,11 +269,19 @@ class MikrocBackend(Backend):
 
     async def run(self, job: Job) -> Dict[str, Any]:
         a = job.args
-        if job.op == "send":
-            self.node.send(a["address"], a["data"])
-            return {}
-        reply = await self.node.arequest(a["address"], a["data"], a["timeout"])
-        return {"address": reply.address, "data": reply.data.hex()}
+        before = self.node.stats
+        try:
+            if job.op == "send":
+                self.node.send(a["address"], a["data"])
+                out: Dict[str, Any] = {}
+            else:
+                reply = await self.node.arequest(a["address"], a["data"], a["timeout"])
+                out = {"address": reply.address, "data": reply.data.hex()}
+        except BaseException as exc:
+            exc.daemon_fields = {"stats": _stats_delta(before, self.node.stats)}   # type: ignore[attr-defined]
+            raise
+        out["stats"] = _stats_delta(before, self.node.stats)
+        return out
 
 
 BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend)}

@@ -19,6 +19,7 @@ import threading
 from typing import Any, Callable, Dict, Mapping, Optional, Type
 
 from .. import errors as _errors
+from .._validate import check_timeout
 from ._errors import (
     ClientQueueFullError,
     DaemonError,
@@ -91,6 +92,29 @@ def _settings(url: ClientUrl, weight: Optional[int], priority: Optional[int],
     return hello
 
 
+def _check_opt_str(value: Any, what: str) -> Optional[str]:
+    if value is not None and not isinstance(value, str):
+        raise _errors.InvalidTypeError(f"{what} must be a str or None, not {type(value).__name__}")
+    return value
+
+
+def _check_errors(value: Any) -> Dict[str, Any]:
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping) or not all(isinstance(k, str) and callable(v) for k, v in value.items()):
+        raise _errors.InvalidTypeError("errors must map exception names to factories")
+    return dict(value)
+
+
+def _request(op: Any, rid: int, fields: Dict[str, Any]) -> bytes:
+    if not isinstance(op, str) or not op:
+        raise _errors.InvalidTypeError(f"op must be a non-empty str, not {op!r:.40}")
+    try:
+        return pack({"op": op, "id": rid, **fields})
+    except (TypeError, ValueError) as exc:
+        raise _errors.InvalidTypeError(f"request fields must be JSON values: {exc}") from None
+
+
 def _answer_timeout(url: ClientUrl) -> float:
     text = url.query.get("timeout")
     if text is None:
@@ -154,7 +178,9 @@ class Connection:
                  priority: Optional[int] = None, token: Optional[str] = None,
                  name: Optional[str] = None, errors: Optional[Mapping[str, Any]] = None) -> None:
         self._sock: Optional[socket.socket] = None
-        self.errors = dict(errors or {})
+        self.errors = _check_errors(errors)
+        _check_opt_str(protocol, "protocol")
+        _check_opt_str(name, "name")
         parsed = parse_client_url(url)
         self.url = parsed.text
         self.timeout = _answer_timeout(parsed)
@@ -234,6 +260,7 @@ class Connection:
     def next_event(self, timeout: Optional[float]) -> Optional[Dict[str, Any]]:
         """The next message the daemon sent without an id (monitor frames, port events);
         None when ``timeout`` passed. Raises DaemonGoneError once the daemon is gone."""
+        timeout = check_timeout(timeout)
         with self._event_cond:
             if not self._events and self._dead is None:
                 self._event_cond.wait(timeout)
@@ -248,29 +275,28 @@ class Connection:
     def call(self, op: str, extra_errors: Optional[Mapping[str, Callable[..., BaseException]]] = None,
              **fields: Any) -> Dict[str, Any]:
         """Send one request and wait for its answer; raise the error it carries."""
+        extra = _check_errors(extra_errors)
+        return self.submit(op, **fields).result(extra or None)
+
+    def submit(self, op: str, **fields: Any) -> "Answer":
+        """Send one request without waiting: its :class:`Answer` waits when asked."""
         if self._sock is None:
             raise _errors.ClosedError(f"connection to {self.url} closed")
         if self._dead is not None:
             raise DaemonGoneError(f"{self.url}: the daemon closed the connection")
         rid = next(self._ids)
+        data = _request(op, rid, fields)
         slot: list = [threading.Event(), None]
         with self._wait_lock:
             self._waiting[rid] = slot
         try:
             with self._wlock:
-                self._sock.sendall(pack({"op": op, "id": rid, **fields}))
+                self._sock.sendall(data)
         except OSError:
             with self._wait_lock:
                 self._waiting.pop(rid, None)
             raise DaemonGoneError(f"{self.url}: the daemon closed the connection") from None
-        if not slot[0].wait(self.timeout):
-            with self._wait_lock:
-                self._waiting.pop(rid, None)
-            raise DaemonGoneError(f"{self.url}: no answer from the daemon within {self.timeout} s")
-        msg = slot[1]
-        if msg is None:
-            raise DaemonGoneError(f"{self.url}: the daemon closed the connection")
-        return _result(msg, self.url, extra_errors or self.errors)
+        return Answer(self, rid, slot)
 
     def close(self) -> None:
         s, self._sock = self._sock, None
@@ -290,6 +316,29 @@ class Connection:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class Answer:
+    """The answer to one submitted request (:meth:`Connection.submit`)."""
+
+    def __init__(self, conn: Connection, rid: int, slot: list) -> None:
+        self._conn, self._rid, self._slot = conn, rid, slot
+
+    def result(self, extra_errors: Optional[Mapping[str, Callable[..., BaseException]]] = None,
+               timeout: Optional[float] = None) -> Dict[str, Any]:
+        """Wait for it (at most ``timeout``, default the connection's answer timeout);
+        the answer, or the error it carries raised."""
+        extra_errors = _check_errors(extra_errors) or None
+        timeout = check_timeout(timeout)
+        c = self._conn
+        if not self._slot[0].wait(c.timeout if timeout is None else timeout):
+            with c._wait_lock:
+                c._waiting.pop(self._rid, None)
+            raise DaemonGoneError(f"{c.url}: no answer from the daemon within {c.timeout} s")
+        msg = self._slot[1]
+        if msg is None:
+            raise DaemonGoneError(f"{c.url}: the daemon closed the connection")
+        return _result(msg, c.url, extra_errors or c.errors)
 
 
 def _result(msg: Dict[str, Any], url: str,
@@ -322,7 +371,9 @@ class AsyncConnection:
                    name: Optional[str] = None, errors: Optional[Mapping[str, Any]] = None
                    ) -> "AsyncConnection":
         self = cls()
-        self.errors = dict(errors or {})
+        self.errors = _check_errors(errors)
+        _check_opt_str(protocol, "protocol")
+        _check_opt_str(name, "name")
         parsed = parse_client_url(url)
         self.url = parsed.text
         self.timeout = _answer_timeout(parsed)
@@ -375,9 +426,10 @@ class AsyncConnection:
         if self._dead:
             raise DaemonGoneError(f"{self.url}: the daemon closed the connection")
         rid = next(self._ids)
+        data = _request(op, rid, fields)
         fut: "asyncio.Future[Dict[str, Any]]" = asyncio.get_running_loop().create_future()
         self._futures[rid] = fut
-        self._writer.write(pack({"op": op, "id": rid, **fields}))
+        self._writer.write(data)
         try:
             msg = await asyncio.wait_for(fut, self.timeout)
         except asyncio.TimeoutError:
@@ -385,6 +437,15 @@ class AsyncConnection:
         finally:
             self._futures.pop(rid, None)
         return _result(msg, self.url, extra_errors or self.errors)
+
+    def abandon(self) -> None:
+        """Drop the connection without its loop (that loop may be closed already)."""
+        w, self._writer = self._writer, None
+        if w is not None:
+            try:
+                w.transport.abort()
+            except (RuntimeError, OSError):
+                pass
 
     async def close(self) -> None:
         w, self._writer = self._writer, None
@@ -401,3 +462,51 @@ class AsyncConnection:
                 await self._task
             except (asyncio.CancelledError, Exception):
                 pass
+
+
+class PerLoop:
+    """One :class:`AsyncConnection` per event loop (``asyncio.run`` twice makes two loops;
+    a connection lives in the loop that opened it). ``await get()`` opens it once, the
+    tasks that ask meanwhile wait for the same one."""
+
+    def __init__(self, url: str, **kw: Any) -> None:
+        self._url, self._kw = url, kw
+        self._conn: Optional[AsyncConnection] = None
+        self._loop: Optional[asyncio.AbstractEventLoop] = None
+        self._opening: Optional["asyncio.Task[AsyncConnection]"] = None
+
+    async def get(self) -> AsyncConnection:
+        loop = asyncio.get_running_loop()
+        if self._conn is not None and self._loop is loop and not self._conn._dead:
+            return self._conn
+        if self._opening is None or self._opening.get_loop() is not loop:
+            self._opening = loop.create_task(AsyncConnection.open(self._url, **self._kw))
+        opening = self._opening
+        try:
+            conn = await asyncio.shield(opening)
+        finally:
+            if opening.done() and self._opening is opening:
+                self._opening = None
+        if self._conn is not conn:
+            old, self._conn, self._loop = self._conn, conn, loop
+            if old is not None:
+                old.abandon()
+        return conn
+
+    async def close(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is None:
+            return
+        try:
+            same = self._loop is asyncio.get_running_loop()
+        except RuntimeError:
+            same = False
+        if same:
+            await conn.close()
+        else:
+            conn.abandon()
+
+    def abandon(self) -> None:
+        conn, self._conn = self._conn, None
+        if conn is not None:
+            conn.abandon()

@@ -27,8 +27,9 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional
 
-from ..errors import FapError, FapTimeoutError, InvalidValueError, PortError, PortGoneError
-from ..rs485 import RS485
+from .._validate import check_baud, check_int, check_path, check_seconds
+from ..errors import FapError, FapTimeoutError, InvalidTypeError, InvalidValueError, PortError, PortGoneError
+from ..rs485 import DEFAULT_BAUD, RS485
 from ._backends import BACKENDS, NOT_YET, Backend, Job
 from ._errors import BadUrlError, ClientQueueFullError, DaemonError, ProtocolError
 from ._lock import UucpLock
@@ -46,7 +47,7 @@ class ServeConfig:
     protocol: str
     port: str
     listen: List[str]
-    baud: int = 115200
+    baud: int = DEFAULT_BAUD
     rs485: Optional[RS485] = None
     timeout: float = 0.1            #: default reply timeout per attempt (s)
     retries: int = 3                #: default retries (exec)
@@ -67,7 +68,29 @@ class ServeConfig:
     slaves: List[int] = field(default_factory=list)
 
     def check(self) -> None:
-        """Refuse a configuration that cannot run (InvalidValueError)."""
+        """Refuse a configuration that cannot run (InvalidValueError / InvalidTypeError)."""
+        for name, kind in (("protocol", str), ("port", str), ("listen", list), ("baud", int),
+                           ("timeout", (int, float)), ("retries", int), ("socket_mode", int),
+                           ("quantum", (int, float)), ("hello_timeout", (int, float)),
+                           ("body_timeout", (int, float)), ("write_limit", int),
+                           ("reopen_interval", (int, float))):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, kind):
+                raise InvalidTypeError(f"ServeConfig.{name}: {type(v).__name__} is not the right type")
+        for name in ("token_file", "socket_owner", "socket_group", "lock_dir"):
+            v = getattr(self, name)
+            if v is not None and not isinstance(v, str):
+                raise InvalidTypeError(f"ServeConfig.{name} must be a str or None")
+        if self.rs485 is not None and not isinstance(self.rs485, RS485):
+            raise InvalidTypeError("ServeConfig.rs485 must be an RS485 or None")
+        if not all(isinstance(x, str) for x in self.listen):
+            raise InvalidTypeError("ServeConfig.listen must be a list of str")
+        check_path(self.port, "port")
+        check_baud(self.baud)
+        for name in ("timeout", "quantum", "hello_timeout", "body_timeout", "reopen_interval"):
+            check_seconds(getattr(self, name), name, lo_open=True, hi=3600.0)
+        check_int(self.retries, "retries", 0, 1000)
+        check_int(self.write_limit, "write_limit", 1, 1 << 30)
         if self.protocol in NOT_YET:
             raise InvalidValueError(f"fap serve --protocol {self.protocol}: not served yet "
                                     f"(served: {', '.join(sorted(BACKENDS))})")
@@ -84,7 +107,8 @@ class ServeConfig:
                 raise InvalidValueError(f"--listen {text}: TCP beyond loopback needs --token-file")
         if self.token_file:
             self.token()
-        for name, lo in (("queue", 1), ("max_weight", 1), ("max_priority", 0), ("max_clients", 1)):
+        for name, lo in (("queue", 1), ("max_weight", 1), ("max_priority", 0), ("max_clients", 1),
+                         ("socket_mode", 0)):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise InvalidValueError(f"{name} must be a whole number >= {lo}, not {v!r}")
@@ -106,6 +130,10 @@ def _error_obj(exc: BaseException) -> Dict[str, Any]:
     out: Dict[str, Any] = {"type": type(exc).__name__, "message": str(exc)}
     if isinstance(exc, OSError) and exc.errno:
         out["errno"] = exc.errno
+    for attr in ("code", "address"):            # a protocol's frame error (mikroC) carries them
+        v = getattr(exc, attr, None)
+        if isinstance(v, int) and not isinstance(v, bool):
+            out[attr] = v
     return out
 
 
@@ -176,6 +204,8 @@ class Daemon:
     """The bus daemon: ``await start()``, then ``await wait_closed()``; ``stop()`` ends it."""
 
     def __init__(self, config: ServeConfig) -> None:
+        if not isinstance(config, ServeConfig):
+            raise InvalidTypeError(f"config must be a ServeConfig, not {type(config).__name__}")
         config.check()
         self.config = config
         self.sched = Scheduler(config.quantum)
@@ -573,7 +603,7 @@ class Daemon:
     def status(self) -> Dict[str, Any]:
         c = self.config
         try:
-            engine = self.backend.stats()
+            engine = self.backend.counters()
         except FapError:
             engine = {}
         return {"daemon": {"pid": os.getpid(), "protocol": c.protocol, "port": c.port,
@@ -589,6 +619,11 @@ class Daemon:
 
 def run(config: ServeConfig, *, ready: Any = None) -> int:
     """Run a daemon until SIGTERM / SIGINT. ``ready(daemon)`` is called once it listens."""
+    if not isinstance(config, ServeConfig):
+        raise InvalidTypeError(f"config must be a ServeConfig, not {type(config).__name__}")
+    if ready is not None and not callable(ready):
+        raise InvalidTypeError("ready must be callable or None")
+    config.check()
     async def main() -> None:
         d = Daemon(config)
         await d.start()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import os
 import select
 import shutil
 import signal
@@ -61,7 +62,8 @@ REGISTRY = {name: p.get_default("long_running") for name, p in LEAVES.items()
 
 #: long-running commands that install their own handlers (and do not register): the exit
 #: codes of SIGTERM and SIGINT docs/cli.md gives them
-SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130), "sim": (0, 0)}
+SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130), "sim": (0, 0),
+                "serve": (0, 0)}
 #: commands that end by themselves and wait for nothing
 SHORT = {"exec encode", "exec decode", "g485 write", "g485 set", "ports", "version",
          "completion", "doctor"}   # doctor: --listen SECONDS is bounded by its own time
@@ -146,6 +148,9 @@ CASES: Dict[str, Case] = {
     "demo": Case(lambda p: ["demo", "--json", "--duration", "60"], _ev("status"),
                  summary="summary", extra={"interrupted": True}),
     "bus": Case(lambda p: ["bus", "--ports", "2", "--json"], _ev("ready")),
+    "serve": Case(lambda p: ["serve", "--protocol", "exec", "--port", p[0], *NONE, "--listen",
+                             f"unix:{os.path.dirname(p[0])}/serve.sock", "--lock-dir",
+                             os.path.dirname(p[0]), "--json"], _ev("ready")),
     "sim": Case(lambda p: ["sim", str(EXAMPLE_SIM), "--json"], _ev("ready"), summary="stopped"),
 }
 

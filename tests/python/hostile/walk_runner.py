@@ -254,7 +254,35 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         bus = vbus.VirtualBus(ports=2)
         ctx.keep.append(bus)
         return bus.paths[0]
+
+    def served(protocol: str) -> str:
+        """A daemon (fap_py.serve) on a bus of its own, in a thread of the walk: its URL."""
+        import asyncio
+        import threading
+
+        from fap_py.serve import Daemon, ServeConfig
+        where = tempfile.mkdtemp()
+        cfg = ServeConfig(protocol, own(), [f"unix:{where}/s.sock"], rs485=line, lock_dir=where,
+                          timeout=0.01, retries=0)
+        up = threading.Event()
+
+        async def main() -> None:
+            d = Daemon(cfg)
+            await d.start()
+            up.set()
+            await d.wait_closed()
+
+        threading.Thread(target=asyncio.run, args=(main(),), daemon=True).start()
+        up.wait(10)
+        return f"fapd://{where}/s.sock"
     return {
+        # --- serve (fap serve): clients of a daemon in a thread of the walk ---
+        "fap_py.execasync.DaemonMaster": lambda: execasync.Master(served("exec"), timeout=0.01,
+                                                                  retries=0),
+        "fap_py.mikroc.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
+        "fap_py.serve.Connection": lambda: __import__("fap_py.serve", fromlist=["Connection"]).Connection(
+            served("raw")),
+        # --- end serve ---
         "fap_py.fap.Master": lambda: fap.Master(own(), slaves=[5], rs485=line),
         "fap_py.fap.Slave": lambda: fap.Slave(own(), id=5, rs485=line),
         "fap_py.execasync.Master": lambda: execasync.Master(own(), timeout=0.01, retries=0,
