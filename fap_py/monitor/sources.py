@@ -18,6 +18,7 @@ from .._validate import U32, check_baud, check_int, check_path, check_seconds
 from ..errors import ClosedError, InvalidTypeError
 from ..port import MAX_READ, Port, PortStats
 from ..rs485 import RS485, RS485Mode
+from ..serve._url import is_daemon_url
 from ..vbus import CaptureFormatError, CaptureRecord, iter_capture_file
 
 #: bytes read at once: small enough that decoding one read takes well under
@@ -142,6 +143,42 @@ def _stream_chunks(fd: int, char_s: float, stop: Callable[[], bool]) -> Iterator
         yield Chunk(data, now - len(data) * char_s, char_s, None, time.monotonic_ns())
 
 
+class _DaemonTap:
+    """Every frame a daemon (``fap serve``) sends or receives, as it reports them: a
+    ``fapd://`` URL given to ``fap monitor --port`` (docs/daemon.md, "monitor")."""
+
+    def __init__(self, url: str) -> None:
+        from ..serve import Connection
+
+        self._conn = Connection(url, name="monitor")
+        self._conn.call("monitor")
+        self.baud = int(self._conn.welcome.get("baud") or 0)
+        self.rx_bytes = 0
+
+    def chunks(self, idle_s: Optional[float], stop: Callable[[], bool]) -> Iterator[Optional[Chunk]]:
+        char_s = char_seconds(self.baud)
+        last = time.monotonic()
+        while not stop():
+            ev = self._conn.next_event(0.2)
+            now = time.monotonic()
+            if ev is None or ev.get("event") != "frame":
+                if ev is None:
+                    yield None
+                if idle_s is not None and now >= last + idle_s:
+                    return
+                continue
+            last = now
+            data = bytes.fromhex(ev.get("data", ""))
+            self.rx_bytes += len(data)
+            t = float(ev.get("t", time.time()))
+            sender = 0 if ev.get("dir") == "tx" else 1     # 0: the daemon (master), 1: a slave
+            yield Chunk(data, t - len(data) * char_s, char_s, sender, time.monotonic_ns())
+            yield None                     # the daemon reports whole frames: each ends here
+
+    def close(self) -> None:
+        self._conn.close()
+
+
 class LivePort(Closing):
     """A serial device opened receive-only (never transmits, RTS left alone), through
     :class:`fap_py.port.Port` (the package's one way to a device).
@@ -158,6 +195,11 @@ class LivePort(Closing):
             raise InvalidTypeError(f"rs485 must be None or an RS485, not {type(rs485).__name__}")
         self.path = path
         self.baud = baud
+        self._tap: Optional[_DaemonTap] = None
+        if is_daemon_url(path):       # fap serve's bus: a passive tap on every frame it moves
+            self._tap = _DaemonTap(path)
+            self.baud = self._tap.baud
+            return
         # mode NONE by default; an explicit RS-485 mode (kernel, soft RTS)
         # keeps a transceiver whose driver enable is on RTS off the bus
         line = rs485 if rs485 is not None else RS485(mode=RS485Mode.NONE)
@@ -166,9 +208,14 @@ class LivePort(Closing):
     @property
     def stats(self) -> PortStats:
         """The port's counters (bytes received, read errors ...)."""
+        if self._tap is not None:
+            return PortStats(rx_bytes=self._tap.rx_bytes)
         return self._port.stats
 
     def close(self) -> None:
+        if self._tap is not None:
+            self._tap.close()
+            return
         self._port.close()
 
 
@@ -189,6 +236,8 @@ class LivePort(Closing):
         _check_stop(stop)
         if idle_s is not None:
             idle_s = check_seconds(idle_s, "idle_s")
+        if self._tap is not None:
+            return self._tap.chunks(idle_s, stop)
         if self._port.closed:
             raise ClosedError(f"{self.path}: closed")
         return self._chunks(deadline, idle_s, stop)
