@@ -110,3 +110,23 @@ def test_the_cli_works_unchanged_on_a_daemon_url(served, vbus):
                                "--timeout", "0.02", "--retries", "0"),
                        capture_output=True, text=True, timeout=30)
     assert r.returncode == 1 and "no reply" in r.stdout + r.stderr   # as on a device path
+
+
+def test_a_hot_unplug_is_told_to_clients_and_the_port_reopened(served, vbus):
+    from fap_py.errors import PortGoneError
+
+    with Master(served.url, timeout=0.05, retries=0) as m:
+        assert m.transact(5, b"a") == b"a"
+        vbus.bus.disconnect(0, 1.0)                  # the daemon's adapter is pulled out
+        with pytest.raises(PortGoneError):
+            for _ in range(50):                      # the first write or read after it fails
+                m.transact(5, b"b")
+        st = served.status()
+        assert st["daemon"]["port_state"] == "gone" and st["totals"]["port_gone"] == 1
+        served.wait_for(lambda st: st["daemon"]["port_state"] == "open")
+        assert m.transact(5, b"c") == b"c"
+        assert served.status()["totals"]["reopens"] == 1
+        events = []
+        while (ev := m._conn.next_event(0)) is not None:
+            events.append(ev["event"])
+        assert events == ["port_gone", "port_back"]
