@@ -82,7 +82,7 @@ def _settings(url: ClientUrl, weight: Optional[int], priority: Optional[int],
     if tok is not None and not isinstance(tok, str):
         raise BadUrlError(f"token must be a str, not {type(tok).__name__}", url.text)
     hello: Dict[str, Any] = {"op": "hello", "version": list(VERSION), "pid": os.getpid(),
-                             "name": name or q.get("name") or ""}
+                             "name": q.get("name") or name or ""}   # the URL's name=, else the caller's
     if w is not None:
         hello["weight"] = w
     if p is not None:
