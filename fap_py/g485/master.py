@@ -92,6 +92,8 @@ class G485Master(Closing):
 
     :param port: a device path (opened through libfap's port layer, with an
         exclusive lock: a second opener gets :class:`fap_py.port.PortBusyError`),
+        a daemon's ``fapd://`` URL (``fap serve --protocol g485``: a
+        ``DaemonG485Master`` with the same calls is returned),
         libfap's ``tcp://HOST:PORT`` or ``rfc2217://HOST:PORT`` (the same C port
         layer), a pyserial URL (``socket://``, ``loop://``, ``spy://``),
         an open pyserial object, or a raw fd.
@@ -116,6 +118,14 @@ class G485Master(Closing):
     :param rs485: RS-485 line options of a device path (:class:`fap_py.RS485`:
         direction mode, RTS delays, turnaround, exclusive lock).
     """
+
+    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> Any:
+        from ..serve._url import is_daemon_url
+
+        if cls is G485Master and is_daemon_url(port):   # fapd://: a bus fap serve owns
+            from ._remote import DaemonG485Master
+            return DaemonG485Master(port, *args, **kwargs)
+        return super().__new__(cls)
 
     def __init__(self, port: PortSpec, baudrate: int = 115200, *, timeout: float = 0.1,
                  retries: int = 2, check: Union[Check, str] = Check.HANDSHAKE,

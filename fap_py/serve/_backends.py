@@ -61,6 +61,8 @@ class Backend:
     """What the daemon needs of a protocol engine."""
 
     name = "?"
+    #: the engine counter (in an answer's ``stats``) that counts frames nobody asked for
+    LATE_COUNTER = "unexpected"
     #: ops answered at once, without the bus
     quick_ops: tuple = ()
 
@@ -284,6 +286,95 @@ class MikrocBackend(Backend):
         return out
 
 
-BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend)}
+
+
+class G485Backend(Backend):
+    """Gicren G485: :class:`fap_py.g485.aio.AsyncG485Master` (the pure-Python session on the
+    C port layer, driven by the loop's fd: no thread). Each documented transaction
+    (handshake, read, write, error word, set; a scan, a sync write, an ID change, a
+    broadcast Set as one whole sequence) is one atomic op ``g485`` with a ``method``."""
+
+    name = "g485"
+    METHODS = ("handshake", "read", "write", "error_word", "set", "scan", "sync_write",
+               "change_id", "broadcast_set", "send_raw", "send_wake_up")
+
+    def open(self) -> None:
+        from ..g485.aio import AsyncG485Master
+
+        self.node = AsyncG485Master(self.port, self.baud, timeout=self.timeout,
+                                    retries=min(self.retries, 10), rs485=self.rs485)
+        self.baud = self.node.master.io.baudrate
+
+    #: the session counts a reply that came too late as an ignored frame
+    LATE_COUNTER = "ignored_frames"
+
+    def fd(self) -> int:
+        # no late-reply watch on the fd: the asyncio driver keeps its own reader there
+        return -1
+
+    def flush(self) -> None:
+        self.node.master.io.flush_input()
+
+    def reopen(self) -> None:
+        self.node.master.ready_io()
+
+    def close(self) -> None:
+        if self.node is not None:
+            self.node.master.close()
+
+    def counters(self) -> Dict[str, int]:
+        return asdict(self.node.master.stats) if self.node is not None else {}
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        if op != "g485":
+            raise ProtocolError(f"unknown op {op!r} for protocol g485 (g485 with a method)")
+        method, args = msg.get("method"), msg.get("args", {})
+        if method not in self.METHODS:
+            raise ProtocolError(f"g485: method must be one of {', '.join(self.METHODS)}")
+        if not isinstance(args, dict) or not all(isinstance(k, str) for k in args):
+            raise ProtocolError("g485: args must be an object")
+        for key in ("data",):
+            if key in args:
+                args[key] = hex_field(args, key, 256)
+        if method == "sync_write":
+            w = args.get("writes")
+            if not isinstance(w, list) or not all(isinstance(x, list) and len(x) == 3 for x in w):
+                raise ProtocolError("g485 sync_write: writes is a list of [address, register, hex]")
+            args["writes"] = [(a, r, hex_field({"d": d}, "d", 256)) for a, r, d in w]
+        return Job(method, args)
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        m, a = self.node, dict(job.args)
+        s = m.master.session
+        before = m.master.stats
+        try:
+            if job.op == "change_id":
+                await m._run_all(s.change_id(a["address"], a["new_address"], a.get("save", False),
+                                             a.get("check")))
+                value: Any = None
+            elif job.op == "broadcast_set":
+                await m._run_all(s.broadcast_sets(a["command"], a.get("repeats", 1)))
+                value = None
+            elif job.op == "send_raw":
+                m.master.send_raw(a["data"])
+                value = None
+            elif job.op == "send_wake_up":
+                m.master.send_wake_up()
+                value = None
+            else:
+                value = await getattr(m, job.op)(**a)
+        except KeyError as exc:
+            raise ProtocolError(f"g485 {job.op}: argument {exc} is missing") from None
+        except TypeError as exc:
+            raise ProtocolError(f"g485 {job.op}: {exc}") from None
+        except BaseException as exc:
+            exc.daemon_fields = {"stats": _stats_delta(before, m.master.stats)}   # type: ignore[attr-defined]
+            raise
+        if isinstance(value, (bytes, bytearray)):
+            value = bytes(value).hex()
+        return {"value": value, "stats": _stats_delta(before, m.master.stats)}
+
+
+BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend, G485Backend)}
 #: protocols the issue names that this daemon does not run yet
-NOT_YET = ("fap", "g485")
+NOT_YET = ("fap",)

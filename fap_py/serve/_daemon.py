@@ -218,6 +218,7 @@ class Daemon:
         self._stopped = asyncio.Event()
         self._bus_task: Optional["asyncio.Task[None]"] = None
         self._late_owner: Optional[Session] = None
+        self._timed_out: Optional[Session] = None     # whose transaction timed out last
         self._late_fd = -1
         self.port_state = "closed"
         self.counters = {"transactions": 0, "errors": 0, "late": 0, "refused": 0, "cut_off": 0,
@@ -489,14 +490,16 @@ class Daemon:
             s.in_flight -= 1
             answer["wire_us"] = int(cost * 1e6)
             answer["queued_us"] = int((time.monotonic() - pend.queued) * 1e6 - cost * 1e6)
-            late = answer.get("stats", {}).get("unexpected", 0)
-            if late:
-                self._count_late(s, late)
+            late = answer.get("stats", {}).get(self.backend.LATE_COUNTER, 0)
+            if late:                            # the client whose transaction timed out last
+                owner = self._timed_out if self._timed_out is not None and not self._timed_out.closed else s
+                self._count_late(owner, late)
             if err is not None:
                 self.counters["errors"] += 1
                 s.errors += 1
                 answer.update(ok=False, error=_error_obj(err))
                 if isinstance(err, FapTimeoutError):
+                    self._timed_out = s
                     self._watch_late(s)
                 if isinstance(err, PortGoneError) and self.port_state == "open":
                     self._port_gone(err)
