@@ -181,7 +181,7 @@ def _held_by(path: str | None) -> str:
     """``held by pid 123 (fap serve ...)`` when a lock file or /proc/locks names the
     holder of a device path, else the general words."""
     if path and "://" not in path:
-        from ._holder import describe, holder   # nothing above errors: _holder is os-only
+        from ._holder import describe, holder  # nothing above errors: _holder is os-only
 
         pid = holder(path)
         if pid is not None and pid != os.getpid():

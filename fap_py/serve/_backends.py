@@ -9,7 +9,6 @@ sends or receives to ``on_frame`` (the monitor tap).
 """
 from __future__ import annotations
 
-import asyncio
 import logging
 import time
 from dataclasses import asdict, dataclass

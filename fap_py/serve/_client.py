@@ -21,13 +21,13 @@ from typing import Any, Callable, Dict, Mapping, Optional, Type
 from .. import errors as _errors
 from .._validate import check_timeout
 from ._errors import (
+    BadUrlError,
     ClientQueueFullError,
     DaemonError,
     DaemonGoneError,
     DaemonRefusedError,
     ProtocolError,
 )
-from ._errors import BadUrlError
 from ._url import Address, ClientUrl, parse_client_url, query_int
 from ._wire import HEADER_SIZE, VERSION, body_size, pack, unpack
 

@@ -11,7 +11,7 @@ from fap_py.serve._sched import Scheduler
 def _run(s: Scheduler, cost: dict, rounds: int, backlog: bool = True) -> dict:
     """Clients that always have work: with a backlog (a request queued behind the one
     running), or one request at a time (the next one queued once the answer came)."""
-    used = {k: 0.0 for k in cost}
+    used = dict.fromkeys(cost, 0.0)
     for _ in range(rounds):
         key, item = s.next()
         if backlog:
