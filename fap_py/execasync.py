@@ -658,11 +658,9 @@ class DaemonMaster:
         port_options(baudrate, rs485)            # checked as for a device (the daemon's are used)
         self._timeout = None if timeout is None else Master._timeout_us(timeout) / 1e6
         self._retries = None if retries is None else Master._retries_checked(retries)
-        self._counts: Dict[str, int] = dict.fromkeys(f.name for f in dataclasses.fields(MasterStats))
-        for k in self._counts:
-            self._counts[k] = 0
+        self._counts: Dict[str, int] = dict.fromkeys((f.name for f in dataclasses.fields(MasterStats)), 0)
         self._clock = threading.Lock()
-        self._hello = {"weight": weight, "priority": priority, "token": token}
+        self._hello: Dict[str, Any] = {"weight": weight, "priority": priority, "token": token}
         self._conn = Connection(port, protocol="exec", name="exec master", errors=_WIRE_ERRORS,
                                 **self._hello)
         self.path = self._conn.url

@@ -467,7 +467,7 @@ class DaemonMaster:
         self.path = self._conn.url
         self._outstanding: List[Any] = []
         self._olock = threading.Lock()
-        self._hello = {"weight": weight, "priority": priority, "token": token}
+        self._hello: dict = {"weight": weight, "priority": priority, "token": token}
         self._aconn = PerLoop(self.path, protocol="mikroc", name="mikroc master",
                               errors=_WIRE_ERRORS, **self._hello)
         self._counts = dict.fromkeys((f.name for f in dataclasses.fields(NodeStats)), 0)

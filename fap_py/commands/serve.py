@@ -181,11 +181,12 @@ def _serve(args: argparse.Namespace, cfg: Any) -> int:
         sys.stdout.flush()
         notifier.notify(READY=1, STATUS=f"serving {cfg.port} at {' '.join(d.listening)}")
         dog = None
-        if notifier.watchdog:
+        every = notifier.watchdog
+        if every:
             async def feed() -> None:
                 while True:
                     notifier.notify(WATCHDOG=1)
-                    await asyncio.sleep(notifier.watchdog)
+                    await asyncio.sleep(every)
             dog = loop.create_task(feed())
         try:
             await d._stopped.wait()

@@ -43,7 +43,7 @@ _LOCAL = {c.__name__: c for c in (ClientQueueFullError, DaemonError, DaemonGoneE
 
 
 def _package_classes() -> Dict[str, Type[BaseException]]:
-    out = {n: c for n, c in vars(_errors).items()
+    out: Dict[str, Type[BaseException]] = {n: c for n, c in vars(_errors).items()
            if isinstance(c, type) and issubclass(c, _errors.FapError)}
     out.update(_LOCAL)
     return out
@@ -346,7 +346,7 @@ def _result(msg: Dict[str, Any], url: str,
     if msg.get("ok"):
         return msg
     err = error_from_wire(msg.get("error"), url, extra)
-    err.daemon_answer = msg          # what came with the error (stats deltas)
+    err.daemon_answer = msg  # type: ignore[attr-defined]   # what came with the error (stats deltas)
     raise err
 
 
@@ -407,7 +407,8 @@ class AsyncConnection:
                 msg = await read_message(reader, 10.0)
                 if msg is None:
                     break
-                fut = self._futures.pop(msg.get("id"), None) if msg.get("id") is not None else None
+                rid = msg.get("id")
+                fut = self._futures.pop(rid, None) if isinstance(rid, int) else None
                 if fut is not None and not fut.done():
                     fut.set_result(msg)
         except (ProtocolError, asyncio.TimeoutError, OSError):
