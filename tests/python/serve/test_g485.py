@@ -18,7 +18,7 @@ from fap_py.vbus import VirtualBus
 def test_g485_master_on_a_daemon_url(tmp_path):
     with VirtualBus(ports=2, baud=115200) as bus, \
             Simulator(bus.paths[1], [SimDevice(3)], rs485=RS485(mode=RS485Mode.NONE)):
-        d = start_daemon(str(tmp_path), bus.paths[0], "--timeout", "0.05", "--retries", "1",
+        d = start_daemon(str(tmp_path), bus.paths[0], "--timeout", "0.3", "--retries", "1",
                          protocol="g485")
         try:
             with G485Master(d.url) as m:
