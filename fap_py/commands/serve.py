@@ -109,9 +109,12 @@ def _serve_config(args: argparse.Namespace):
             raise opt.UsageError(f"fap serve needs --{key} (or '{key}' in --config)")
     if c["protocol"] not in _choices():
         raise opt.UsageError(f"--protocol {c['protocol']!r}: one of {', '.join(_choices())}")
-    if c.get("slaves") is not None:
-        raise opt.UsageError("--slaves: the daemon does not run the fap protocol yet "
-                             "(docs/daemon.md, 'What is not served')")
+    slaves = c.get("slaves")
+    if isinstance(slaves, str):
+        try:
+            slaves = [int(x) for x in slaves.replace(",", " ").split()]
+        except ValueError:
+            raise opt.UsageError(f"--slaves {slaves!r}: slave IDs, e.g. 1,2,3") from None
     ns = argparse.Namespace(**{**vars(args), **c})
     listen = c["listen"] if isinstance(c["listen"], list) else [c["listen"]]
     try:
@@ -129,7 +132,7 @@ def _serve_config(args: argparse.Namespace):
                        queue=int(c["queue"]), max_weight=int(c["max_weight"]),
                        max_priority=int(c["max_priority"]), max_clients=int(c["max_clients"]),
                        hello_timeout=float(c["client_timeout"]), body_timeout=float(c["client_timeout"]),
-                       write_limit=int(c["write_limit"]))
+                       write_limit=int(c["write_limit"]), slaves=list(slaves or []))
 
 
 def run(args: argparse.Namespace) -> int:

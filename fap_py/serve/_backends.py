@@ -9,6 +9,7 @@ sends or receives to ``on_frame`` (the monitor tap).
 """
 from __future__ import annotations
 
+import asyncio
 import logging
 import time
 from dataclasses import asdict, dataclass
@@ -102,7 +103,12 @@ class Backend:
         return asdict(self.node.stats) if self.node is not None else {}
 
     def info(self) -> Dict[str, Any]:
+        """Fields the welcome carries for this protocol."""
         return {}
+
+    def attach(self, publish: Callable[[Dict[str, Any]], None]) -> None:
+        """Start what runs beside the transactions (FAP: the messages slaves send); each
+        message for every client goes to ``publish``. Runs in the loop, after open()."""
 
 
 class ExecBackend(Backend):
@@ -374,6 +380,97 @@ class G485Backend(Backend):
         return {"value": value, "stats": _stats_delta(before, m.master.stats)}
 
 
-BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend, G485Backend)}
+
+class FapBackend(Backend):
+    """FAP: :class:`fap_py.fap.Master` polls the daemon's ``--slaves``. A client's ``send``
+    queues a DATA frame for a slave (the engine sends it in the master's turn); what the
+    slaves send, and the engine's events, go to every client (``fap_rx``, ``fap_event``):
+    the bus's traffic for the master, as one master program would receive it."""
+
+    name = "fap"
+    quick_ops = ("slaves", "fap_stats", "tx_pending")
+    slaves: tuple = ()
+
+    def open(self) -> None:
+        from .. import fap
+
+        self._f = fap
+        self.node = fap.Master(self.port, self.baud, slaves=list(self.slaves), rs485=self.rs485)
+        self._tasks: list = []
+
+    def fd(self) -> int:
+        return -1                          # the pump keeps its reader on the notification fd
+
+    def reopen(self) -> None:
+        """The engine reopens the port by itself (PORT_LOST / PORT_REOPENED events)."""
+
+    def info(self) -> Dict[str, Any]:
+        return {"rs485_mode": self.node.rs485_mode.name, "slaves": self.node.slaves}
+
+    def attach(self, publish: Callable[[Dict[str, Any]], None]) -> None:
+        node = self.node
+
+        async def messages() -> None:
+            async for msg in node:
+                publish({"event": "fap_rx", "source": msg.source, "data": msg.data.hex()})
+
+        async def events() -> None:
+            async for ev in node.aevents(None):
+                publish({"event": "fap_event", "kind": ev.kind.name, "id": ev.id, "time_ns": ev.time_ns})
+
+        loop = asyncio.get_running_loop()
+        self._tasks = [loop.create_task(messages()), loop.create_task(events())]
+
+    def close(self) -> None:
+        for t in getattr(self, "_tasks", []):
+            t.cancel()
+        super().close()
+
+    def check(self, op: str, msg: Dict[str, Any]) -> Job:
+        f = self._f
+        if op == "flush":
+            return Job(op, {"timeout": num_field(msg, "timeout", 0, 3600.0, 10.0)})
+        if op != "send":
+            raise ProtocolError(f"unknown op {op!r} for protocol fap (send, flush, slaves, fap_stats)")
+        to = num_field(msg, "to", 1, f.MAX_ID, integer=True)
+        if to is None:
+            raise ProtocolError("send: field 'to' is missing")
+        data = hex_field(msg, "data", f.MAX_DATA)
+        if not data:
+            raise ProtocolError("send: field 'data' is empty (1..MAX_DATA bytes)")
+        return Job(op, {"to": to, "data": data})
+
+    def quick(self, op: str, msg: Dict[str, Any]) -> Dict[str, Any]:
+        if op == "slaves":
+            return {"slaves": self.node.slaves, "active": self.node.active_slaves}
+        if op == "tx_pending":
+            return {"tx_pending": self.node.tx_pending}
+        return {"stats": asdict(self.node.stats)}
+
+    async def run(self, job: Job) -> Dict[str, Any]:
+        from ..errors import QueueFullError
+
+        m = self.node
+        if job.op == "flush":
+            end = time.monotonic() + job.args["timeout"]
+            while m.tx_pending:
+                if time.monotonic() >= end:
+                    raise FapTimeoutError(f"flush: still {m.tx_pending} queued after {job.args['timeout']} s")
+                await asyncio.sleep(0.002)
+            return {}
+        end = time.monotonic() + 1.0
+        while True:                        # the engine's transmit queue: room comes as it sends
+            try:
+                m.send(job.args["data"], job.args["to"])
+                break
+            except QueueFullError:
+                if time.monotonic() >= end:
+                    raise
+                await asyncio.sleep(0.002)
+        # its bus time: the DATA frame's bytes (10 bits each) and the frame overhead
+        return {"_cost": (len(job.args["data"]) + 8) * 10 / max(self.baud, 1)}
+
+
+BACKENDS = {b.name: b for b in (ExecBackend, RawBackend, MikrocBackend, G485Backend, FapBackend)}
 #: protocols the issue names that this daemon does not run yet
-NOT_YET = ("fap",)
+NOT_YET: tuple = ()

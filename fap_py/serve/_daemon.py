@@ -107,6 +107,11 @@ class ServeConfig:
                 raise InvalidValueError(f"--listen {text}: TCP beyond loopback needs --token-file")
         if self.token_file:
             self.token()
+        if not isinstance(self.slaves, (list, tuple)) or not all(
+                isinstance(i, int) and not isinstance(i, bool) for i in self.slaves):
+            raise InvalidTypeError("ServeConfig.slaves must be a list of slave IDs")
+        if self.protocol == "fap" and not self.slaves:
+            raise InvalidValueError("fap serve --protocol fap needs --slaves IDS (the slaves it polls)")
         for name, lo in (("queue", 1), ("max_weight", 1), ("max_priority", 0), ("max_clients", 1),
                          ("socket_mode", 0)):
             v = getattr(self, name)
@@ -229,6 +234,7 @@ class Daemon:
         self._lock: Optional[UucpLock] = None
         self.backend: Backend = BACKENDS[config.protocol](
             config.port, config.baud, config.rs485, config.timeout, config.retries, self._frame)
+        self.backend.slaves = tuple(config.slaves)
 
     # -- life ------------------------------------------------------------------
 
@@ -256,6 +262,7 @@ class Daemon:
             self.close_now()
             raise
         self._bus_task = asyncio.get_running_loop().create_task(self._bus())
+        self.backend.attach(self._broadcast_event)
 
     async def _listen(self, addr: Address) -> None:
         c = self.config
@@ -390,7 +397,7 @@ class Daemon:
         s.send({"op": "welcome", "version": list(VERSION), "client": s.key, "protocol": c.protocol,
                 "port": c.port, "baud": self.backend.baud, "weight": s.weight, "priority": s.priority,
                 "timeout": c.timeout, "retries": c.retries, "pid": os.getpid(), "queue": c.queue,
-                "port_state": self.port_state})
+                "port_state": self.port_state, **self.backend.info()})
         while not s.closed:
             msg = await read_message(s.reader, c.body_timeout)
             if msg is None:
@@ -483,7 +490,7 @@ class Daemon:
                 except Exception as exc:     # a bug: say so to the client, keep the bus
                     log.exception("transaction failed")
                     err = DaemonError(f"internal error {type(exc).__name__}: {exc}", "", errno.EIO)
-                cost = time.monotonic() - t0
+                cost = answer.pop("_cost", None) or time.monotonic() - t0
             self.sched.charge(key, cost)
             self.wire_time += cost
             self.counters["transactions"] += 1

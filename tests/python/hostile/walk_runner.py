@@ -255,7 +255,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         ctx.keep.append(bus)
         return bus.paths[0]
 
-    def served(protocol: str) -> str:
+    def served(protocol: str, **kw: Any) -> str:
         """A daemon (fap_py.serve) on a bus of its own, in a thread of the walk: its URL."""
         import asyncio
         import threading
@@ -263,7 +263,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         from fap_py.serve import Daemon, ServeConfig
         where = tempfile.mkdtemp()
         cfg = ServeConfig(protocol, own(), [f"unix:{where}/s.sock"], rs485=line, lock_dir=where,
-                          timeout=0.01, retries=0)
+                          timeout=0.01, retries=0, **kw)
         up = threading.Event()
 
         async def main() -> None:
@@ -280,6 +280,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         "fap_py.execasync.DaemonMaster": lambda: execasync.Master(served("exec"), timeout=0.01,
                                                                   retries=0),
         "fap_py.mikroc.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
+        "fap_py.fap.DaemonFapMaster": lambda: fap.Master(served("fap", slaves=[5]), slaves=[5]),
         "fap_py.serve.Connection": lambda: __import__("fap_py.serve", fromlist=["Connection"]).Connection(
             served("raw")),
         # --- end serve ---

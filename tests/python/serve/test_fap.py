@@ -1,0 +1,54 @@
+"""`fap serve --protocol fap --slaves IDS`: the daemon's FAP master polls the slaves;
+fap_py.Master on a fapd:// URL sends to a slave through it and receives what slaves send."""
+from __future__ import annotations
+
+import json
+import subprocess
+import threading
+
+import pytest
+from serve_helpers import fap_cmd, start_daemon
+
+from fap_py import Master, Slave
+from fap_py.errors import NotMasterError, UnknownSlaveError
+from fap_py.rs485 import RS485, RS485Mode
+from fap_py.vbus import VirtualBus
+
+
+def test_fap_master_on_a_daemon_url(tmp_path):
+    with VirtualBus(ports=2, baud=115200) as bus, \
+            Slave(bus.paths[1], id=3, rs485=RS485(mode=RS485Mode.NONE)) as slave:
+        stop = threading.Event()
+
+        def echo():
+            while not stop.is_set():
+                for msg in slave.messages(0.1):
+                    slave.send(msg.data[::-1])
+
+        t = threading.Thread(target=echo)
+        t.start()
+        d = start_daemon(str(tmp_path), bus.paths[0], "--slaves", "3", protocol="fap")
+        try:
+            with Master(d.url, slaves=[3]) as m:
+                assert type(m).__name__ == "DaemonFapMaster"
+                m.wait_active([3], timeout=10)
+                assert m.active_slaves == [3] and m.is_active(3)
+                m.send(b"abc", 3)
+                msg = m.recv(timeout=10)
+                assert (msg.source, msg.data) == (3, b"cba")
+                m.flush(5)
+                assert m.stats.frames_tx > 0
+                with pytest.raises(NotMasterError):
+                    m.add_slave(4)
+            with pytest.raises(UnknownSlaveError):
+                Master(d.url, slaves=[3, 7])
+            r = subprocess.run(fap_cmd("fap", "master", "--port", d.url, "--slaves", "3", "0102",
+                                       "--json"), capture_output=True, text=True, timeout=60)
+            assert r.returncode == 0, r.stderr
+            objs = [json.loads(x) for x in r.stdout.splitlines()]
+            assert {"event": "rx", "from": 3, "data": "0201"} in objs
+            assert d.status()["totals"]["transactions"] >= 1
+        finally:
+            d.stop()
+            stop.set()
+            t.join(5)
