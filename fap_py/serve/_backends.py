@@ -61,6 +61,8 @@ class Backend:
     """What the daemon needs of a protocol engine."""
 
     name = "?"
+    #: the slaves a polling master lists (FAP: ``--slaves``)
+    slaves: tuple = ()
     #: the engine counter (in an answer's ``stats``) that counts frames nobody asked for
     LATE_COUNTER = "unexpected"
     #: ops answered at once, without the bus
@@ -389,7 +391,6 @@ class FapBackend(Backend):
 
     name = "fap"
     quick_ops = ("slaves", "fap_stats", "tx_pending")
-    slaves: tuple = ()
 
     def open(self) -> None:
         from .. import fap
