@@ -211,11 +211,15 @@ def main() -> int:
     ap = argparse.ArgumentParser(prog="python -m bench.serve")
     ap.add_argument("--quick", action="store_true")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--seconds", type=float, help="length of the 8-client runs (default 10; 3 quick)")
+    ap.add_argument("--only-clients", action="store_true",
+                    help="only the 8-client rows (a long --seconds run: the transactions count)")
     args = ap.parse_args()
     use_installed_fap_py()
     n, secs = (200, 3.0) if args.quick else (2000, 10.0)
-    res = {"latency": latency_rows(n), "fairness": [fairness_row(b, secs) for b in (115200, 1000000)],
-           "load": os.getloadavg()}
+    secs = args.seconds or secs
+    res = {"latency": [] if args.only_clients else latency_rows(n),
+           "fairness": [fairness_row(b, secs) for b in (115200, 1000000)], "load": os.getloadavg()}
     if args.json:
         print(json.dumps(res))
         return 0
