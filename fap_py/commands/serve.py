@@ -217,8 +217,7 @@ def _status(args: argparse.Namespace) -> int:
         raise opt.UsageError("fap serve status needs the daemon's URL (fapd:///path or fapd://host:port)")
     st = status(args.url)
     if args.json:
-        import json
-        print(json.dumps(st))
+        opt.emit(args, {"event": "status", **st}, None)
         return 0
     d, t = st["daemon"], st["totals"]
     print(f"daemon pid {d['pid']}: {d['protocol']} on {d['port']} at {d['baud']} baud, "

@@ -183,7 +183,19 @@ def _runs(run: Run, tmp: Path) -> Dict[Tuple[str, ...], List[str]]:
                        "--check8-seconds", "0.1", "--slaves", "1"),
         ("sim",): _sim(run, tmp),
         ("doctor",): _doctor(run, tmp),
+        ("serve",): _serve(run, tmp),
     }
+
+
+def _serve(run: Run, tmp: Path) -> List[str]:
+    with VirtualBus(ports=2) as bus:
+        sock = tmp / "serve.sock"
+        daemon = Server("serve", "--protocol", "exec", "--port", bus.paths[0], *NET, "--listen",
+                        f"unix:{sock}", "--lock-dir", str(tmp))
+        out = run("serve", "status", f"fapd://{sock}")
+        out += run("serve", "--protocol", "exec", "--port", bus.paths[1], *NET, "--listen",
+                   f"unix:{tmp}/check.sock", "--lock-dir", str(tmp), "--check")
+        return out + daemon.stop()
 
 
 def _doctor(run: Run, tmp: Path) -> List[str]:
@@ -216,6 +228,7 @@ COVERED: Dict[Tuple[str, ...], str] = {
     ("bridge",): "tools", ("demo",): "runs", ("soak",): "runs", ("sim",): "runs", ("doctor",): "runs",
     ("ports",): "tools",
     ("bus",): "tools",
+    ("serve",): "runs",
 }
 
 
