@@ -63,6 +63,8 @@ class Backend:
     name = "?"
     #: the slaves a polling master lists (FAP: ``--slaves``)
     slaves: tuple = ()
+    #: a monitor is attached (the daemon sets it): engines on their own thread report frames
+    tapped = False
     #: the engine counter (in an answer's ``stats``) that counts frames nobody asked for
     LATE_COUNTER = "unexpected"
     #: ops answered at once, without the bus
@@ -410,6 +412,17 @@ class FapBackend(Backend):
 
     def attach(self, publish: Callable[[Dict[str, Any]], None]) -> None:
         node = self.node
+        loop = asyncio.get_running_loop()
+        from .._native import lib
+
+        def from_engine(direction: str, status: str, t_ns: int, data: bytes) -> None:
+            # the FAP engine's own thread: hand the frame to the loop, only while tapped
+            if self.tapped:
+                loop.call_soon_threadsafe(self.on_frame, direction, status, t_ns, data)
+
+        self._tap = _FrameTap(from_engine, "fap", f"fap serve {self.port}")
+        with node._using() as h:
+            lib.fapx_set_trace(h, lib.fap_py_trace, self._tap.handle)
 
         async def messages() -> None:
             async for msg in node:
@@ -419,7 +432,6 @@ class FapBackend(Backend):
             async for ev in node.aevents(None):
                 publish({"event": "fap_event", "kind": ev.kind.name, "id": ev.id, "time_ns": ev.time_ns})
 
-        loop = asyncio.get_running_loop()
         self._tasks = [loop.create_task(messages()), loop.create_task(events())]
 
     def close(self) -> None:

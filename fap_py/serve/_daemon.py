@@ -441,6 +441,7 @@ class Daemon:
                 s.send({"id": rid, "ok": True, "status": self.status()})
             elif op == "monitor":
                 s.monitor = True
+                self.backend.tapped = True
                 s.send({"id": rid, "ok": True})
             elif op == "ping":
                 s.send({"id": rid, "ok": True})
@@ -602,6 +603,7 @@ class Daemon:
         """Every frame the engine sends or receives: to the monitor taps."""
         taps = [s for s in self.sessions.values() if s.monitor and not s.closed]
         if not taps:
+            self.backend.tapped = False
             return
         ev = {"event": "frame", "dir": direction, "status": status, "t_ns": t_ns,
               "t": time.time(), "data": data.hex()}

@@ -12,6 +12,7 @@ from serve_helpers import fap_cmd, start_daemon
 from fap_py import Master, Slave
 from fap_py.errors import NotMasterError, UnknownSlaveError
 from fap_py.rs485 import RS485, RS485Mode
+from fap_py.serve import Connection
 from fap_py.vbus import VirtualBus
 
 
@@ -42,6 +43,13 @@ def test_fap_master_on_a_daemon_url(tmp_path):
                     m.add_slave(4)
             with pytest.raises(UnknownSlaveError):
                 Master(d.url, slaves=[3, 7])
+            with Connection(d.url) as tap:                # the monitor's tap: the engine's frames
+                tap.call("monitor")
+                dirs = set()
+                while dirs != {"tx", "rx"}:
+                    ev = tap.next_event(10)
+                    assert ev is not None and ev["event"] == "frame"
+                    dirs.add(ev["dir"])
             r = subprocess.run(fap_cmd("fap", "master", "--port", d.url, "--slaves", "3", "0102",
                                        "--json"), capture_output=True, text=True, timeout=60)
             assert r.returncode == 0, r.stderr
