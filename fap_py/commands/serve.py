@@ -62,6 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="a client must say hello, and finish each message it starts, within this")
     g.add_argument("--write-limit", metavar="BYTES", type=opt.positive, default=1 << 20,
                    help="answers a client leaves unread before it is cut off, bytes")
+    g.add_argument("--metrics", metavar="ADDR",
+                   help="Prometheus endpoint: tcp://HOST:PORT serves GET /metrics")
     g.add_argument("--slaves", metavar="IDS", help="fap: the slave ids the daemon polls")
     opt.add_output_options(p)
     p.set_defaults(func=run)
@@ -132,7 +134,8 @@ def _serve_config(args: argparse.Namespace):
                        queue=int(c["queue"]), max_weight=int(c["max_weight"]),
                        max_priority=int(c["max_priority"]), max_clients=int(c["max_clients"]),
                        hello_timeout=float(c["client_timeout"]), body_timeout=float(c["client_timeout"]),
-                       write_limit=int(c["write_limit"]), slaves=list(slaves or []))
+                       write_limit=int(c["write_limit"]), slaves=list(slaves or []),
+                       metrics=c.get("metrics"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -178,7 +181,8 @@ def _serve(args: argparse.Namespace, cfg: Any) -> int:
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, d.stop)
         opt.emit(args, {"event": "ready", "pid": os.getpid(), "protocol": cfg.protocol,
-                        "port": cfg.port, "baud": cfg.baud, "listen": d.listening},
+                        "port": cfg.port, "baud": cfg.baud, "listen": d.listening,
+                        "metrics": d.metrics_url},
                  f"ready: {cfg.protocol} on {cfg.port} at {cfg.baud} baud, clients at "
                  f"{' '.join(d.listening)}")
         sys.stdout.flush()

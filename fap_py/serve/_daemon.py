@@ -66,6 +66,7 @@ class ServeConfig:
     quantum: float = DEFAULT_QUANTUM
     reopen_interval: float = 0.5
     slaves: List[int] = field(default_factory=list)
+    metrics: Optional[str] = None   #: tcp://HOST:PORT of the Prometheus endpoint (None: none)
 
     def check(self) -> None:
         """Refuse a configuration that cannot run (InvalidValueError / InvalidTypeError)."""
@@ -77,7 +78,7 @@ class ServeConfig:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, kind):
                 raise InvalidTypeError(f"ServeConfig.{name}: {type(v).__name__} is not the right type")
-        for name in ("token_file", "socket_owner", "socket_group", "lock_dir"):
+        for name in ("token_file", "socket_owner", "socket_group", "lock_dir", "metrics"):
             v = getattr(self, name)
             if v is not None and not isinstance(v, str):
                 raise InvalidTypeError(f"ServeConfig.{name} must be a str or None")
@@ -105,6 +106,13 @@ class ServeConfig:
                 raise InvalidValueError(str(exc)) from None
             if a.kind == "tcp" and not is_loopback(a.host) and not self.token_file:
                 raise InvalidValueError(f"--listen {text}: TCP beyond loopback needs --token-file")
+        if self.metrics is not None:
+            try:
+                m = parse_listen(self.metrics)
+            except BadUrlError as exc:
+                raise InvalidValueError(f"metrics: {exc}") from None
+            if m.kind != "tcp":
+                raise InvalidValueError("metrics: tcp://HOST:PORT")
         if self.token_file:
             self.token()
         if not isinstance(self.slaves, (list, tuple)) or not all(
@@ -231,6 +239,7 @@ class Daemon:
         self.wire_time = 0.0
         self.started = time.time()
         self.listening: List[str] = []
+        self.metrics_url: Optional[str] = None
         self._lock: Optional[UucpLock] = None
         self.backend: Backend = BACKENDS[config.protocol](
             config.port, config.baud, config.rs485, config.timeout, config.retries, self._frame)
@@ -261,6 +270,8 @@ class Daemon:
         except BaseException:
             self.close_now()
             raise
+        if self.config.metrics:
+            await self._listen_metrics(parse_listen(self.config.metrics))
         self._bus_task = asyncio.get_running_loop().create_task(self._bus())
         self.backend.attach(self._broadcast_event)
 
@@ -297,6 +308,21 @@ class Daemon:
         self._servers.append(srv)
         self.listening.append(addr.url())
         log.info("listening on %s", addr)
+
+    async def _listen_metrics(self, addr: Address) -> None:
+        from ._metrics import serve_metrics
+
+        try:
+            srv = await asyncio.start_server(lambda r, w: serve_metrics(r, w, self.status),
+                                             addr.host, addr.port)
+        except OSError as exc:
+            raise DaemonError(f"metrics {addr}: cannot listen: {exc.strerror}", str(addr),
+                              exc.errno or errno.EADDRINUSE) from None
+        port = srv.sockets[0].getsockname()[1]
+        host = f"[{addr.host}]" if ":" in addr.host else addr.host
+        self.metrics_url = f"http://{host}:{port}/metrics"
+        self._servers.append(srv)
+        log.info("metrics on %s", self.metrics_url)
 
     def stop(self) -> None:
         self._stopped.set()

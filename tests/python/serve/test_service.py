@@ -88,3 +88,23 @@ def test_config_file_and_check(vbus, tmp_path):
     r = subprocess.run(fap_cmd("serve", "--config", str(bad), "--check"), capture_output=True,
                        text=True, timeout=30)
     assert r.returncode == 2 and "bogus" in r.stderr
+
+
+def test_prometheus_metrics(vbus, tmp_path):
+    import urllib.error
+    import urllib.request
+
+    d = start_daemon(str(tmp_path), vbus.master_port, "--metrics", "tcp://127.0.0.1:0")
+    try:
+        with Master(d.url + "?name=scraped", timeout=0.5) as m:
+            for i in range(3):
+                m.transact(5, bytes([i]))
+            text = urllib.request.urlopen(d.ready["metrics"], timeout=10).read().decode()
+        assert "# TYPE fap_serve_transactions_total counter" in text
+        assert f'fap_serve_transactions_total{{port="{vbus.master_port}",protocol="exec"}} 3' in text
+        assert 'fap_serve_port_up{' in text and 'name="scraped"' in text
+        with pytest.raises(urllib.error.HTTPError) as err:
+            urllib.request.urlopen(d.ready["metrics"].replace("/metrics", "/nope"), timeout=10)
+        assert err.value.code == 404
+    finally:
+        d.stop()
