@@ -69,6 +69,7 @@ class DaemonG485Master:
                           "check": _check(options.get("check"))}
         self._counts = dict.fromkeys((f.name for f in dataclasses.fields(MasterStats)), 0)
         self._lock = threading.Lock()
+        self._close_hooks: List[Any] = []
 
     _TAKES = {"handshake": ("timeout", "retries"), "read": ("timeout", "retries", "check"),
               "write": ("timeout", "retries", "check"), "error_word": ("timeout", "retries", "check"),
@@ -167,8 +168,23 @@ class DaemonG485Master:
     def send_wake_up(self) -> None:
         self._call("send_wake_up")
 
+    @property
+    def fd(self) -> None:
+        """No port fd here: :class:`~fap_py.g485.aio.AsyncG485Master` on a ``fapd://`` URL
+        runs these blocking calls in its one worker thread (the daemon itself has none)."""
+        return None
+
+    def on_close(self, hook: Any) -> None:
+        """Call ``hook()`` when :meth:`close` runs (the asyncio front end's)."""
+        if not callable(hook):
+            raise G485ValueError(f"hook must be callable, not {type(hook).__name__}")
+        self._close_hooks.append(hook)
+
     def close(self) -> None:
         self._conn.close()
+        hooks, self._close_hooks = self._close_hooks, []
+        for hook in hooks:
+            hook()
 
     def __enter__(self) -> "DaemonG485Master":
         return self

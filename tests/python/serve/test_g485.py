@@ -2,6 +2,7 @@
 `fap g485 ...` on a fapd:// URL, against the project's device simulator."""
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 
@@ -9,6 +10,7 @@ import pytest
 from serve_helpers import fap_cmd, start_daemon
 
 from fap_py.g485 import G485Master, NoResponseError
+from fap_py.g485.aio import AsyncG485Master
 from fap_py.g485.device import SimDevice
 from fap_py.g485.simulator import Simulator
 from fap_py.rs485 import RS485, RS485Mode
@@ -32,6 +34,12 @@ def test_g485_master_on_a_daemon_url(tmp_path):
                     m.read(9, 1, timeout=0.02, retries=0)
                 assert m.scan(range(2, 5), timeout=0.2) == [3]
                 assert m.stats.transactions >= 4 and m.stats.no_response >= 1
+
+            async def aread():
+                async with AsyncG485Master(d.url) as am:      # its worker thread drives the client
+                    return await asyncio.gather(am.read(3, 10), am.handshake(3))
+            data, check = asyncio.run(aread())
+            assert data == b"\x2a" and isinstance(check, int)
             r = subprocess.run(fap_cmd("g485", "read", "--port", d.url, "--address", "3",
                                        "--register", "10", "--json"),
                                capture_output=True, text=True, timeout=30)
