@@ -734,7 +734,8 @@ class DaemonFapMaster:
     :meth:`wait_event`). ``slaves`` must be among the daemon's; the slave list, the
     timings and the line are the daemon's (``add_slave`` / ``remove_slave`` are refused).
     ``stats`` are the daemon engine's. ``weight``, ``priority``, ``token`` as for
-    :class:`fap_py.execasync.DaemonMaster`. Blocking calls only (no asyncio form yet).
+    :class:`fap_py.execasync.DaemonMaster`. The asyncio forms (``arecv``, ``async for``,
+    ``await_event``) wait in the loop's default executor.
     """
 
     id = MASTER_ID
@@ -896,13 +897,53 @@ class DaemonFapMaster:
     def tx_pending(self) -> int:
         return int(self._conn.call("tx_pending")["tx_pending"])
 
+    # asyncio: the blocking waits in the loop's default executor (the client side's one
+    # thread per wait; the daemon itself runs without threads)
+    async def arecv(self, timeout: Optional[float] = None) -> Message:
+        if timeout is not None:
+            _seconds(timeout, "timeout")
+        msg: Message = await _running_loop().run_in_executor(None, self.recv, timeout)
+        return msg
+
+    def __aiter__(self) -> AsyncIterator[Message]:
+        return self._amessages()
+
+    async def _amessages(self) -> AsyncIterator[Message]:
+        try:
+            while True:
+                yield await self.arecv()
+        except ClosedError:
+            return
+
+    async def await_event(self, timeout: Optional[float] = None) -> SlaveEvent:
+        if timeout is not None:
+            _seconds(timeout, "timeout")
+        ev: SlaveEvent = await _running_loop().run_in_executor(None, self.wait_event, timeout)
+        return ev
+
+    async def aevents(self, timeout: Optional[float] = None) -> AsyncIterator[SlaveEvent]:
+        try:
+            while True:
+                yield await self.await_event(timeout)
+        except (FapTimeoutError, ClosedError):
+            return
+
     def close(self) -> None:
         self._conn.close()
+
+    async def aclose(self) -> None:
+        self.close()
 
     def __enter__(self) -> "DaemonFapMaster":
         return self
 
     def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> "DaemonFapMaster":
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
         self.close()
 
 

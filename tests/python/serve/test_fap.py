@@ -2,6 +2,7 @@
 fap_py.Master on a fapd:// URL sends to a slave through it and receives what slaves send."""
 from __future__ import annotations
 
+import asyncio
 import json
 import subprocess
 import threading
@@ -37,6 +38,12 @@ def test_fap_master_on_a_daemon_url(tmp_path):
                 m.send(b"abc", 3)
                 msg = m.recv(timeout=10)
                 assert (msg.source, msg.data) == (3, b"cba")
+                m.send(b"xy", 3)
+
+                async def arecv():
+                    return await m.arecv(timeout=10)
+                msg = asyncio.run(arecv())
+                assert (msg.source, msg.data) == (3, b"yx")
                 m.flush(5)
                 assert m.stats.frames_tx > 0
                 with pytest.raises(NotMasterError):
