@@ -134,3 +134,15 @@ def test_a_hot_unplug_is_told_to_clients_and_the_port_reopened(served, vbus):
         while (ev := m._conn.next_event(0)) is not None:
             events.append(ev["event"])
         assert events == ["port_gone", "port_back"]
+
+
+def test_a_daemon_that_dies_ends_its_clients_with_exit_3(served, vbus):
+    client = subprocess.Popen(fap_cmd("exec", "master", "--port", served.url, "--node", "5", "01",
+                                      "--count", "0", "--interval", "0.01", "--json"),
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert client.stdout is not None
+    assert json.loads(client.stdout.readline())["event"] == "reply"    # it runs
+    served.proc.send_signal(signal.SIGKILL)
+    out, err = client.communicate(timeout=30)
+    assert client.returncode == 3, err
+    assert len(err.strip().splitlines()) == 1 and "daemon" in err and "Traceback" not in err
