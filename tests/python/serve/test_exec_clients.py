@@ -146,3 +146,14 @@ def test_a_daemon_that_dies_ends_its_clients_with_exit_3(served, vbus):
     out, err = client.communicate(timeout=30)
     assert client.returncode == 3, err
     assert len(err.strip().splitlines()) == 1 and "daemon" in err and "Traceback" not in err
+
+
+def test_weight_and_priority_are_bounded_by_the_daemon(served, vbus):
+    with Master(served.url + "?weight=99&priority=9&name=greedy", timeout=0.5) as m:
+        assert m.transact(5, b"g") == b"g"
+        (me,) = [c for c in served.status()["clients"] if c["name"] == "greedy"]
+        assert (me["weight"], me["priority"]) == (16, 3)       # --max-weight, --max-priority
+    with Master(served.url, weight=2, priority=1) as m:         # the keywords, as the query
+        m.transact(5, b"k")
+        (me,) = [c for c in served.status()["clients"] if c["name"] == "exec master"]
+        assert (me["weight"], me["priority"]) == (2, 1)
