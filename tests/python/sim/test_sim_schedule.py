@@ -96,3 +96,32 @@ def test_every_repeats_and_remove_stops_the_schedule():
         assert {e["state"] for e in switches} == {"on", "off"}
         sim.remove_fault(f["id"])
         assert sim.faults_list() == []
+
+
+FAP_SITE = """\
+[[bus]]
+name = "f"
+protocol = "fap"
+[[bus.node]]
+address = 31
+"""
+
+
+def test_fap_slave_switched_off_and_on_by_a_schedule():
+    """FAP slaves are opened and closed by the runner, not per transaction: the schedule thread's
+    edge (a listener call) closes slave 31 (the master marks it inactive) and the expiry opens it."""
+    from fap_py import fap
+
+    with Sim(loads(FAP_SITE, "f.toml")) as sim, \
+            fap.Master(sim.buses[0].master_port, 115200, slaves=[31], id_cycle=0.05,
+                       data_done_timeout=0.2, id_answer_timeout=0.1) as m:
+        m.wait_active([31], timeout=5)
+        sim.add_fault("off", node=31, at=0.2, duration=1.0)
+        for _ in range(100):
+            m.wait_event(timeout=5)
+            if not m.is_active(31):
+                break
+        assert not m.is_active(31)
+        m.wait_active([31], timeout=10)     # the fault's 'for' ran out: the slave is back
+        assert sim.faults_list() == []
+        assert {n["address"]: n["faults"].get("off", 0) for n in sim.status()["buses"][0]["nodes"]} == {31: 1}
