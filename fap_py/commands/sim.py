@@ -127,9 +127,10 @@ def run(args: argparse.Namespace) -> int:
         if args.protocol is None:
             raise UsageError("--learn needs --protocol")
         from fap_py.sim._learn import learn
-        from fap_py.vbus import read_capture
+        from fap_py.sim._replay import load_capture
 
-        text = learn(read_capture(args.learn), args.protocol, args.master_port, args.learn)
+        text = learn(load_capture(args.learn, args.protocol, args.baud), args.protocol, args.master_port,
+                     args.learn)
         if args.output:
             from fap_py.errors import FileError
             try:
