@@ -137,6 +137,9 @@ _MAGICS = {b"\xd4\xc3\xb2\xa1": ("<", 1e-6), b"\xa1\xb2\xc3\xd4": (">", 1e-6),
 
 def is_pcap(path: str) -> bool:
     """True when the file at ``path`` starts with a pcap magic (else it may be a vbus capture)."""
+    from .._validate import check_path
+
+    path = check_path(path, "path")     # never an int: open(3) would take over fd 3
     try:
         with open(path, "rb") as fh:
             return fh.read(4) in _MAGICS
