@@ -22,6 +22,10 @@ from ..errors import ClosedError, FapError, InvalidValueError, PortError
 
 log = logging.getLogger("fap_py.sim")
 
+#: delays up to this are slept by the serving thread (the master waits for the reply anyway);
+#: longer ones go to a timer, so the next request is read meanwhile
+SLEEP_IN_LINE_S = 0.02
+
 def replay_protocols() -> List[str]:
     """The protocols a capture can be replayed for: those whose sim plug-in frames a raw
     stream (``raw_frames``: the request/reply protocols)."""
@@ -147,6 +151,12 @@ class ReplayResponder:
         if not reply:
             return
         if delay <= 0.0005:
+            self._write(reply)
+            return
+        if delay <= SLEEP_IN_LINE_S:
+            # a short delay is slept here: a timer thread per reply costs its start-up and a
+            # second wake-up, which is the tail a replay's timing shows (bench/sim.py)
+            self._stop.wait(delay)
             self._write(reply)
             return
         t = threading.Timer(delay, self._write, (reply,))
