@@ -127,11 +127,13 @@ def test_a_health_change_not_sent_is_sent_later(broker, observer_factory, fap_pa
         assert bridge.wait_connected(WAIT)
         obs.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 0)
         link = bridge.link
-        with link._cond:   # as after a refusal: held back for a moment
-            link._held[link.health_topic] = (time.monotonic() + 0.5, 0.5)
+        with link._cond:   # as after a refusal: held back (long: a loaded machine is slow)
+            link._held[link.health_topic] = (time.monotonic() + 60.0, 0.5)
         bridge.not_stored = 7                  # a change, due now, while held
         bridge._publish_health(force=False)
         assert bridge._health_sent is None     # not sent, so not remembered as sent
+        with link._cond:   # the hold ends: the stats loop's next tick sends the latest health
+            link._held[link.health_topic] = (time.monotonic(), 0.5)
         obs.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 7)
         with link._cond:
             assert link._cond.wait_for(lambda: not link._own, WAIT)   # answered by the broker
