@@ -342,8 +342,10 @@ class Bridge:
         key = (doc["state"], doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True))
         if not force and key == self._health_sent:
             return
-        self._health_sent = key
-        self.link.publish_now(self.link.health_topic, json.dumps(doc, separators=(",", ":")).encode())
+        # remembered as sent only once handed to paho: one not sent (disconnected, held back
+        # after a refusal) is sent at the next tick of the stats loop or the next connect
+        sent = self.link.publish_now(self.link.health_topic, json.dumps(doc, separators=(",", ":")).encode())
+        self._health_sent = key if sent else None
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""

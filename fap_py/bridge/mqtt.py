@@ -275,16 +275,18 @@ class MqttLink:
         """Publications the broker refused (MQTT 5 PUBACK reason code >= 0x80)."""
         return sum(self.refused_pubs.values())
 
-    def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> None:
+    def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> bool:
         """Publish outside the outbox (QoS 1, best effort): the bridge's own health, which
-        must get out even when the outbox cannot be written."""
+        must get out even when the outbox cannot be written. True if handed to paho (or
+        queued for the connect phase); False if not connected, held back after a refusal,
+        or refused by paho: the caller publishes it again later (every connect does)."""
         if not isinstance(topic, str):
             raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
         with self._cond:
             if not self._connected:
-                return
+                return False
             if not self._gate_open:   # the connect phase: one at a time, after the others
                 self._own_queue.append((topic, payload, retain))
                 queued = True
@@ -292,8 +294,8 @@ class MqttLink:
                 queued = False
         if queued:
             self._gate_next()
-        else:
-            self._send_own(topic, payload, retain)
+            return True
+        return self._send_own(topic, payload, retain, handed=True)
 
     def _kind(self, topic: str) -> str:
         """What a refusal of ``topic`` holds back: the status or health topic itself, or
@@ -313,10 +315,12 @@ class MqttLink:
         h = self._held.get(self._kind(topic))
         return h is not None and time.monotonic() < h[0]
 
-    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False) -> bool:
+    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False,
+                  handed: bool = False) -> bool:
         """One of the bridge's own publications (not an outbox row): its mid is recorded
         as such, so its PUBACK is never matched with a row. True if it waits for its
-        PUBACK (``gate``: as the connect phase's publication in flight)."""
+        PUBACK (``gate``: as the connect phase's publication in flight); with ``handed``,
+        True if paho took it at all (even if already answered)."""
         with self._cond:
             if self._held_locked(topic):
                 return False
@@ -334,6 +338,8 @@ class MqttLink:
                     self._own_current = info.mid
                 if self._publishing == 0:
                     self._early.clear()   # nothing is being handed to paho: no owner will come
+        if handed:
+            return info is not None and info.rc != self._mqtt.MQTT_ERR_QUEUE_SIZE
         return waiting
 
     def _own_handed(self, info: Any, topic: str) -> bool:
