@@ -125,6 +125,15 @@ class BridgeCollector:
                                   value=b.not_stored)
         yield GaugeMetricFamily("fap_bridge_mqtt_connected", "1 while connected to the broker",
                                 value=1.0 if link.connected else 0.0)
+        current = GaugeMetricFamily("fap_bridge_mqtt_broker", "1 for the broker in use (its place in the "
+                                    "[[broker]] list, 0 preferred), 0 for the others", labels=["broker", "index"])
+        for i, br in enumerate(getattr(link, "brokers", ())):
+            current.add_metric([br.address, str(i)], 1.0 if i == getattr(link, "broker_index", 0) else 0.0)
+        yield current
+        yield CounterMetricFamily("fap_bridge_mqtt_switches", "moves from one broker of the list to another "
+                                  "(failover and failback)", value=getattr(link, "switches", 0))
+        yield CounterMetricFamily("fap_bridge_mqtt_fallbacks", "brokers that refused MQTT 5 (3.1.1 used)",
+                                  value=getattr(link, "fallbacks", 0))
         yield CounterMetricFamily("fap_bridge_mqtt_connects", "connections made", value=link.connects)
         yield CounterMetricFamily("fap_bridge_mqtt_disconnects", "connections lost", value=link.disconnects)
         yield CounterMetricFamily("fap_bridge_mqtt_published", "publications the broker acknowledged",
