@@ -158,6 +158,15 @@ class BridgeCollector:
             yield CounterMetricFamily("fap_bridge_sparkplug_rebirths_coalesced",
                                       "rebirth requests folded into another (rate limit)",
                                       value=sp.rebirths.coalesced)
+            refused = CounterMetricFamily("fap_bridge_sparkplug_state_refused",
+                                          "primary host STATE payloads refused (not JSON, wrong types, "
+                                          "an old timestamp)", labels=["reason"])
+            for reason, n in sorted(getattr(sp, "state_refused", {}).items()):
+                refused.add_metric([reason], n)
+            yield refused
+            yield CounterMetricFamily("fap_bridge_sparkplug_held_dropped",
+                                      "DDATA dropped from the full queue held while not born",
+                                      value=getattr(sp, "queue_dropped", 0))
         yield CounterMetricFamily("fap_bridge_tx_refused", "malformed tx refused", value=b.tx_refused)
         yield CounterMetricFamily("fap_bridge_tx_duplicates", "tx redeliveries dropped", value=b.duplicates)
 
