@@ -48,7 +48,7 @@ from typing import Any, Deque, Dict, List, Optional, Tuple
 
 from .._validate import check_bool, check_seconds
 from ..errors import InvalidTypeError, InvalidValueError
-from .config import BridgeConfig, check_bus_node
+from .config import BridgeConfig, BrokerConfig, check_bus_node
 from .mqtt import MissingDependencyError, describe_connect_error, paho
 
 log = logging.getLogger(__name__)
@@ -220,6 +220,8 @@ class SparkplugNode:
     def follow(self, broker: Any) -> None:
         """Use ``broker`` (the main link's, after a failover or failback): NDEATH on the old
         one if born there, then a new session there (births as at any connect)."""
+        if not isinstance(broker, BrokerConfig):
+            raise InvalidTypeError(f"broker must be a BrokerConfig, not {type(broker).__name__}")
         if broker is self.broker:
             return
         log.info("sparkplug: moving to broker %s", broker.address)
