@@ -203,8 +203,10 @@ class Bridge:
     def status_line(self) -> str:
         """One line for systemd's STATUS=: the broker, the buses, the outbox."""
         link = self.link
-        broker = f"{link.broker.address} connected" if link.connected else \
-            f"not connected ({link.last_error or 'connecting to ' + link.broker.address})"
+        where = "" if len(link.brokers) == 1 else \
+            f" to {link.broker.address} ({link.broker_index + 1} of {len(link.brokers)})"
+        broker = f"connected{where}" if link.connected else \
+            f"not connected ({link.last_error or 'connecting' + where})"
         down = [n for n, b in self.buses.items() if b.open_error is not None]
         buses = f"{len(self.buses) - len(down)}/{len(self.buses)} buses running"
         if down:

@@ -164,3 +164,25 @@ def test_fleet_config_is_checked(tmp_path):
         from_dict(dict(base, broker={"url": "mqtt://a"}, failover={"attempts": 0}))
     with pytest.raises(BridgeConfigError, match="failover"):
         from_dict(dict(base, broker={"url": "mqtt://a"}, failover={"nope": 1}))
+
+
+def test_the_sparkplug_edge_node_follows_the_failover(two_brokers, observer_factory, tmp_path):
+    """The Sparkplug connection goes where the main link went: births on the new broker."""
+    import dataclasses
+
+    from fap_py.bridge import Bridge
+
+    a, b = two_brokers
+    obs_b = observer_factory(b.port, "spBv1.0/#", client_id="sp-b")
+    cfg = fleet_config([a.port, b.port], str(tmp_path / "state"), sparkplug={"group_id": "plant"})
+    cfg = dataclasses.replace(cfg, buses=(dataclasses.replace(cfg.buses[0], sparkplug=True),))
+    with Bridge(cfg) as bridge:
+        node = bridge.output("sparkplug").node
+        assert bridge.wait_connected(WAIT) and wait_until(lambda: node.connected, WAIT)
+        assert node.broker.port == a.port
+        a.stop()
+        assert wait_until(_on(bridge, 1), WAIT)
+        with obs_b._cond:
+            assert obs_b._cond.wait_for(lambda: any(m.topic == "spBv1.0/plant/NBIRTH/test"
+                                                    for m in obs_b.messages), WAIT)
+        assert node.broker.port == b.port and node.connected
