@@ -126,10 +126,22 @@ def test_mqtt5_refused_falls_back_to_311_on_nats(paho_mqtt, observer_factory, tm
             rx_rows(bridge, 0, 200)
             obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == f"{199:06x}")
             obs.wait_for("fap/bridge/test/health", lambda d: d["broker"] == f"127.0.0.1:{nats.port}")
-            assert bridge.link.drain(WAIT)
+            # (seen once, under a load of 10: 87 rows never acknowledged with the connection up;
+            # not reproduced since: say what was stuck if it comes back)
+            assert bridge.link.drain(WAIT), _stuck(bridge, nats)
         got = accounting(obs.messages)
         assert got["data"] == set(range(200)) and got["in_order"]
         assert "refuses MQTT 5: using MQTT 3.1.1" in caplog.text
+
+
+def _stuck(bridge, nats) -> str:
+    link = bridge.link
+    with link._cond:
+        return (f"outbox {bridge.store.pending}, in flight {len(link._inflight)} "
+                f"(seqs {sorted(s for s, _ in link._inflight.values())[:5]}...), connected {link.connected}, "
+                f"gate {link._gate_open}, own {list(link._own.values())}, probing {link.probing}, "
+                f"paho queue {len(getattr(link.client, '_out_messages', {}))}; nats:\n"
+                + "\n".join(nats.log[-20:]))
 
 
 def test_explicit_mqtt5_is_not_downgraded(paho_mqtt, tmp_path):
