@@ -503,7 +503,7 @@ class Bridge:
                 "broker": {"connected": self.link.connected, "connects": self.link.connects,
                            "address": self.link.broker.address, "index": self.link.broker_index,
                            "mqtt": "5" if self.link.v5 else "3.1.1", "switches": self.link.switches,
-                           "fallbacks": self.link.fallbacks,
+                           "fallbacks": self.link.fallbacks, "stalls": self.link.stalls,
                            "disconnects": self.link.disconnects, "published": self.link.published,
                            "refused": dict(self.link.refused_pubs),
                            "refused_own": dict(self.link.refused_own)},

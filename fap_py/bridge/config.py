@@ -88,6 +88,8 @@ class BrokerConfig:
     reconnect_min: float = 0.5
     reconnect_max: float = 30.0
     connect_timeout: float = 10.0
+    #: seconds with rows in flight and no PUBACK before the connection is made anew
+    ack_timeout: float = 30.0
     #: MQTT "5", "3.1.1", or "auto": 5, and 3.1.1 for a broker that refuses 5
     protocol: str = "auto"
     session_expiry: int = 604_800  #: MQTT 5: seconds the broker keeps our session while we are away
@@ -328,6 +330,8 @@ def _broker(t: Dict[str, Any], base: str, where: str = "broker") -> BrokerConfig
                                  kw["reconnect_min"], 3600, f"{where}.reconnect_max")
     kw["connect_timeout"] = _range(float(_pop(t, "connect_timeout", (int, float), where, 10.0)), 0.1, 3600,
                                    f"{where}.connect_timeout")
+    kw["ack_timeout"] = _range(float(_pop(t, "ack_timeout", (int, float), where, 30.0)), 0.1, 3600,
+                               f"{where}.ack_timeout")
     kw["protocol"] = _pop(t, "protocol", str, where, "auto")
     if kw["protocol"] not in ("5", "3.1.1", "auto"):
         raise BridgeConfigError(f"{where}.protocol must be \"5\", \"3.1.1\" or \"auto\", "

@@ -134,6 +134,8 @@ class BridgeCollector:
                                   "(failover and failback)", value=getattr(link, "switches", 0))
         yield CounterMetricFamily("fap_bridge_mqtt_fallbacks", "brokers that refused MQTT 5 (3.1.1 used)",
                                   value=getattr(link, "fallbacks", 0))
+        yield CounterMetricFamily("fap_bridge_mqtt_stalls", "connections stuck (no PUBACK within ack_timeout, "
+                                  "no CONNACK within connect_timeout), made anew", value=getattr(link, "stalls", 0))
         yield CounterMetricFamily("fap_bridge_mqtt_connects", "connections made", value=link.connects)
         yield CounterMetricFamily("fap_bridge_mqtt_disconnects", "connections lost", value=link.disconnects)
         yield CounterMetricFamily("fap_bridge_mqtt_published", "publications the broker acknowledged",

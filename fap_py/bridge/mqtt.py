@@ -114,6 +114,8 @@ OWN_BACKOFF_MIN = 60.0
 OWN_BACKOFF_MAX = 3600.0
 #: seconds after a CONNACK the rows wait at most for the own publications of the connect
 GATE_TIMEOUT = 1.0
+#: seconds between two looks of the fleet thread's watchdog (no PUBACK, no CONNACK)
+STALL_TICK = 0.25
 
 
 class _Dropped:
@@ -188,6 +190,9 @@ class MqttLink:
         self.switches = 0                         # moves from one broker of the list to another
         self.fallbacks = 0                        # brokers that refused MQTT 5 (3.1.1 used)
         self.probes = 0                           # failback probes of an earlier broker
+        self.stalls = 0                           # connections stuck (no PUBACK / CONNACK): made anew
+        self._acked_at = time.monotonic()         # the last PUBACK of a row (or start of the window)
+        self._connecting_since: Optional[float] = None   # TCP up, CONNACK awaited since
         self.v5 = self._v5[0]
         self.client = self._make_client(0)
         self._fleet_thread: Optional[threading.Thread] = None
@@ -304,14 +309,20 @@ class MqttLink:
         while True:
             with self._cond:
                 self._cond.wait_for(lambda: self._stopping or self._want is not None,
-                                    max(0.0, next_probe - time.monotonic()))
+                                    max(0.0, min(next_probe - time.monotonic(), STALL_TICK)))
                 if self._stopping:
                     return
+            stall = self._stalled()
+            if stall is not None:   # counted as a failed attempt: with a list, may move on
+                self._failed(stall)
+            with self._cond:
+                if stall is not None and self._want is None:
+                    self._want = ("reconnect", self._index)   # the same broker, a new connection
                 want, self._want = self._want, None
                 probe = (want is None and fo.failback and self._connected and self._index > 0
                          and time.monotonic() >= next_probe)
             if want is not None:
-                self._switch(want[1], "fallback" if want[0] == "fallback" else "failover")
+                self._switch(want[1], {"fallback": "fallback", "reconnect": "reconnect"}.get(want[0], "failover"))
                 next_probe = time.monotonic() + fo.failback_interval
                 continue
             if time.monotonic() >= next_probe:
@@ -321,6 +332,34 @@ class MqttLink:
                     if j not in self._bad and self._probe(j):
                         self._failback(j)
                         break
+
+    def _stalled(self) -> Optional[str]:
+        """Why the connection is stuck, or None: connected with rows in flight and no PUBACK for
+        the broker's ``ack_timeout`` (a half-open link, a broker that stopped answering), or a
+        TCP connection up and no CONNACK within its ``connect_timeout``. MQTT re-sends only on
+        a new connection: the watchdog of the fleet thread makes one."""
+        b, now = self.broker, time.monotonic()
+        with self._cond:
+            if self.refused is not None:
+                return None
+            if self._connected:
+                self._connecting_since = None
+                if self._inflight and now - self._acked_at > b.ack_timeout:
+                    self._acked_at = now
+                    self.stalls += 1
+                    return (f"{b.address}: no acknowledgement for {b.ack_timeout:g} s with "
+                            f"{len(self._inflight)} rows in flight (a new connection)")
+                return None
+            if self.client.socket() is None:
+                self._connecting_since = None
+                return None
+            if self._connecting_since is None:
+                self._connecting_since = now
+            elif now - self._connecting_since > b.connect_timeout:
+                self._connecting_since = None
+                self.stalls += 1
+                return f"{b.address}: no CONNACK within {b.connect_timeout:g} s (a new connection)"
+        return None
 
     def _next_index(self) -> int:
         """Under ``_cond``: the broker after the current one (cycling), skipping refusals."""
@@ -397,15 +436,18 @@ class MqttLink:
             self._index = index
             self.client = new
             self.v5 = self._v5[index]
-            self._failures = 0
+            self._connecting_since = None
             if was:
                 self.disconnects += 1
-            if index != old_index:
+            if index != old_index:   # a new broker: its own count of failed attempts
+                self._failures = 0
                 self.switches += 1
             self._cond.notify_all()
         old_b, b = self.brokers[old_index], self.brokers[index]
         if why == "fallback":
             log.warning("broker %s refuses MQTT 5: using MQTT 3.1.1 with it", b.address)
+        elif why == "reconnect":
+            log.info("broker %s: a new connection", b.address)
         else:
             log.warning("broker %s: %s (broker %d of %d%s) -> %s (broker %d of %d)", why,
                         old_b.address, old_index + 1, len(self.brokers), "" if was else ", not connected",
@@ -759,6 +801,8 @@ class MqttLink:
         gate = False
         with self._cond:
             entry = self._inflight.pop(mid, None)
+            if entry is not None:
+                self._acked_at = time.monotonic()
             if entry is None:
                 own = self._own.pop(mid, None)
                 if own is not None:
@@ -971,6 +1015,8 @@ class MqttLink:
                     self._acked_one((seq, topic), self._early.pop(info.mid))
                     self._settled(seq)
                 else:
+                    if not self._inflight:   # the window's clock starts with its first row
+                        self._acked_at = time.monotonic()
                     self._inflight[info.mid] = (seq, topic)
                 if self._publishing == 0:
                     self._early.clear()

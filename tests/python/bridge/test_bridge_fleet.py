@@ -198,3 +198,40 @@ def test_the_sparkplug_edge_node_follows_the_failover(two_brokers, observer_fact
             assert obs_b._cond.wait_for(lambda: any(m.topic == "spBv1.0/plant/NBIRTH/test"
                                                     for m in obs_b.messages), WAIT)
         assert node.broker.port == b.port and node.connected
+
+
+@pytest.mark.parametrize("attempts", [1, 2])
+def test_a_half_open_broker_is_left_for_the_next(two_brokers, observer_factory, tmp_path, caplog, attempts):
+    """The preferred broker's link goes half-open (no FIN, no RST: its side closed, ours
+    silent) with rows in flight: no PUBACK within ack_timeout is a failed attempt; with
+    attempts = 2 a new connection, which gets no CONNACK within connect_timeout (the second)
+    -> the next broker; every row delivered once."""
+    from fault_proxy import FaultProxy
+
+    from fap_py.bridge import Bridge
+
+    a, b = two_brokers
+    caplog.set_level(logging.INFO, logger="fap_py.bridge")
+    with FaultProxy(a.port) as proxy:
+        obs_a = observer_factory(a.port, "fap/#", client_id="consumer-a", clean=False)
+        obs_b = observer_factory(b.port, "fap/#", client_id="consumer-b", clean=False)
+        cfg = fleet_config([proxy.port, b.port], str(tmp_path / "state"), keepalive=60,
+                           ack_timeout=0.5, connect_timeout=0.5,
+                           failover={"failback": False, "attempts": attempts})
+        with Bridge(cfg) as bridge:
+            assert bridge.wait_connected(WAIT)
+            rx_rows(bridge, 0, 50)
+            obs_a.wait_for("fap/line1/1/rx", lambda d: d["data"] == f"{49:06x}")
+            proxy.set("half_open")
+            t0 = time.monotonic()
+            rx_rows(bridge, 50, 50)               # in flight into the silence
+            assert wait_until(_on(bridge, 1), WAIT)
+            moved = time.monotonic() - t0
+            obs_b.wait_for("fap/line1/1/rx", lambda d: d["data"] == f"{99:06x}")
+            assert bridge.link.drain(WAIT)
+            assert bridge.link.stalls == attempts
+        got_a, got_b = accounting(obs_a.messages), accounting(obs_b.messages)
+        assert got_a["data"] | got_b["data"] == set(range(100)) and got_b["in_order"]
+        assert "no acknowledgement for 0.5 s" in caplog.text
+        assert ("no CONNACK within 0.5 s" in caplog.text) == (attempts == 2)
+        print(f"half-open failover {moved:.2f} s (keepalive 60 s would have taken 90)")
