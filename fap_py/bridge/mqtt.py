@@ -1,5 +1,15 @@
 """The broker side of the bridge: one paho-mqtt client and the outbox pump.
 
+A fleet (docs/bridge.md, "Fleet"): ``config.brokers`` is an ordered list; one paho client
+at a time, made for the broker in use (its own TLS, login, MQTT version). The fleet
+thread moves to the next broker after ``failover.attempts`` failed attempts, makes a
+3.1.1 client for a broker that refuses MQTT 5 (``protocol = "auto"``), probes the
+earlier brokers every ``failover.failback_interval`` s and goes back to the first that
+answers, and makes a stuck connection anew (no PUBACK within ``ack_timeout`` with rows
+in flight, no CONNACK within ``connect_timeout``). Callbacks of a client left behind are
+ignored (:meth:`MqttLink._stale`); the outbox is the one queue across brokers: the rows
+in flight at a move are handed again at the next CONNACK, as after any reconnect.
+
 paho-mqtt is imported here only, and lazily (:func:`paho`), so ``fap
 --help`` and everything else in fap_py works without the ``bridge`` extra.
 
