@@ -1,0 +1,171 @@
+"""Between the source and the browsers: a bounded ring of decoded frames.
+
+The source's thread appends (:meth:`Hub.publish`); it never waits for a browser.
+Each browser reads from its own cursor; a browser that fell further behind
+than the ring holds gets the frames it missed counted as dropped for it
+(``dropped`` events on its stream, shown on the page), never silently skipped.
+"""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import threading
+from collections import deque
+from typing import Any, Deque, Dict, Iterable, List, NamedTuple, Optional, Set, Tuple
+
+from ..monitor.core import Record
+from ..monitor.output import to_json
+from ._nodes import Annotator, NodeTable
+
+log = logging.getLogger("fap_py.web")
+
+
+class Entry(NamedTuple):
+    seq: int
+    rec: Record
+    line: str              # exactly `fap monitor --json`'s line of the record
+    node: Optional[str]
+    role: Optional[str]
+
+
+class Client:
+    """One browser's stream: its cursor, what it lost, its wake-up."""
+
+    def __init__(self, cursor: int) -> None:
+        self.cursor = cursor
+        self.dropped = 0
+        self.event = asyncio.Event()
+
+
+class Hub:
+    """The ring (``capacity`` frames), the node table, the connected clients."""
+
+    def __init__(self, capacity: int = 20000, baud: int = 0, bin_s: float = 1.0) -> None:
+        self.capacity = capacity
+        self._lock = threading.Lock()
+        self._ring: Deque[Entry] = deque(maxlen=capacity)
+        self._seq = 0
+        self._annotator = Annotator()
+        self.table = NodeTable(baud, bin_s)
+        self.clients: Set[Client] = set()
+        self.loop: Optional[asyncio.AbstractEventLoop] = None
+        self._wake_pending = False
+        self.source_error: Optional[str] = None
+        self.source_done = False
+        self.dropped_total = 0          # summed over every client
+        self.closing = False            # the server stops: every stream ends
+
+    # -- the source side (any thread) -----------------------------------------
+    def set_baud(self, baud: int, bin_s: Optional[float] = None) -> None:
+        with self._lock:
+            self.table.baud = baud
+            if bin_s is not None:
+                self.table.bin_s = bin_s
+
+    def publish(self, recs: Iterable[Record]) -> None:
+        """Decoded records, in order; never blocks on a browser."""
+        added = False
+        with self._lock:
+            for rec in recs:
+                node, role = self._annotator.annotate(rec)
+                self.table.add(rec, node, role)
+                self._seq += 1
+                line = json.dumps(to_json(rec), separators=(",", ":"))
+                self._ring.append(Entry(self._seq, rec, line, node, role))
+                added = True
+        if added:
+            self._wake()
+
+    def collision(self, t: Optional[float]) -> None:
+        with self._lock:
+            self.table.collision(t)
+
+    def finished(self, error: Optional[str] = None) -> None:
+        """The source ended (a capture read to its end, or an error)."""
+        with self._lock:
+            self.source_done = True
+            self.source_error = error
+        self._wake()
+
+    def _wake(self) -> None:
+        loop = self.loop
+        if loop is None or self._wake_pending:
+            return
+        self._wake_pending = True
+        try:
+            loop.call_soon_threadsafe(self._wake_clients)
+        except RuntimeError:          # the loop closed: nobody to wake
+            pass
+
+    def _wake_clients(self) -> None:
+        self._wake_pending = False
+        for c in self.clients:
+            c.event.set()
+
+    # -- the browser side (the event loop) ------------------------------------
+    def connect(self, backlog: int) -> Client:
+        """A new client that starts ``backlog`` frames back (all the ring: capacity)."""
+        with self._lock:
+            first = self._ring[0].seq if self._ring else self._seq + 1
+            c = Client(max(first, self._seq + 1 - backlog))
+        self.clients.add(c)
+        return c
+
+    def disconnect(self, c: Client) -> None:
+        self.clients.discard(c)
+
+    def read(self, c: Client, limit: int) -> Tuple[List[Entry], int]:
+        """(up to ``limit`` entries from the client's cursor, frames dropped for it now)."""
+        with self._lock:
+            if not self._ring:
+                return [], 0
+            first = self._ring[0].seq
+            dropped = 0
+            if c.cursor < first:
+                dropped = first - c.cursor
+                c.cursor = first
+            start = c.cursor - first
+            out = [self._ring[i] for i in range(start, min(len(self._ring), start + limit))]
+        if out:
+            c.cursor = out[-1].seq + 1
+        if dropped:
+            c.dropped += dropped
+            self.dropped_total += dropped
+            log.info("a browser fell behind: %d frames dropped for it (%d in all)", dropped, c.dropped)
+        return out, dropped
+
+    def window(self, seq0: Optional[int] = None, seq1: Optional[int] = None,
+               t0: Optional[float] = None, t1: Optional[float] = None) -> List[Entry]:
+        """The ring's entries with seq0 <= seq <= seq1 and t0 <= t <= t1 (None: no bound)."""
+        with self._lock:
+            entries = list(self._ring)
+        out = []
+        for e in entries:
+            if (seq0 is not None and e.seq < seq0) or (seq1 is not None and e.seq > seq1):
+                continue
+            t = e.rec.t
+            if t is not None and ((t0 is not None and t < t0) or (t1 is not None and t > t1)):
+                continue
+            out.append(e)
+        return out
+
+    def snapshot(self) -> Dict[str, Any]:
+        """Node table, series and totals (what the page's ``stats`` event carries)."""
+        with self._lock:
+            first = self._ring[0].seq if self._ring else None
+            return {"nodes": self.table.table(), "series": self.table.series(),
+                    "totals": {**self.table.totals(), "seq": self._seq, "ring_first": first,
+                               "ring_capacity": self.capacity, "dropped_total": self.dropped_total,
+                               "clients": len(self.clients)},
+                    "source": {"done": self.source_done, "error": self.source_error}}
+
+    def table_of(self, entries: List[Entry], baud: int, bin_s: float) -> Dict[str, Any]:
+        """A node table recomputed over some entries (a capture's slider window)."""
+        t = NodeTable(baud, bin_s)
+        for e in entries:
+            t.add(e.rec, e.node, e.role)
+        return {"nodes": t.table(), "series": t.series(), "totals": t.totals()}
+
+
+__all__ = ["Client", "Entry", "Hub"]
