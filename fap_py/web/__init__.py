@@ -87,6 +87,8 @@ class WebServer(Closing):
             check_int(ring, "ring", 1, MAX_RING)
         self.source, self.host, self.port, self.token = source, host, port, token
         self.hub = Hub(ring or (MAX_RING if source.seekable else RING))
+        if source.seekable:
+            self.hub.expire_s = None
         self.url: Optional[str] = None
         self._stop = threading.Event()
         self._done = threading.Event()
@@ -156,6 +158,11 @@ class WebServer(Closing):
         finally:
             self.hub.loop = None
             loop.run_until_complete(runner.cleanup())
+            # a stream stuck in a write to a browser that stopped reading: cancelled, awaited
+            left = asyncio.all_tasks(loop)
+            for task in left:
+                task.cancel()
+            loop.run_until_complete(asyncio.gather(*left, return_exceptions=True))
             loop.close()
 
     def _run_source(self) -> None:

@@ -11,12 +11,13 @@ import asyncio
 import json
 import logging
 import threading
+import time
 from collections import deque
 from typing import Any, Deque, Dict, Iterable, List, NamedTuple, Optional, Set, Tuple
 
 from ..monitor.core import Record
 from ..monitor.output import to_json
-from ._nodes import Annotator, NodeTable
+from ._nodes import PENDING_S, Annotator, NodeTable
 
 log = logging.getLogger("fap_py.web")
 
@@ -55,6 +56,8 @@ class Hub:
         self.source_done = False
         self.dropped_total = 0          # summed over every client
         self.closing = False            # the server stops: every stream ends
+        #: a live source: an unanswered request is a timeout after this long (None: a recording)
+        self.expire_s: Optional[float] = PENDING_S
 
     # -- the source side (any thread) -----------------------------------------
     def set_baud(self, baud: int, bin_s: Optional[float] = None) -> None:
@@ -66,10 +69,11 @@ class Hub:
     def publish(self, recs: Iterable[Record]) -> None:
         """Decoded records, in order; never blocks on a browser."""
         added = False
+        wall = time.monotonic()
         with self._lock:
             for rec in recs:
                 node, role = self._annotator.annotate(rec)
-                self.table.add(rec, node, role)
+                self.table.add(rec, node, role, wall)
                 self._seq += 1
                 line = json.dumps(to_json(rec), separators=(",", ":"))
                 self._ring.append(Entry(self._seq, rec, line, node, role))
@@ -84,6 +88,8 @@ class Hub:
     def finished(self, error: Optional[str] = None) -> None:
         """The source ended (a capture read to its end, or an error)."""
         with self._lock:
+            if self.expire_s is None:           # a recording: its last request is known unanswered
+                self.table.finish()
             self.source_done = True
             self.source_error = error
         self._wake()
@@ -153,6 +159,8 @@ class Hub:
     def snapshot(self) -> Dict[str, Any]:
         """Node table, series and totals (what the page's ``stats`` event carries)."""
         with self._lock:
+            if self.expire_s is not None:
+                self.table.expire(time.monotonic(), self.expire_s)
             first = self._ring[0].seq if self._ring else None
             return {"nodes": self.table.table(), "series": self.table.series(),
                     "totals": {**self.table.totals(), "seq": self._seq, "ring_first": first,
@@ -165,6 +173,8 @@ class Hub:
         t = NodeTable(baud, bin_s)
         for e in entries:
             t.add(e.rec, e.node, e.role)
+        if entries and self.source_done and entries[-1].seq == self._seq:
+            t.finish()                          # the window reaches the recording's end
         return {"nodes": t.table(), "series": t.series(), "totals": t.totals()}
 
 

@@ -11,6 +11,8 @@ Rules (docs/web.md):
 - a request while an earlier one is still unanswered counts a timeout for the
   earlier one's node (a master sends its next request after its timeout), unless
   a bad frame came in its place (counted as that node's error instead);
+- a live source's request still unanswered :data:`PENDING_S` seconds (wall time)
+  after it came is a timeout too (a quiet bus after a lost reply);
 - a bad frame (CRC, check, garbage ...) while a request is pending is the polled
   node's error, else it is unattributed (node ``"?"``);
 - a collision (a virtual-bus capture event) while a request is pending is the
@@ -30,6 +32,8 @@ from ..monitor.decoders import plugin
 REPLY_WINDOW = 1024
 #: a node is "live" when it sent or was sent a frame in the last this many seconds
 LIVE_S = 5.0
+#: a live request unanswered this long (wall time, seconds) is counted as a timeout
+PENDING_S = 1.0
 #: points kept per plot series
 SERIES_POINTS = 300
 
@@ -110,7 +114,7 @@ class NodeTable:
                     del self._bins[k]
         return b
 
-    def add(self, rec: Record, node: Optional[str], role: Optional[str]) -> None:
+    def add(self, rec: Record, node: Optional[str], role: Optional[str], wall: float = 0.0) -> None:
         t = rec.t
         if t is not None:
             self.t_last = max(self.t_last or t, rec.t_end if rec.t_end is not None else t)
@@ -140,7 +144,7 @@ class NodeTable:
         if role == "req":
             self._close_pending()
             nd.requests += 1
-            self._pending = [node, rec.t_end, False]
+            self._pending = [node, rec.t_end, False, wall]
         elif role == "ans":
             nd.replies += 1
             nd.answered_last = True
@@ -161,6 +165,17 @@ class NodeTable:
             nd.timeouts += 1
             nd.answered_last = False
         self._pending = None
+
+    def expire(self, wall: float, after_s: float = PENDING_S) -> None:
+        """A pending request older than ``after_s`` (by the ``wall`` clock of :meth:`add`):
+        a timeout now."""
+        pend = self._pending
+        if pend is not None and not pend[2] and wall - pend[3] >= after_s:
+            self._close_pending()
+
+    def finish(self) -> None:
+        """The recording ended: a request still unanswered timed out."""
+        self._close_pending()
 
     def collision(self, t: Optional[float]) -> None:
         self.collisions += 1
