@@ -28,8 +28,8 @@ and, for a simulator, its faults switched per node. Needs aiohttp
 (pip install 'fap_py[web]'). Loopback only unless a token is given (--token or
 FAP_WEB_TOKEN). See docs/web.md.
 
-exit: 0 stopped by SIGINT/SIGTERM, 2 usage error (aiohttp missing included),
-      3 port, file or address error"""
+exit: 0 stopped by SIGINT or SIGTERM (with the summary), 2 usage error
+      (aiohttp missing included), 3 port, file or address error"""
 
 
 def http_address(text: str) -> Tuple[str, int]:
@@ -51,8 +51,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="required on every API request (default: $FAP_WEB_TOKEN); needed to serve "
                         "on an address other than loopback")
     src = p.add_argument_group("source (one of)")
+    from fap_py.monitor.session import LIVE_BAUD
+
     opt.add_port_options(p, baud_default=None, port_required=False, rs485_default="none",
-                         port_help="a live serial port or URL, opened receive-only")
+                         port_help="a live serial port or URL, opened receive-only",
+                         baud_help=f"line rate: opens --port at it ({LIVE_BAUD} if not given); a "
+                         "capture's own rate if not given")
     src.add_argument("--sim", metavar="CONFIG", help="run the simulator of this config here; its "
                      "faults are switched from the page")
     src.add_argument("--bus", metavar="NAME", help="--sim: the bus shown (default the first)")
@@ -109,12 +113,19 @@ def run(args: argparse.Namespace) -> int:
             with server.start():
                 url = server.url + (f"#token={token}" if token else "")
                 info = source.describe()
-                opt.emit(args, {"event": "listening", "url": server.url, "source": info},
+                opt.emit(args, {"event": "ready", "url": server.url, "source": info},
                          f"fap web: {info['kind']} on {url}"
                          + (f"\nfap web: master port {info['master_port']}" if info.get("master_port") else ""))
                 sys.stdout.flush()
                 while not stop.wait(0.5):
                     pass
+                snap = server.hub.snapshot()
+            t = snap["totals"]
+            opt.emit(args, {"event": "stopped", "frames": t["frames"], "bad": t["bad"],
+                            "collisions": t["collisions"], "dropped": t["dropped_total"],
+                            "source_error": snap["source"]["error"]},
+                     f"fap web: stopped: {t['frames']} frames ({t['bad']} bad), "
+                     f"{t['dropped_total']} dropped for slow browsers")
         finally:
             for s, h in old.items():
                 signal.signal(s, h)

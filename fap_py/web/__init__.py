@@ -23,6 +23,7 @@ from typing import Any, Optional
 from .._closing import Closing
 from .._validate import check_int, check_seconds
 from ..errors import ClosedError, FapError, InvalidTypeError, InvalidValueError
+from ._access import is_loopback
 from ._hub import Hub
 from ._sources import CaptureSource, NoFaultsError, PortSource, SimSource, Source
 
@@ -78,9 +79,7 @@ class WebServer(Closing):
                 raise InvalidTypeError(f"token must be a str, not {type(token).__name__}")
             if len(token) < 8 or not token.isascii() or not token.isprintable() or " " in token:
                 raise WebAccessError("a token is at least 8 printable ASCII characters, no spaces")
-        from ._server import _is_loopback
-
-        if token is None and not _is_loopback(host):
+        if token is None and not is_loopback(host):
             raise WebAccessError(f"serving on {host} (not loopback) needs a token (--token, or "
                                  "FAP_WEB_TOKEN)")
         if ring is not None:

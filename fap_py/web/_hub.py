@@ -162,7 +162,8 @@ class Hub:
             if self.expire_s is not None:
                 self.table.expire(time.monotonic(), self.expire_s)
             first = self._ring[0].seq if self._ring else None
-            return {"nodes": self.table.table(), "series": self.table.series(),
+            live = self.expire_s is not None and not self.source_done
+            return {"nodes": self.table.table(), "series": self.table.series(complete_only=live),
                     "totals": {**self.table.totals(), "seq": self._seq, "ring_first": first,
                                "ring_capacity": self.capacity, "dropped_total": self.dropped_total,
                                "clients": len(self.clients)},

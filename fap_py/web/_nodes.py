@@ -199,9 +199,13 @@ class NodeTable:
             })
         return rows
 
-    def series(self) -> Dict[str, Any]:
-        """The last SERIES_POINTS bins: frames/s, bus load (share of the wire), reply ms per node."""
-        keys = sorted(self._bins)[-SERIES_POINTS:]
+    def series(self, complete_only: bool = False) -> Dict[str, Any]:
+        """The last SERIES_POINTS bins: frames/s, bus load (share of the wire), reply ms per node;
+        ``complete_only``: without the newest bin (a live source is still filling it)."""
+        keys = sorted(self._bins)
+        if complete_only:
+            keys = keys[:-1]
+        keys = keys[-SERIES_POINTS:]
         cap = self.baud / 10.0 * self.bin_s if self.baud else 0.0
         reply: Dict[str, List[Optional[float]]] = {}
         for j, k in enumerate(keys):

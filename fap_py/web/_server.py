@@ -9,7 +9,6 @@ from __future__ import annotations
 import asyncio
 import hmac
 import io
-import ipaddress
 import json
 import logging
 import os
@@ -19,6 +18,7 @@ from aiohttp import web
 
 from ..errors import FapError
 from ..monitor.pcap import PcapWriter
+from ._access import host_name, is_loopback
 from ._hub import Entry, Hub
 from ._sources import Source
 
@@ -54,20 +54,6 @@ def envelope(e: Entry) -> str:
             f'"frame":{e.line}}}')
 
 
-def _host_name(host: str) -> str:
-    """The name of a Host header: ``[::1]:80`` -> ``::1``, ``localhost:80`` -> ``localhost``."""
-    if host.startswith("["):
-        return host[1:host.find("]")] if "]" in host else host
-    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
-
-
-def _is_loopback(host: str) -> bool:
-    try:
-        return ipaddress.ip_address(host.strip("[]")).is_loopback
-    except ValueError:
-        return host == "localhost"
-
-
 class App:
     """The aiohttp application over one source and its hub."""
 
@@ -94,8 +80,8 @@ class App:
     async def _guard(self, request: web.Request, handler: Handler) -> web.StreamResponse:
         """Loopback without a token: any local page, but the Host must be a loopback name
         (no DNS rebinding). With a token: every /api/ request carries it, control ones too."""
-        host = _host_name(request.host or "")
-        if self.token is None and not _is_loopback(host):
+        host = host_name(request.host or "")
+        if self.token is None and not is_loopback(host):
             return _error(403, "Host is not a loopback address (run with --token to serve others)")
         if request.path.startswith("/api/") and self.token is not None:
             given = request.query.get("token", "")

@@ -10,7 +10,7 @@
   const exported = $("fap-export");
   const state = {
     info: null, frames: [], paused: false, dropped: 0, stats: null, until: null,
-    selected: null, protocols: new Set(), faults: null, dirty: true, exportData: null,
+    selected: null, protocols: new Set(), faults: null, faultTick: 0, dirty: true, exportData: null,
     token: new URLSearchParams(location.hash.slice(1)).get("token"),
   };
 
@@ -190,17 +190,31 @@
   }
 
   function renderFaults() {
+    // rows built once (a select the user is on is never redrawn); switches updated in place
     const f = state.faults;
     const body = $("fault-nodes").tBodies[0];
+    const key = f.nodes.map((n) => n.address).join(",") + "|" + f.kinds.join(",");
+    if (body.dataset.key !== key) {
+      body.dataset.key = key;
+      const opts = f.kinds.map((k) => "<option>" + esc(k) + "</option>").join("");
+      body.innerHTML = f.nodes.map((n) => "<tr data-node=\"" + n.address + "\"><td>" + n.address +
+        "</td><td><select>" + opts + "</select></td><td><button type=\"button\" class=\"fault-toggle\">" +
+        "switch on</button></td></tr>").join("");
+    }
     const active = {};
     for (const x of f.faults) active[String(x.node)] = x;
-    body.innerHTML = f.nodes.map((n) => {
-      const on = active[String(n.address)];
-      const opts = f.kinds.map((k) => "<option" + (on && on.kind === k ? " selected" : "") + ">" + esc(k) + "</option>").join("");
-      return "<tr data-node=\"" + n.address + "\"><td>" + n.address + "</td><td><select>" + opts +
-        "</select></td><td><button type=\"button\" class=\"fault-toggle\" data-on=\"" + (on ? on.id : "") + "\">" +
-        (on ? "switch off" : "switch on") + "</button></td></tr>";
-    }).join("");
+    for (const row of body.rows) {
+      const on = active[row.dataset.node];
+      const btn = row.querySelector("button");
+      const id = on ? String(on.id) : "";
+      if (btn.dataset.on !== id || btn.disabled) {
+        btn.dataset.on = id;
+        btn.textContent = on ? "switch off" : "switch on";
+        btn.disabled = false;
+        if (on) row.querySelector("select").value = on.kind;
+      }
+      row.className = on ? "fault-on" : "";
+    }
     $("fault-list").innerHTML = f.faults.map((x) => "<li>#" + x.id + " " + esc(x.kind) + " node " + esc(x.node) +
       " p=" + x.probability + " applied " + (x.applied || 0) + "</li>").join("") || "<li>no fault in force</li>";
   }
@@ -293,7 +307,7 @@
       else if (s.source.done) { text(st, "ended"); st.className = "pill ended"; }
       else if (state.paused) { text(st, "paused"); st.className = "pill paused"; }
       else { text(st, "live"); st.className = "pill live"; }
-      if (state.faults && !state.paused) loadFaults();
+      if (state.faults && !state.paused && ++state.faultTick % 4 === 0) loadFaults();   // every 2 s
     });
     es.onerror = () => { const st = $("status"); text(st, "reconnecting"); st.className = "pill paused"; };
   }

@@ -80,9 +80,10 @@ def node_rows(url: str) -> Dict[str, Dict[str, Any]]:
 
 
 class Poller:
-    """A real exec async master (the C engine) polling the sim's nodes in a thread."""
+    """A real exec async master (the C engine) polling the sim's nodes in a thread. Its
+    timeout is generous: a late reply (a loaded machine) would collide with the next request."""
 
-    def __init__(self, port: str, nodes=NODES, timeout: float = 0.03) -> None:
+    def __init__(self, port: str, nodes=NODES, timeout: float = 0.3) -> None:
         from fap_py import execasync
 
         self.master = execasync.Master(port, 115200, timeout=timeout, retries=0)
