@@ -148,7 +148,7 @@ class CaptureSource(Source):
         times = [r.t for r in recs if r.t is not None]
         if times:
             self.span = [min(times), max(times)]
-            hub.set_baud(self.baud, max(0.001, (self.span[1] - self.span[0]) / 200.0))
+            hub.set_baud(self.baud, max(0.001, (self.span[1] - self.span[0]) / 100.0))
         else:
             hub.set_baud(self.baud)
         collisions = [e.t_us / 1e6 for e in iter_capture_file(self.path)

@@ -151,8 +151,9 @@
     ctx.fillText("0", 2, h - 14);
     if (xs.length < 1) { ctx.fillText("no data yet", w / 2 - 25, h / 2); return; }
     const x0 = xs[0], x1 = xs[xs.length - 1] > x0 ? xs[xs.length - 1] : x0 + 1;
-    ctx.fillText(x0.toFixed(1) + " s", pad, h - 2);
-    ctx.fillText(x1.toFixed(1) + " s", w - 50, h - 2);
+    const digits = x1 - x0 < 1 ? 3 : 1;
+    ctx.fillText(x0.toFixed(digits) + " s", pad, h - 2);
+    ctx.fillText(x1.toFixed(digits) + " s", w - 60, h - 2);
     const X = (x) => pad + (x - x0) / (x1 - x0) * (w - pad - 6);
     const Y = (y) => h - 14 - Math.min(y, ymax) / ymax * (h - 22);
     lines.forEach((l) => {
@@ -160,12 +161,14 @@
       ctx.lineWidth = 1.5;
       ctx.beginPath();
       let pen = false;
-      l.values.forEach((v, i) => {
-        if (v === null) { pen = false; return; }
+      l.values.forEach((v, i) => {        // a bin without a value is bridged, not a gap
+        if (v === null) return;
         if (pen) ctx.lineTo(X(xs[i]), Y(v)); else ctx.moveTo(X(xs[i]), Y(v));
         pen = true;
       });
       ctx.stroke();
+      ctx.fillStyle = l.color;
+      l.values.forEach((v, i) => { if (v !== null) ctx.fillRect(X(xs[i]) - 1, Y(v) - 1, 2, 2); });
     });
   }
 

@@ -2,7 +2,7 @@
 sim's bus polled by the C exec async master. Live frames and the node table fill in and
 agree with the engine; a fault switched from the page shows as timeouts and stops when
 switched off; a capture loads, its slider moves the window, the pcap download opens in
-tshark. Each flow saves a screenshot; the console must stay free of errors. Skips without
+tshark, the self-contained HTML export works offline. Each flow saves a screenshot; the console must stay free of errors. Skips without
 chromium / chromedriver / selenium unless CI is set."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import subprocess
 import sys
 
 import pytest
-from web_helpers import NODES, SITE, WAIT_S, Poller, get_json, need_tool, node_rows, wait_until
+from web_helpers import NODES, SITE, WAIT_S, Poller, get, get_json, need_tool, node_rows, wait_until
 
 pytest.importorskip("aiohttp")
 try:
@@ -186,7 +186,19 @@ def test_capture_loads_slider_moves_pcap_opens_in_tshark(browser, tmp_path):
         pcap = d.downloads / "fap-web.pcap"
         wait_page(lambda: pcap.exists() and pcap.stat().st_size > 24, "the pcap download")
         assert severe(d) == []
+        export = tmp_path / "export.html"
+        export.write_bytes(get(cs.url + "api/export.html")[1])
         d.get("about:blank")
+    # the self-contained export, offline (file://, the server gone): frames, table, slider
+    d.get(export.as_uri())
+    wait_page(lambda: d.find_element(By.ID, "shown").text.startswith(f"{n} of {n} frames"), "the export's frames")
+    assert int(cell(d, 1, "requests")) == rounds and d.find_element(By.ID, "status").text == "export"
+    slider = d.find_element(By.ID, "slider")
+    d.execute_script("arguments[0].value = 500; arguments[0].dispatchEvent(new Event('input'));", slider)
+    wait_page(lambda: 0 < int(cell(d, 1, "requests")) < rounds, "the export's slider")
+    d.save_screenshot(str(tmp_path / "export.png"))
+    assert severe(d) == []
+    d.get("about:blank")
     tshark = need_tool("tshark")
     lua = tmp_path / "lua"
     subprocess.run([sys.executable, "-m", "fap_py", "monitor", "--dissectors", str(lua)], check=True,
