@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         try:
             with server.start():
-                url = server.url + (f"#token={token}" if token else "")
+                url = f"{server.url}{'#token=' + token if token else ''}"
                 info = source.describe()
                 opt.emit(args, {"event": "ready", "url": server.url, "source": info},
                          f"fap web: {info['kind']} on {url}"

@@ -48,7 +48,7 @@ def aiohttp_module() -> Any:
     """aiohttp, or MissingDependencyError naming the extra."""
     try:
         import aiohttp
-        import aiohttp.web  # noqa: F401
+        import aiohttp.web
     except ImportError:
         raise MissingDependencyError(INSTALL_HINT) from None
     return aiohttp

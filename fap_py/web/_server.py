@@ -170,7 +170,7 @@ class App:
                                       for k in ("seq0", "seq1", "t0", "t1") if k in q}
         except ValueError:
             raise web.HTTPBadRequest(text=json.dumps({"ok": False, "error": "seq0/seq1 are whole numbers, "
-                                                      "t0/t1 seconds"}), content_type="application/json")
+                                                      "t0/t1 seconds"}), content_type="application/json") from None
         return self.hub.window(**bounds)
 
     async def _stats(self, request: web.Request) -> web.StreamResponse:

@@ -9,11 +9,22 @@ import subprocess
 import sys
 
 import pytest
-from web_helpers import NODES, SITE, SSE, Poller, frames_of, get, get_json, need_tool, node_rows, send, wait_until
+from web_helpers import (
+    NODES,
+    SITE,
+    SSE,
+    Poller,
+    get,
+    get_json,
+    need_tool,
+    node_rows,
+    send,
+    wait_until,
+)
 
 pytest.importorskip("aiohttp")
 
-from fap_py.web import CaptureSource, SimSource, WebServer  # noqa: E402
+from fap_py.web import CaptureSource, SimSource, WebServer
 
 
 @pytest.fixture()

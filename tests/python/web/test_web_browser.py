@@ -24,7 +24,7 @@ except ImportError:  # pragma: no cover - the test extra has it
         raise
     pytest.skip("selenium not installed", allow_module_level=True)
 
-from fap_py.web import CaptureSource, SimSource, WebServer  # noqa: E402
+from fap_py.web import CaptureSource, SimSource, WebServer
 
 pytestmark = pytest.mark.timeout(90)
 

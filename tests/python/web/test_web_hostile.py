@@ -4,7 +4,6 @@ stream of a well-behaved browser keeps flowing, the API keeps answering, the sou
 slowed (its frames keep coming in at the bus's pace)."""
 from __future__ import annotations
 
-import json
 import socket
 import threading
 import time
@@ -14,8 +13,8 @@ from web_helpers import SITE, SSE, WAIT_S, Poller, get_json, send, wait_until
 
 pytest.importorskip("aiohttp")
 
-from fap_py.web import SimSource, WebServer  # noqa: E402
-from fap_py.web._server import MAX_STREAMS  # noqa: E402
+from fap_py.web import SimSource, WebServer
+from fap_py.web._server import MAX_STREAMS
 
 SLOW = 100          # connections that send half a request line and stop
 

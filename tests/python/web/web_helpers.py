@@ -89,7 +89,7 @@ class Poller:
         self.master = execasync.Master(port, 115200, timeout=timeout, retries=0)
         self.nodes = nodes
         self.rounds = 0
-        self.errors: Dict[int, int] = {n: 0 for n in nodes}
+        self.errors: Dict[int, int] = dict.fromkeys(nodes, 0)
         self._stop = threading.Event()
         self._idle = threading.Event()
         self._go = threading.Event()
