@@ -56,9 +56,10 @@ class Source:
                 "decoding": None if self.monitor is None else self.monitor.locked,
                 "baud": self.baud, "faults": self.has_faults, "seekable": self.seekable}
 
-    def run(self, hub: Hub, stop: threading.Event) -> None:   # pragma: no cover - abstract
-        """Decode the input into ``hub`` until it ends or ``stop`` is set."""
-        raise NotImplementedError
+    def run(self, hub: Hub, stop: threading.Event) -> None:
+        """Decode the input into ``hub`` until it ends or ``stop`` is set (a subclass's)."""
+        self._check_run(hub, stop)
+        raise InvalidValueError(f"{type(self).__name__} has no run(): a Source subclass implements it")
 
     def close(self) -> None:
         """Release what :meth:`open` took (called once the thread ended)."""
@@ -77,6 +78,13 @@ class Source:
         raise NoFaultsError(f"a {self.kind} source has no fault controls")
 
     # -- shared ---------------------------------------------------------------
+    @staticmethod
+    def _check_run(hub: Any, stop: Any) -> None:
+        if not isinstance(hub, Hub):
+            raise InvalidTypeError(f"hub must be the server's Hub, not {type(hub).__name__}")
+        if not isinstance(stop, threading.Event):
+            raise InvalidTypeError(f"stop must be a threading.Event, not {type(stop).__name__}")
+
     def _monitor(self, baud: int) -> Monitor:
         self.monitor = Monitor(self.protocol, baud)
         return self.monitor
@@ -101,6 +109,7 @@ class PortSource(Source):
         self._live = LivePort(self.path, self.baud, self.rs485)
 
     def run(self, hub: Hub, stop: threading.Event) -> None:
+        self._check_run(hub, stop)
         live = self._live
         if live is None:
             raise InvalidValueError("PortSource.run before open()")
@@ -127,6 +136,7 @@ class CaptureSource(Source):
         super().__init__(protocol, baud)
         self.path = check_path(path, "capture")
         self.span: Optional[List[float]] = None
+        self._chunks: Optional[Iterator[Any]] = None
 
     def describe(self) -> Dict[str, Any]:
         return {**super().describe(), "capture": self.path, "span": self.span}
@@ -135,9 +145,12 @@ class CaptureSource(Source):
         # the header now: a missing or bad file is an error before the server starts
         cap_baud, chunks = capture_file(self.path)
         self.baud = self.baud or cap_baud
-        self._chunks: Iterator[Any] = chunks
+        self._chunks = chunks
 
     def run(self, hub: Hub, stop: threading.Event) -> None:
+        self._check_run(hub, stop)
+        if self._chunks is None:
+            raise InvalidValueError("CaptureSource.run before open()")
         mon = self._monitor(self.baud)
         recs = []
         for chunk in self._chunks:
@@ -241,6 +254,7 @@ class SimSource(Source):
         self.baud = self.sim.buses[self.bus_index].vbus.baud
 
     def run(self, hub: Hub, stop: threading.Event) -> None:
+        self._check_run(hub, stop)
         if self.capture is None:
             raise InvalidValueError("SimSource.run before open()")
         mon = self._monitor(self.baud)
