@@ -17,6 +17,7 @@ from . import _options as opt
 
 EXAMPLE = """\
 fap web --sim site.toml                      # the sim's bus, faults switched from the page
+fap web --sim unix:/tmp/sim.sock --tap bus.cap   # a running fap sim (its bus's virtual.capture)
 fap web --port /dev/ttyUSB0 --baud 115200 --protocol exec
 fap web --capture bus.cap                    # a recording, with a time slider
 fap web --http 0.0.0.0:8485 --token SECRET --sim site.toml"""
@@ -57,8 +58,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                          port_help="a live serial port or URL, opened receive-only",
                          baud_help=f"line rate: opens --port at it ({LIVE_BAUD} if not given); a "
                          "capture's own rate if not given")
-    src.add_argument("--sim", metavar="CONFIG", help="run the simulator of this config here; its "
-                     "faults are switched from the page")
+    src.add_argument("--sim", metavar="CONFIG", help="run the simulator of this config here, or "
+                     "unix:PATH: a running `fap sim --control unix:PATH` (with --tap); its faults are "
+                     "switched from the page")
+    src.add_argument("--tap", metavar="FILE", help="--sim unix:PATH: the capture its bus writes "
+                     "(the config's virtual.capture), followed as it grows")
     src.add_argument("--bus", metavar="NAME", help="--sim: the bus shown (default the first)")
     src.add_argument("--capture", metavar="FILE", help="a virtual-bus capture (fap bus --capture)")
 
@@ -82,10 +86,16 @@ def _source(args: argparse.Namespace) -> Any:
                              + (f", not {' and '.join('--' + n for n in given)}" if given else ""))
     if args.bus and not args.sim:
         raise opt.UsageError("--bus needs --sim")
+    remote = bool(args.sim and args.sim.startswith("unix:"))
+    if remote != bool(args.tap):
+        raise opt.UsageError("--tap goes with --sim unix:PATH (a running sim's control socket), and "
+                             "it needs one")
     if args.port:
         return web.PortSource(args.port, args.baud or 0, args.protocol or "auto", opt.rs485_from_args(args))
     if args.capture:
         return web.CaptureSource(args.capture, args.protocol or "auto", args.baud or 0)
+    if remote:
+        return web.SimControlSource(args.sim, args.tap, bus=args.bus, protocol=args.protocol)
     return web.SimSource(args.sim, bus=args.bus, protocol=args.protocol)
 
 

@@ -25,7 +25,7 @@ from .._validate import check_int, check_seconds
 from ..errors import ClosedError, FapError, InvalidTypeError, InvalidValueError
 from ._access import is_loopback
 from ._hub import Hub
-from ._sources import CaptureSource, NoFaultsError, PortSource, SimSource, Source
+from ._sources import CaptureSource, NoFaultsError, PortSource, SimControlSource, SimSource, Source
 
 log = logging.getLogger("fap_py.web")
 
@@ -204,5 +204,5 @@ class WebServer(Closing):
 
 
 __all__ = ["CaptureSource", "DEFAULT_PORT", "INSTALL_HINT", "MissingDependencyError", "NoFaultsError",
-           "PortSource", "RING", "SimSource", "Source", "WebAccessError", "WebServer", "aiohttp_module",
+           "PortSource", "RING", "SimControlSource", "SimSource", "Source", "WebAccessError", "WebServer", "aiohttp_module",
            "new_token"]

@@ -17,7 +17,7 @@ import threading
 import time
 from typing import Any, Dict, Iterator, List, Optional
 
-from .._validate import check_baud, check_int, check_path
+from .._validate import check_baud, check_int, check_path, check_seconds
 from ..errors import InvalidTypeError, InvalidValueError
 from ..monitor.core import Monitor
 from ..monitor.session import LIVE_BAUD, protocol_choice
@@ -179,6 +179,14 @@ class CaptureSource(Source):
             hub.collision(t)
 
 
+def _has_line(path: str) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return b"\n" in fh.read(4096)
+    except OSError:
+        return False
+
+
 def _tail_lines(path: str, stop: threading.Event) -> Iterator[str]:
     """The lines of a file being written, as they come, until ``stop``."""
     with open(path, "r", encoding="ascii", errors="replace") as fh:
@@ -193,6 +201,25 @@ def _tail_lines(path: str, stop: threading.Event) -> Iterator[str]:
             if len(rest) > 65536:
                 raise CaptureFormatError(f"{path}: a line longer than 64 KiB")
             yield from lines
+
+
+def _follow_capture(src: Source, path: str, baud: int, hub: Hub, stop: threading.Event) -> None:
+    """Decode a virtual-bus capture as the bus writes it (a tap), until ``stop``."""
+    mon = src._monitor(baud)
+    hub.set_baud(baud)
+    char_s = char_seconds(baud)
+    last_data = time.monotonic_ns()
+    for item in iter_capture(_tail_lines(path, stop)):
+        now = time.monotonic_ns()
+        if isinstance(item, CaptureRecord):
+            hub.publish(mon.feed(item.data, item.t_us / 1e6, char_s, item.port, now))
+            last_data = now
+        elif isinstance(item, CaptureEvent) and item.kind == "collision":
+            hub.collision(item.t_us / 1e6)
+        deadline = mon.idle_deadline()
+        if deadline is not None and now >= deadline and now > last_data:
+            hub.publish(mon.idle(now))
+    hub.publish(mon.finish())
 
 
 class SimSource(Source):
@@ -257,21 +284,7 @@ class SimSource(Source):
         self._check_run(hub, stop)
         if self.capture is None:
             raise InvalidValueError("SimSource.run before open()")
-        mon = self._monitor(self.baud)
-        hub.set_baud(self.baud)
-        char_s = char_seconds(self.baud)
-        last_data = time.monotonic_ns()
-        for item in iter_capture(_tail_lines(self.capture, stop)):
-            now = time.monotonic_ns()
-            if isinstance(item, CaptureRecord):
-                hub.publish(mon.feed(item.data, item.t_us / 1e6, char_s, item.port, now))
-                last_data = now
-            elif isinstance(item, CaptureEvent) and item.kind == "collision":
-                hub.collision(item.t_us / 1e6)
-            deadline = mon.idle_deadline()
-            if deadline is not None and now >= deadline and now > last_data:
-                hub.publish(mon.idle(now))
-        hub.publish(mon.finish())
+        _follow_capture(self, self.capture, self.baud, hub, stop)
 
     def close(self) -> None:
         if self.sim is not None:
@@ -324,8 +337,137 @@ class SimSource(Source):
         return list(self.sim.remove_fault(fid))
 
 
+class SimControlSource(Source):
+    """A sim running elsewhere (``fap sim CONFIG --control unix:PATH``): its faults through
+    its control socket (docs/sim.md, "Control protocol"), its frames from the capture its
+    bus writes (the config's ``virtual.capture``: ``tap``), followed as it grows."""
+
+    kind = "sim"
+    has_faults = True
+
+    def __init__(self, control: str, tap: str, bus: Optional[str] = None, protocol: Optional[str] = None,
+                 timeout: float = 5.0) -> None:
+        if not isinstance(control, str) or not control.startswith("unix:") or len(control) <= 5 \
+                or "\0" in control:
+            raise InvalidValueError(f"control must be unix:PATH (fap sim --control), not {control!r}")
+        if bus is not None and not isinstance(bus, str):
+            raise InvalidTypeError(f"bus must be a bus name (str), not {type(bus).__name__}")
+        super().__init__(protocol or "auto", 0)
+        self.control, self.path = control, control[5:]
+        self.tap = check_path(tap, "tap")
+        self.timeout = check_seconds(timeout, "timeout")
+        self.bus_name = bus
+        self._explicit = protocol is not None
+        self._status: Dict[str, Any] = {}
+
+    def _request(self, obj: Dict[str, Any]) -> Dict[str, Any]:
+        """One control request, one answer line (FileError: nobody answers there)."""
+        import json
+        import socket
+
+        from ..errors import FileError
+        from ..sim import FaultError
+
+        s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        s.settimeout(self.timeout)
+        try:
+            try:
+                s.connect(self.path)
+                s.sendall(json.dumps(obj).encode() + b"\n")
+                buf = b""
+                while b"\n" not in buf:
+                    data = s.recv(65536)
+                    if not data or len(buf) > (1 << 22):
+                        raise FaultError(f"{self.control}: no answer line from the sim")
+                    buf += data
+            except socket.timeout:
+                raise FaultError(f"{self.control}: no answer within {self.timeout} s") from None
+            except OSError as exc:
+                raise FileError(exc.errno or 2, f"control socket: {exc.strerror} (is `fap sim "
+                                f"--control {self.control}` running?)", self.path) from None
+        finally:
+            s.close()
+        try:
+            ans = json.loads(buf.split(b"\n", 1)[0])
+        except ValueError:
+            raise FaultError(f"{self.control}: the answer is not JSON") from None
+        if not isinstance(ans, dict) or not ans.get("ok"):
+            raise FaultError(str(ans.get("error") if isinstance(ans, dict) else ans))
+        return ans
+
+    def _bus(self) -> Dict[str, Any]:
+        st = self._status = self._request({"cmd": "status"})
+        buses = st.get("buses", [])
+        names = [b.get("name") for b in buses]
+        if not buses or (self.bus_name is not None and self.bus_name not in names):
+            raise InvalidValueError(f"bus must be one of {', '.join(map(str, names))}, not {self.bus_name!r}")
+        return buses[0] if self.bus_name is None else buses[names.index(self.bus_name)]
+
+    def open(self) -> None:
+        b = self._bus()
+        self.bus_name = b["name"]
+        if not self._explicit:
+            self.protocol = protocol_choice(b["protocol"])
+        # the tap's header has the bus's rate; a bus flushes its header within 50 ms of opening,
+        # so a sim that just started gets up to `timeout` for it (then an empty file is said)
+        deadline = time.monotonic() + self.timeout
+        while time.monotonic() < deadline and not _has_line(self.tap):
+            threading.Event().wait(TAIL_POLL_S)
+        cap_baud, _unread = capture_file(self.tap)
+        self.baud = cap_baud
+
+    def describe(self) -> Dict[str, Any]:
+        bus: Dict[str, Any] = next((b for b in self._status.get("buses", []) if b.get("name") == self.bus_name), {})
+        return {**super().describe(), "bus": self.bus_name, "control": self.control, "tap": self.tap,
+                "master_port": bus.get("master_port"), "nodes": [n["address"] for n in bus.get("nodes", [])]}
+
+    def run(self, hub: Hub, stop: threading.Event) -> None:
+        self._check_run(hub, stop)
+        _follow_capture(self, self.tap, self.baud, hub, stop)
+
+    def faults(self) -> Dict[str, Any]:
+        b = self._bus()
+        faults = self._request({"cmd": "fault.list"})["faults"]
+        from ..errors import FapError
+        from ..sim import plugin
+
+        try:
+            kinds = list(plugin(b["protocol"]).FAULTS)     # the kinds its protocol implements
+        except FapError:                                   # a protocol this install lacks
+            kinds = sorted({k for n in b.get("nodes", []) for k in n.get("faults", {})})
+        return {"faults": [f for f in faults if f.get("bus") in (None, self.bus_name)], "kinds": kinds,
+                "nodes": b.get("nodes", []), "faults_applied": self._status.get("faults_applied", {}),
+                "fault_changes": self._status.get("fault_changes", 0)}
+
+    def add_fault(self, request: Dict[str, Any]) -> Dict[str, Any]:
+        from ..sim import FaultError
+
+        if not isinstance(request, dict):
+            raise InvalidTypeError(f"a fault is a JSON object, not {type(request).__name__}")
+        extra = set(request) - FAULT_KEYS
+        if extra:
+            raise FaultError(f"unknown key(s) {', '.join(sorted(map(str, extra)))} "
+                             f"(known: {', '.join(sorted(FAULT_KEYS))})")
+        if not isinstance(request.get("kind"), str):
+            raise FaultError("a fault needs 'kind' (a str)")
+        req = {"cmd": "fault.add", "bus": self.bus_name, **request}
+        return dict(self._request(req)["fault"])
+
+    def remove_fault(self, fid: Any) -> List[Dict[str, Any]]:
+        from ..sim import FaultError
+
+        if fid != "all" and (isinstance(fid, bool) or not isinstance(fid, int)):
+            raise FaultError(f"a fault id is an int or 'all', not {fid!r}")
+        if fid == "all":
+            out: List[Dict[str, Any]] = []
+            for f in self.faults()["faults"]:
+                out += self._request({"cmd": "fault.remove", "id": f["id"]})["removed"]
+            return out
+        return list(self._request({"cmd": "fault.remove", "id": fid})["removed"])
+
+
 #: what a fault request may hold (the sim control socket's ``fault.add`` keys)
 FAULT_KEYS = frozenset({"kind", "node", "bus", "probability", "ms", "seed"})
 
 
-__all__ = ["CaptureSource", "NoFaultsError", "PortSource", "SimSource", "Source"]
+__all__ = ["CaptureSource", "NoFaultsError", "PortSource", "SimControlSource", "SimSource", "Source"]

@@ -396,7 +396,8 @@ COVERED = {
     # --- end sim ---
     # --- web: fap_py.web's sources (test_web_sources_refuse_hostile_arguments) ---
     "Source.run", "Source.add_fault", "Source.remove_fault", "PortSource.run", "CaptureSource.run",
-    "SimSource.run", "SimSource.add_fault", "SimSource.remove_fault",
+    "SimSource.run", "SimSource.add_fault", "SimSource.remove_fault", "SimControlSource.run",
+    "SimControlSource.add_fault", "SimControlSource.remove_fault",
     # --- end web ---
 }
 
@@ -408,7 +409,7 @@ def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
     import threading
 
     from fap_py.errors import FapError
-    from fap_py.web import CaptureSource, PortSource, SimSource, Source
+    from fap_py.web import CaptureSource, PortSource, SimControlSource, SimSource, Source
     from fap_py.web._hub import Hub
 
     cap = tmp_path / "b.cap"
@@ -417,7 +418,8 @@ def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
     sim = SimSource(site)
     sim.open()
     try:
-        sources = [Source(), PortSource("/nonexistent/port", 9600), CaptureSource(str(cap)), sim]
+        sources = [Source(), PortSource("/nonexistent/port", 9600), CaptureSource(str(cap)), sim,
+                   SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap), timeout=0.5)]
         hub, stop = Hub(10), threading.Event()
         stop.set()
         for src in sources:
@@ -434,6 +436,12 @@ def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
                     src.remove_fault(bad)
         with pytest.raises(FapError):          # before open(): said so, not an AttributeError
             CaptureSource(str(cap)).run(hub, stop)
+        for bad in ((None, str(cap)), ("tcp://x", str(cap)), ("unix:", str(cap)), ("unix:/a\0b", str(cap)),
+                    (f"unix:{tmp_path}/s", None), (f"unix:{tmp_path}/s", 5)):
+            with pytest.raises(FapError):
+                SimControlSource(*bad)
+        with pytest.raises(FapError):          # nobody answers there: a FileError naming the socket
+            SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap)).open()
         assert sim.sim.faults_list() == []
     finally:
         sim.close()

@@ -201,3 +201,59 @@ def test_a_slow_browser_gets_drops_counted_never_silent():
         assert dropped > 0 and received + dropped == total
         assert seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
         assert get_json(srv.url + "api/stats")["totals"]["dropped_total"] == dropped
+
+
+def test_a_running_sim_through_its_control_socket_and_tap(tmp_path):
+    """``fap sim CONFIG --control unix:PATH`` as a process, its bus's capture as the tap: the
+    same table and fault switches as an in-process sim."""
+    import os
+    import select
+    import signal
+
+    from fap_py.web import SimControlSource
+
+    tap = tmp_path / "tap.cap"
+    conf = tmp_path / "site.json"
+    site = json.loads(json.dumps(SITE))
+    site["bus"][0]["virtual"] = {"capture": str(tap)}
+    conf.write_text(json.dumps(site))
+    sock = f"unix:{tmp_path}/sim.sock"
+    sim = subprocess.Popen([sys.executable, "-m", "fap_py", "sim", str(conf), "--control", sock, "--json"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert select.select([sim.stdout], [], [], 15)[0], "fap sim did not start"
+        ready = json.loads(sim.stdout.readline())
+        assert ready["event"] == "ready", ready
+        src = SimControlSource(sock, str(tap))
+        with WebServer(src, port=0) as srv:
+            srv.start()
+            info = get_json(srv.url + "api/info")
+            assert info["bus"] == "field" and info["decoding"] == "exec" and info["baud"] == 115200
+            poller = Poller(info["master_port"], nodes=(1, 5))
+            try:
+                wait_until(lambda: poller.rounds >= 3)
+                status, ans = send(srv.url + "api/faults", "POST", json.dumps({"kind": "no_reply", "node": 5}).encode())
+                assert status == 200, ans
+                faults = get_json(srv.url + "api/faults")["result"]
+                assert [f["kind"] for f in faults["faults"]] == ["no_reply"] and "bad_crc" in faults["kinds"]
+                wait_until(lambda: node_rows(srv.url).get("5", {}).get("timeouts", 0) >= 2, what="timeouts")
+                status, ans = send(srv.url + "api/faults/all", "DELETE")
+                assert status == 200 and len(ans["result"]) == 1
+                poller.pause()
+                st = poller.master.stats
+                wait_until(lambda: sum(n["requests"] for n in get_json(srv.url + "api/stats")["nodes"])
+                           == st.transactions, what="every request in the table")
+                # the last unanswered request counts once it is PENDING_S old
+                wait_until(lambda: sum(n["timeouts"] for n in node_rows(srv.url).values()) == st.timeouts,
+                           what="every timeout in the table")
+                rows = node_rows(srv.url)
+                assert rows["5"]["timeouts"] == st.timeouts == poller.errors[5] and rows["1"]["timeouts"] == 0
+            finally:
+                poller.close()
+            status, ans = send(srv.url + "api/faults", "POST", json.dumps({"kind": "melt"}).encode())
+            assert status == 400 and "melt" in ans["error"]
+    finally:
+        sim.send_signal(signal.SIGTERM)
+        sim.communicate(timeout=15)
+    assert sim.returncode == 0
+    assert not os.path.exists(f"{tmp_path}/sim.sock")

@@ -76,6 +76,10 @@ def test_usage_errors(tmp_path):
     assert r.returncode == 2 and "HOST:PORT" in r.stderr
     r = fap("web", "--bus", "x", "--capture", str(cap))
     assert r.returncode == 2 and "--bus needs --sim" in r.stderr
+    r = fap("web", "--sim", f"unix:{tmp_path}/s.sock")
+    assert r.returncode == 2 and "--tap" in r.stderr
+    r = fap("web", "--http", "127.0.0.1:0", "--sim", f"unix:{tmp_path}/s.sock", "--tap", str(cap))
+    assert r.returncode == 3 and "is `fap sim --control" in r.stderr     # nobody answers there
     bad = tmp_path / "bad.cap"
     bad.write_text("not a capture\n")
     r = fap("web", "--http", "127.0.0.1:0", "--capture", str(bad))
