@@ -12,8 +12,7 @@ import json
 import logging
 import threading
 import time
-from collections import deque
-from typing import Any, Deque, Dict, Iterable, List, NamedTuple, Optional, Set, Tuple
+from typing import Any, Dict, Iterable, List, NamedTuple, Optional, Set, Tuple
 
 from ..monitor.core import Record
 from ..monitor.output import to_json
@@ -45,7 +44,8 @@ class Hub:
     def __init__(self, capacity: int = 20000, baud: int = 0, bin_s: float = 1.0) -> None:
         self.capacity = capacity
         self._lock = threading.Lock()
-        self._ring: Deque[Entry] = deque(maxlen=capacity)
+        # a circular list: the entry of seq s at (s - 1) % capacity (O(1) reads from any cursor)
+        self._ring: List[Entry] = []
         self._seq = 0
         self._annotator = Annotator()
         self.table = NodeTable(baud, bin_s)
@@ -76,7 +76,11 @@ class Hub:
                 self.table.add(rec, node, role, wall)
                 self._seq += 1
                 line = json.dumps(to_json(rec), separators=(",", ":"))
-                self._ring.append(Entry(self._seq, rec, line, node, role))
+                e = Entry(self._seq, rec, line, node, role)
+                if len(self._ring) < self.capacity:
+                    self._ring.append(e)
+                else:
+                    self._ring[(self._seq - 1) % self.capacity] = e
                 added = True
         if added:
             self._wake()
@@ -113,10 +117,13 @@ class Hub:
     def connect(self, backlog: int) -> Client:
         """A new client that starts ``backlog`` frames back (all the ring: capacity)."""
         with self._lock:
-            first = self._ring[0].seq if self._ring else self._seq + 1
-            c = Client(max(first, self._seq + 1 - backlog))
+            c = Client(max(self._first(), self._seq + 1 - backlog))
         self.clients.add(c)
         return c
+
+    def _first(self) -> int:
+        """The oldest seq the ring holds (the next one when it is empty); under the lock."""
+        return self._seq - len(self._ring) + 1
 
     def disconnect(self, c: Client) -> None:
         self.clients.discard(c)
@@ -126,13 +133,13 @@ class Hub:
         with self._lock:
             if not self._ring:
                 return [], 0
-            first = self._ring[0].seq
+            first = self._first()
             dropped = 0
             if c.cursor < first:
                 dropped = first - c.cursor
                 c.cursor = first
-            start = c.cursor - first
-            out = [self._ring[i] for i in range(start, min(len(self._ring), start + limit))]
+            ring, cap = self._ring, self.capacity
+            out = [ring[(s - 1) % cap] for s in range(c.cursor, min(self._seq + 1, c.cursor + limit))]
         if out:
             c.cursor = out[-1].seq + 1
         if dropped:
@@ -145,7 +152,13 @@ class Hub:
                t0: Optional[float] = None, t1: Optional[float] = None) -> List[Entry]:
         """The ring's entries with seq0 <= seq <= seq1 and t0 <= t <= t1 (None: no bound)."""
         with self._lock:
-            entries = list(self._ring)
+            ring, cap = self._ring, self.capacity
+            lo, hi = self._first(), self._seq
+            if seq0 is not None:
+                lo = max(lo, seq0)
+            if seq1 is not None:
+                hi = min(hi, seq1)
+            entries = [ring[(s - 1) % cap] for s in range(lo, hi + 1)]
         out = []
         for e in entries:
             if (seq0 is not None and e.seq < seq0) or (seq1 is not None and e.seq > seq1):
@@ -161,7 +174,7 @@ class Hub:
         with self._lock:
             if self.expire_s is not None:
                 self.table.expire(time.monotonic(), self.expire_s)
-            first = self._ring[0].seq if self._ring else None
+            first = self._first() if self._ring else None
             live = self.expire_s is not None and not self.source_done
             return {"nodes": self.table.table(), "series": self.table.series(complete_only=live),
                     "totals": {**self.table.totals(), "seq": self._seq, "ring_first": first,
