@@ -257,3 +257,30 @@ def test_a_running_sim_through_its_control_socket_and_tap(tmp_path):
         sim.communicate(timeout=15)
     assert sim.returncode == 0
     assert not os.path.exists(f"{tmp_path}/sim.sock")
+
+
+def test_port_source_watches_a_live_port_receive_only():
+    """A paced virtual bus: the C exec async master on port0, a C slave on port1, fap web's
+    PortSource on port2 (receive-only, as fap monitor --port): the table is the master's."""
+    from fap_py import RS485, RS485Mode, execasync
+    from fap_py.vbus import VirtualBus
+    from fap_py.web import PortSource
+
+    line = RS485(mode=RS485Mode.NONE)
+    with VirtualBus(ports=3, baud=115200) as bus, \
+            execasync.Slave(bus.paths[1], 115200, node=7, handler=lambda q: b"ok" + q.data, rs485=line).start():
+        with WebServer(PortSource(bus.paths[2], 115200, "exec", line), port=0) as srv:
+            srv.start()
+            info = get_json(srv.url + "api/info")
+            assert info["kind"] == "port" and info["port"] == bus.paths[2]
+            with execasync.Master(bus.paths[0], 115200, timeout=0.5, retries=0, rs485=line) as m:
+                for i in range(20):
+                    assert m.transact(7, bytes([i])) == b"ok" + bytes([i])
+                st = m.stats
+            wait_until(lambda: node_rows(srv.url).get("7", {}).get("replies", 0) == st.replies, what="replies")
+            row = node_rows(srv.url)["7"]
+            assert row["requests"] == st.transactions == 20 and row["timeouts"] == 0 and row["errors"] == 0
+            frames = get_json(srv.url + "api/frames")
+            assert all(e["frame"]["port"] is None for e in frames)      # a live port knows no sender
+            status, pcap = get(srv.url + "api/download.pcap")
+            assert status == 200 and len(pcap) > 24 + 40 * 16
