@@ -20,6 +20,7 @@ fap web --sim site.toml                      # the sim's bus, faults switched fr
 fap web --sim unix:/tmp/sim.sock --tap bus.cap   # a running fap sim (its bus's virtual.capture)
 fap web --port /dev/ttyUSB0 --baud 115200 --protocol exec
 fap web --capture bus.cap                    # a recording, with a time slider
+fap web --mqtt bridge.toml --bus line1       # a bus as a bridge publishes it
 fap web --http 0.0.0.0:8485 --token SECRET --sim site.toml"""
 
 DESCRIPTION = """\
@@ -63,8 +64,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                      "switched from the page")
     src.add_argument("--tap", metavar="FILE", help="--sim unix:PATH: the capture its bus writes "
                      "(the config's virtual.capture), followed as it grows")
-    src.add_argument("--bus", metavar="NAME", help="--sim: the bus shown (default the first)")
+    src.add_argument("--bus", metavar="NAME", help="--sim, --mqtt: the bus shown (default the first)")
     src.add_argument("--capture", metavar="FILE", help="a virtual-bus capture (fap bus --capture)")
+    src.add_argument("--mqtt", metavar="BRIDGE_CONFIG", help="a bus as a bridge publishes it: the "
+                     "bridge's config (its broker, prefix, buses); messages and the bridge's node "
+                     "counters, not wire frames")
 
     from fap_py.monitor.session import protocol_choice, protocol_choices
 
@@ -80,18 +84,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _source(args: argparse.Namespace) -> Any:
     from fap_py import web
 
-    given = [n for n in ("port", "sim", "capture") if getattr(args, n)]
+    given = [n for n in ("port", "sim", "capture", "mqtt") if getattr(args, n)]
     if len(given) != 1:
-        raise opt.UsageError("give one source: --port, --sim or --capture"
+        raise opt.UsageError("give one source: --port, --sim, --capture or --mqtt"
                              + (f", not {' and '.join('--' + n for n in given)}" if given else ""))
-    if args.bus and not args.sim:
-        raise opt.UsageError("--bus needs --sim")
+    if args.bus and not (args.sim or args.mqtt):
+        raise opt.UsageError("--bus needs --sim or --mqtt")
     remote = bool(args.sim and args.sim.startswith("unix:"))
     if remote != bool(args.tap):
         raise opt.UsageError("--tap goes with --sim unix:PATH (a running sim's control socket), and "
                              "it needs one")
     if args.port:
         return web.PortSource(args.port, args.baud or 0, args.protocol or "auto", opt.rs485_from_args(args))
+    if args.mqtt:
+        return web.MqttSource(args.mqtt, bus=args.bus)
     if args.capture:
         return web.CaptureSource(args.capture, args.protocol or "auto", args.baud or 0)
     if remote:

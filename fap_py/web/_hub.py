@@ -23,10 +23,11 @@ log = logging.getLogger("fap_py.web")
 
 class Entry(NamedTuple):
     seq: int
-    rec: Record
-    line: str              # exactly `fap monitor --json`'s line of the record
+    rec: Optional[Record]  # None: a message that is no wire frame (an MQTT source's)
+    line: str              # exactly `fap monitor --json`'s line of the record (or the message's JSON)
     node: Optional[str]
     role: Optional[str]
+    t: Optional[float]     # the record's wire time (a message's time)
 
 
 class Client:
@@ -56,6 +57,7 @@ class Hub:
         self.source_done = False
         self.dropped_total = 0          # summed over every client
         self.closing = False            # the server stops: every stream ends
+        self.nodes_override: Optional[List[Dict[str, Any]]] = None
         #: a live source: an unanswered request is a timeout after this long (None: a recording)
         self.expire_s: Optional[float] = PENDING_S
 
@@ -76,14 +78,35 @@ class Hub:
                 self.table.add(rec, node, role, wall)
                 self._seq += 1
                 line = json.dumps(to_json(rec), separators=(",", ":"))
-                e = Entry(self._seq, rec, line, node, role)
-                if len(self._ring) < self.capacity:
-                    self._ring.append(e)
-                else:
-                    self._ring[(self._seq - 1) % self.capacity] = e
+                self._append(Entry(self._seq, rec, line, node, role, rec.t))
                 added = True
         if added:
             self._wake()
+
+    def _append(self, e: Entry) -> None:
+        if len(self._ring) < self.capacity:
+            self._ring.append(e)
+        else:
+            self._ring[(e.seq - 1) % self.capacity] = e
+
+    def publish_messages(self, msgs: Iterable[Tuple[Dict[str, Any], Optional[str], Optional[str],
+                                                    Optional[float]]]) -> None:
+        """Messages that are no wire frames (object, node, role, time): an MQTT source's."""
+        added = False
+        with self._lock:
+            for obj, node, role, t in msgs:
+                self._seq += 1
+                line = json.dumps(obj, separators=(",", ":"))
+                self.table.count(t, len(line))
+                self._append(Entry(self._seq, None, line, node, role, t))
+                added = True
+        if added:
+            self._wake()
+
+    def set_nodes(self, rows: List[Dict[str, Any]]) -> None:
+        """The node table as the source counts it (an MQTT bridge's stats), instead of ours."""
+        with self._lock:
+            self.nodes_override = rows
 
     def collision(self, t: Optional[float]) -> None:
         with self._lock:
@@ -163,7 +186,7 @@ class Hub:
         for e in entries:
             if (seq0 is not None and e.seq < seq0) or (seq1 is not None and e.seq > seq1):
                 continue
-            t = e.rec.t
+            t = e.t
             if t is not None and ((t0 is not None and t < t0) or (t1 is not None and t > t1)):
                 continue
             out.append(e)
@@ -176,7 +199,8 @@ class Hub:
                 self.table.expire(time.monotonic(), self.expire_s)
             first = self._first() if self._ring else None
             live = self.expire_s is not None and not self.source_done
-            return {"nodes": self.table.table(), "series": self.table.series(complete_only=live),
+            nodes = self.nodes_override if self.nodes_override is not None else self.table.table()
+            return {"nodes": nodes, "series": self.table.series(complete_only=live),
                     "totals": {**self.table.totals(), "seq": self._seq, "ring_first": first,
                                "ring_capacity": self.capacity, "dropped_total": self.dropped_total,
                                "clients": len(self.clients)},
@@ -186,7 +210,8 @@ class Hub:
         """A node table recomputed over some entries (a capture's slider window)."""
         t = NodeTable(baud, bin_s)
         for e in entries:
-            t.add(e.rec, e.node, e.role)
+            if e.rec is not None:
+                t.add(e.rec, e.node, e.role)
         if entries and self.source_done and entries[-1].seq == self._seq:
             t.finish()                          # the window reaches the recording's end
         return {"nodes": t.table(), "series": t.series(), "totals": t.totals()}

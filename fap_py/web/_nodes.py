@@ -166,6 +166,16 @@ class NodeTable:
             nd.answered_last = False
         self._pending = None
 
+    def count(self, t: Optional[float], n_bytes: int) -> None:
+        """A message that is no frame (an MQTT source's): counted in the series only."""
+        b = self._bin(t)
+        if t is not None:
+            self.t_last = max(self.t_last or t, t)
+        if b is not None:
+            b[0] += 1
+            b[1] += n_bytes
+        self.frames += 1
+
     def expire(self, wall: float, after_s: float = PENDING_S) -> None:
         """A pending request older than ``after_s`` (by the ``wall`` clock of :meth:`add`):
         a timeout now."""

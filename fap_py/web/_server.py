@@ -194,7 +194,8 @@ class App:
         buf = io.BytesIO()
         w = PcapWriter(buf)
         for e in entries:
-            w.write(e.rec)
+            if e.rec is not None:          # an MQTT source's messages are no wire frames
+                w.write(e.rec)
         return web.Response(body=buf.getvalue(), content_type="application/vnd.tcpdump.pcap",
                             headers={"Content-Disposition": 'attachment; filename="fap-web.pcap"'})
 
@@ -259,13 +260,13 @@ def export_html(source: Source, hub: Hub, entries: List[Entry]) -> str:
     table at EXPORT_STEPS points of the recording embedded."""
     truncated = max(0, len(entries) - EXPORT_FRAMES)
     entries = entries[:EXPORT_FRAMES]
-    times = [e.rec.t for e in entries if e.rec.t is not None]
+    times = [e.t for e in entries if e.t is not None]
     steps = []
     if times:
         t0, t1 = min(times), max(times)
         for k in range(1, EXPORT_STEPS + 1):
             until = t0 + (t1 - t0) * k / EXPORT_STEPS
-            part = [e for e in entries if e.rec.t is None or e.rec.t <= until]
+            part = [e for e in entries if e.t is None or e.t <= until]
             steps.append({"until": until, **hub.table_of(part, source.baud, hub.table.bin_s)})
     data = {"info": {**source.describe(), "export": True, "truncated": truncated},
             "frames": [json.loads(envelope(e)) for e in entries], "steps": steps,

@@ -25,6 +25,9 @@
 
   // -- frames ---------------------------------------------------------------
   function summary(f) {
+    if (f.frame === undefined) {     // a message that is no wire frame (an MQTT source's)
+      return f.event + " " + JSON.stringify(f.payload).slice(0, 160);
+    }
     if (!f.ok) return "!! " + (f.error || "?");
     const skip = new Set(["event", "protocol", "t", "port", "ok", "error", "frame", "data"]);
     const parts = [];
@@ -45,7 +48,7 @@
       if (node && String(e.node) !== node) return false;
       if (proto && f.protocol !== proto) return false;
       if (kind && (kind === "other" ? e.role !== null : e.role !== kind)) return false;
-      if (search && f.frame.indexOf(search) < 0 && summary(f).toLowerCase().indexOf(search) < 0) return false;
+      if (search && (f.frame || "").indexOf(search) < 0 && summary(f).toLowerCase().indexOf(search) < 0) return false;
       return true;
     });
   }
@@ -59,9 +62,9 @@
       const f = e.frame;
       const cls = (f.ok ? "" : "bad") + (state.selected === e.seq ? " sel" : "");
       html.push("<tr data-seq=\"" + e.seq + "\" class=\"" + cls + "\"><td>" + e.seq + "</td><td>" +
-        (f.t === null ? "-" : f.t.toFixed(6)) + "</td><td>" + (f.port === null ? "" : "p" + f.port) +
+        (f.t === null ? "-" : f.t.toFixed(6)) + "</td><td>" + (f.port === null || f.port === undefined ? "" : "p" + f.port) +
         "</td><td>" + esc(f.protocol) + "</td><td>" + esc(e.node === null ? "" : e.node) + "</td><td>" +
-        (e.role || "") + "</td><td>" + esc(summary(f)) + "</td><td class=\"bytes\">" + f.frame + "</td></tr>");
+        (e.role || "") + "</td><td>" + esc(summary(f)) + "</td><td class=\"bytes\">" + (f.frame || "") + "</td></tr>");
     }
     body.innerHTML = html.join("");
     text($("shown"), rows.length + " of " + state.frames.length + " frames" +
@@ -91,7 +94,8 @@
     const e = state.frames.find((x) => x.seq === seq);
     if (!e) return;
     state.selected = seq;
-    $("detail").textContent = hexdump(e.frame.frame) + "\n\n" + JSON.stringify(e.frame, null, 1);
+    $("detail").textContent = (e.frame.frame !== undefined ? hexdump(e.frame.frame) + "\n\n" : "") +
+      JSON.stringify(e.frame, null, 1);
     state.dirty = true;
   }
 

@@ -397,7 +397,7 @@ COVERED = {
     # --- web: fap_py.web's sources (test_web_sources_refuse_hostile_arguments) ---
     "Source.run", "Source.add_fault", "Source.remove_fault", "PortSource.run", "CaptureSource.run",
     "SimSource.run", "SimSource.add_fault", "SimSource.remove_fault", "SimControlSource.run",
-    "SimControlSource.add_fault", "SimControlSource.remove_fault",
+    "SimControlSource.add_fault", "SimControlSource.remove_fault", "MqttSource.run",
     # --- end web ---
 }
 
@@ -409,7 +409,7 @@ def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
     import threading
 
     from fap_py.errors import FapError
-    from fap_py.web import CaptureSource, PortSource, SimControlSource, SimSource, Source
+    from fap_py.web import CaptureSource, MqttSource, PortSource, SimControlSource, SimSource, Source
     from fap_py.web._hub import Hub
 
     cap = tmp_path / "b.cap"
@@ -418,8 +418,14 @@ def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
     sim = SimSource(site)
     sim.open()
     try:
+        bridge = tmp_path / "bridge.toml"
+        bridge.write_text(f'[broker]\nurl = "mqtt://127.0.0.1:1"\n[bridge]\nhost = "h"\nstate_dir = "{tmp_path}"\n'
+                          '[[bus]]\nname = "ex"\nport = "/nonexistent/p"\nprotocol = "exec"\nnodes = [5]\n')
         sources = [Source(), PortSource("/nonexistent/port", 9600), CaptureSource(str(cap)), sim,
-                   SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap), timeout=0.5)]
+                   SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap), timeout=0.5), MqttSource(str(bridge))]
+        for bad in ((None,), (str(tmp_path / "missing.toml"),), (str(bridge), 5), (str(bridge), "nope")):
+            with pytest.raises(FapError):
+                MqttSource(*bad)
         hub, stop = Hub(10), threading.Event()
         stop.set()
         for src in sources:

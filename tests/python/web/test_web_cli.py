@@ -75,7 +75,7 @@ def test_usage_errors(tmp_path):
     r = fap("web", "--http", "nope", "--capture", str(cap))
     assert r.returncode == 2 and "HOST:PORT" in r.stderr
     r = fap("web", "--bus", "x", "--capture", str(cap))
-    assert r.returncode == 2 and "--bus needs --sim" in r.stderr
+    assert r.returncode == 2 and "--bus needs --sim or --mqtt" in r.stderr
     r = fap("web", "--sim", f"unix:{tmp_path}/s.sock")
     assert r.returncode == 2 and "--tap" in r.stderr
     r = fap("web", "--http", "127.0.0.1:0", "--sim", f"unix:{tmp_path}/s.sock", "--tap", str(cap))
