@@ -216,5 +216,22 @@ class Hub:
             t.finish()                          # the window reaches the recording's end
         return {"nodes": t.table(), "series": t.series(), "totals": t.totals()}
 
+    def tables_until(self, entries: List[Entry], times: List[float], baud: int,
+                     bin_s: float) -> List[Dict[str, Any]]:
+        """The node table of the entries up to each of ``times`` (ascending): one pass."""
+        t = NodeTable(baud, bin_s)
+        out: List[Dict[str, Any]] = []
+        i = 0
+        for until in times:
+            while i < len(entries):
+                e = entries[i]
+                if e.t is not None and e.t > until:
+                    break
+                if e.rec is not None:
+                    t.add(e.rec, e.node, e.role)
+                i += 1
+            out.append({"until": until, "nodes": t.table(), "series": t.series(), "totals": t.totals()})
+        return out
+
 
 __all__ = ["Client", "Entry", "Hub"]

@@ -264,10 +264,9 @@ def export_html(source: Source, hub: Hub, entries: List[Entry]) -> str:
     steps = []
     if times:
         t0, t1 = min(times), max(times)
-        for k in range(1, EXPORT_STEPS + 1):
-            until = t0 + (t1 - t0) * k / EXPORT_STEPS
-            part = [e for e in entries if e.t is None or e.t <= until]
-            steps.append({"until": until, **hub.table_of(part, source.baud, hub.table.bin_s)})
+        # entries in seq order are in time order (the monitor's times never go backwards)
+        steps = hub.tables_until(entries, [t0 + (t1 - t0) * k / EXPORT_STEPS for k in range(1, EXPORT_STEPS + 1)],
+                                 source.baud, hub.table.bin_s)
     data = {"info": {**source.describe(), "export": True, "truncated": truncated},
             "frames": [json.loads(envelope(e)) for e in entries], "steps": steps,
             "stats": hub.table_of(entries, source.baud, hub.table.bin_s)}
