@@ -131,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
                 info = source.describe()
                 opt.emit(args, {"event": "ready", "url": server.url, "source": info},
                          f"fap web: {info['kind']} on {url}"
-                         + (f"\nfap web: master port {info['master_port']}" if info.get("master_port") else ""))
+                         + (f"\nfap web: master port {info['master_port']}" if info.get("master_port") else "")
+                         + "\nready")
                 sys.stdout.flush()
                 while not stop.wait(0.5):
                     pass
