@@ -25,6 +25,11 @@ PARTS: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (
      ("bridge-forward-115200", "bridge-forward-1000000")),
     ("bench.realtime", "real-time option: p99 turnaround <= 1 ms at 115200 with two CPU hogs",
      ("realtime-p99-115200",)),
+    ("bench.sim", "fap sim keeps up with the responders it stands in for, idle < 2 % of a core, replay timing",
+     ("sim-scan-exec", "sim-scan-mikroc", "sim-scan-g485", "sim-idle-exec", "sim-idle-mikroc",
+      "sim-idle-g485", "sim-idle-fap", "sim-replay-timing")),
+    ("bench.bridge.fleet", "fleet (issue 37): 50 bridges through a 3-broker chain, 0 lost, failover <= 5 s",
+     ("fleet-lost", "fleet-failover")),
 )
 CPU_KINDS = ("fap-poll", "exec", "mikroc")
 CPU_RATIO = 0.5          # CPU per exchange <= 0.5x libmodbus's read, each side

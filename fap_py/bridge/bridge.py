@@ -147,8 +147,8 @@ class Bridge:
         self.link.start()
         self._stats_thread = threading.Thread(target=self._stats_loop, name="fap-bridge-stats", daemon=True)
         self._stats_thread.start()
-        log.info("bridge %s: %d bus(es), broker %s:%d", self.config.host, len(self.buses),
-                 self.config.broker.host, self.config.broker.port)
+        log.info("bridge %s: %d bus(es), broker %s", self.config.host, len(self.buses),
+                 ", ".join(b.address for b in self.config.brokers))
         return self
 
     def wait_connected(self, timeout: Optional[float] = None) -> bool:
@@ -203,7 +203,10 @@ class Bridge:
     def status_line(self) -> str:
         """One line for systemd's STATUS=: the broker, the buses, the outbox."""
         link = self.link
-        broker = "connected" if link.connected else f"not connected ({link.last_error or 'connecting'})"
+        where = "" if len(link.brokers) == 1 else \
+            f" to {link.broker.address} ({link.broker_index + 1} of {len(link.brokers)})"
+        broker = f"connected{where}" if link.connected else \
+            f"not connected ({link.last_error or 'connecting' + where})"
         down = [n for n, b in self.buses.items() if b.open_error is not None]
         buses = f"{len(self.buses) - len(down)}/{len(self.buses)} buses running"
         if down:
@@ -334,16 +337,20 @@ class Bridge:
                 "buses": {name: {"state": "stopped" if self.stopped else
                                  "running" if b.open_error is None else "unavailable",
                                  "error": b.open_error} for name, b in self.buses.items()},
+                "broker": self.link.broker.address, "broker_index": self.link.broker_index,
                 "ts": now_iso()}
 
     def _publish_health(self, force: bool = True) -> None:
         """Publish :meth:`health` outside the outbox (it reports the outbox failing)."""
         doc = self.health()
-        key = (doc["state"], doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True))
+        key = (doc["state"], doc["store"], doc["not_stored"], json.dumps(doc["buses"], sort_keys=True),
+               doc["broker"])
         if not force and key == self._health_sent:
             return
-        self._health_sent = key
-        self.link.publish_now(self.link.health_topic, json.dumps(doc, separators=(",", ":")).encode())
+        # remembered as sent only once handed to paho: one not sent (disconnected, held back
+        # after a refusal) is sent at the next tick of the stats loop or the next connect
+        sent = self.link.publish_now(self.link.health_topic, json.dumps(doc, separators=(",", ":")).encode())
+        self._health_sent = key if sent else None
 
     def rx(self, bus: str, node: int, fields: Dict[str, Any]) -> None:
         """A message or register read received from ``node``."""
@@ -494,6 +501,9 @@ class Bridge:
                 "outbox": {"pending": self.store.pending, "dropped": self.store.dropped,
                            "not_stored": self.not_stored, "error": self.store_error},
                 "broker": {"connected": self.link.connected, "connects": self.link.connects,
+                           "address": self.link.broker.address, "index": self.link.broker_index,
+                           "mqtt": "5" if self.link.v5 else "3.1.1", "switches": self.link.switches,
+                           "fallbacks": self.link.fallbacks, "stalls": self.link.stalls,
                            "disconnects": self.link.disconnects, "published": self.link.published,
                            "refused": dict(self.link.refused_pubs),
                            "refused_own": dict(self.link.refused_own)},

@@ -88,8 +88,32 @@ class BrokerConfig:
     reconnect_min: float = 0.5
     reconnect_max: float = 30.0
     connect_timeout: float = 10.0
-    protocol: str = "5"            #: MQTT "5" or "3.1.1"
+    #: seconds with rows in flight and no PUBACK before the connection is made anew
+    ack_timeout: float = 30.0
+    #: MQTT "5", "3.1.1", or "auto": 5, and 3.1.1 for a broker that refuses 5
+    protocol: str = "auto"
     session_expiry: int = 604_800  #: MQTT 5: seconds the broker keeps our session while we are away
+
+    @property
+    def address(self) -> str:
+        """``host:port`` (``[v6]:port``): how logs, health and metrics name this broker."""
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"{host}:{self.port}"
+
+    @property
+    def url(self) -> str:
+        """``mqtt://host:port`` or ``mqtts://host:port`` (no credentials)."""
+        return f"{'mqtts' if self.tls else 'mqtt'}://{self.address}"
+
+
+@dataclass(frozen=True)
+class FailoverConfig:
+    """``[failover]``: how the bridge moves between the brokers of a ``[[broker]]`` list."""
+
+    attempts: int = 2               #: failed connection attempts on one broker before the next
+    failback: bool = True           #: go back to an earlier broker of the list when it answers
+    failback_interval: float = 30.0  #: seconds between probes of the earlier brokers
+    drain: float = 2.0              #: seconds a failback waits for the rows in flight first
 
 
 @dataclass(frozen=True)
@@ -98,6 +122,8 @@ class SparkplugConfig:
 
     group_id: str
     edge_node_id: str
+    #: Sparkplug 3.0 primary host application: births and data wait for its STATE online
+    primary_host_id: Optional[str] = None
 
 
 @dataclass(frozen=True)
@@ -117,6 +143,13 @@ class BridgeConfig:
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
     discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
     sparkplug: Optional[SparkplugConfig] = None         #: [sparkplug]
+    #: every broker, in order of preference ([[broker]]); ``broker`` is the first
+    brokers: Tuple[BrokerConfig, ...] = ()
+    failover: FailoverConfig = field(default_factory=FailoverConfig)
+
+    def __post_init__(self) -> None:
+        if not self.brokers:
+            object.__setattr__(self, "brokers", (self.broker,))
 
 
 def check_bus_node(bus: Any, node: Any) -> None:
@@ -269,38 +302,42 @@ def parse_url(url: str) -> Tuple[str, int, bool, Optional[str], Optional[str]]:
     return hostname, port, tls, user, password
 
 
-def _broker(t: Dict[str, Any], base: str) -> BrokerConfig:
-    where = "broker"
+def _broker(t: Dict[str, Any], base: str, where: str = "broker") -> BrokerConfig:
     host, port, tls, user, password = parse_url(_pop(t, "url", str, where))
     kw: Dict[str, Any] = {"host": host, "port": port, "tls": tls}
     kw["username"] = _pop(t, "username", str, where, user)
     kw["password"] = _pop(t, "password", str, where, password)
     pw_file = _pop(t, "password_file", str, where, None)
     if pw_file is not None:
-        raw = read_bounded(os.path.join(base, pw_file), SECRET_MAX, "broker.password_file")
+        raw = read_bounded(os.path.join(base, pw_file), SECRET_MAX, f"{where}.password_file")
         try:
             kw["password"] = raw.decode("utf-8").strip()
         except UnicodeDecodeError:
-            raise BridgeConfigError(f"broker.password_file {_show(pw_file)} is not UTF-8 text") from None
+            raise BridgeConfigError(f"{where}.password_file {_show(pw_file)} is not UTF-8 text") from None
     for key in ("ca", "cert", "key"):
         value = _pop(t, key, str, where, None)
         if value is not None:
             if not tls:
-                raise BridgeConfigError(f"broker.{key} needs an mqtts:// url")
+                raise BridgeConfigError(f"{where}.{key} needs an mqtts:// url")
             kw[key] = os.path.join(base, value)
     if (kw.get("cert") is None) != (kw.get("key") is None):
-        raise BridgeConfigError("broker.cert and broker.key go together")
+        raise BridgeConfigError(f"{where}.cert and {where}.key go together")
     kw["client_id"] = _pop(t, "client_id", str, where, None)
-    kw["keepalive"] = _range(_pop(t, "keepalive", int, where, 30), 5, 3600, "broker.keepalive")
+    kw["keepalive"] = _range(_pop(t, "keepalive", int, where, 30), 5, 3600, f"{where}.keepalive")
     kw["reconnect_min"] = _range(float(_pop(t, "reconnect_min", (int, float), where, 0.5)), 0.01, 3600,
-                                 "broker.reconnect_min")
+                                 f"{where}.reconnect_min")
     kw["reconnect_max"] = _range(float(_pop(t, "reconnect_max", (int, float), where, 30.0)),
-                                 kw["reconnect_min"], 3600, "broker.reconnect_max")
-    kw["protocol"] = _pop(t, "protocol", str, where, "5")
-    if kw["protocol"] not in ("5", "3.1.1"):
-        raise BridgeConfigError(f"broker.protocol must be \"5\" or \"3.1.1\", not {_show(kw['protocol'])}")
+                                 kw["reconnect_min"], 3600, f"{where}.reconnect_max")
+    kw["connect_timeout"] = _range(float(_pop(t, "connect_timeout", (int, float), where, 10.0)), 0.1, 3600,
+                                   f"{where}.connect_timeout")
+    kw["ack_timeout"] = _range(float(_pop(t, "ack_timeout", (int, float), where, 30.0)), 0.1, 3600,
+                               f"{where}.ack_timeout")
+    kw["protocol"] = _pop(t, "protocol", str, where, "auto")
+    if kw["protocol"] not in ("5", "3.1.1", "auto"):
+        raise BridgeConfigError(f"{where}.protocol must be \"5\", \"3.1.1\" or \"auto\", "
+                                f"not {_show(kw['protocol'])}")
     kw["session_expiry"] = _range(_pop(t, "session_expiry", int, where, 604_800), 0, 0xFFFFFFFF,
-                                  "broker.session_expiry")
+                                  f"{where}.session_expiry")
     _done(t, where)
     return BrokerConfig(**kw)
 
@@ -310,9 +347,8 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     if not isinstance(data, Mapping):
         raise BridgeConfigError(f"the configuration must be a table, not {type(data).__name__}")
     top = {k: (dict(v) if isinstance(v, dict) else v) for k, v in data.items()}
-    if not isinstance(top.get("broker"), dict):
-        raise BridgeConfigError("missing [broker] table")
-    broker = _broker(top.pop("broker"), base)
+    brokers = _brokers(top.pop("broker", None), base)
+    failover = _failover(top.pop("failover", {}))
     bridge = top.pop("bridge", {})
     if not isinstance(bridge, dict):
         raise BridgeConfigError("[bridge] must be a table")
@@ -349,7 +385,8 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
         raise BridgeConfigError(f"bridge.topic_prefix {_show(prefix)}: empty or holds a wildcard")
     if not host or any(c in host for c in "/+#"):
         raise BridgeConfigError(f"bridge.host {_show(host)}: empty or holds / or a wildcard")
-    kw: Dict[str, Any] = {"broker": broker, "buses": buses, "host": host, "prefix": prefix}
+    kw: Dict[str, Any] = {"broker": brokers[0], "brokers": brokers, "failover": failover,
+                          "buses": buses, "host": host, "prefix": prefix}
     kw["qos"] = _range(_pop(bridge, "qos", int, where, 1), 0, 2, "bridge.qos")
     # under systemd, StateDirectory= sets $STATE_DIRECTORY: the default when the file names none
     default_state = os.environ.get("STATE_DIRECTORY", ".").split(":")[0] or "."
@@ -370,8 +407,10 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     _done(metrics, "metrics")
     if sparkplug is not None:
         ids = {}
-        for key, default in (("group_id", ...), ("edge_node_id", host)):
+        for key, default in (("group_id", ...), ("edge_node_id", host), ("primary_host_id", None)):
             value = _pop(sparkplug, key, str, "sparkplug", default)
+            if value is None:
+                continue
             if not value or any(c in value for c in "/+#"):
                 raise BridgeConfigError(f"sparkplug.{key} {_show(value)}: empty or holds / or a wildcard")
             ids[key] = value
@@ -380,6 +419,47 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     elif any(b.sparkplug for b in buses):
         raise BridgeConfigError("a bus with sparkplug = true needs a [sparkplug] table (group_id)")
     return BridgeConfig(**kw)
+
+
+_BROKERS_MAX = 32   #: brokers in a [[broker]] list
+
+
+def _brokers(value: Any, base: str) -> Tuple[BrokerConfig, ...]:
+    """``[broker]`` (one) or ``[[broker]]`` (an ordered list, the first preferred)."""
+    if isinstance(value, dict):
+        return (_broker(value, base),)
+    if not isinstance(value, list) or not value:
+        raise BridgeConfigError("missing [broker] table (or a [[broker]] list)")
+    if len(value) > _BROKERS_MAX:
+        raise BridgeConfigError(f"[[broker]]: {len(value)} brokers (at most {_BROKERS_MAX})")
+    out = []
+    for i, t in enumerate(value):
+        if not isinstance(t, dict):
+            raise BridgeConfigError(f"broker[{i}] must be a table ([[broker]]), not {type(t).__name__}")
+        out.append(_broker(dict(t), base, f"broker[{i}]"))
+    seen: Dict[Tuple[str, int], int] = {}
+    for i, b in enumerate(out):
+        key = (b.host.lower(), b.port)
+        if key in seen:
+            raise BridgeConfigError(f"broker[{i}] {b.address}: the same broker as broker[{seen[key]}]")
+        seen[key] = i
+    return tuple(out)
+
+
+def _failover(t: Any) -> FailoverConfig:
+    """``[failover]``: the policy between the brokers of the list."""
+    if not isinstance(t, dict):
+        raise BridgeConfigError("[failover] must be a table")
+    t = dict(t)
+    where = "failover"
+    kw: Dict[str, Any] = {}
+    kw["attempts"] = _range(_pop(t, "attempts", int, where, 2), 1, 1000, "failover.attempts")
+    kw["failback"] = _pop(t, "failback", bool, where, True)
+    kw["failback_interval"] = _range(float(_pop(t, "failback_interval", (int, float), where, 30.0)),
+                                     0.05, 86400, "failover.failback_interval")
+    kw["drain"] = _range(float(_pop(t, "drain", (int, float), where, 2.0)), 0, 600, "failover.drain")
+    _done(t, where)
+    return FailoverConfig(**kw)
 
 
 def parse_listen(text: str) -> Tuple[str, int]:
@@ -398,11 +478,12 @@ def verify_files(cfg: BridgeConfig, ports: bool = True) -> None:
     the TLS files, the state directory and, with ``ports``, every bus's port. Creates nothing."""
     if not isinstance(cfg, BridgeConfig):
         raise BridgeConfigTypeError(f"verify_files needs a BridgeConfig, not {type(cfg).__name__}")
-    b = cfg.broker
-    for key in ("ca", "cert", "key"):
-        path = getattr(b, key)
-        if path is not None:
-            read_bounded(path, TLS_FILE_MAX, f"broker.{key}")
+    for i, b in enumerate(cfg.brokers):
+        where = "broker" if len(cfg.brokers) == 1 else f"broker[{i}]"
+        for key in ("ca", "cert", "key"):
+            path = getattr(b, key)
+            if path is not None:
+                read_bounded(path, TLS_FILE_MAX, f"{where}.{key}")
     check_state_dir(cfg.state_dir)
     if ports:
         for bus in cfg.buses:
@@ -475,5 +556,6 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",
+           "FailoverConfig",
            "check_bus_node", "bus_from_dict",
            "SparkplugConfig", "from_dict", "load", "parse_listen", "parse_url", "verify_files"]

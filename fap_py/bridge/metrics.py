@@ -125,6 +125,17 @@ class BridgeCollector:
                                   value=b.not_stored)
         yield GaugeMetricFamily("fap_bridge_mqtt_connected", "1 while connected to the broker",
                                 value=1.0 if link.connected else 0.0)
+        current = GaugeMetricFamily("fap_bridge_mqtt_broker", "1 for the broker in use (its place in the "
+                                    "[[broker]] list, 0 preferred), 0 for the others", labels=["broker", "index"])
+        for i, br in enumerate(getattr(link, "brokers", ())):
+            current.add_metric([br.address, str(i)], 1.0 if i == getattr(link, "broker_index", 0) else 0.0)
+        yield current
+        yield CounterMetricFamily("fap_bridge_mqtt_switches", "moves from one broker of the list to another "
+                                  "(failover and failback)", value=getattr(link, "switches", 0))
+        yield CounterMetricFamily("fap_bridge_mqtt_fallbacks", "brokers that refused MQTT 5 (3.1.1 used)",
+                                  value=getattr(link, "fallbacks", 0))
+        yield CounterMetricFamily("fap_bridge_mqtt_stalls", "connections stuck (no PUBACK within ack_timeout, "
+                                  "no CONNACK within connect_timeout), made anew", value=getattr(link, "stalls", 0))
         yield CounterMetricFamily("fap_bridge_mqtt_connects", "connections made", value=link.connects)
         yield CounterMetricFamily("fap_bridge_mqtt_disconnects", "connections lost", value=link.disconnects)
         yield CounterMetricFamily("fap_bridge_mqtt_published", "publications the broker acknowledged",
@@ -149,6 +160,15 @@ class BridgeCollector:
             yield CounterMetricFamily("fap_bridge_sparkplug_rebirths_coalesced",
                                       "rebirth requests folded into another (rate limit)",
                                       value=sp.rebirths.coalesced)
+            refused = CounterMetricFamily("fap_bridge_sparkplug_state_refused",
+                                          "primary host STATE payloads refused (not JSON, wrong types, "
+                                          "an old timestamp)", labels=["reason"])
+            for reason, n in sorted(getattr(sp, "state_refused", {}).items()):
+                refused.add_metric([reason], n)
+            yield refused
+            yield CounterMetricFamily("fap_bridge_sparkplug_held_dropped",
+                                      "DDATA dropped from the full queue held while not born",
+                                      value=getattr(sp, "queue_dropped", 0))
         yield CounterMetricFamily("fap_bridge_tx_refused", "malformed tx refused", value=b.tx_refused)
         yield CounterMetricFamily("fap_bridge_tx_duplicates", "tx redeliveries dropped", value=b.duplicates)
 

@@ -1,5 +1,15 @@
 """The broker side of the bridge: one paho-mqtt client and the outbox pump.
 
+A fleet (docs/bridge.md, "Fleet"): ``config.brokers`` is an ordered list; one paho client
+at a time, made for the broker in use (its own TLS, login, MQTT version). The fleet
+thread moves to the next broker after ``failover.attempts`` failed attempts, makes a
+3.1.1 client for a broker that refuses MQTT 5 (``protocol = "auto"``), probes the
+earlier brokers every ``failover.failback_interval`` s and goes back to the first that
+answers, and makes a stuck connection anew (no PUBACK within ``ack_timeout`` with rows
+in flight, no CONNACK within ``connect_timeout``). Callbacks of a client left behind are
+ignored (:meth:`MqttLink._stale`); the outbox is the one queue across brokers: the rows
+in flight at a move are handed again at the next CONNACK, as after any reconnect.
+
 paho-mqtt is imported here only, and lazily (:func:`paho`), so ``fap
 --help`` and everything else in fap_py works without the ``bridge`` extra.
 
@@ -90,6 +100,8 @@ def paho() -> Any:
 
 # CONNACK codes that no retry can fix: bad credentials, not authorised, banned.
 _FATAL_CONNACK = {4, 5, 134, 135, 138, 140}
+# CONNACK codes of a broker that does not speak MQTT 5 (3.1.1's 1, as paho reads it: 132)
+_NO_MQTT5 = {1, 132}
 
 _PAYLOAD_MAX = 268_435_455   #: MQTT's largest packet (its remaining length field)
 _LOG_FIRST = 10   # refused publications logged one by one; after that every 1000th
@@ -112,6 +124,8 @@ OWN_BACKOFF_MIN = 60.0
 OWN_BACKOFF_MAX = 3600.0
 #: seconds after a CONNACK the rows wait at most for the own publications of the connect
 GATE_TIMEOUT = 1.0
+#: seconds between two looks of the fleet thread's watchdog (no PUBACK, no CONNACK)
+STALL_TICK = 0.25
 
 
 class _Dropped:
@@ -167,41 +181,31 @@ class MqttLink:
         self.config = config
         self.store = store
         self._on_tx = on_tx
-        b = config.broker
+        from paho.mqtt.packettypes import PacketTypes
+        from paho.mqtt.properties import Properties
+
+        self._props = (Properties, PacketTypes)
         self.status_topic = f"{config.prefix}/bridge/{config.host}/status"
         self.tx_filters = [f"{config.prefix}/{bus.name}/+/tx" for bus in config.buses]
         self.health_topic = f"{config.prefix}/bridge/{config.host}/health"
-        client_id = b.client_id or f"fap-bridge-{config.host}"
-        self.v5 = b.protocol == "5"
-        # A persistent session: tx published while the bridge is away wait at the broker
-        # (MQTT 5: clean start off and a session expiry; 3.1.1: clean session off).
-        if self.v5:
-            from paho.mqtt.packettypes import PacketTypes
-            from paho.mqtt.properties import Properties
-
-            self._props = (Properties, PacketTypes)
-            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
-                                      protocol=mqtt.MQTTv5)
-        else:
-            self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
-                                      clean_session=False, protocol=mqtt.MQTTv311)
-        # paho's own messages at debug: it logs every failed reconnect attempt as an error,
-        # and the outage is already reported once by _on_disconnect
-        if log.isEnabledFor(logging.DEBUG):   # paho formats a line per packet for on_log
-            self.client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
-        if b.username is not None:
-            self.client.username_pw_set(b.username, b.password)
-        if b.tls:
-            self.client.tls_set(ca_certs=b.ca, certfile=b.cert, keyfile=b.key)
-        self.client.will_set(self.status_topic, b"offline", qos=1, retain=True)
-        self.client.reconnect_delay_set(b.reconnect_min, b.reconnect_max)
-        self.client.max_inflight_messages_set(config.inflight)
-        self.client.on_connect = self._on_connect
-        self.client.on_disconnect = self._on_disconnect
-        self.client.on_publish = self._on_publish
-        self.client.on_message = self._on_message
-        self.client.on_subscribe = self._on_subscribe
-        self.client.on_connect_fail = self._on_connect_fail
+        #: the brokers, in order of preference (docs/bridge.md, "Fleet")
+        self.brokers = config.brokers
+        self._index = 0                           # the broker in use (or being tried)
+        # MQTT 5 per broker: "auto" starts with 5 and falls back to 3.1.1 on a refusal
+        self._v5 = [b.protocol != "3.1.1" for b in self.brokers]
+        self._bad: Dict[int, str] = {}            # broker index -> why it refused us for good
+        self._want: Optional[Tuple[str, int]] = None   # for the fleet thread: ("switch"|"fallback", index)
+        self._draining = False                    # a failback waits for the rows in flight
+        self._answered_no = False                 # the last CONNACK refused us (counted once)
+        self.switches = 0                         # moves from one broker of the list to another
+        self.fallbacks = 0                        # brokers that refused MQTT 5 (3.1.1 used)
+        self.probes = 0                           # failback probes of an earlier broker
+        self.stalls = 0                           # connections stuck (no PUBACK / CONNACK): made anew
+        self._acked_at = time.monotonic()         # the last PUBACK of a row (or start of the window)
+        self._connecting_since: Optional[float] = None   # TCP up, CONNACK awaited since
+        self.v5 = self._v5[0]
+        self.client = self._make_client(0)
+        self._fleet_thread: Optional[threading.Thread] = None
         self._cond = threading.Condition()
         self._connected = False
         self._subscribed = False    # the broker confirmed the tx subscription
@@ -237,20 +241,234 @@ class MqttLink:
         self._take_back_mids: List[int] = []  # paho mids to drop from paho's session at CONNACK
         self._pump_thread: Optional[threading.Thread] = None
 
+    def _client_id(self, b: Any) -> str:
+        return b.client_id or f"fap-bridge-{self.config.host}"
+
+    def _make_client(self, index: int, probe: bool = False) -> Any:
+        """A paho client for broker ``index`` of the list, with its own TLS and credentials;
+        ``probe``: a throwaway one (clean session, no will, its own client id) that only
+        asks whether the broker answers."""
+        mqtt, b = self._mqtt, self.brokers[index]
+        client_id = self._client_id(b) + ("-probe" if probe else "")
+        # A persistent session: tx published while the bridge is away wait at the broker
+        # (MQTT 5: clean start off and a session expiry; 3.1.1: clean session off).
+        if self._v5[index]:
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id, protocol=mqtt.MQTTv5)
+        else:
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=client_id,
+                                 clean_session=probe, protocol=mqtt.MQTTv311)
+        client.connect_timeout = b.connect_timeout
+        if b.username is not None:
+            client.username_pw_set(b.username, b.password)
+        if b.tls:
+            client.tls_set(ca_certs=b.ca, certfile=b.cert, keyfile=b.key)
+        if probe:
+            return client
+        # paho's own messages at debug: it logs every failed reconnect attempt as an error,
+        # and the outage is already reported once by _on_disconnect
+        if log.isEnabledFor(logging.DEBUG):   # paho formats a line per packet for on_log
+            client.on_log = lambda c, u, level, buf: log.debug("paho: %s", buf)
+        client.will_set(self.status_topic, b"offline", qos=1, retain=True)
+        client.reconnect_delay_set(b.reconnect_min, b.reconnect_max)
+        client.max_inflight_messages_set(self.config.inflight)
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.on_publish = self._on_publish
+        client.on_message = self._on_message
+        client.on_subscribe = self._on_subscribe
+        client.on_connect_fail = self._on_connect_fail
+        return client
+
+    def _connect_props(self, index: int) -> Dict[str, Any]:
+        """connect_async's keywords for broker ``index``."""
+        b = self.brokers[index]
+        if not self._v5[index]:
+            return {"keepalive": b.keepalive}
+        props = self._props[0](self._props[1].CONNECT)
+        props.SessionExpiryInterval = b.session_expiry
+        return {"keepalive": b.keepalive, "clean_start": False, "properties": props}
+
+    @property
+    def broker(self) -> Any:
+        """The broker in use, or being tried (a :class:`~fap_py.bridge.config.BrokerConfig`)."""
+        return self.brokers[self._index]
+
+    @property
+    def broker_index(self) -> int:
+        """Its place in the list (0: the preferred one)."""
+        return self._index
+
     # -- lifetime ---------------------------------------------------------------
     def start(self) -> None:
         """Connect in the background (paho retries with backoff) and start the pump."""
-        b = self.config.broker
-        if self.v5:
-            props = self._props[0](self._props[1].CONNECT)
-            props.SessionExpiryInterval = b.session_expiry
-            self.client.connect_async(b.host, b.port, keepalive=b.keepalive, clean_start=False,
-                                      properties=props)
-        else:
-            self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
+        b = self.broker
+        self.client.connect_async(b.host, b.port, **self._connect_props(self._index))
         self.client.loop_start()
         self._pump_thread = threading.Thread(target=self._pump, name="fap-bridge-pump", daemon=True)
         self._pump_thread.start()
+        self._fleet_thread = threading.Thread(target=self._fleet, name="fap-bridge-fleet", daemon=True)
+        self._fleet_thread.start()
+
+    # -- the fleet: failover, fallback to 3.1.1, failback -------------------------
+    def _fleet(self) -> None:
+        """Moves between the brokers of the list: to the next one after ``failover.attempts``
+        failed attempts on one, to 3.1.1 on a broker that refused MQTT 5, and back to an
+        earlier (preferred) one when a probe finds it answering (``failover.failback``)."""
+        fo = self.config.failover
+        next_probe = time.monotonic() + fo.failback_interval
+        while True:
+            with self._cond:
+                self._cond.wait_for(lambda: self._stopping or self._want is not None,
+                                    max(0.0, min(next_probe - time.monotonic(), STALL_TICK)))
+                if self._stopping:
+                    return
+            stall = self._stalled()
+            if stall is not None:   # counted as a failed attempt: with a list, may move on
+                self._failed(stall)
+            with self._cond:
+                if stall is not None and self._want is None:
+                    self._want = ("reconnect", self._index)   # the same broker, a new connection
+                want, self._want = self._want, None
+                probe = (want is None and fo.failback and self._connected and self._index > 0
+                         and time.monotonic() >= next_probe)
+            if want is not None:
+                self._switch(want[1], {"fallback": "fallback", "reconnect": "reconnect"}.get(want[0], "failover"))
+                next_probe = time.monotonic() + fo.failback_interval
+                continue
+            if time.monotonic() >= next_probe:
+                next_probe = time.monotonic() + fo.failback_interval
+            if probe:
+                for j in range(self._index):
+                    if j not in self._bad and self._probe(j):
+                        self._failback(j)
+                        break
+
+    def _stalled(self) -> Optional[str]:
+        """Why the connection is stuck, or None: connected with rows in flight and no PUBACK for
+        the broker's ``ack_timeout`` (a half-open link, a broker that stopped answering), or a
+        TCP connection up and no CONNACK within its ``connect_timeout``. MQTT re-sends only on
+        a new connection: the watchdog of the fleet thread makes one."""
+        b, now = self.broker, time.monotonic()
+        with self._cond:
+            if self.refused is not None:
+                return None
+            if self._connected:
+                self._connecting_since = None
+                if self._inflight and now - self._acked_at > b.ack_timeout:
+                    self._acked_at = now
+                    self.stalls += 1
+                    return (f"{b.address}: no acknowledgement for {b.ack_timeout:g} s with "
+                            f"{len(self._inflight)} rows in flight (a new connection)")
+                return None
+            if self.client.socket() is None:
+                self._connecting_since = None
+                return None
+            if self._connecting_since is None:
+                self._connecting_since = now
+            elif now - self._connecting_since > b.connect_timeout:
+                self._connecting_since = None
+                self.stalls += 1
+                return f"{b.address}: no CONNACK within {b.connect_timeout:g} s (a new connection)"
+        return None
+
+    def _next_index(self) -> int:
+        """Under ``_cond``: the broker after the current one (cycling), skipping refusals."""
+        n = len(self.brokers)
+        for step in range(1, n + 1):
+            j = (self._index + step) % n
+            if j not in self._bad:
+                return j
+        return self._index
+
+    def _probe(self, index: int) -> bool:
+        """Broker ``index`` answers a CONNECT with a CONNACK that accepts us (bounded by its
+        ``connect_timeout``); a throwaway session, closed at once."""
+        b = self.brokers[index]
+        self.probes += 1
+        answer: List[Any] = []
+        client = self._make_client(index, probe=True)
+        client.on_connect = lambda c, u, f, reason, p: answer.append(reason)
+        deadline = time.monotonic() + b.connect_timeout
+        try:
+            client.connect(b.host, b.port, keepalive=max(5, b.keepalive))
+            while not answer and time.monotonic() < deadline and not self._stopping:
+                if client.loop(0.05) != self._mqtt.MQTT_ERR_SUCCESS:
+                    break
+        except (OSError, ValueError) as exc:
+            log.debug("failback probe of %s: %s", b.address, describe_connect_error(exc, b.host, b.port))
+            return False
+        finally:
+            try:
+                client.disconnect()
+            except (OSError, ValueError):
+                pass
+            sock = client.socket()
+            if sock is not None:
+                sock.close()
+        ok = bool(answer) and not answer[0].is_failure
+        if (answer and getattr(answer[0], "value", None) in _NO_MQTT5 and self._v5[index]
+                and b.protocol == "auto"):
+            self._v5[index] = False   # a 3.1.1 broker: probed (and used) with 3.1.1
+            self.fallbacks += 1
+            return self._probe(index)
+        log.info("failback probe of %s (broker %d of %d): %s", b.address, index + 1, len(self.brokers),
+                 "answers" if ok else (answer[0] if answer else "no answer"))
+        return ok
+
+    def _failback(self, index: int) -> None:
+        """Back to the earlier broker ``index``: the rows in flight answered first (at most
+        ``failover.drain`` s: the rest are handed again there, as after any loss)."""
+        with self._cond:
+            self._draining = True
+            self._cond.wait_for(lambda: not self._inflight or not self._connected or self._stopping,
+                                self.config.failover.drain)
+        self._switch(index, "failback")
+
+    def _switch(self, index: int, why: str) -> None:
+        """Leave the current broker for broker ``index`` (or the same one, for 3.1.1 after a
+        refusal of MQTT 5): a new paho client; the old one's callbacks are ignored from now on.
+        The outbox is the one queue: the rows the old broker had not acknowledged are handed
+        again, in order, at the new CONNACK (as after any reconnect)."""
+        if why == "fallback":
+            self._v5[index] = False
+        new = self._make_client(index)
+        with self._cond:
+            if self._stopping:
+                return
+            old, old_index = self.client, self._index
+            was = self._connected
+            self._connected = self._subscribed = False
+            self._gate_open = False
+            self._own_queue.clear()
+            self._own_current = None
+            self._draining = False
+            self._answered_no = False
+            self._index = index
+            self.client = new
+            self.v5 = self._v5[index]
+            self._connecting_since = None
+            if was:
+                self.disconnects += 1
+            if index != old_index:   # a new broker: its own count of failed attempts
+                self._failures = 0
+                self.switches += 1
+            self._cond.notify_all()
+        old_b, b = self.brokers[old_index], self.brokers[index]
+        if why == "fallback":
+            log.warning("broker %s refuses MQTT 5: using MQTT 3.1.1 with it", b.address)
+        elif why == "reconnect":
+            log.info("broker %s: a new connection", b.address)
+        else:
+            log.warning("broker %s: %s (broker %d of %d%s) -> %s (broker %d of %d)", why,
+                        old_b.address, old_index + 1, len(self.brokers), "" if was else ", not connected",
+                        b.address, index + 1, len(self.brokers))
+        try:
+            old.disconnect()
+        except (OSError, ValueError):
+            pass
+        old.loop_stop()
+        new.connect_async(b.host, b.port, **self._connect_props(index))
+        new.loop_start()
 
     def wait_connected(self, timeout: Optional[float]) -> bool:
         """True once connected and subscribed to the tx topics; raises
@@ -275,16 +493,18 @@ class MqttLink:
         """Publications the broker refused (MQTT 5 PUBACK reason code >= 0x80)."""
         return sum(self.refused_pubs.values())
 
-    def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> None:
+    def publish_now(self, topic: str, payload: bytes, retain: bool = True) -> bool:
         """Publish outside the outbox (QoS 1, best effort): the bridge's own health, which
-        must get out even when the outbox cannot be written."""
+        must get out even when the outbox cannot be written. True if handed to paho (or
+        queued for the connect phase); False if not connected, held back after a refusal,
+        or refused by paho: the caller publishes it again later (every connect does)."""
         if not isinstance(topic, str):
             raise InvalidTypeError(f"topic must be a str, not {type(topic).__name__}")
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
         with self._cond:
             if not self._connected:
-                return
+                return False
             if not self._gate_open:   # the connect phase: one at a time, after the others
                 self._own_queue.append((topic, payload, retain))
                 queued = True
@@ -292,8 +512,8 @@ class MqttLink:
                 queued = False
         if queued:
             self._gate_next()
-        else:
-            self._send_own(topic, payload, retain)
+            return True
+        return self._send_own(topic, payload, retain, handed=True)
 
     def _kind(self, topic: str) -> str:
         """What a refusal of ``topic`` holds back: the status or health topic itself, or
@@ -313,10 +533,12 @@ class MqttLink:
         h = self._held.get(self._kind(topic))
         return h is not None and time.monotonic() < h[0]
 
-    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False) -> bool:
+    def _send_own(self, topic: str, payload: bytes, retain: bool, gate: bool = False,
+                  handed: bool = False) -> bool:
         """One of the bridge's own publications (not an outbox row): its mid is recorded
         as such, so its PUBACK is never matched with a row. True if it waits for its
-        PUBACK (``gate``: as the connect phase's publication in flight)."""
+        PUBACK (``gate``: as the connect phase's publication in flight); with ``handed``,
+        True if paho took it at all (even if already answered)."""
         with self._cond:
             if self._held_locked(topic):
                 return False
@@ -334,6 +556,8 @@ class MqttLink:
                     self._own_current = info.mid
                 if self._publishing == 0:
                     self._early.clear()   # nothing is being handed to paho: no owner will come
+        if handed:
+            return info is not None and info.rc != self._mqtt.MQTT_ERR_QUEUE_SIZE
         return waiting
 
     def _own_handed(self, info: Any, topic: str) -> bool:
@@ -430,6 +654,8 @@ class MqttLink:
             self._cond.notify_all()
         if self._pump_thread is not None:
             self._pump_thread.join(timeout)
+        if self._fleet_thread is not None:
+            self._fleet_thread.join(timeout)
         self._flush_acked()
         if self._connected and self._send_own(self.status_topic, b"offline", True):
             with self._cond:
@@ -439,35 +665,67 @@ class MqttLink:
         self.client.loop_stop()
 
     # -- paho callbacks (network thread) ------------------------------------------
+    def _stale(self, client: Any) -> bool:
+        """A callback of a paho client a switch left behind (None: a caller's own call)."""
+        return client is not None and client is not self.client
+
     def _on_connect_fail(self, client: Any, userdata: Any) -> None:
         # paho calls this from inside its ``except OSError``: the exception is the current one
-        b = self.config.broker
+        if self._stale(client):
+            return
+        b = self.broker
         self._failed(describe_connect_error(sys.exc_info()[1], b.host, b.port))
 
     def _failed(self, text: str) -> None:
-        """A connection attempt failed: named at once (warning), again on each retry (info, -v)."""
-        self._failures += 1
+        """A connection attempt failed: named at once (warning), again on each retry (info, -v).
+        With a list of brokers, ``failover.attempts`` failures in a row move to the next."""
+        b = self.broker
         with self._cond:
+            self._failures += 1
+            failures = self._failures
             self.last_error = text
+            if len(self.brokers) > 1 and failures >= self.config.failover.attempts and self._want is None:
+                self._want = ("switch", self._next_index())
             self._cond.notify_all()
-        if self._failures == 1:
-            log.warning("broker %s (retrying every %g..%g s)", text, self.config.broker.reconnect_min,
-                        self.config.broker.reconnect_max)
+        if failures == 1:
+            log.warning("broker %s (retrying every %g..%g s)", text, b.reconnect_min, b.reconnect_max)
         else:
-            log.info("broker %s (attempt %d)", text, self._failures)
+            log.info("broker %s (attempt %d)", text, failures)
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if self._stale(client):
+            return   # a client left behind by a switch
         if reason.is_failure:
-            b = self.config.broker
-            if getattr(reason, "value", None) in _FATAL_CONNACK:
-                # no retry can fix it: stop paho's loop; whoever waits gets BrokerRefusedError
-                log.info("broker %s:%d refused the connection: %s", b.host, b.port, reason)
+            b = self.broker
+            code = getattr(reason, "value", None)
+            if code in _NO_MQTT5 and self._v5[self._index] and b.protocol == "auto":
+                with self._cond:   # the fleet thread makes a 3.1.1 client for it
+                    self._answered_no = True
+                    self.fallbacks += 1
+                    self.last_error = f"{b.address}: refuses MQTT 5 ({reason}): trying 3.1.1"
+                    self._want = ("fallback", self._index)
+                    self._cond.notify_all()
+                return
+            if code in _FATAL_CONNACK:
+                # no retry can fix it: whoever waits gets BrokerRefusedError (with a list:
+                # the next broker, and BrokerRefusedError once every one has refused)
+                log.info("broker %s refused the connection: %s", b.address, reason)
+                with self._cond:
+                    self._bad[self._index] = str(reason)
+                    if len(self._bad) < len(self.brokers):
+                        self.last_error = f"{b.address}: refused the connection: {reason}"
+                        self._want = ("switch", self._next_index())
+                        self._cond.notify_all()
+                        return
                 client.loop_stop()
                 with self._cond:
-                    self.refused = f"broker refused the connection: {reason}"
+                    self.refused = f"broker refused the connection: {reason}" if len(self.brokers) == 1 \
+                        else "every broker refused the connection: " + "; ".join(
+                            f"{self.brokers[i].address}: {r}" for i, r in sorted(self._bad.items()))
                     self._cond.notify_all()
             else:
-                self._failed(f"{b.host}:{b.port}: refused the connection: {reason}")
+                self._answered_no = True   # its disconnect follows: one failure, this one
+                self._failed(f"{b.address}: refused the connection: {reason}")
             return
         self._failures = 0
         self.last_error = None
@@ -490,8 +748,9 @@ class MqttLink:
             self._own_current = None
         if mids:
             self._take_back(mids)
-        log.info("connected to %s:%d (session present: %s)", self.config.broker.host,
-                 self.config.broker.port, flags.session_present)
+        b = self.broker
+        log.info("connected to %s (broker %d of %d, MQTT %s; session present: %s)", b.address,
+                 self._index + 1, len(self.brokers), "5" if self.v5 else "3.1.1", flags.session_present)
         client.subscribe([(f, self.config.qos) for f in [*self.tx_filters, *self.extra]])
         with self._cond:
             self._connected = True
@@ -505,6 +764,8 @@ class MqttLink:
         self._gate_next()
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if self._stale(client):
+            return   # a client left behind by a switch
         mids: List[int] = []
         with self._cond:
             was = self._connected
@@ -525,12 +786,17 @@ class MqttLink:
         # iterating its queue (a failed re-send reports the loss from inside that loop)
         self._take_back_mids.extend(mids)
         if was and not self._stopping:
-            log.warning("lost the broker (%s); reconnecting with backoff", reason)
+            log.warning("lost the broker %s (%s); reconnecting with backoff", self.broker.address, reason)
         elif not was and not self._stopping and getattr(reason, "is_failure", False):
-            b = self.config.broker   # dropped before CONNACK (a TLS or protocol failure after TCP)
-            self._failed(f"{b.host}:{b.port}: disconnected before the session started: {reason}")
+            if self._answered_no:   # the CONNACK said why: already counted and named
+                self._answered_no = False
+                return
+            b = self.broker   # dropped before CONNACK (a TLS or protocol failure after TCP)
+            self._failed(f"{b.address}: disconnected before the session started: {reason}")
 
     def _on_subscribe(self, client: Any, userdata: Any, mid: int, reasons: Any, props: Any) -> None:
+        if self._stale(client):
+            return
         failed = [r for r in reasons if r.is_failure]
         if failed:
             log.error("broker refused the subscription to %s: %s", self.tx_filters, failed[0])
@@ -540,9 +806,13 @@ class MqttLink:
             self._cond.notify_all()
 
     def _on_publish(self, client: Any, userdata: Any, mid: int, reason: Any, props: Any) -> None:
+        if self._stale(client):
+            return   # an answer of a broker left behind: its rows are handed again
         gate = False
         with self._cond:
             entry = self._inflight.pop(mid, None)
+            if entry is not None:
+                self._acked_at = time.monotonic()
             if entry is None:
                 own = self._own.pop(mid, None)
                 if own is not None:
@@ -685,8 +955,9 @@ class MqttLink:
 
     def _rows_allowed(self) -> bool:
         """Under ``_cond``: rows may be handed: connected, and the connect's own
-        publications answered (or GATE_TIMEOUT passed: the pump opens the gate then)."""
-        return self._connected and self._gate_open
+        publications answered (or GATE_TIMEOUT passed: the pump opens the gate then),
+        and no failback waiting for the rows in flight."""
+        return self._connected and self._gate_open and not self._draining
 
     def _work(self) -> bool:
         """Anything at all to do (the pump's round after ``PUMP_LINGER``)."""
@@ -754,6 +1025,8 @@ class MqttLink:
                     self._acked_one((seq, topic), self._early.pop(info.mid))
                     self._settled(seq)
                 else:
+                    if not self._inflight:   # the window's clock starts with its first row
+                        self._acked_at = time.monotonic()
                     self._inflight[info.mid] = (seq, topic)
                 if self._publishing == 0:
                     self._early.clear()

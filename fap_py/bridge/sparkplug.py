@@ -10,6 +10,17 @@ Topics (Sparkplug B 3.0, namespace ``spBv1.0``)::
     spBv1.0/<group>/DDATA/<edge>/<bus>-<node>    each message received, counters, reply time
     spBv1.0/<group>/DDEATH/<edge>/<bus>-<node>   when a node becomes inactive
     spBv1.0/<group>/NCMD/<edge>             subscribed: "Node Control/Rebirth" = true -> births again
+    spBv1.0/STATE/<primary_host_id>         subscribed with ``primary_host_id``: births wait for online
+
+Primary host application (Sparkplug 3.0, ``[sparkplug] primary_host_id``): the
+births wait until the host's retained STATE says ``{"online": true, "timestamp": t}``
+(tck-id-message-flow-edge-node-birth-publish-phid-wait, -wait-id: the host id is the
+topic's last level, -wait-online, -wait-timestamp: a STATE older than the last one
+taken is refused). DDATA made meanwhile are held in the bounded queue below. A STATE
+offline: NDEATH, disconnect, and the connection made again, waiting for online
+(tck-id-message-flow-edge-node-birth-publish-phid-offline). A STATE that is not a JSON
+object with a boolean ``online`` and an integer ``timestamp`` is refused and counted
+(``state_refused``), never acted on.
 
 It runs its own MQTT connection (client id ``<client id>-spb``): Sparkplug
 needs NDEATH as the will of a clean session, while the bridge's main
@@ -28,6 +39,7 @@ full Eclipse Tahu schema reads them (the tests decode with it).
 from __future__ import annotations
 
 import collections
+import json
 import logging
 import sys
 import threading
@@ -36,7 +48,7 @@ from typing import Any, Deque, Dict, List, Optional, Tuple
 
 from .._validate import check_bool, check_seconds
 from ..errors import InvalidTypeError, InvalidValueError
-from .config import BridgeConfig, check_bus_node
+from .config import BridgeConfig, BrokerConfig, check_bus_node
 from .mqtt import MissingDependencyError, describe_connect_error, paho
 
 log = logging.getLogger(__name__)
@@ -47,6 +59,7 @@ REBIRTH = "Node Control/Rebirth"
 #: seconds between two rebirths the host asks for (NCMD); more within them: one at their end
 REBIRTH_MIN = 5.0
 QUEUE_MAX = 10_000    # DDATA kept while disconnected (oldest dropped past it, counted)
+STATE_MAX = 1024      # bytes of a STATE payload: a longer one is refused unread
 
 # Sparkplug B DataType values (the specification's enumeration)
 INT64, UINT64, DOUBLE, BOOLEAN, STRING, BYTES = 4, 8, 10, 11, 12, 17
@@ -148,26 +161,39 @@ class SparkplugNode:
         self._node_sent: Dict[str, Metric] = {}    # the node metrics as last sent
         self.queue_dropped = 0
         self.invalid_commands = 0                  # NCMD that are not a Sparkplug payload or ask nothing
+        self.primary = sp.primary_host_id
+        self.state_topic = None if self.primary is None else f"{NAMESPACE}/STATE/{self.primary}"
+        self.host_online = False                   # the primary host's last STATE taken said online
+        self._host_ts: Optional[int] = None        # the timestamp of the last STATE taken
+        self.state_refused: Dict[str, int] = {}    # reason -> STATE payloads refused
+        self.host_offline = 0                      # STATE offline taken while born (sessions ended)
+        self._session = False                      # the MQTT session is up (births may still wait)
         from .ratelimit import Coalescer
 
         self.rebirths = Coalescer(self._rebirth, REBIRTH_MIN, "Sparkplug rebirth")
         self._connected = False
         self.births = 0
-        mqtt = paho()
-        b = config.broker
-        base_id = b.client_id or f"fap-bridge-{config.host}"
-        self.client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"{base_id}-spb",
-                                  clean_session=True, protocol=mqtt.MQTTv311)
-        if b.username is not None:
-            self.client.username_pw_set(b.username, b.password)
-        if b.tls:
-            self.client.tls_set(ca_certs=b.ca, certfile=b.cert, keyfile=b.key)
-        self.client.reconnect_delay_set(b.reconnect_min, b.reconnect_max)
-        self.client.on_connect = self._on_connect
-        self.client.on_disconnect = self._on_disconnect
-        self.client.on_message = self._on_message
-        self.client.on_connect_fail = self._on_connect_fail
+        self.broker = config.broker                # the broker in use (follows the main link's)
+        self._restarting = threading.Lock()
+        self._stopped = False
+        self.client = self._make_client(self.broker)
         self._next_will()
+
+    def _make_client(self, b: Any) -> Any:
+        mqtt = paho()
+        base_id = b.client_id or f"fap-bridge-{self.config.host}"
+        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=f"{base_id}-spb",
+                             clean_session=True, protocol=mqtt.MQTTv311)
+        if b.username is not None:
+            client.username_pw_set(b.username, b.password)
+        if b.tls:
+            client.tls_set(ca_certs=b.ca, certfile=b.cert, keyfile=b.key)
+        client.reconnect_delay_set(b.reconnect_min, b.reconnect_max)
+        client.on_connect = self._on_connect
+        client.on_disconnect = self._on_disconnect
+        client.on_message = self._on_message
+        client.on_connect_fail = self._on_connect_fail
+        return client
 
     # -- topics -----------------------------------------------------------------
     def topic(self, kind: str, device: Optional[str] = None) -> str:
@@ -187,49 +213,165 @@ class SparkplugNode:
         self.client.will_set(self.topic("NDEATH"), encode([("bdSeq", INT64, self.bd_seq)], None), qos=1)
 
     def start(self) -> None:
-        b = self.config.broker
+        b = self.broker
         self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
         self.client.loop_start()
+
+    def follow(self, broker: Any) -> None:
+        """Use ``broker`` (the main link's, after a failover or failback): NDEATH on the old
+        one if born there, then a new session there (births as at any connect)."""
+        if not isinstance(broker, BrokerConfig):
+            raise InvalidTypeError(f"broker must be a BrokerConfig, not {type(broker).__name__}")
+        if broker is self.broker:
+            return
+        log.info("sparkplug: moving to broker %s", broker.address)
+        self._restart(broker)
+
+    def _restart(self, broker: Any = None) -> None:
+        """End the session (NDEATH first if born) and start a new one, on ``broker`` or the
+        same; in a thread of its own (never paho's: it stops paho's loop)."""
+        def run() -> None:
+            with self._restarting:
+                if self._stopped:
+                    return
+                self._end_session()
+                with self._lock:
+                    if broker is not None:
+                        self.broker = broker
+                        self.client = self._make_client(broker)
+                    self._next_will()
+                b = self.broker
+                self.client.connect_async(b.host, b.port, keepalive=b.keepalive)
+                self.client.loop_start()
+
+        threading.Thread(target=run, name="fap-bridge-spb-restart", daemon=True).start()
+
+    def _end_session(self, timeout: float = 2.0) -> None:
+        """NDEATH if born (the spec's clean goodbye), disconnect, stop paho's loop."""
+        with self._lock:
+            was, self._connected, self._session = self._connected, False, False
+            client = self.client
+        if was:
+            info = client.publish(self.topic("NDEATH"), encode([("bdSeq", INT64, self.bd_seq)], None), qos=1)
+            try:
+                info.wait_for_publish(timeout)
+            except (RuntimeError, ValueError):
+                pass
+        try:
+            client.disconnect()
+        except (OSError, ValueError):
+            pass
+        client.loop_stop()
 
     def stop(self, timeout: float = 5.0) -> None:
         """NDEATH (the spec's clean goodbye), then disconnect."""
         timeout = check_seconds(timeout, "timeout")
         self.rebirths.close()
-        if self._connected:
-            info = self.client.publish(self.topic("NDEATH"), encode([("bdSeq", INT64, self.bd_seq)], None), qos=1)
-            try:
-                info.wait_for_publish(timeout)
-            except (RuntimeError, ValueError):
-                pass
-            self.client.disconnect()
-        self.client.loop_stop()
+        with self._restarting:
+            self._stopped = True
+            self._end_session(timeout)
 
     # -- paho callbacks (network thread) ----------------------------------------------
     def _on_connect_fail(self, client: Any, userdata: Any) -> None:
-        b = self.config.broker
+        b = self.broker
         log.info("sparkplug: broker %s", describe_connect_error(sys.exc_info()[1], b.host, b.port))
 
     def _on_connect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
         if reason.is_failure:
             log.error("sparkplug: broker refused the connection: %s", reason)
             return
+        if client is not self.client:
+            return
         client.subscribe(self.topic("NCMD"), qos=1)
         with self._lock:
-            self._connected = True
-            self.birth()
-            queued, self._queue = list(self._queue), collections.deque()
-            for device, metrics, ts in queued:   # store and forward: after the births, flagged historical
-                self._send("DDATA", device, metrics, ts_ms=ts, historical=True)
+            self._session = True
+            if self.state_topic is not None:
+                # the births wait for the host's STATE (retained: it comes with the subscription)
+                self.host_online = False
+                client.subscribe(self.state_topic, qos=1)
+                log.info("sparkplug: waiting for the primary host %s to be online (%s)", self.primary,
+                         self.state_topic)
+                return
+            self._go_live()
+
+    def _go_live(self) -> None:
+        """Under the lock, in session: NBIRTH, DBIRTHs, then the data held, in order."""
+        self._connected = True
+        self.birth()
+        queued, self._queue = list(self._queue), collections.deque()
+        for device, metrics, ts in queued:   # store and forward: after the births, flagged historical
+            self._send("DDATA", device, metrics, ts_ms=ts, historical=True)
 
     def _on_disconnect(self, client: Any, userdata: Any, flags: Any, reason: Any, props: Any) -> None:
+        if client is not self.client:
+            return
         with self._lock:
-            was, self._connected = self._connected, False
+            was, self._connected, self._session = self._connected, False, False
             if was:
                 self._next_will()   # the reconnect announces a new bdSeq
         if was:
             log.warning("sparkplug: lost the broker (%s)", reason)
 
+    def _refuse_state(self, why: str) -> None:
+        """Under the lock: a STATE payload refused (counted by reason, logged bounded)."""
+        self.state_refused[why] = self.state_refused.get(why, 0) + 1
+        n = sum(self.state_refused.values())
+        if n <= 10 or n % 1000 == 0:
+            log.warning("sparkplug: STATE of primary host %s refused: %s (%d refused so far)",
+                        self.primary, why, n)
+
+    def _parse_state(self, payload: bytes) -> Optional[Tuple[bool, int]]:
+        """Under the lock: (online, timestamp) of a STATE payload, or None (refused, counted)."""
+        if len(payload) > STATE_MAX:
+            self._refuse_state(f"payload of more than {STATE_MAX} bytes")
+            return None
+        try:
+            doc = json.loads(payload)
+        except (UnicodeDecodeError, ValueError, RecursionError):
+            self._refuse_state("not JSON")
+            return None
+        if not isinstance(doc, dict):
+            self._refuse_state("not a JSON object")
+            return None
+        online, ts = doc.get("online"), doc.get("timestamp")
+        if not isinstance(online, bool):
+            self._refuse_state("online is not a boolean")
+            return None
+        if isinstance(ts, bool) or not isinstance(ts, int) or not 0 <= ts < 1 << 63:
+            self._refuse_state("timestamp is not an integer of ms since the epoch")
+            return None
+        if self._host_ts is not None and ts < self._host_ts:
+            self._refuse_state("timestamp older than the last STATE taken")
+            return None
+        return online, ts
+
+    def _on_state(self, payload: bytes) -> None:
+        with self._lock:
+            parsed = self._parse_state(payload)
+            if parsed is None:
+                return
+            online, self._host_ts = parsed
+            was = self.host_online
+            self.host_online = online
+            if online and self._session and not self._connected:
+                log.info("sparkplug: primary host %s online: births", self.primary)
+                self._go_live()
+                return
+            if online or not self._connected:
+                if was and not online:
+                    log.info("sparkplug: primary host %s offline (not born: data held)", self.primary)
+                return
+            self.host_offline += 1
+        log.warning("sparkplug: primary host %s offline: NDEATH, and a new session that waits for it",
+                    self.primary)
+        self._restart()
+
     def _on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        if client is not self.client:
+            return
+        if self.state_topic is not None and msg.topic == self.state_topic:
+            self._on_state(msg.payload)
+            return
         try:
             p = payload_class().FromString(msg.payload)
         except Exception as exc:   # protobuf's DecodeError and friends: a bad NCMD is ignored

@@ -72,11 +72,12 @@ def run(args: argparse.Namespace) -> int:
     except BridgeConfigError as exc:            # a bad file is a usage error (exit 2)
         text = str(exc)                          # named once: the reader's own errors name it already
         raise UsageError(text if text.startswith(f"{args.config}: ") else f"{args.config}: {text}") from exc
-    broker = f"{'mqtts' if config.broker.tls else 'mqtt'}://{config.broker.host}:{config.broker.port}"
+    broker = ", ".join(b.url for b in config.brokers)
     if args.check:   # every file the configuration names: BridgeFileError (exit 3) names the key
         verify_files(config, ports=True)
         emit(args, {"event": "checked", "config": args.config, "ok": True, "buses": [b.name for b in config.buses],
-                    "broker": broker, "prefix": config.prefix, "host": config.host},
+                    "broker": config.broker.url, "brokers": [b.url for b in config.brokers],
+                    "prefix": config.prefix, "host": config.host},
              f"{args.config}: ok: {len(config.buses)} bus(es), broker {broker}, "
              f"prefix {config.prefix}, host {config.host}")
         return 0
@@ -131,7 +132,9 @@ def _supervise(bridge: "Bridge", args: argparse.Namespace, stop: threading.Event
                 deadline = None
             elif time.monotonic() > deadline:
                 why = bridge.link.last_error
-                raise BusError(f"broker {cfg.host}:{cfg.port} not reached within {args.connect_timeout} s"
+                where = f"broker {cfg.address}" if len(bridge.config.brokers) == 1 else \
+                    f"no broker of {', '.join(b.address for b in bridge.config.brokers)}"
+                raise BusError(f"{where} not reached within {args.connect_timeout} s"
                                + (f": {why}" if why else ""))
         if notifier.watchdog is not None and bridge.alive():
             notifier.notify(WATCHDOG=1)

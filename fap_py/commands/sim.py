@@ -28,6 +28,7 @@ from ._options import (
     add_output_options,
     add_port_options,
     emit,
+    integer,
     plural,
     rs485_from_args,
     seconds,
@@ -88,8 +89,16 @@ def _action_parser() -> Parser:
     add.add_argument("--node", default="all", help="a node address, or all")
     add.add_argument("--bus", default=None, help="the bus's name (default: every bus)")
     add.add_argument("--probability", type=seconds, default=1.0, help="0..1")
-    add.add_argument("--ms", type=seconds, default=None, help="late_reply: milliseconds")
+    add.add_argument("--ms", type=seconds, default=None,
+                     help="late_reply: the delay; split: the gap between the pieces (milliseconds)")
+    add.add_argument("--rate", type=seconds, default=None, help="bit_errors, byte_drops: per reply byte, 0..1")
+    add.add_argument("--word", type=integer, default=None,
+                     help="error_reply: the error word's bits (1..0xffff)")
     add.add_argument("--seed", type=int, default=None, help="seed of the probability draws")
+    add.add_argument("--at", type=seconds, default=None, help="in force from this many seconds from now")
+    add.add_argument("--for", dest="duration", type=seconds, default=None,
+                     help="in force this many seconds (then removed; with --every: of each period)")
+    add.add_argument("--every", type=seconds, default=None, help="repeat: a period in seconds (needs --for)")
     lst = fa.add_parser("list", help="the active faults")
     rm = fa.add_parser("remove", help="remove a fault")
     rm.add_argument("id", help="the fault's id, or all")
@@ -118,9 +127,10 @@ def run(args: argparse.Namespace) -> int:
         if args.protocol is None:
             raise UsageError("--learn needs --protocol")
         from fap_py.sim._learn import learn
-        from fap_py.vbus import read_capture
+        from fap_py.sim._replay import load_capture
 
-        text = learn(read_capture(args.learn), args.protocol, args.master_port, args.learn)
+        text = learn(load_capture(args.learn, args.protocol, args.baud), args.protocol, args.master_port,
+                     args.learn)
         if args.output:
             from fap_py.errors import FileError
             try:
@@ -250,8 +260,10 @@ def _action(args: argparse.Namespace) -> int:
             req["ms"] = a.ms
         elif a.kind == "late_reply":
             raise UsageError("late_reply needs --ms MS")
-        if a.seed is not None:
-            req["seed"] = a.seed
+        for key, value in (("seed", a.seed), ("rate", a.rate), ("word", a.word), ("at", a.at),
+                           ("for", a.duration), ("every", a.every)):
+            if value is not None:
+                req[key] = value
         ans = request(a.control, req)
         _check(ans)
         emit(a, {"event": "fault_added", **ans}, f"added {_fault_text(ans['fault'])}")
@@ -279,6 +291,10 @@ def _check(ans: Dict[str, Any]) -> None:
 
 
 def _fault_text(f: Dict[str, Any]) -> str:
-    ms = f" {f['ms']:g} ms" if "ms" in f else ""
-    return (f"#{f['id']} {f['kind']}{ms} bus {f['bus'] or '*'} node {f['node']} "
-            f"p={f['probability']:g} applied {f['applied']}")
+    par = "".join(f" {k} {f[k]:g}" for k in ("ms", "rate") if k in f)
+    par += f" word 0x{f['word']:04x}" if "word" in f else ""
+    sched = "".join(f" {k} {f[k]:g} s" for k in ("at", "for", "every") if k in f)
+    sched += (" (on)" if f["active"] else " (off)") if "active" in f else ""
+    hung = f" hung {', '.join(f['hung_nodes'])}" if f.get("hung_nodes") else ""
+    return (f"#{f['id']} {f['kind']}{par} bus {f['bus'] or '*'} node {f['node']} "
+            f"p={f['probability']:g}{sched} applied {f['applied']}{hung}")

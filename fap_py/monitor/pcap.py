@@ -1,4 +1,4 @@
-"""pcap output: one record per frame, good or bad (docs/monitor.md).
+"""pcap output and input: one record per frame, good or bad (docs/monitor.md).
 
 Link type LINKTYPE_USER0 (147). Each packet is a small header, then the
 frame's bytes exactly as they were on the wire:
@@ -23,7 +23,7 @@ from __future__ import annotations
 import errno
 import io
 import struct
-from typing import BinaryIO, Optional
+from typing import BinaryIO, Iterator, NamedTuple, Optional
 
 from .. import _protocols
 from .._closing import Closing
@@ -117,6 +117,94 @@ class PcapWriter(Closing):
     def close(self) -> None:
         self._fh.flush()
 
+
+
+class PcapFrame(NamedTuple):
+    """One packet of a monitor pcap, as :func:`read_pcap` gives it back."""
+
+    t: float                 #: seconds (the record's timestamp)
+    protocol: str            #: the protocol table's name of its pcap id
+    ok: bool                 #: the monitor decoded it as a good frame
+    port: Optional[int]      #: the sender port, when known
+    text: str                #: the error reason or message type the monitor wrote
+    raw: bytes               #: the frame's bytes as they were on the wire
+
+
+#: the pcap magics: microsecond and nanosecond timestamps, each byte order
+_MAGICS = {b"\xd4\xc3\xb2\xa1": ("<", 1e-6), b"\xa1\xb2\xc3\xd4": (">", 1e-6),
+           b"\x4d\x3c\xb2\xa1": ("<", 1e-9), b"\xa1\xb2\x3c\x4d": (">", 1e-9)}
+
+
+def is_pcap(path: str) -> bool:
+    """True when the file at ``path`` starts with a pcap magic (else it may be a vbus capture)."""
+    from .._validate import check_path
+
+    path = check_path(path, "path")     # never an int: open(3) would take over fd 3
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) in _MAGICS
+    except OSError:
+        return False
+
+
+def read_pcap(path: str) -> Iterator[PcapFrame]:
+    """The frames of a pcap the monitor wrote (link type 147, the header above), in file
+    order. Not a pcap, another link type: :class:`FileError` here, at the call; a packet with
+    a header of another version or an unknown protocol id: :class:`FileError` naming the
+    packet, while iterating; a file cut in the middle of its last packet ends there (the
+    monitor may be writing it)."""
+    from .._validate import check_path
+
+    path = check_path(path, "path")
+    try:
+        fh = open(path, "rb")
+    except OSError as exc:
+        raise FileError(exc.errno or errno.EIO, f"pcap file: {exc.strerror}", path) from None
+    try:
+        head = fh.read(24)
+        if len(head) < 24 or head[:4] not in _MAGICS:
+            raise _not_pcap(path, "no pcap file header")
+        order, unit = _MAGICS[head[:4]]
+        linktype = struct.unpack(order + "I", head[20:24])[0] & 0x0FFFFFFF
+        if linktype != LINKTYPE:
+            raise _not_pcap(path, f"link type {linktype}, not the monitor's {LINKTYPE} "
+                            "(fap monitor --pcap writes it)")
+    except BaseException:
+        fh.close()
+        raise
+    return _packets(fh, path, order, unit)
+
+
+def _not_pcap(path: str, what: str) -> FileError:
+    return FileError(errno.EINVAL, f"not a monitor pcap: {what}", path)
+
+
+def _packets(fh: BinaryIO, path: str, order: str, unit: float) -> Iterator[PcapFrame]:
+    by_id = {p.pcap_id: p.name for p in _protocols.all_protocols()}
+    rec = struct.Struct(order + "IIII")
+    n = 0
+    with fh:
+        while True:
+            h = fh.read(16)
+            if len(h) < 16:
+                return
+            sec, frac, incl, _orig = rec.unpack(h)
+            if incl > SNAPLEN:
+                raise _not_pcap(path, f"packet {n + 1} claims {incl} bytes (more than the snap length)")
+            data = fh.read(incl)
+            if len(data) < incl:
+                return
+            n += 1
+            if len(data) < 5 or data[0] != HEADER_VERSION or len(data) < 5 + data[4]:
+                raise _not_pcap(path, f"packet {n} has no version-{HEADER_VERSION} monitor header")
+            name = by_id.get(data[1])
+            if name is None:
+                raise _not_pcap(path, f"packet {n} has protocol id {data[1]}, which the protocol "
+                                "table does not hold")
+            flags, port, tl = data[2], data[3], data[4]
+            yield PcapFrame(sec + frac * unit, name, bool(flags & FLAG_OK),
+                            port if flags & FLAG_PORT else None,
+                            data[5:5 + tl].decode("ascii", "replace"), bytes(data[5 + tl:]))
 
 
 def __getattr__(name: str) -> object:

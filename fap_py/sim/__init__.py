@@ -22,7 +22,7 @@ from typing import Any, Dict, List, Optional
 from .._validate import check_baud, check_path, check_seconds
 from ..errors import InvalidTypeError
 from ._config import SimConfigError, check_config, load, loads
-from ._faults import KINDS, FaultError, FaultTable
+from ._faults import KINDS, FaultError, FaultTable, fault_keywords
 from ._generators import FastClock, ManualClock, WallClock
 from ._plugins import plugin, plugin_name
 from ._replay import Replay, ReplayError
@@ -105,9 +105,7 @@ class Sim:
             for b, bus in enumerate(buses):
                 self.buses.append(self._start_bus(b, bus, port, baud, rs485))
             for f in config.get("fault", ()):
-                self.faults.add(f["kind"], bus=f.get("bus"), node=f.get("node", "all"),
-                                probability=f.get("probability", 1.0), ms=f.get("ms", 0.0),
-                                seed=f.get("seed"), allowed=self.allowed)
+                self.faults.add(f["kind"], allowed=self.allowed, **fault_keywords(f))
         except BaseException:
             self.close()
             raise
@@ -153,6 +151,8 @@ class Sim:
             raise InvalidTypeError(f"fault kind must be a str, not {type(kind).__name__}")
         if kind == "late_reply" and "ms" not in kw:
             raise FaultError("late_reply needs ms (the delay in milliseconds)")
+        if "for" in kw:
+            kw["duration"] = kw.pop("for")
         whole = [b.name for b in self.buses if getattr(plugin(b.protocol), "PORT_PER_NODE", False)
                  and kw.get("bus") == b.name]
         p = kw.get("probability", 1.0)
@@ -200,6 +200,7 @@ class Sim:
                 "fault_changes": self.faults.changes}
 
     def close(self) -> None:
+        self.faults.close()
         for b in reversed(self.buses):
             try:
                 b.runner.stop()

@@ -15,6 +15,7 @@ from typing import Any, Dict, List, Optional, Tuple, Union
 
 from .._validate import check_path
 from ..errors import FapError, InvalidTypeError, InvalidValueError
+from ._faults import PARAMS
 from ._generators import resolve_hook
 from ._schema import Path, Problem, validate
 
@@ -208,6 +209,11 @@ def semantic(data: Dict[str, Any]) -> List[Problem]:
             out.append(Problem(("fault", f, "bus"), f"no bus is named {fault['bus']!r}"))
         if fault["kind"] == "late_reply" and "ms" not in fault:
             out.append(Problem(("fault", f), "late_reply needs 'ms'"))
+        for key in ("ms", "rate", "word"):
+            if key in fault and PARAMS.get(fault["kind"], ("",))[0] != key:
+                out.append(Problem(("fault", f, key), f"{key} is not a parameter of {fault['kind']}"))
+        if "every" in fault and not ("for" in fault and fault["for"] < fault["every"]):
+            out.append(Problem(("fault", f, "every"), "every needs for, shorter than every"))
     return out
 
 

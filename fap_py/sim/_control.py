@@ -25,12 +25,13 @@ import threading
 from typing import Any, Dict, List
 
 from ..errors import FapError, FileError, InvalidValueError
+from ._faults import FAULT_KEYS, fault_keywords
 
 log = logging.getLogger("fap_py.sim")
 
 MAX_LINE = 64 * 1024
 MAX_CLIENTS = 16
-_FAULT_KEYS = {"kind", "node", "bus", "probability", "ms", "seed"}
+_FAULT_KEYS = {"kind", *FAULT_KEYS}
 
 
 class ControlError(InvalidValueError):
@@ -68,8 +69,7 @@ def handle(sim: Any, line: bytes) -> Dict[str, Any]:
                         f"(known: {', '.join(sorted(_FAULT_KEYS))})"}
             if "kind" not in req:
                 return {"ok": False, "error": "fault.add needs 'kind'"}
-            kw = {k: req[k] for k in ("node", "bus", "probability", "ms", "seed") if k in req}
-            return {"ok": True, "fault": sim.add_fault(req["kind"], **kw)}
+            return {"ok": True, "fault": sim.add_fault(req["kind"], **fault_keywords(req))}
         if cmd == "fault.remove":
             if "id" not in req:
                 return {"ok": False, "error": "fault.remove needs 'id' (a fault id or \"all\")"}

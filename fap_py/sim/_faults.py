@@ -4,14 +4,21 @@ A :class:`FaultTable` holds the active faults of a sim. A responder asks :meth:`
 once per transaction (a request addressed to one of its nodes) which faults apply now: the
 table is read at that moment, so an added or removed fault takes effect on the next
 transaction. Each fault has a kind, a bus (or every bus), a node (or ``all``), a probability
-drawn from its own seeded generator and parameters (``ms`` of ``late_reply``). Every change is
-logged and counted; every application is counted per fault and per kind.
+drawn from its own seeded generator, parameters (``ms`` of ``late_reply`` and ``split``,
+``rate`` of ``bit_errors`` and ``byte_drops``, ``word`` of ``error_reply``) and an optional
+schedule (``at``/``for``/``every``, seconds of the wall clock from the moment it was added).
+Every change is logged and counted; every application is counted per fault and per kind.
+A schedule's edges are changes too: a thread of the table wakes at each one, logs it, drops a
+fault whose ``for`` has run out, and tells the listeners (FAP slaves are opened and closed
+there, not per transaction).
 """
 from __future__ import annotations
 
 import logging
+import math
 import random
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Optional, Tuple, Union
 
@@ -28,10 +35,33 @@ KINDS: Dict[str, str] = {
     "wrong_address": "the reply carries another node's address",
     "garbage": "random bytes instead of the reply",
     "truncated": "only the first half of the reply frame",
+    "hung": "once drawn, the node answers nothing until the fault is removed (reset)",
+    "split": "the reply is sent in two pieces, ms milliseconds apart",
+    "bit_errors": "each reply byte has one bit flipped with probability rate",
+    "byte_drops": "each reply byte is left out with probability rate",
+    "error_reply": "the protocol's error answer: the node reports the error word (G485)",
 }
 
 #: kinds that replace or suppress the reply (one applies; late_reply combines with them)
-_EXCLUSIVE = ("off", "no_reply", "garbage", "truncated", "wrong_address", "bad_crc")
+_EXCLUSIVE = ("off", "hung", "no_reply", "garbage", "truncated", "wrong_address", "bad_crc",
+              "error_reply", "bit_errors", "byte_drops", "split")
+
+#: what the shared responder does to any request/reply protocol (a plug-in's ``FAULTS``
+#: starts from it; ``error_reply`` needs the plug-in's own ``error_reply(node, word)``)
+REPLY_KINDS: Tuple[str, ...] = ("off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage",
+                                "truncated", "hung", "split", "bit_errors", "byte_drops")
+
+#: the parameter each kind needs, its default and its bounds
+PARAMS: Dict[str, Tuple[str, float, float, float]] = {
+    "late_reply": ("ms", 0.0, 0.0, 60000.0),
+    "split": ("ms", 5.0, 0.0, 60000.0),
+    "bit_errors": ("rate", 0.05, 0.0, 1.0),
+    "byte_drops": ("rate", 0.05, 0.0, 1.0),
+    "error_reply": ("word", 1.0, 1.0, 65535.0),
+}
+
+#: the longest schedule time (seconds): a day is plenty for a test bench
+MAX_SCHEDULE_S = 86400.0
 
 
 class FaultError(InvalidValueError):
@@ -49,16 +79,74 @@ class Fault:
     seed: int = 0
     applied: int = 0
     rng: random.Random = field(default_factory=random.Random, repr=False)
+    rate: float = 0.0
+    word: int = 0
+    at: float = 0.0
+    duration: Optional[float] = None      # ``for``: seconds active (each period with every)
+    every: Optional[float] = None
+    t0: float = 0.0                       # when it was added (time.monotonic)
+    hung: set = field(default_factory=set, repr=False)   # (bus, node) latched by ``hung``
 
     def matches(self, bus: str, node: int) -> bool:
         return (self.bus is None or self.bus == bus) and (self.node == "all" or self.node == node)
 
-    def public(self) -> Dict[str, Any]:
+    @property
+    def scheduled(self) -> bool:
+        return self.at > 0 or self.duration is not None
+
+    def active(self, t: float) -> bool:
+        """In force at monotonic time ``t`` (its schedule; an unscheduled fault always is)."""
+        rel = t - self.t0 - self.at
+        if rel < 0:
+            return False
+        if self.every is not None and self.duration is not None:
+            return math.fmod(rel, self.every) < self.duration
+        return self.duration is None or rel < self.duration
+
+    def expired(self, t: float) -> bool:
+        return self.every is None and self.duration is not None and t - self.t0 - self.at >= self.duration
+
+    def next_edge(self, t: float) -> Optional[float]:
+        """The monotonic time of its next switch on or off after ``t`` (None: no more)."""
+        if not self.scheduled:
+            return None
+        start = self.t0 + self.at
+        if t < start:
+            return start
+        if self.duration is None:
+            return None
+        if self.every is None:
+            return start + self.duration if t < start + self.duration else None
+        k = math.floor((t - start) / self.every)
+        on = start + k * self.every
+        return on + self.duration if t < on + self.duration else on + self.every
+
+    def public(self, t: Optional[float] = None) -> Dict[str, Any]:
         d: Dict[str, Any] = {"id": self.id, "kind": self.kind, "bus": self.bus, "node": self.node,
                              "probability": self.probability, "applied": self.applied}
-        if self.kind == "late_reply":
+        if self.kind in ("late_reply", "split"):
             d["ms"] = self.ms
+        if self.kind in ("bit_errors", "byte_drops"):
+            d["rate"] = self.rate
+        if self.kind == "error_reply":
+            d["word"] = self.word
+        if self.kind == "hung":
+            d["hung_nodes"] = sorted(f"{b}:{n}" for b, n in self.hung)
+        if self.scheduled:
+            d["at"] = self.at
+            if self.duration is not None:
+                d["for"] = self.duration
+            if self.every is not None:
+                d["every"] = self.every
+            d["active"] = self.active(time.monotonic() if t is None else t)
         return d
+
+
+def _number(value: Any, what: str, lo: float, hi: float, *, lo_open: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or not (lo < value if lo_open else lo <= value) or not value <= hi:
+        raise FaultError(f"{what} must be {'more than ' if lo_open else ''}{lo:g}..{hi:g}, not {value!r}")
+    return float(value)
 
 
 class FaultTable:
@@ -76,18 +164,42 @@ class FaultTable:
         #: called (no arguments, lock not held) after every change: a runner that does not
         #: look at the table per transaction (FAP) wakes up and re-reads it
         self.listeners: List[Any] = []
+        self.now = time.monotonic       # the schedules' clock (tests may replace it)
+        self._wake = threading.Condition(self._lock)
+        self._scheduler: Optional[threading.Thread] = None
+        self._closed = False
 
     def add(self, kind: str, *, bus: Optional[str] = None, node: Union[int, str] = "all",
-            probability: float = 1.0, ms: float = 0.0, seed: Optional[int] = None,
+            probability: float = 1.0, ms: Optional[float] = None, seed: Optional[int] = None,
+            rate: Optional[float] = None, word: Optional[int] = None, at: Optional[float] = None,
+            duration: Optional[float] = None, every: Optional[float] = None,
             allowed: Optional[Dict[str, Tuple[str, ...]]] = None) -> Fault:
-        """Add a fault; ``allowed`` maps bus name -> the kinds its protocol implements."""
+        """Add a fault; ``allowed`` maps bus name -> the kinds its protocol implements.
+
+        ``at`` (seconds from now, default 0), ``duration`` (the config's ``for``: seconds in
+        force) and ``every`` (a period: in force ``duration`` seconds of each) schedule it."""
         if kind not in KINDS:
             raise FaultError(f"unknown fault kind {kind!r} (kinds: {', '.join(KINDS)})")
         if isinstance(probability, bool) or not isinstance(probability, (int, float)) \
                 or not 0.0 <= probability <= 1.0:
             raise FaultError(f"probability must be 0..1, not {probability!r}")
-        if isinstance(ms, bool) or not isinstance(ms, (int, float)) or not 0.0 <= ms <= 60000.0:
-            raise FaultError(f"ms must be 0..60000, not {ms!r}")
+        given = {"ms": ms, "rate": rate, "word": word}
+        for name, value in given.items():
+            if value is not None and PARAMS.get(kind, ("",))[0] != name:
+                raise FaultError(f"{name} is not a parameter of {kind}"
+                                 + (f" (its parameter: {PARAMS[kind][0]})" if kind in PARAMS else ""))
+        param = 0.0
+        if kind in PARAMS:
+            name, default, lo, hi = PARAMS[kind]
+            value = given[name]
+            param = default if value is None else _number(value, name, lo, hi)
+            if name == "word" and param != int(param):
+                raise FaultError(f"word must be a whole number 1..65535, not {value!r}")
+        at_s = 0.0 if at is None else _number(at, "at", 0.0, MAX_SCHEDULE_S)
+        dur = None if duration is None else _number(duration, "for", 0.0, MAX_SCHEDULE_S, lo_open=True)
+        per = None if every is None else _number(every, "every", 0.0, MAX_SCHEDULE_S, lo_open=True)
+        if per is not None and (dur is None or dur >= per):
+            raise FaultError("every needs for, shorter than every (in force 'for' seconds of each 'every')")
         if node != "all" and (isinstance(node, bool) or not isinstance(node, int) or not 0 <= node <= 255):
             raise FaultError(f"node must be an address 0..255 or 'all', not {node!r}")
         if bus is not None and not isinstance(bus, str):
@@ -106,13 +218,63 @@ class FaultTable:
             fid = self._next
             self._next += 1
             s = self.seed * 1_000_003 + fid if seed is None else seed
-            f = Fault(fid, kind, bus, node, float(probability), float(ms), s, rng=random.Random(s))
+            f = Fault(fid, kind, bus, node, float(probability), param if kind in ("late_reply", "split") else 0.0,
+                      s, rng=random.Random(s), rate=param if kind in ("bit_errors", "byte_drops") else 0.0,
+                      word=int(param) if kind == "error_reply" else 0, at=at_s, duration=dur, every=per,
+                      t0=self.now())
             self._faults.append(f)
-            self._changed({"event": "add", **f.public()})
-        log.warning("fault %d added: %s on bus %s node %s (p=%g%s)", fid, kind, bus or "*", node,
-                    probability, f", {ms:g} ms" if kind == "late_reply" else "")
+            self._changed({"event": "add", **f.public(f.t0)})
+            if f.scheduled:
+                self._arm()
+        log.warning("fault %d added: %s on bus %s node %s (p=%g%s%s)", fid, kind, bus or "*", node,
+                    probability, f", {PARAMS[kind][0]} {param:g}" if kind in PARAMS else "",
+                    _schedule_text(f))
         self._notify()
         return f
+
+    # -- schedules ------------------------------------------------------------------------
+    def _arm(self) -> None:
+        """(lock held) Start the schedule thread, or wake it to look at a new edge."""
+        if self._scheduler is None and not self._closed:
+            self._scheduler = threading.Thread(target=self._run_schedule, name="fap-sim faults", daemon=True)
+            self._scheduler.start()
+        self._wake.notify_all()
+
+    def _run_schedule(self) -> None:
+        with self._lock:
+            while not self._closed:
+                t = self.now()
+                for f in [f for f in self._faults if f.expired(t)]:
+                    self._faults.remove(f)
+                    self._changed({"event": "expire", **f.public(t)})
+                    log.warning("fault %d ended (its 'for' ran out): %s, applied %d times", f.id, f.kind, f.applied)
+                edges = [e for e in (f.next_edge(t) for f in self._faults) if e is not None]
+                nxt = min(edges) if edges else None
+                if nxt is not None and nxt <= t:
+                    nxt = t + 0.001
+                self._wake.wait(None if nxt is None else nxt - t)
+                if self._closed:
+                    return
+                t2 = self.now()
+                if nxt is not None and t2 >= nxt:
+                    for f in self._faults:
+                        if f.scheduled and f.active(t2) != f.active(t):
+                            state = "on" if f.active(t2) else "off"
+                            self._changed({"event": "switch", "state": state, **f.public(t2)})
+                            log.warning("fault %d switched %s by its schedule: %s", f.id, state, f.kind)
+                    self._lock.release()
+                    try:
+                        self._notify()
+                    finally:
+                        self._lock.acquire()
+
+    def close(self) -> None:
+        """Stop the schedule thread (the sim is closing)."""
+        with self._lock:
+            self._closed = True
+            self._wake.notify_all()
+        if self._scheduler is not None and self._scheduler is not threading.current_thread():
+            self._scheduler.join(2.0)
 
     def remove(self, fid: Union[int, str]) -> List[Fault]:
         """Remove fault ``fid`` (or every fault with ``"all"``); the removed ones."""
@@ -127,6 +289,7 @@ class FaultTable:
                 self._faults = [f for f in self._faults if f.id != fid]
             for f in gone:
                 self._changed({"event": "remove", **f.public()})
+            self._wake.notify_all()
         for f in gone:
             log.warning("fault %d removed: %s (applied %d times)", f.id, f.kind, f.applied)
         self._notify()
@@ -144,12 +307,14 @@ class FaultTable:
 
     def list(self) -> List[Dict[str, Any]]:
         with self._lock:
-            return [f.public() for f in self._faults]
+            t = self.now()
+            return [f.public(t) for f in self._faults]
 
     def is_off(self, bus: str, node: int) -> bool:
         """True when an ``off`` fault (probability 1) holds ``node`` now (FAP nodes)."""
         with self._lock:
-            return any(f.kind == "off" and f.probability >= 1.0 and f.matches(bus, node)
+            t = self.now()
+            return any(f.kind == "off" and f.probability >= 1.0 and f.matches(bus, node) and f.active(t)
                        for f in self._faults)
 
     def draw(self, bus: str, node: int) -> Tuple[Optional[Fault], Optional[Fault]]:
@@ -161,17 +326,45 @@ class FaultTable:
                 return None, None
             main: Optional[Fault] = None
             late: Optional[Fault] = None
-            for f in sorted((f for f in self._faults if f.matches(bus, node)),
+            t = self.now()
+            for f in sorted((f for f in self._faults if f.matches(bus, node) and f.active(t)),
                             key=lambda f: (_EXCLUSIVE.index(f.kind) if f.kind in _EXCLUSIVE else 99, f.id)):
-                if f.kind == "late_reply":
+                if f.kind == "hung" and (bus, node) in f.hung:
+                    main = main or f      # latched: no draw until the fault is removed
+                elif f.kind == "late_reply":
                     if late is None and (f.probability >= 1.0 or f.rng.random() < f.probability):
                         late = f
                 elif main is None and (f.probability >= 1.0 or f.rng.random() < f.probability):
                     main = f
-            if main is not None and main.kind in ("off", "no_reply"):
+                    if f.kind == "hung" and (bus, node) not in f.hung:
+                        f.hung.add((bus, node))
+                        self._changed({"event": "hung", "bus": bus, "node": node, "id": f.id})
+                        log.warning("fault %d: bus %s node %d hung until the fault is removed", f.id, bus, node)
+            if main is not None and main.kind in ("off", "no_reply", "hung"):
                 late = None     # nothing is sent: nothing is late
             for hit in (main, late):
                 if hit is not None:
                     hit.applied += 1
                     self.applied_by_kind[hit.kind] += 1
             return main, late
+
+
+#: the keys a fault takes in a config table or a control request, beside ``kind``
+FAULT_KEYS = ("bus", "node", "probability", "ms", "rate", "word", "seed", "at", "for", "every")
+
+
+def fault_keywords(entry: Dict[str, Any]) -> Dict[str, Any]:
+    """:meth:`FaultTable.add`'s keywords from a config table or control request (``for`` is a
+    Python keyword: it is ``duration`` there)."""
+    return {("duration" if k == "for" else k): entry[k] for k in FAULT_KEYS if k in entry}
+
+
+def _schedule_text(f: Fault) -> str:
+    if not f.scheduled:
+        return ""
+    out = f", at +{f.at:g} s" if f.at else ""
+    if f.duration is not None:
+        out += f", for {f.duration:g} s"
+    if f.every is not None:
+        out += f", every {f.every:g} s"
+    return out

@@ -1,7 +1,10 @@
 """``fap sim --replay CAPTURE``: a recorded bus turned into responders (docs/sim.md, "Replay").
 
-The capture is the virtual bus's format (docs/vbus.md). The master's port is the sender of the
-first record (or the one named). Its bytes are cut into frames by the protocol's own decoder
+The capture is the virtual bus's format (docs/vbus.md) or a pcap the monitor wrote (its link
+type, docs/monitor.md: each packet names its protocol and sender port; the packets of the
+replayed protocol are taken, and a pcap whose packets name no sender is refused, since
+requests and replies cannot be told apart). The master's port is the sender of the first
+record (or the one named). Its bytes are cut into frames by the protocol's own decoder
 (the C codec table for exec async and mikroC, ``fap_py.g485.codec.Parser`` for G485); what the
 other ports sent after a request, until the master's next frame, is that request's reply, and
 its delay is the time from the end of the request on the wire to the start of the reply. Live,
@@ -18,6 +21,10 @@ from typing import Any, Dict, List, Optional, Tuple
 from ..errors import ClosedError, FapError, InvalidValueError, PortError
 
 log = logging.getLogger("fap_py.sim")
+
+#: delays up to this are slept by the serving thread (the master waits for the reply anyway);
+#: longer ones go to a timer, so the next request is read meanwhile
+SLEEP_IN_LINE_S = 0.02
 
 def replay_protocols() -> List[str]:
     """The protocols a capture can be replayed for: those whose sim plug-in frames a raw
@@ -146,6 +153,12 @@ class ReplayResponder:
         if delay <= 0.0005:
             self._write(reply)
             return
+        if delay <= SLEEP_IN_LINE_S:
+            # a short delay is slept here: a timer thread per reply costs its start-up and a
+            # second wake-up, which is the tail a replay's timing shows (bench/sim.py)
+            self._stop.wait(delay)
+            self._write(reply)
+            return
         t = threading.Timer(delay, self._write, (reply,))
         t.daemon = True
         self._timers = [x for x in self._timers if x.is_alive()] + [t]
@@ -178,6 +191,41 @@ class ReplayResponder:
                 "matched": self.matched, "unmatched": self.unmatched, "replies": self.replies}
 
 
+def capture_from_pcap(path: str, protocol: str, baud: int) -> Any:
+    """A :class:`fap_py.vbus.Capture` of the ``protocol`` packets of the monitor pcap at ``path``
+    (their times from the first packet's; ``baud``: the header's, for the wire times)."""
+    from ..monitor.pcap import read_pcap
+    from ..vbus import Capture, CaptureRecord
+
+    cap = Capture(header={"baud": str(baud)})
+    t0: Optional[float] = None
+    for frame in read_pcap(path):
+        if frame.protocol != protocol:
+            continue
+        if frame.port is None:
+            raise ReplayError(f"{path}: its packets do not name their sender port, so requests and "
+                              "replies cannot be told apart (record a virtual bus, or a tap that knows "
+                              "the ports)")
+        t0 = frame.t if t0 is None else t0
+        cap.records.append(CaptureRecord(int(round((frame.t - t0) * 1e6)), frame.port, frame.raw))
+    return cap
+
+
+def load_capture(path: Any, protocol: str, baud: Optional[int] = None) -> Any:
+    """The capture at ``path``: a monitor pcap (by its magic) or a virtual-bus capture."""
+    from .._validate import check_path
+    from ..monitor.pcap import is_pcap
+    from ..vbus import read_capture
+
+    path = check_path(path, "capture path")
+    if is_pcap(path):
+        from .. import _protocols
+
+        protocol = _protocols.get(protocol).name
+        return capture_from_pcap(path, protocol, baud or _protocols.get(protocol).default_baud)
+    return read_capture(path)
+
+
 class Replay:
     """A replay on a new virtual bus (port0 for the master) or on ``port``; a context manager."""
 
@@ -187,7 +235,7 @@ class Replay:
         from .. import _protocols
         from .._validate import check_baud, check_int
         from ..port import Port
-        from ..vbus import MAX_PORTS, read_capture
+        from ..vbus import MAX_PORTS
 
         if baud is not None:
             baud = check_baud(baud)
@@ -195,7 +243,7 @@ class Replay:
             master_port = check_int(master_port, "master_port (a port index of the capture)",
                                     0, MAX_PORTS - 1)
         proto = _protocols.get(protocol).name
-        cap = read_capture(capture_path)
+        cap = load_capture(capture_path, proto, baud)
         table = build_table(cap, proto, master_port)
         line = baud or int(cap.header.get("baud", "0") or 0) or _protocols.get(proto).default_baud
         self.vbus = None

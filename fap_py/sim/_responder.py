@@ -125,12 +125,14 @@ class Responder:
         main, late = self.faults.draw(self.bus, req.address)
         if main is not None:
             st.faults[main.kind] = st.faults.get(main.kind, 0) + 1
-            if main.kind == "off":
+            if main.kind in ("off", "hung"):
                 return
         st.requests += 1
         if main is not None and main.kind == "no_reply":
             node.answer(req.obj, self.clock.now())   # executed, not answered
             return
+        if main is not None and main.kind == "error_reply":
+            self.plugin.error_reply(node, main.word)   # the node's own error answer, by its rules
         try:
             frame = node.answer(req.obj, self.clock.now())
         except FapError as exc:        # a hook that raised: logged, counted, no reply
@@ -141,23 +143,43 @@ class Responder:
             return
         if main is not None:
             frame = self._damage(main, frame, req)
+        pieces = [frame]
+        if main is not None and main.kind == "split" and len(frame) > 1:
+            pieces = [frame[:len(frame) // 2], frame[len(frame) // 2:]]
+        delay = 0.0
         if late is not None:
-            # sent by a timer: the other nodes of the bus go on answering meanwhile
             st.faults["late_reply"] = st.faults.get("late_reply", 0) + 1
-            t = threading.Timer(late.ms / 1000.0, self._write, (frame, req.address, st))
-            t.daemon = True
-            with self.handled:
-                self._timers = [x for x in self._timers if x.is_alive()] + [t]
-            t.start()
+            delay = late.ms / 1000.0
+        if delay == 0.0 and len(pieces) == 1:
+            self._write(frame, req.address, st)
             return
-        self._write(frame, req.address, st)
+        if delay == 0.0:
+            self._write(pieces[0], req.address, st, last=False)
+            pieces = pieces[1:]
+            delay = main.ms / 1000.0 if main is not None else 0.0
+        # sent by a timer: the other nodes of the bus go on answering meanwhile
+        self._later(delay, pieces, req.address, st, main.ms / 1000.0 if main is not None else 0.0)
 
-    def _write(self, frame: bytes, address: int, st: NodeStats) -> None:
+    def _later(self, delay: float, pieces: List[bytes], address: int, st: NodeStats, gap: float) -> None:
+        def fire() -> None:
+            self._write(pieces[0], address, st, last=len(pieces) == 1)
+            if len(pieces) > 1:
+                self._later(gap, pieces[1:], address, st, gap)
+
+        t = threading.Timer(delay, fire)
+        t.daemon = True
+        with self.handled:
+            self._timers = [x for x in self._timers if x.is_alive()] + [t]
+        t.start()
+
+    def _write(self, frame: bytes, address: int, st: NodeStats, last: bool = True) -> None:
         if self._stop.is_set():
             return
         try:
-            self.port.write(frame)
-            st.replies += 1
+            if frame:
+                self.port.write(frame)
+            if last:
+                st.replies += 1
         except FapError as exc:
             log.warning("%s node %d: reply lost: %s", self.bus, address, exc)
         with self.handled:
@@ -173,6 +195,14 @@ class Responder:
             return frame[:max(1, len(frame) // 2)]
         if k == "garbage":
             return self.plugin.garbage(fault.rng, len(frame))
+        if k == "bit_errors":
+            out = bytearray(frame)
+            for i in range(len(out)):
+                if fault.rng.random() < fault.rate:
+                    out[i] ^= 1 << fault.rng.randrange(8)
+            return bytes(out)
+        if k == "byte_drops":
+            return bytes(b for b in frame if not fault.rng.random() < fault.rate)
         return frame
 
     def status(self) -> Dict[int, Any]:

@@ -13,6 +13,8 @@ from __future__ import annotations
 import re
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
+from ._faults import KINDS, MAX_SCHEDULE_S
+
 Path = Tuple[Union[str, int], ...]
 
 #: limits that keep a hostile config from eating the machine
@@ -62,14 +64,24 @@ FAULT: Dict[str, Any] = {
     "required": ["kind"],
     "additionalProperties": False,
     "properties": {
-        "kind": {"enum": ["off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage",
-                          "truncated"]},
+        "kind": {"enum": list(KINDS)},
         "bus": {"type": "string", "maxLength": 64, "description": "the bus's name (default: every bus)"},
         "node": {"oneOf": [{"type": "integer", "minimum": 0, "maximum": 255}, {"const": "all"}],
                  "description": "a node address, or 'all' (default)"},
         "probability": {"type": "number", "minimum": 0, "maximum": 1, "description": "default 1"},
-        "ms": {"type": "number", "minimum": 0, "maximum": 60000, "description": "late_reply: delay"},
+        "ms": {"type": "number", "minimum": 0, "maximum": 60000,
+               "description": "late_reply: the delay; split: the gap between the pieces (default 5)"},
+        "rate": {"type": "number", "minimum": 0, "maximum": 1,
+                 "description": "bit_errors, byte_drops: per reply byte (default 0.05)"},
+        "word": {"type": "integer", "minimum": 1, "maximum": 65535,
+                 "description": "error_reply: the error word's bits the node reports (default 1)"},
         "seed": {"type": "integer", "description": "seed of the probability and garbage draws"},
+        "at": {"type": "number", "minimum": 0, "maximum": MAX_SCHEDULE_S,
+               "description": "seconds after the sim starts when it takes effect (default 0)"},
+        "for": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_SCHEDULE_S,
+                "description": "seconds in force (then it ends; with every: in each period)"},
+        "every": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_SCHEDULE_S,
+                  "description": "a period: in force 'for' seconds of each (needs for)"},
     },
 }
 

@@ -42,7 +42,9 @@ class _SparkplugOutput(OutputBase):
                 ("Bridge/Not stored", UINT64, ctx.not_stored),
                 ("Bridge/MQTT refused", UINT64, ctx.link.refused_total),
                 ("Bridge/MQTT connected", BOOLEAN, ctx.link.connected),
-                ("Bridge/Invalid commands", UINT64, self.node.invalid_commands)]
+                ("Bridge/Invalid commands", UINT64, self.node.invalid_commands),
+                ("Bridge/STATE refused", UINT64, sum(self.node.state_refused.values())),
+                ("Bridge/Held dropped", UINT64, self.node.queue_dropped)]
 
     # what the metrics output reads (fap_bridge_sparkplug_*)
     @property
@@ -56,6 +58,18 @@ class _SparkplugOutput(OutputBase):
     @property
     def births(self) -> int:
         return self.node.births
+
+    @property
+    def state_refused(self) -> Any:
+        return dict(self.node.state_refused)
+
+    @property
+    def queue_dropped(self) -> int:
+        return self.node.queue_dropped
+
+    def on_connect(self, link: Any) -> None:
+        # the edge node's own connection goes where the main link went (failover, failback)
+        self.node.follow(link.broker)
 
     def start(self, ctx: BridgeView) -> None:
         self._ctx = ctx

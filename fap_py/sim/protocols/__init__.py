@@ -6,7 +6,9 @@ A plug-in holds ``NAME``, ``ADDRESS_MIN``/``ADDRESS_MAX`` (and ``ADDRESS_RESERVE
 ``check_node(node, where) -> [Problem]`` and ``start(bus, ctx) -> runner`` (an object with
 ``stop()`` and ``status() -> {address: counters}``). A request/reply protocol's runner is the
 sim's shared responder, which asks the plug-in for ``request_decoder(baud)``,
-``bad_check(frame)``, ``wrong_address(frame, address, request)`` and ``garbage(rng, n)``.
+``bad_check(frame)``, ``wrong_address(frame, address, request)`` and ``garbage(rng, n)``, and
+``error_reply(node, word)`` where its protocol has an error answer (``error_reply`` in ``FAULTS``).
+``REPLY_KINDS`` is what the shared responder does to any such protocol: ``FAULTS`` starts there.
 
 This package is also the one documented place of what a plug-in (in tree or out of tree, in
 ``<package>.sim.protocols``) imports from the sim: the names below. The modules they come from
@@ -16,9 +18,10 @@ tests/python/hostile/walk_runner.py says why); ``fap_py.sim.Sim`` in front of it
 """
 from __future__ import annotations
 
+from .._faults import REPLY_KINDS
 from .._generators import Generator, make, to_bytes
 from .._responder import CodecFramer, Request, Responder, flip_to, garbage_without
 from .._schema import HEX, MAX_LIST, MAX_TABLE, PATTERN, Path, Problem
 
 __all__ = ["CodecFramer", "Generator", "HEX", "MAX_LIST", "MAX_TABLE", "PATTERN", "Path", "Problem",
-           "Request", "Responder", "flip_to", "garbage_without", "make", "to_bytes"]
+           "REPLY_KINDS", "Request", "Responder", "flip_to", "garbage_without", "make", "to_bytes"]

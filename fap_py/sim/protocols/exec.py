@@ -5,13 +5,14 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional
 
 from ... import execasync
+from .._faults import REPLY_KINDS
 from .._responder import CodecFramer, Request, flip_to, garbage_without
 from .._schema import Path, Problem
 from . import _reply
 
 NAME = "exec"
 ADDRESS_MIN, ADDRESS_MAX = execasync.NODE_MIN, execasync.NODE_MAX
-FAULTS = ("off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage", "truncated")
+FAULTS = REPLY_KINDS
 NODE_PROPERTIES: Dict[str, Any] = dict(_reply.REPLY_PROPERTIES)
 
 

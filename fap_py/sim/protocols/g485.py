@@ -6,13 +6,14 @@ from typing import Any, Dict, List, Optional
 
 from ...g485 import codec
 from ...g485.device import RegisterSpec, SimDevice
+from .._faults import REPLY_KINDS
 from .._generators import make, to_bytes
 from .._responder import Request, flip_to, garbage_without
 from .._schema import MAX_LIST, Path, Problem
 
 NAME = "g485"
 ADDRESS_MIN, ADDRESS_MAX = codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS
-FAULTS = ("off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage", "truncated")
+FAULTS = REPLY_KINDS + ("error_reply",)
 
 #: register types: bytes, signedness (big-endian over consecutive registers)
 TYPES = {"u8": (1, False), "i8": (1, True), "u16": (2, False), "i16": (2, True),
@@ -119,6 +120,13 @@ class Node:
                 for i, b in enumerate(to_bytes(gen(t), size, "big", signed)):
                     self.device.set_register(reg + i, b)
         return self.device.handle(packet)
+
+
+def error_reply(node: Node, word: int) -> None:
+    """The ``error_reply`` fault: the device reports ``word``'s bits in its error word (a
+    Get-Error-Word request answers them; a Set clear-error-word clears them until the next
+    transaction the fault applies to)."""
+    node.device.error_word |= word
 
 
 def make_node(address: int, cfg: Dict[str, Any], seed: int) -> Node:

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any, Dict, List, Optional
 
 from ... import mikroc
+from .._faults import REPLY_KINDS
 from .._responder import CodecFramer, Request, flip_to, garbage_without
 from .._schema import Path, Problem
 from . import _reply
@@ -12,7 +13,7 @@ from . import _reply
 NAME = "mikroc"
 ADDRESS_MIN, ADDRESS_MAX = mikroc.NODE_MIN, mikroc.NODE_MAX
 ADDRESS_RESERVED = (mikroc.BROADCAST,)
-FAULTS = ("off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage", "truncated")
+FAULTS = REPLY_KINDS
 NODE_PROPERTIES: Dict[str, Any] = dict(_reply.REPLY_PROPERTIES)
 
 

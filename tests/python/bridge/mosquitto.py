@@ -27,7 +27,8 @@ class Mosquitto:
     """``start()`` / ``stop()`` / ``restart()`` a mosquitto on ``port`` (a context manager)."""
 
     def __init__(self, workdir: str, *, port: Optional[int] = None, users: Optional[dict] = None,
-                 tls: Optional[dict] = None, acl: Optional[str] = None, start_timeout: float = 10.0) -> None:
+                 tls: Optional[dict] = None, acl: Optional[str] = None, start_timeout: float = 10.0,
+                 extra: Optional[List[str]] = None) -> None:
         self.workdir = workdir
         self.port = port or free_port()
         self.start_timeout = start_timeout
@@ -55,6 +56,7 @@ class Mosquitto:
             lines.append(f"acl_file {path}")
         if tls:
             lines += [f"cafile {tls['ca']}", f"certfile {tls['cert']}", f"keyfile {tls['key']}"]
+        lines += extra or []   # e.g. a bridge section ("connection ..."): last, as mosquitto wants
         self.conf = os.path.join(workdir, "mosquitto.conf")
         with open(self.conf, "w") as f:
             f.write("\n".join(lines) + "\n")

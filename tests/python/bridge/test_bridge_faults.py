@@ -77,7 +77,9 @@ def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_fac
     """Issue 23's repro: the broker away, the disk fills mid-burst; then space and broker return."""
 
     bus, s1 = fap_pair
-    obs = observer_factory(broker.port)
+    # a persistent session: what the bridge publishes while the observer is away waits for it at
+    # the broker (the bridge may reconnect, report the error and recover before it is back)
+    obs = observer_factory(broker.port, client_id="disk-observer", clean=False)
     with _broker_away(broker, obs, bus, s1, str(tmp_path / "state")) as bridge:
         _fill(bridge)
         for i in range(1, 61):               # the first ones fit in the file's last page, then full
@@ -87,7 +89,14 @@ def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_fac
                 1 for _, t, _, _ in bridge.store.after(0, 1000) if t.endswith("/rx")) + bridge.not_stored >= 60,
                 WAIT)
         assert "full" in bridge.store_error
+        # the observer comes back only after the bridge: the worst order, made certain. Its
+        # delivered rows then free pages of the outbox, so a later write may succeed and the
+        # retained health say "ok" before the observer subscribes (the flake this once was)
+        obs.c.loop_stop()
         broker.start()                       # the health topic says so at once (outside the outbox)
+        with bridge.link._cond:
+            assert bridge.link._cond.wait_for(lambda: bridge.link._gate_open, WAIT)
+        obs.c.loop_start()
         obs.wait_for("fap/bridge/test/health", lambda d: d["store"] == "error" and d["not_stored"] >= 30)
         _free(bridge.store)                  # space returns: the same reader goes on
         for i in range(100, 105):
@@ -95,12 +104,41 @@ def test_full_disk_is_survived_counted_and_delivery_resumes(broker, observer_fac
         obs.wait_for("fap/line1/1/rx", lambda d: d["data"] == "68")
         obs.wait_for("fap/bridge/test/health", lambda d: d["store"] == "ok" and d["not_stored"] >= 30)
         obs.wait_for("fap/line1/stats", lambda d: d["outbox"]["not_stored"] >= 30 and d["outbox"]["error"] is None)
-        got = [int(d["data"], 16) for d in obs.matching("fap/line1/1/rx")]
+        # a row whose PUBACK was lost with the stopped broker is sent again: the consumer's rule
+        # is one delivery per (host, seq)
+        got = [int(d["data"], 16) for d in {d["seq"]: d for d in obs.matching("fap/line1/1/rx")}.values()]
         # once, in order; of the burst, what fitted (a smaller batch may still fit after a bigger
         # one failed, as on a real disk) arrived and the rest is counted
         assert got == sorted(set(got)) and got[0] == 0 and got[-5:] == list(range(100, 105))
         stored = len(got) - 6
         assert 0 <= stored < 60 and stored + bridge.not_stored >= 60
+
+
+def test_a_health_change_not_sent_is_sent_later(broker, observer_factory, fap_pair, tmp_path):
+    """A health update due while the health topic is held back (or the broker away) is not
+    forgotten: once it can go, the latest health is published (retained)."""
+    import time
+
+    from fap_py.bridge import Bridge
+
+    bus, s1 = fap_pair
+    obs = observer_factory(broker.port)
+    with Bridge(bridge_config(broker.port, str(tmp_path / "state"), _line1(bus))) as bridge:
+        assert bridge.wait_connected(WAIT)
+        obs.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 0)
+        link = bridge.link
+        with link._cond:   # as after a refusal: held back (long: a loaded machine is slow)
+            link._held[link.health_topic] = (time.monotonic() + 60.0, 0.5)
+        bridge.not_stored = 7                  # a change, due now, while held
+        bridge._publish_health(force=False)
+        assert bridge._health_sent is None     # not sent, so not remembered as sent
+        with link._cond:   # the hold ends: the stats loop's next tick sends the latest health
+            link._held[link.health_topic] = (time.monotonic(), 0.5)
+        obs.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 7)
+        with link._cond:
+            assert link._cond.wait_for(lambda: not link._own, WAIT)   # answered by the broker
+    late = observer_factory(broker.port, client_id="late")            # and it is the retained one
+    late.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 7)
 
 
 def test_every_malformed_tx_reaches_the_error_topic_bounded(broker, observer_factory, fap_pair, tmp_path,

@@ -168,6 +168,8 @@ def _tools(run: Run, tmp: Path) -> Dict[Tuple[str, ...], List[str]]:
         + run("monitor", "--capture", str(cap), "--protocol", "exec", "--stats"),
         ("bridge",): run("bridge", "--config", str(conf), "--check"),
     }
+    web = Server("web", "--http", "127.0.0.1:0", "--capture", str(cap), "--protocol", "exec")
+    out[("web",)] = web.stop()
     bus = Server("bus", "--ports", "2", "--echo", "--link-dir", str(tmp / "links"))
     port0 = str(tmp / "links" / "port0")
     out[("ports",)] = run("ports", "--no-probe") + run("ports", "--device", port0) + \
@@ -229,6 +231,7 @@ COVERED: Dict[Tuple[str, ...], str] = {
     ("ports",): "tools",
     ("bus",): "tools",
     ("serve",): "runs",
+    ("web",): "tools",
 }
 
 

@@ -7,7 +7,7 @@ with hostile values. Each run must end with a documented exit code
 most, never "internal error" or a traceback. The port (or the
 first other file a command opens) is forced to a missing path at the end of the line
 (argparse: the last one wins), so no run waits on a bus; commands that run
-until Ctrl-C with valid arguments (``bus``, ``demo``, ``soak``) get only
+until Ctrl-C with valid arguments (``bus``, ``demo``, ``soak``, ``web``) get only
 their usage checks (``--help``-free random options that fail parsing).
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ EXTRA_CODES = {("doctor",): (4, 5)}
 # never drawn: --help/--version end at once; --debug prints a failure's traceback on purpose
 NOT_DRAWN = ("--help", "--version", "--debug")
 #: commands that run until Ctrl-C (or for seconds) when their arguments are valid
-LONG_RUNNING = {("bus",), ("demo",), ("soak",)}
+LONG_RUNNING = {("bus",), ("demo",), ("soak",), ("web",)}
 HOSTILE = ["", "-", "--", "0", "-1", "1", "7", "255", "256", "65536", "99999999999999999999", "1e999",
            "nan", "inf", "-0.5", "0.001", "zz", "0x10", "01", "1,2,3", "1,1", ",", "x" * 300, "\xff\xfe",
            "é", "tcp://", "rfc2217://127.0.0.1:0", "tcp://127.0.0.1:99999", "/dev/null", "/dev/zero",

@@ -62,7 +62,7 @@ REGISTRY = {name: p.get_default("long_running") for name, p in LEAVES.items()
 
 #: long-running commands that install their own handlers (and do not register): the exit
 #: codes of SIGTERM and SIGINT docs/cli.md gives them
-SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130), "sim": (0, 0),
+SELF_HANDLED = {"bus": (0, 0), "monitor": (0, 130), "bridge": (0, 130), "sim": (0, 0), "web": (0, 0),
                 "serve": (0, 0)}
 #: commands that end by themselves and wait for nothing
 SHORT = {"exec encode", "exec decode", "g485 write", "g485 set", "ports", "version",
@@ -152,6 +152,8 @@ CASES: Dict[str, Case] = {
                              f"unix:{os.path.dirname(p[0])}/serve.sock", "--lock-dir",
                              os.path.dirname(p[0]), "--json"], _ev("ready")),
     "sim": Case(lambda p: ["sim", str(EXAMPLE_SIM), "--json"], _ev("ready"), summary="stopped"),
+    "web": Case(lambda p: ["web", "--http", "127.0.0.1:0", "--port", p[0], "--json"], _ev("ready"),
+                summary="stopped"),
 }
 
 

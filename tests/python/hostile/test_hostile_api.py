@@ -394,7 +394,63 @@ COVERED = {
     # --- sim: fap_py.sim's public functions and clock (test_sim_entry_points_refuse_hostile) ---
     "sim.load", "sim.loads", "sim.plugin", "sim.plugin_name", "ManualClock.advance",
     # --- end sim ---
+    # --- web: fap_py.web's sources (test_web_sources_refuse_hostile_arguments) ---
+    "Source.run", "Source.add_fault", "Source.remove_fault", "PortSource.run", "CaptureSource.run",
+    "SimSource.run", "SimSource.add_fault", "SimSource.remove_fault", "SimControlSource.run",
+    "SimControlSource.add_fault", "SimControlSource.remove_fault", "MqttSource.run",
+    # --- end web ---
 }
+
+
+# --- web ---
+def test_web_sources_refuse_hostile_arguments(tmp_path: Any) -> None:
+    """fap_py.web's sources (defined in a private module, public through fap_py.web):
+    run(), add_fault(), remove_fault() refuse bad values with the package's errors."""
+    import threading
+
+    from fap_py.errors import FapError
+    from fap_py.web import CaptureSource, MqttSource, PortSource, SimControlSource, SimSource, Source
+    from fap_py.web._hub import Hub
+
+    cap = tmp_path / "b.cap"
+    cap.write_text("# fap-vbus-capture 1 ports=2 baud=9600\n0 0 01 02\n")
+    site = {"bus": [{"protocol": "exec", "node": [{"address": 1}]}]}
+    sim = SimSource(site)
+    sim.open()
+    try:
+        bridge = tmp_path / "bridge.toml"
+        bridge.write_text(f'[broker]\nurl = "mqtt://127.0.0.1:1"\n[bridge]\nhost = "h"\nstate_dir = "{tmp_path}"\n'
+                          '[[bus]]\nname = "ex"\nport = "/nonexistent/p"\nprotocol = "exec"\nnodes = [5]\n')
+        sources = [Source(), PortSource("/nonexistent/port", 9600), CaptureSource(str(cap)), sim,
+                   SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap), timeout=0.5), MqttSource(str(bridge))]
+        for bad in ((None,), (str(tmp_path / "missing.toml"),), (str(bridge), 5), (str(bridge), "nope")):
+            with pytest.raises(FapError):
+                MqttSource(*bad)
+        hub, stop = Hub(10), threading.Event()
+        stop.set()
+        for src in sources:
+            for bad_hub, bad_stop in ((None, stop), ("hub", stop), (hub, None), (hub, True), (hub, lambda: 1)):
+                with pytest.raises(FapError):
+                    src.run(bad_hub, bad_stop)
+            for bad in (None, 1, "off", b"x", [], {"kind": None}, {"kind": "melt"}, {"kind": "off", "x": 1},
+                        {"kind": "off", "node": "x"}, {"kind": "off", "probability": 2.0},
+                        {"kind": "late_reply", "ms": "x"}, {"kind": "off", "bus": 5}):
+                with pytest.raises(FapError):
+                    src.add_fault(bad)
+            for bad in (None, "x", 1.5, True, [], b"1"):
+                with pytest.raises(FapError):
+                    src.remove_fault(bad)
+        with pytest.raises(FapError):          # before open(): said so, not an AttributeError
+            CaptureSource(str(cap)).run(hub, stop)
+        for bad in ((None, str(cap)), ("tcp://x", str(cap)), ("unix:", str(cap)), ("unix:/a\0b", str(cap)),
+                    (f"unix:{tmp_path}/s", None), (f"unix:{tmp_path}/s", 5)):
+            with pytest.raises(FapError):
+                SimControlSource(*bad)
+        with pytest.raises(FapError):          # nobody answers there: a FileError naming the socket
+            SimControlSource(f"unix:{tmp_path}/nobody.sock", str(cap)).open()
+        assert sim.sim.faults_list() == []
+    finally:
+        sim.close()
 
 
 # --- sim ---

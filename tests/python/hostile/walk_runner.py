@@ -249,6 +249,16 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
                             buses=(bus,), host="walk", state_dir=tempfile.mkdtemp(),
                             sparkplug=SparkplugConfig("g", "e"))
 
+    def web_server() -> Any:
+        from fap_py.web import CaptureSource, WebServer
+
+        path = os.path.join(tempfile.mkdtemp(), "b.cap")
+        with open(path, "w") as fh:
+            fh.write("# fap-vbus-capture 1 ports=2 baud=9600\n0 0 01 02\n")
+        server = WebServer(CaptureSource(path), port=0)
+        ctx.keep.append(server)
+        return server
+
     def own() -> str:
         """A port of a bus of its own: the instance keeps it while its methods are walked."""
         bus = vbus.VirtualBus(ports=2)
@@ -326,6 +336,8 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
             __import__("fap_py.sim", fromlist=["loads"]).loads(
                 '[[bus]]\nprotocol = "exec"\n[[bus.node]]\naddress = 1\n')),
         # --- end sim ---
+        # --- web: a server over a two-byte capture, not started (start() is walked) ---
+        "fap_py.web.WebServer": lambda: web_server(),
     }
 
 

@@ -106,6 +106,14 @@ EXPECTED = {
              "bad_crc": CheckByteError, "wrong_address": NoResponseError,
              "garbage": G485FrameError, "truncated": G485FrameError},
 }
+# hung: nothing, like off, until the fault is removed; split with a gap past the masters'
+# 0.1 s timeouts: the first half only, so each master sees what truncated gives
+for _proto, _errs in EXPECTED.items():
+    _errs["hung"] = _errs["off"]
+    _errs["split"] = _errs["truncated"] if _proto != "mikroc" else FapTimeoutError
+
+#: the parameters each kind is added with here
+PARAMS = {"late_reply": {"ms": 300}, "split": {"ms": 300}}
 
 
 def _node(st, proto):
@@ -115,16 +123,20 @@ def _node(st, proto):
 
 @pytest.mark.parametrize("proto", ["exec", "mikroc", "g485"])
 @pytest.mark.parametrize("kind", ["off", "no_reply", "late_reply", "bad_crc", "wrong_address",
-                                  "garbage", "truncated"])
+                                  "garbage", "truncated", "hung", "split"])
 def test_fault_reaches_master_and_stops(site, proto, kind):
     sim, em, mm, gm = site
     call = lambda: CALLS[proto](em, mm, gm)   # noqa: E731
     assert call() == GOOD[proto]
     before = sim.status()["faults_applied"][kind]
     replies = _node(sim.status(), proto)["replies"]
-    f = sim.add_fault(kind, bus=BUS[proto], node=NODE[proto], ms=300)
+    f = sim.add_fault(kind, bus=BUS[proto], node=NODE[proto], **PARAMS.get(kind, {}))
     with pytest.raises(EXPECTED[proto][kind]) as e:
         call()
+    if kind == "hung":      # latched: every later request unanswered too, until removed
+        with pytest.raises(EXPECTED[proto][kind]):
+            call()
+        assert f"{BUS[proto]}:{NODE[proto]}" in sim.faults_list()[-1]["hung_nodes"]
     if kind == "wrong_address" and proto == "mikroc":
         assert "reply from slave 8, expected 7" in str(e.value)
     st = sim.status()
@@ -132,7 +144,7 @@ def test_fault_reaches_master_and_stops(site, proto, kind):
     node = _node(st, proto)
     assert node["faults"][kind] >= 1
     node["replies"] = replies
-    if kind == "late_reply":      # the late reply goes out (counted) after the master gave up
+    if kind in ("late_reply", "split"):   # the (rest of the) reply goes out after the master gave up
         assert sim.wait_for(lambda s: _node(s, proto)["replies"] > node["replies"], 5)
     sim.remove_fault(f["id"])
     applied = sim.status()["faults_applied"][kind]
@@ -222,3 +234,70 @@ def test_fap_slaves_periodic_echo_and_off():
         assert {n["address"]: n["faults"].get("off", 0) for n in st["nodes"]} == {3: 0, 31: 1}
         with pytest.raises(Exception, match="not implemented"):
             sim.add_fault("bad_crc", bus="f")
+
+
+def test_split_with_a_short_gap_is_reassembled(site):
+    """A reply in two pieces 20 ms apart, inside every master's timeout: each master puts the
+    pieces together (the masters read a reply to its end, not one read's worth)."""
+    sim, em, mm, gm = site
+    f = sim.add_fault("split", bus=None, node="all", ms=20)
+    try:
+        for proto in ("exec", "mikroc", "g485"):
+            assert CALLS[proto](em, mm, gm) == GOOD[proto]
+        assert sim.faults_list()[-1]["applied"] >= 3
+    finally:
+        sim.remove_fault(f["id"])
+
+
+@pytest.mark.parametrize("kind", ["bit_errors", "byte_drops"])
+def test_byte_level_faults_reach_every_master_and_are_counted(site, kind):
+    """rate 1: every byte of the reply hit; each master reports one of its documented errors."""
+    sim, em, mm, gm = site
+    errors = (execasync.ExecAsyncError, FapTimeoutError, FrameError, mikroc.ChecksumError,
+              NoResponseError, G485FrameError, CheckByteError)
+    f = sim.add_fault(kind, rate=1.0, seed=5)
+    try:
+        for proto in ("exec", "mikroc", "g485"):
+            with pytest.raises(errors):
+                CALLS[proto](em, mm, gm)
+        assert sim.faults_list()[-1]["applied"] == 3
+        assert sim.faults_list()[-1]["rate"] == 1.0
+    finally:
+        sim.remove_fault(f["id"])
+    for proto in ("exec", "mikroc", "g485"):
+        for _ in range(2):     # the first request may meet the damaged tail of the last reply
+            try:
+                assert CALLS[proto](em, mm, gm) == GOOD[proto]
+                break
+            except errors:
+                continue
+        else:
+            raise AssertionError(f"{proto} did not recover after {kind} was removed")
+
+
+def test_g485_error_reply_is_the_devices_error_word(site):
+    sim, em, mm, gm = site
+    from fap_py.sim import FaultError
+    with pytest.raises(FaultError, match="not implemented"):
+        sim.add_fault("error_reply", bus="ex", node=5)
+    f = sim.add_fault("error_reply", bus="g", node=126, word=0x0104)
+    try:
+        assert gm.error_word(126) & 0x0104 == 0x0104
+    finally:
+        sim.remove_fault(f["id"])
+    assert sim.status()["faults_applied"]["error_reply"] >= 1
+
+
+def test_parameters_are_refused_where_they_do_not_belong(site):
+    sim, em, mm, gm = site
+    from fap_py.sim import FaultError
+    for kind, kw, match in (("off", {"ms": 5}, "not a parameter of off"),
+                            ("bit_errors", {"rate": 1.5}, "rate must be"),
+                            ("error_reply", {"word": 0}, "word must be"),
+                            ("error_reply", {"word": 1.5}, "word must be"),
+                            ("off", {"every": 2}, "every needs for"),
+                            ("off", {"duration": 3, "every": 2}, "every needs for"),
+                            ("off", {"at": -1}, "at must be"),
+                            ("off", {"duration": float("nan")}, "for must be")):
+        with pytest.raises(FaultError, match=match):
+            sim.add_fault(kind, bus="ex", **kw)

@@ -152,3 +152,40 @@ def test_replay_refuses_bad_arguments(tmp_path):
     for bad in (5, None, b"exec", "nope"):
         with pytest.raises(FapError):
             Replay(cap, bad)
+
+
+def test_replay_of_a_monitor_pcap(tmp_path):
+    """A bus recorded by the virtual bus, turned into a pcap by `fap monitor --capture --pcap`
+    (each packet names its sender port), replays byte-exact; a pcap without ports is refused."""
+    cap, recorded = _record(tmp_path, "exec", NODES, _exec_exchange)
+    pcap = str(tmp_path / "exec.pcap")
+    r = cli("monitor", "--capture", cap, "--protocol", "exec", "--pcap", pcap, "-q")
+    assert r.returncode == 0, r.stderr
+    from fap_py.monitor.pcap import read_pcap
+    frames = list(read_pcap(pcap))
+    assert len(frames) == 18 and {f.port for f in frames} == {0, 1} and all(f.ok for f in frames)
+    with Replay(pcap, "exec") as rp, execasync.Master(rp.master_port, 115200, timeout=0.5, retries=0) as m:
+        got = [m.transact(n, bytes([n, i])) for i in range(3) for n in (1, 2, 3)]
+        assert got == recorded
+        assert rp.responder.summary()["matched"] == 9
+    # learn reads the pcap too
+    r = cli("sim", "--learn", pcap, "--protocol", "exec")
+    assert r.returncode == 0 and "address = 1" in r.stdout, r.stderr
+    # a pcap whose packets name no sender (a raw stream piped in) cannot be replayed
+    raw = str(tmp_path / "raw.pcap")
+    with open(cap.replace(".cap", ".raw"), "wb") as fh:
+        fh.write(b"".join(f.raw for f in frames))
+    import subprocess
+
+    from .conftest import fap_argv
+    with open(cap.replace(".cap", ".raw"), "rb") as fh:
+        p = subprocess.run(fap_argv("monitor", "--protocol", "exec", "--pcap", raw, "-q"), stdin=fh,
+                           capture_output=True, timeout=30)
+    assert p.returncode == 0, p.stderr
+    with pytest.raises(ReplayError, match="do not name their sender port"):
+        Replay(raw, "exec")
+    # not a pcap of the monitor's link type: one clear error
+    other = tmp_path / "other.pcap"
+    other.write_bytes(bytes.fromhex("d4c3b2a1020004000000000000000000ffff000001000000"))
+    with pytest.raises(FapError, match="link type 1"):
+        Replay(str(other), "exec")

@@ -5,14 +5,14 @@ from __future__ import annotations
 
 from typing import Any, Dict, List, Optional
 
-from fap_py.sim.protocols import Path, Problem, Request, flip_to, garbage_without
+from fap_py.sim.protocols import REPLY_KINDS, Path, Problem, Request, flip_to, garbage_without
 
 from ... import binding as toy
 
 NAME = "toy"
 ADDRESS_MIN, ADDRESS_MAX = toy.NODE_MIN, toy.NODE_MAX
 ADDRESS_RESERVED = ()
-FAULTS = ("off", "no_reply", "late_reply", "bad_crc", "wrong_address", "garbage", "truncated")
+FAULTS = REPLY_KINDS
 NODE_PROPERTIES: Dict[str, Any] = {}
 
 
