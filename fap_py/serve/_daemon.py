@@ -106,6 +106,13 @@ class ServeConfig:
                 raise InvalidValueError(str(exc)) from None
             if a.kind == "tcp" and not is_loopback(a.host) and not self.token_file:
                 raise InvalidValueError(f"--listen {text}: TCP beyond loopback needs --token-file")
+        try:
+            if self.socket_owner:
+                pwd.getpwnam(self.socket_owner)
+            if self.socket_group:
+                grp.getgrnam(self.socket_group)
+        except KeyError as exc:
+            raise InvalidValueError(f"socket owner/group: no such user or group {exc}") from None
         if self.metrics is not None:
             try:
                 m = parse_listen(self.metrics)

@@ -108,3 +108,28 @@ def test_prometheus_metrics(vbus, tmp_path):
         assert err.value.code == 404
     finally:
         d.stop()
+
+
+def test_unix_socket_mode_owner_group(vbus, tmp_path):
+    import grp
+    import pwd
+    import stat
+
+    me, group = pwd.getpwuid(os.getuid()).pw_name, grp.getgrgid(os.getgid()).gr_name
+    d = start_daemon(str(tmp_path), vbus.master_port, "--socket-mode", "600",
+                     "--socket-owner", me, "--socket-group", group)
+    try:
+        st = os.stat(d.sock)
+        assert stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o600
+        assert (st.st_uid, st.st_gid) == (os.getuid(), os.getgid())
+        (c,) = [c for c in d.status()["clients"]]               # SO_PEERCRED of this process
+        assert c["pid"] == os.getpid() and c["uid"] == os.getuid()
+    finally:
+        d.stop()
+    assert not os.path.exists(d.sock)                           # removed at the end
+
+    r = subprocess.run(fap_cmd("serve", "--protocol", "exec", "--port", vbus.master_port, "--rs485",
+                               "none", "--listen", f"unix:{tmp_path}/x.sock", "--lock-dir",
+                               str(tmp_path), "--socket-group", "no-such-group-fap", "--check"),
+                       capture_output=True, text=True, timeout=30)
+    assert r.returncode == 2 and "no-such-group-fap" in r.stderr
