@@ -122,7 +122,7 @@ def test_unix_socket_mode_owner_group(vbus, tmp_path):
         st = os.stat(d.sock)
         assert stat.S_ISSOCK(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o600
         assert (st.st_uid, st.st_gid) == (os.getuid(), os.getgid())
-        (c,) = [c for c in d.status()["clients"]]               # SO_PEERCRED of this process
+        (c,) = d.status()["clients"]               # the status call itself: SO_PEERCRED
         assert c["pid"] == os.getpid() and c["uid"] == os.getuid()
     finally:
         d.stop()
