@@ -157,3 +157,26 @@ def test_weight_and_priority_are_bounded_by_the_daemon(served, vbus):
         m.transact(5, b"k")
         (me,) = [c for c in served.status()["clients"] if c["name"] == "exec master"]
         assert (me["weight"], me["priority"]) == (2, 1)
+
+
+def test_threads_sharing_one_client_each_get_their_own_replies(served, vbus):
+    import threading
+
+    bad: list = []
+    with Master(served.url, timeout=0.5, retries=2) as m:
+        def worker(k: int) -> None:
+            for i in range(20):
+                tag = f"t{k}:{i}".encode()
+                got = m.transact(5, tag)
+                if got != tag:
+                    bad.append((tag, got))
+
+        threads = [threading.Thread(target=worker, args=(k,)) for k in range(4)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(60)
+        assert m.stats.transactions == 80
+    assert bad == []
+    (me,) = [c for c in served.status()["totals"].items() if c[0] == "transactions"]
+    assert me[1] == 80
