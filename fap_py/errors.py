@@ -179,8 +179,8 @@ def __getattr__(name: str) -> int:
 
 def _held_by(path: str | None) -> str:
     """``held by pid 123 (fap serve ...)`` when a lock file or /proc/locks names the
-    holder of a device path, else the general words."""
-    if path and "://" not in path:
+    holder of a device path, else the general words (a URL names no file: nothing found)."""
+    if path and os.path.exists(path):
         from ._holder import describe, holder  # nothing above errors: _holder is os-only
 
         pid = holder(path)

@@ -29,6 +29,7 @@ from typing import Any, Dict, List, Optional
 
 from .._validate import check_baud, check_int, check_path, check_seconds
 from ..errors import FapError, FapTimeoutError, InvalidTypeError, InvalidValueError, PortError, PortGoneError
+from ..port import port_kind
 from ..rs485 import DEFAULT_BAUD, RS485
 from ._backends import BACKENDS, NOT_YET, Backend, Job
 from ._errors import BadUrlError, ClientQueueFullError, DaemonError, ProtocolError
@@ -257,7 +258,7 @@ class Daemon:
     def open_port(self) -> None:
         """Take the device: the UUCP lock file, then the engine's open (flock + TIOCEXCL)."""
         c = self.config
-        if c.lock_dir and "://" not in c.port:
+        if c.lock_dir and port_kind(c.port) == "device":     # a network port has no lock file
             self._lock = UucpLock(c.port, c.lock_dir)
             self._lock.acquire()
         try:
