@@ -95,6 +95,10 @@ def _source(args: argparse.Namespace) -> Any:
         raise opt.UsageError("--tap goes with --sim unix:PATH (a running sim's control socket), and "
                              "it needs one")
     if args.port:
+        from fap_py.serve import is_daemon_url
+
+        if is_daemon_url(args.port):   # a bus `fap serve` owns: its tap, plus its clients
+            return web.DaemonSource(args.port, args.protocol or "auto")
         return web.PortSource(args.port, args.baud or 0, args.protocol or "auto", opt.rs485_from_args(args))
     if args.mqtt:
         return web.MqttSource(args.mqtt, bus=args.bus)

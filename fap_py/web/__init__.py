@@ -26,7 +26,16 @@ from ..errors import ClosedError, FapError, InvalidTypeError, InvalidValueError
 from ._access import is_loopback
 from ._hub import Hub
 from ._mqtt import MqttSource
-from ._sources import CaptureSource, NoFaultsError, PortSource, SimControlSource, SimSource, Source
+from ._sources import (
+    CaptureSource,
+    DaemonSource,
+    NoClientsError,
+    NoFaultsError,
+    PortSource,
+    SimControlSource,
+    SimSource,
+    Source,
+)
 
 log = logging.getLogger("fap_py.web")
 
@@ -204,6 +213,6 @@ class WebServer(Closing):
         self.source.close()
 
 
-__all__ = ["CaptureSource", "DEFAULT_PORT", "INSTALL_HINT", "MissingDependencyError", "MqttSource", "NoFaultsError",
+__all__ = ["CaptureSource", "DaemonSource", "NoClientsError", "DEFAULT_PORT", "INSTALL_HINT", "MissingDependencyError", "MqttSource", "NoFaultsError",
            "PortSource", "RING", "SimControlSource", "SimSource", "Source", "WebAccessError", "WebServer", "aiohttp_module",
            "new_token"]

@@ -2,7 +2,7 @@
 
 Endpoints (docs/web.md): ``/`` the page, ``/static/*`` its assets, and under
 ``/api/``: ``info``, ``stream`` (Server-Sent Events), ``stats``, ``frames``,
-``download.pcap``, ``download.jsonl``, ``export.html``, ``faults``.
+``download.pcap``, ``download.jsonl``, ``export.html``, ``faults``, ``clients``.
 """
 from __future__ import annotations
 
@@ -72,6 +72,7 @@ class App:
         r.add_get("/api/download.jsonl", self._jsonl)
         r.add_get("/api/export.html", self._export)
         r.add_get("/api/faults", self._faults)
+        r.add_get("/api/clients", self._clients)
         r.add_post("/api/faults", self._fault_add)
         r.add_delete("/api/faults/{id}", self._fault_remove)
 
@@ -222,6 +223,9 @@ class App:
 
     async def _faults(self, request: web.Request) -> web.StreamResponse:
         return await self._call(self.source.faults)
+
+    async def _clients(self, request: web.Request) -> web.StreamResponse:
+        return await self._call(self.source.clients)
 
     async def _fault_add(self, request: web.Request) -> web.StreamResponse:
         try:

@@ -4,8 +4,8 @@ A source runs in its own thread (:meth:`Source.run`), decodes with the monitor
 (:class:`fap_py.monitor.Monitor`, the same decoders as ``fap monitor``) and hands
 the records to the hub; it never waits for a browser. A source with fault
 controls (the simulator) also answers :meth:`faults`, :meth:`add_fault` and
-:meth:`remove_fault`. A new kind of source (the daemon's ``fapd://``) is one
-more subclass.
+:meth:`remove_fault`; a daemon (``fap serve``, :class:`DaemonSource`) answers
+:meth:`clients`. A new kind of source is one more subclass.
 """
 from __future__ import annotations
 
@@ -36,6 +36,10 @@ class NoFaultsError(InvalidValueError):
     """This source has no fault controls (only a simulator has)."""
 
 
+class NoClientsError(InvalidValueError):
+    """This source has no clients to show (only a daemon has)."""
+
+
 class Source:
     """One input of ``fap web``. Subclasses set :attr:`kind` and implement :meth:`run`."""
 
@@ -44,6 +48,8 @@ class Source:
     has_faults = False
     #: a finished recording (the page shows a time slider), not a live input
     seekable = False
+    #: the page shows the clients of a daemon
+    has_clients = False
 
     def __init__(self, protocol: str = "auto", baud: int = 0) -> None:
         self.protocol = protocol_choice(protocol)
@@ -54,7 +60,8 @@ class Source:
         """What the page shows about the source (``/api/info``)."""
         return {"kind": self.kind, "protocol": self.protocol,
                 "decoding": None if self.monitor is None else self.monitor.locked,
-                "baud": self.baud, "faults": self.has_faults, "seekable": self.seekable}
+                "baud": self.baud, "faults": self.has_faults, "seekable": self.seekable,
+                "clients": self.has_clients}
 
     def run(self, hub: Hub, stop: threading.Event) -> None:
         """Decode the input into ``hub`` until it ends or ``stop`` is set (a subclass's)."""
@@ -76,6 +83,10 @@ class Source:
 
     def remove_fault(self, fid: Any) -> List[Dict[str, Any]]:
         raise NoFaultsError(f"a {self.kind} source has no fault controls")
+
+    # -- clients (a daemon) ---------------------------------------------------
+    def clients(self) -> Dict[str, Any]:
+        raise NoClientsError(f"a {self.kind} source has no clients")
 
     # -- shared ---------------------------------------------------------------
     @staticmethod
@@ -124,6 +135,41 @@ class PortSource(Source):
     def close(self) -> None:
         if self._live is not None:
             self._live.close()
+
+
+class DaemonSource(PortSource):
+    """A bus ``fap serve`` owns (``fapd:///path.sock`` or ``fapd://host:port``): every frame
+    it sends and receives through the daemon's passive tap (``fap monitor --port fapd://``),
+    and its clients (weights, queues, shares of wire time, late replies) from its status."""
+
+    kind = "daemon"
+    has_clients = True
+
+    def __init__(self, url: str, protocol: str = "auto", token: Optional[str] = None) -> None:
+        from ..serve import is_daemon_url
+
+        super().__init__(url, 0, protocol)
+        if not is_daemon_url(self.path):
+            raise InvalidValueError(f"a daemon source takes a fapd:// URL, not {self.path!r}")
+        if token is not None and not isinstance(token, str):
+            raise InvalidTypeError(f"token must be None or a str, not {type(token).__name__}")
+        self.token = token
+
+    def open(self) -> None:
+        super().open()
+        assert self._live is not None
+        self.baud = self._live.baud          # the daemon's line speed, from its welcome
+
+    def clients(self) -> Dict[str, Any]:
+        """The daemon's status, as ``fap serve status --json`` prints it; this page's own
+        connections to the daemon (the tap, the status calls) are left out of the list."""
+        from ..serve import status
+
+        st = status(self.path, token=self.token)
+        mine = os.getpid()
+        st["clients"] = [c for c in st.get("clients", ())
+                         if not (c.get("pid") == mine and (c.get("monitor") or c.get("name") == "status"))]
+        return st
 
 
 class CaptureSource(Source):
@@ -470,4 +516,5 @@ class SimControlSource(Source):
 FAULT_KEYS = frozenset({"kind", "node", "bus", "probability", "ms", "seed"})
 
 
-__all__ = ["CaptureSource", "NoFaultsError", "PortSource", "SimControlSource", "SimSource", "Source"]
+__all__ = ["CaptureSource", "DaemonSource", "NoClientsError", "NoFaultsError", "PortSource", "SimControlSource",
+           "SimSource", "Source"]

@@ -10,7 +10,8 @@
   const exported = $("fap-export");
   const state = {
     info: null, frames: [], paused: false, dropped: 0, stats: null, until: null,
-    selected: null, protocols: new Set(), faults: null, faultTick: 0, dirty: true, exportData: null,
+    selected: null, protocols: new Set(), faults: null, faultTick: 0, clientTick: 0, clientsShown: false,
+    dirty: true, exportData: null,
     token: new URLSearchParams(location.hash.slice(1)).get("token"),
   };
 
@@ -241,6 +242,23 @@
     }).catch((err) => { $("fault-error").textContent = String(err); });
   }
 
+  // -- clients (a daemon source) --------------------------------------------
+  function loadClients() {
+    return fetch(api("clients")).then((r) => r.json()).then((a) => {
+      if (!a.ok) { $("clients-error").textContent = a.error; return; }
+      $("clients-error").textContent = "";
+      const st = a.result, t = st.totals || {};
+      text($("clients-total"), (t.transactions || 0) + " transactions, " + (t.late || 0) + " late, " +
+        (t.errors || 0) + " errors, port " + ((st.daemon && st.daemon.port_state) || "?"));
+      $("client-table").tBodies[0].innerHTML = (st.clients || []).map((c) => "<tr><td>" + esc(c.name || c.client) +
+        "</td><td>" + esc(c.peer || "") + "</td><td>" + c.weight + "</td><td>" + c.priority + "</td><td>" +
+        c.queued + "</td><td>" + c.transactions + "</td><td>" + (100 * (c.share || 0)).toFixed(1) +
+        " %</td><td" + (c.late ? " class=\"bad\"" : "") + ">" + c.late + "</td><td" +
+        (c.errors ? " class=\"bad\"" : "") + ">" + c.errors + "</td></tr>").join("") ||
+        "<tr><td colspan=\"9\">no client</td></tr>";
+    }).catch((err) => { $("clients-error").textContent = String(err); });
+  }
+
   // -- the capture slider ---------------------------------------------------
   let sliderTimer = null;
   function onSlider() {
@@ -288,6 +306,10 @@
       text($("master-port"), info.master_port ? "master port: " + info.master_port : "");
       if (!state.faults) loadFaults();
     }
+    if (info.clients && !state.exportData) {
+      $("clients").hidden = false;
+      if (!state.clientsShown) { state.clientsShown = true; loadClients(); }
+    }
     if (info.seekable) { $("slider-row").hidden = false; if (info.span) onSlider(); }
     setDownloads();
   }
@@ -315,6 +337,7 @@
       else if (state.paused) { text(st, "paused"); st.className = "pill paused"; }
       else { text(st, "live"); st.className = "pill live"; }
       if (state.faults && !state.paused && ++state.faultTick % 4 === 0) loadFaults();   // every 2 s
+      if (state.clientsShown && !state.paused && ++state.clientTick % 2 === 0) loadClients();   // every 1 s
     });
     es.onerror = () => { const st = $("status"); text(st, "reconnecting"); st.className = "pill paused"; };
   }

@@ -207,3 +207,45 @@ def test_capture_loads_slider_moves_pcap_opens_in_tshark(browser, tmp_path):
                           "-T", "fields", "-e", "execasync.node"], capture_output=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert len(out.stdout.split()) == shown and set(out.stdout.decode().split()) == {"1", "5"}
+
+
+def test_daemon_page_shows_its_clients_and_the_tapped_frames(browser, tmp_path):
+    """A bus `fap serve` owns: the frames the daemon moves fill the table (its tap), and the
+    clients table names a client with its weight and transactions."""
+    from pathlib import Path
+
+    from fap_py import execasync
+    from fap_py.rs485 import RS485, RS485Mode
+    from fap_py.vbus import VirtualBus
+    from fap_py.web import DaemonSource
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+    from serve_helpers import start_daemon
+
+    d = browser
+    with VirtualBus(ports=2, baud=115200) as bus, \
+            execasync.Slave(bus.paths[1], node=5, handler=lambda r: r.data,
+                            rs485=RS485(mode=RS485Mode.NONE)) as slave:
+        slave.start()
+        served = start_daemon(str(tmp_path), bus.paths[0])
+        try:
+            with WebServer(DaemonSource(served.url), port=0) as srv, \
+                    execasync.Master(served.url + "?name=hmi&weight=3") as m:
+                srv.start()
+                d.get(srv.url)
+                wait_page(lambda: d.find_element(By.ID, "clients").is_displayed(), "the clients section")
+                for i in range(10):
+                    m.transact(5, bytes([i]))
+                wait_page(lambda: int(cell(d, 5, "replies") or 0) >= 10, "the tapped replies of node 5")
+                rows = lambda: d.execute_script(   # noqa: E731
+                    "return Array.from(document.querySelectorAll('#client-table tbody tr'),"
+                    " r => Array.from(r.cells, c => c.textContent));")
+                wait_page(lambda: any(r[0] == "hmi" and r[5] == "10" for r in rows()), "the hmi client row")
+                hmi = [r for r in rows() if r[0] == "hmi"][0]
+                assert hmi[2] == "3" and hmi[7] == "0"
+                assert d.find_element(By.ID, "source").text.startswith("daemon fapd://")
+                d.save_screenshot(str(tmp_path / "daemon.png"))
+                assert severe(d) == []
+                d.get("about:blank")
+        finally:
+            served.stop()
