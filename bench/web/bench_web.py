@@ -15,7 +15,7 @@ Three runs:
 3. node table latency: during (2), a marker node's request count is bumped every 200 ms;
    the page records (MutationObserver) when its cell shows each value: latency = that
    wall time - the publish time (same machine, same clock). The table is pushed every
-   ``fap_py.web._server.STATS_EVERY_S`` (0.5 s): that is the floor.
+   ``fap_py.web._server.STATS_EVERY_S`` (0.1 s): that is the floor.
 
     python bench/web/bench_web.py [--frames N] [--rate R] [--seconds S] [--json]
 

@@ -30,7 +30,7 @@ ASSETS = {"index.html": "text/html", "app.js": "text/javascript", "style.css": "
 BATCH = 500
 BACKLOG = 2000
 #: how often the page gets the node table and the plots' series, seconds
-STATS_EVERY_S = 0.5
+STATS_EVERY_S = 0.1   # the node table within 250 ms of a frame (bench/web/bench_web.py)
 #: a browser that takes longer than this for one write is cut off (it reconnects)
 WRITE_TIMEOUT_S = 10.0
 #: SSE streams at once; more get 503

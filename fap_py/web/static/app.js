@@ -10,7 +10,7 @@
   const exported = $("fap-export");
   const state = {
     info: null, frames: [], paused: false, dropped: 0, stats: null, until: null,
-    selected: null, protocols: new Set(), faults: null, faultTick: 0, clientTick: 0, clientsShown: false,
+    selected: null, protocols: new Set(), faults: null, faultAt: 0, clientAt: 0, clientsShown: false,
     dirty: true, exportData: null,
     token: new URLSearchParams(location.hash.slice(1)).get("token"),
   };
@@ -336,8 +336,9 @@
       else if (s.source.done) { text(st, "ended"); st.className = "pill ended"; }
       else if (state.paused) { text(st, "paused"); st.className = "pill paused"; }
       else { text(st, "live"); st.className = "pill live"; }
-      if (state.faults && !state.paused && ++state.faultTick % 4 === 0) loadFaults();   // every 2 s
-      if (state.clientsShown && !state.paused && ++state.clientTick % 2 === 0) loadClients();   // every 1 s
+      const now = Date.now();
+      if (state.faults && !state.paused && now - state.faultAt >= 2000) { state.faultAt = now; loadFaults(); }
+      if (state.clientsShown && !state.paused && now - state.clientAt >= 1000) { state.clientAt = now; loadClients(); }
     });
     es.onerror = () => { const st = $("status"); text(st, "reconnecting"); st.className = "pill paused"; };
   }

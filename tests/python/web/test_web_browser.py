@@ -57,7 +57,7 @@ def severe(driver) -> list:
 
 
 def cell(driver, node: int, name: str) -> str:
-    """A node table cell's text, read at once (the table is redrawn twice a second)."""
+    """A node table cell's text, read at once (the table is redrawn ten times a second)."""
     return driver.execute_script(
         f"const c = document.querySelector('#nodes tr[data-node=\"{node}\"] td.{name}');"
         "return c ? c.textContent : '';")
