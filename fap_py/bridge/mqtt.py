@@ -700,8 +700,9 @@ class MqttLink:
             code = getattr(reason, "value", None)
             if code in _NO_MQTT5 and self._v5[self._index] and b.protocol == "auto":
                 with self._cond:   # the fleet thread makes a 3.1.1 client for it
+                    if not self._answered_no:   # once per broker: paho may retry (and be
+                        self.fallbacks += 1     # refused again) before the swap
                     self._answered_no = True
-                    self.fallbacks += 1
                     self.last_error = f"{b.address}: refuses MQTT 5 ({reason}): trying 3.1.1"
                     self._want = ("fallback", self._index)
                     self._cond.notify_all()
