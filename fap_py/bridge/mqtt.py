@@ -503,8 +503,8 @@ class MqttLink:
         payload = check_bytes(payload, "payload", 0, _PAYLOAD_MAX)
         check_bool(retain, "retain")
         with self._cond:
-            if not self._connected:
-                return False
+            if not self._connected or self._held_locked(topic):
+                return False          # not queued either: a held topic waits for its caller
             if not self._gate_open:   # the connect phase: one at a time, after the others
                 self._own_queue.append((topic, payload, retain))
                 queued = True

@@ -132,6 +132,14 @@ def test_a_health_change_not_sent_is_sent_later(broker, observer_factory, fap_pa
         bridge.not_stored = 7                  # a change, due now, while held
         bridge._publish_health(force=False)
         assert bridge._health_sent is None     # not sent, so not remembered as sent
+        with link._cond:   # the same in the connect phase (a loaded machine's CI met it there)
+            gate, link._gate_open = link._gate_open, False
+        try:
+            bridge._publish_health(force=False)
+            assert bridge._health_sent is None and not link._own_queue   # not queued either
+        finally:
+            with link._cond:
+                link._gate_open = gate
         with link._cond:   # the hold ends: the stats loop's next tick sends the latest health
             link._held[link.health_topic] = (time.monotonic(), 0.5)
         obs.wait_for("fap/bridge/test/health", lambda d: d["not_stored"] == 7)
