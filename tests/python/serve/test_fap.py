@@ -57,8 +57,10 @@ def test_fap_master_on_a_daemon_url(tmp_path):
                     ev = tap.next_event(10)
                     assert ev is not None and ev["event"] == "frame"
                     dirs.add(ev["dir"])
+            # --wait 30: under a hog beside a CI run the default 5 s once ran out before the
+            # daemon's engine sent it (1 unsent); the wait ends as soon as it is sent
             r = subprocess.run(fap_cmd("fap", "master", "--port", d.url, "--slaves", "3", "0102",
-                                       "--json"), capture_output=True, text=True, timeout=60)
+                                       "--wait", "30", "--json"), capture_output=True, text=True, timeout=90)
             assert r.returncode == 0, r.stderr
             objs = [json.loads(x) for x in r.stdout.splitlines()]
             assert {"event": "rx", "from": 3, "data": "0201"} in objs
