@@ -780,7 +780,7 @@ class DaemonFapMaster:
                 self._rx.append(_new_message(int(ev["source"]), bytes.fromhex(ev["data"])))
             elif kind == "fap_event":
                 try:
-                    self._ev.append(SlaveEvent(EventKind[str(ev["kind"])], int(ev["id"]), int(ev["time_ns"])))
+                    self._ev.append(SlaveEvent(EventKind[str(ev["kind"])], int(ev["slave"]), int(ev["time_ns"])))
                 except (KeyError, ValueError):
                     pass
         return True

@@ -430,7 +430,8 @@ class FapBackend(Backend):
 
         async def events() -> None:
             async for ev in node.aevents(None):
-                publish({"event": "fap_event", "kind": ev.kind.name, "id": ev.id, "time_ns": ev.time_ns})
+                # "slave", not "id": "id" is the request id a client matches answers by
+                publish({"event": "fap_event", "kind": ev.kind.name, "slave": ev.id, "time_ns": ev.time_ns})
 
         self._tasks = [loop.create_task(messages()), loop.create_task(events())]
 

@@ -229,7 +229,7 @@ class Connection:
                 if msg is None:
                     break
                 rid = msg.get("id")
-                if rid is None:
+                if rid is None or "event" in msg:   # an event is never an answer (docs/daemon.md)
                     self._event(msg)
                     continue
                 with self._wait_lock:
@@ -408,7 +408,7 @@ class AsyncConnection:
                 if msg is None:
                     break
                 rid = msg.get("id")
-                fut = self._futures.pop(rid, None) if isinstance(rid, int) else None
+                fut = self._futures.pop(rid, None) if isinstance(rid, int) and "event" not in msg else None
                 if fut is not None and not fut.done():
                     fut.set_result(msg)
         except (ProtocolError, asyncio.TimeoutError, OSError):

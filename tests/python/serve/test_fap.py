@@ -54,18 +54,49 @@ def test_fap_master_on_a_daemon_url(tmp_path):
                 tap.call("monitor")
                 dirs = set()
                 while dirs != {"tx", "rx"}:
-                    ev = tap.next_event(10)
+                    ev = tap.next_event(30)                # bounded; long for a loaded machine
                     assert ev is not None and ev["event"] == "frame"
                     dirs.add(ev["dir"])
-            # --wait 30: under a hog beside a CI run the default 5 s once ran out before the
-            # daemon's engine sent it (1 unsent); the wait ends as soon as it is sent
-            r = subprocess.run(fap_cmd("fap", "master", "--port", d.url, "--slaves", "3", "0102",
-                                       "--wait", "30", "--json"), capture_output=True, text=True, timeout=90)
-            assert r.returncode == 0, r.stderr
-            objs = [json.loads(x) for x in r.stdout.splitlines()]
-            assert {"event": "rx", "from": 3, "data": "0201"} in objs
+            # the CLI sends and exits once it is sent (--wait 30: the default 5 s once ran out
+            # under a hog beside a CI run); the slave's answer reaches every client of the
+            # daemon, so a listener that stays sees it (the CLI may have left before it came)
+            with Master(d.url, slaves=[3]) as listener:
+                r = subprocess.run(fap_cmd("fap", "master", "--port", d.url, "--slaves", "3", "0102",
+                                           "--wait", "30", "--json"), capture_output=True, text=True,
+                                   timeout=90)
+                assert r.returncode == 0, r.stderr
+                objs = [json.loads(x) for x in r.stdout.splitlines()]
+                assert {"event": "sent", "to": 3, "data": "0102"} in objs
+                for _ in range(10):
+                    msg = listener.recv(timeout=30)
+                    if msg.data == b"\x02\x01":
+                        break
+                assert (msg.source, msg.data) == (3, b"\x02\x01")
             assert d.status()["totals"]["transactions"] >= 1
         finally:
             d.stop()
             stop.set()
             t.join(5)
+
+
+def test_fap_events_carry_the_slave_not_a_request_id(tmp_path):
+    """An engine event names its slave as `slave`: a field `id` is what a client matches its
+    answers by, and an event that carried the slave's ID there was once taken for the answer
+    to request 3 (a DaemonFapMaster call then failed with 'bad error object None')."""
+    with VirtualBus(ports=2, baud=115200) as bus:
+        d = start_daemon(str(tmp_path), bus.paths[0], "--slaves", "3", protocol="fap")
+        try:
+            with Connection(d.url) as c:
+                with Slave(bus.paths[1], id=3, rs485=RS485(mode=RS485Mode.NONE)):
+                    ev = None
+                    for _ in range(100):
+                        ev = c.next_event(10)
+                        assert ev is not None
+                        if ev.get("event") == "fap_event":
+                            break
+                    assert ev is not None and ev["event"] == "fap_event"
+                    assert "id" not in ev and ev["slave"] == 3
+                    for _ in range(20):    # calls stay matched to their own answers meanwhile
+                        assert c.call("slaves")["slaves"] == [3]
+        finally:
+            d.stop()
