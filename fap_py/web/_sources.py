@@ -268,6 +268,21 @@ def _follow_capture(src: Source, path: str, baud: int, hub: Hub, stop: threading
     hub.publish(mon.finish())
 
 
+def _check_fault_request(request: Any) -> None:
+    """A fault request from the page (the control socket's ``fault.add`` keys), checked the
+    same for an in-process sim and one behind its control socket."""
+    from ..sim import FaultError
+
+    if not isinstance(request, dict):
+        raise InvalidTypeError(f"a fault is a JSON object, not {type(request).__name__}")
+    extra = set(request) - FAULT_KEYS
+    if extra:
+        raise FaultError(f"unknown key(s) {', '.join(sorted(map(str, extra)))} "
+                         f"(known: {', '.join(sorted(FAULT_KEYS))})")
+    if not isinstance(request.get("kind"), str):
+        raise FaultError("a fault needs 'kind' (a str)")
+
+
 class SimSource(Source):
     """A simulator (:class:`fap_py.sim.Sim`) run here from its config: its faults on the page.
 
@@ -355,16 +370,7 @@ class SimSource(Source):
 
     def add_fault(self, request: Dict[str, Any]) -> Dict[str, Any]:
         """Add a fault (the control socket's ``fault.add`` keys); its public record."""
-        from ..sim import FaultError
-
-        if not isinstance(request, dict):
-            raise InvalidTypeError(f"a fault is a JSON object, not {type(request).__name__}")
-        extra = set(request) - FAULT_KEYS
-        if extra:
-            raise FaultError(f"unknown key(s) {', '.join(sorted(map(str, extra)))} "
-                             f"(known: {', '.join(sorted(FAULT_KEYS))})")
-        if not isinstance(request.get("kind"), str):
-            raise FaultError("a fault needs 'kind' (a str)")
+        _check_fault_request(request)
         if self.sim is None:
             raise InvalidValueError("the sim is not running")
         kw = {k: request[k] for k in FAULT_KEYS - {"kind"} if k in request}
@@ -486,16 +492,7 @@ class SimControlSource(Source):
                 "fault_changes": self._status.get("fault_changes", 0)}
 
     def add_fault(self, request: Dict[str, Any]) -> Dict[str, Any]:
-        from ..sim import FaultError
-
-        if not isinstance(request, dict):
-            raise InvalidTypeError(f"a fault is a JSON object, not {type(request).__name__}")
-        extra = set(request) - FAULT_KEYS
-        if extra:
-            raise FaultError(f"unknown key(s) {', '.join(sorted(map(str, extra)))} "
-                             f"(known: {', '.join(sorted(FAULT_KEYS))})")
-        if not isinstance(request.get("kind"), str):
-            raise FaultError("a fault needs 'kind' (a str)")
+        _check_fault_request(request)
         req = {"cmd": "fault.add", "bus": self.bus_name, **request}
         return dict(self._request(req)["fault"])
 
