@@ -194,33 +194,13 @@ def _fap_row(tmp: str) -> Dict[str, Any]:
         sim.close()
 
 
-def _delays(capture: str) -> List[Tuple[bytes, bytes, float]]:
-    """(request, reply, delay s) of every exchange of an exec async capture, in order."""
-    from fap_py.sim._replay import _framer
+def _delays(capture: str) -> Dict[bytes, List[Tuple[bytes, float]]]:
+    """Request bytes -> [(reply, delay s)] of an exec async capture: the replay's own pairing
+    (:func:`fap_py.sim._replay.build_table`), so recording and replay are read alike."""
+    from fap_py.sim._replay import build_table
     from fap_py.vbus import read_capture
 
-    cap = read_capture(capture)
-    char_us = 10e6 / BAUD
-    framer = _framer("exec", BAUD)
-    out: List[Tuple[bytes, bytes, float]] = []
-    pending: Optional[Tuple[bytes, float]] = None
-    reply, start = b"", None
-    consumed = 0
-    for rec in cap.records:
-        if rec.port == 0:
-            base = consumed
-            consumed += len(rec.data)
-            for end, raw in framer.feed(rec.data):
-                if pending is not None and start is not None:
-                    out.append((pending[0], reply, (start - pending[1]) / 1e6))
-                pending = (raw, rec.t_us + (end - base) * char_us)
-                reply, start = b"", None
-        elif pending is not None:
-            start = float(rec.t_us) if start is None else start
-            reply += rec.data
-    if pending is not None and start is not None:
-        out.append((pending[0], reply, (start - pending[1]) / 1e6))
-    return out
+    return build_table(read_capture(capture), "exec").entries
 
 
 def _replay_row(tmp: str, exchanges: int) -> Dict[str, Any]:
@@ -246,9 +226,11 @@ def _replay_row(tmp: str, exchanges: int) -> Dict[str, Any]:
             rp.close()
     a, b = _delays(rec_cap), _delays(rep_cap)
     char = 10.0 / BAUD
-    diffs = sorted(abs(x[2] - y[2]) / char for x, y in zip(a, b))
-    exact = sum(x[1] == y[1] for x, y in zip(a, b))
-    return {"frames": 2 * len(a), "byte_exact": replayed == recorded and exact == len(a) == len(b),
+    pairs = [(x, y) for req in a for x, y in zip(a[req], b.get(req, ()))]
+    diffs = sorted(abs(x[1] - y[1]) / char for x, y in pairs)
+    exact = sum(x[0] == y[0] for x, y in pairs)
+    n = sum(len(v) for v in a.values())
+    return {"frames": 2 * n, "byte_exact": replayed == recorded and exact == n == sum(len(v) for v in b.values()),
             "p99_chars": diffs[int(0.99 * (len(diffs) - 1))] if diffs else None,
             "p50_chars": statistics.median(diffs) if diffs else None}
 
