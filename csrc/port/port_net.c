@@ -68,7 +68,7 @@ typedef struct lf_net {
     lf_telnet tn;
     uint8_t us[256], him[256];    /* option states, OPT_* */
     unsigned answered[16];        /* answers per COM-PORT command (cmd - 100) */
-    uint32_t answer_val[16];      /* the last answer's value */
+    uint32_t answer_val[16];      /* the first answer's value since the settings went out */
     struct termios tio;           /* what tcsetattr stored (tcgetattr hands it back) */
     int purged;                   /* tcsetattr sent PURGE-DATA: the open's flush need not */
 } lf_net;
@@ -280,8 +280,8 @@ static void on_cmd(void *ctx, uint8_t verb, uint8_t opt, const uint8_t *sb, size
             uint32_t v = 0;
             for (size_t i = 1; i < len && i <= 4; i++)
                 v = (v << 8) | sb[i];
-            c->answer_val[k] = v;
-            c->answered[k]++;
+            if (c->answered[k]++ == 0)
+                c->answer_val[k] = v;   /* later ones: the fence's (below) */
         }
         break;
     default:
@@ -346,12 +346,18 @@ static const uint8_t line_cmds[] = {LF_CPC_SET_BAUDRATE, LF_CPC_SET_DATASIZE,
 static const uint8_t control_vals[] = {LF_CPC_CONTROL_NOFLOW, LF_CPC_CONTROL_DTR_ON,
                                        LF_CPC_CONTROL_RTS_ON};
 
+/* Done when every line setting is answered and either every SET-CONTROL
+ * is or the fence is: a baud query (value 0) sent last, which servers
+ * answer in order, so once its answer is in no SET-CONTROL answer is
+ * still on its way (ser2net on a pty never answers DTR/RTS: without the
+ * fence every open would wait the whole option_ms for them). */
 static int settings_answered(const lf_net *c)
 {
     for (size_t i = 0; i < sizeof line_cmds; i++)
         if (!c->answered[line_cmds[i]])
             return 0;
-    return c->answered[LF_CPC_SET_CONTROL] >= sizeof control_vals;
+    return c->answered[LF_CPC_SET_CONTROL] >= sizeof control_vals ||
+           c->answered[LF_CPC_SET_BAUDRATE] >= 2;
 }
 
 /* ---- connect ----------------------------------------------------------- */
@@ -664,7 +670,7 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     want[LF_CPC_SET_DATASIZE] = 8;
     want[LF_CPC_SET_PARITY] = LF_CPC_PARITY_NONE;
     want[LF_CPC_SET_STOPSIZE] = LF_CPC_STOP_1;
-    uint8_t msg[16 * (1 + sizeof line_cmds + sizeof control_vals)];
+    uint8_t msg[16 * (2 + sizeof line_cmds + sizeof control_vals)];
     size_t len = 0;
     memset(c->answered, 0, sizeof c->answered);
     /* Purge first: the server works in order, so once the settings are
@@ -684,6 +690,8 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     }
     for (size_t i = 0; i < sizeof control_vals; i++)
         len += lf_telnet_cpc(LF_CPC_SET_CONTROL, &control_vals[i], 1, msg + len);
+    const uint8_t query[4] = {0, 0, 0, 0};   /* the fence: "which baud now?" */
+    len += lf_telnet_cpc(LF_CPC_SET_BAUDRATE, query, 4, msg + len);
     int64_t deadline = lf_now_ns() + (int64_t)c->url.option_ms * LF_NS_PER_MS;
     if (send_all(c, fd, msg, len, deadline) < 0)
         return -1;
@@ -707,9 +715,14 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
             snprintf(note, sizeof note, "rfc2217: no answer to a line setting within %u ms; "
                      "continuing", c->url.option_ms);
     }
-    if (!note[0] && c->answered[LF_CPC_SET_CONTROL] < sizeof control_vals)
-        snprintf(note, sizeof note, "rfc2217: the server did not answer every SET-CONTROL "
-                 "(flow off, DTR on, RTS on) within %u ms; continuing", c->url.option_ms);
+    if (!note[0] && c->answered[LF_CPC_SET_CONTROL] < sizeof control_vals) {
+        if (c->answered[LF_CPC_SET_BAUDRATE] >= 2)   /* fence answered: it never will */
+            snprintf(note, sizeof note, "rfc2217: the server does not answer SET-CONTROL "
+                     "(flow off, DTR on, RTS on); continuing");
+        else
+            snprintf(note, sizeof note, "rfc2217: the server did not answer every SET-CONTROL "
+                     "(flow off, DTR on, RTS on) within %u ms; continuing", c->url.option_ms);
+    }
     if (note[0])
         set_warning(c, note);
     return 0;

@@ -14,7 +14,7 @@ typedef enum lf_port_scheme {
 /* Defaults of the query parameters. */
 #define LF_URL_CONNECT_MS_DEFAULT 3000u   /* connect_ms: TCP connect + RFC 2217 start */
 #define LF_URL_RTT_MS_DEFAULT 20u         /* rtt_ms: added to reply timeouts */
-#define LF_URL_OPTION_MS_DEFAULT 300u     /* option_ms: wait for an RFC 2217 answer */
+#define LF_URL_OPTION_MS_DEFAULT 3000u    /* option_ms: wait for an RFC 2217 answer (pyserial waits 3 s too) */
 #define LF_URL_MS_MAX 600000u             /* 10 minutes: any larger value is a typo */
 
 typedef struct lf_port_url {

@@ -119,7 +119,8 @@ def test_classic_api_programs_through_ser2net(served: Tuple[VirtualBus, Ser2net]
                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         assert slave.stdout is not None
-        assert slave.stdout.readline().strip() == "slave 7 ready"
+        ready = slave.stdout.readline().strip()
+        assert ready == "slave 7 ready", (ready, s.log.read_text()[-2000:])
         master = subprocess.run([str(_example("fap_master")), s.urls[0], "7", "3"],
                                 capture_output=True, text=True, timeout=120)
         assert master.returncode == 0, master.stdout + master.stderr

@@ -21,6 +21,7 @@ import socket
 import subprocess
 import sys
 import threading
+import logging
 import time
 from typing import Optional
 
@@ -37,7 +38,7 @@ BOUND = 1.5
 
 IAC, SB, SE, NOP, DO, DONT, WILL = 255, 250, 240, 241, 253, 254, 251
 GOOD_HELLO = bytes([IAC, DO, 0, IAC, WILL, 0, IAC, DO, 44])
-#: the client's last open setting: SET-CONTROL RTS on
+#: the client's last SET-CONTROL at open (RTS on; the baud query after it is the fence)
 LAST_SETTING = bytes([IAC, SB, 44, 5, 11, IAC, SE])
 
 
@@ -45,7 +46,8 @@ class Hostile:
     """A TCP server on 127.0.0.1 that misbehaves in one way, per connection:
     ``nop``/``dodont``/``sb`` flood from the start, ``noread`` negotiates
     then never reads again, ``silent`` (a raw TCP port on a quiet bus) takes
-    the bytes and says nothing, ``close`` closes at once."""
+    the bytes and says nothing, ``close`` closes at once, ``lineonly``
+    answers the line settings and nothing after them."""
 
     def __init__(self, kind: str) -> None:
         self.kind = kind
@@ -97,7 +99,20 @@ class Hostile:
                     pass
                 c.close()
                 return
-            if self.kind in ("silent", "good_once"):
+            if self.kind == "lineonly":
+                # answers the line settings, never SET-CONTROL nor the baud query
+                c.sendall(GOOD_HELLO)
+                seen = b""
+                while LAST_SETTING not in seen:
+                    chunk = c.recv(1)
+                    if not chunk:
+                        return
+                    seen = seen[-16:] + chunk
+                answers = [(101, (115200).to_bytes(4, "big")), (102, b"\x08"), (103, b"\x01"),
+                           (104, b"\x01")]
+                c.sendall(b"".join(bytes([IAC, SB, 44, cmd]) + v + bytes([IAC, SE])
+                                   for cmd, v in answers))
+            if self.kind in ("silent", "good_once", "lineonly"):
                 while not self._stop.is_set() and c.recv(4096):
                     pass
                 return
@@ -144,6 +159,21 @@ class Hostile:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def test_a_server_silent_after_the_line_settings_is_waited_for_then_named_slow(
+        caplog: pytest.LogCaptureFixture) -> None:
+    """No SET-CONTROL answer and no answer to the baud query sent after them
+    (the fence): the open waits option_ms for them, goes on, and the warning
+    says how to wait longer."""
+    with Hostile("lineonly") as srv, caplog.at_level(logging.WARNING, logger="fap_py.port"):
+        t0 = time.monotonic()
+        with Port(srv.url(query="?option_ms=200"), 115200):
+            took = time.monotonic() - t0
+    assert 0.2 <= took < BOUND
+    msgs = [r.getMessage() for r in caplog.records if "SET-CONTROL" in r.getMessage()]
+    assert len(msgs) == 1 and "within 200 ms" in msgs[0], msgs
+    assert "wait longer with ?option_ms=N" in msgs[0], msgs
 
 
 @pytest.mark.parametrize("kind", ["nop", "dodont", "sb"])
