@@ -36,6 +36,7 @@ from enum import IntEnum
 from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
 
 from . import _trace  # wire bytes on fap_py.wire.exec at DEBUG
+from ._daemon_life import DaemonLife
 from ._handle import NativeHandle, deadline_of
 from ._interruptible import open_interruptibly
 from ._native import ffi, lib
@@ -637,7 +638,7 @@ _WIRE_ERRORS = {c.__name__: (lambda e, c=c: c(str(e.get("message", "")))) for c 
                 (ExecAsyncError, ExecValueError, ExecTypeError, NoReplyError, CorruptReplyError)}
 
 
-class DaemonMaster:
+class DaemonMaster(DaemonLife):
     """An exec async master on a bus a daemon owns (``fap serve``, docs/daemon.md):
     what ``Master("fapd://...")`` returns. The same calls, results and exceptions as
     :class:`Master`; each transaction (with its retries and sequence number) runs on
@@ -755,27 +756,8 @@ class DaemonMaster:
     def fileno(self) -> int:
         raise ExecValueError(f"{self.path}: a daemon connection has no port fd")
 
-    def close(self) -> None:
-        """Leave the daemon (idempotent)."""
+    def _closed(self) -> None:
         self.closed = True
-        self._conn.close()
-        self._aconn.abandon()
-
-    async def aclose(self) -> None:
-        await self._aconn.close()
-        self.close()
-
-    def __enter__(self) -> "DaemonMaster":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    async def __aenter__(self) -> "DaemonMaster":
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.aclose()
 
     def __repr__(self) -> str:
         return f"<DaemonMaster {self.path}{' closed' if self.closed else ''}>"

@@ -39,6 +39,7 @@ import time
 from asyncio import get_running_loop as _running_loop
 from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
 
+from ._daemon_life import DaemonLife
 from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
 from ._interruptible import open_interruptibly
 from ._native import ffi as _ffi
@@ -725,7 +726,7 @@ class Master(Node):
                 raise FapTimeoutError(f"wait_active: slaves {missing} not active within {timeout} s")
 
 
-class DaemonFapMaster:
+class DaemonFapMaster(DaemonLife):
     """The FAP master's calls on a bus a daemon owns (``fap serve --protocol fap
     --slaves IDS``, docs/daemon.md): what ``Master("fapd://...")`` returns.
 
@@ -927,24 +928,6 @@ class DaemonFapMaster:
                 yield await self.await_event(timeout)
         except (FapTimeoutError, ClosedError):
             return
-
-    def close(self) -> None:
-        self._conn.close()
-
-    async def aclose(self) -> None:
-        self.close()
-
-    def __enter__(self) -> "DaemonFapMaster":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    async def __aenter__(self) -> "DaemonFapMaster":
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        self.close()
 
 
 class Slave(Node):

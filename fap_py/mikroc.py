@@ -40,6 +40,7 @@ from dataclasses import dataclass
 from typing import Any, List, Optional, Union
 
 from . import _trace  # wire bytes on fap_py.wire.mikroc at DEBUG
+from ._daemon_life import DaemonLife
 from ._handle import NativeHandle, deadline_of, slice_ms
 from ._interruptible import open_interruptibly
 from ._native import ffi, lib
@@ -444,7 +445,7 @@ _WIRE_ERRORS = {c.__name__: (lambda e: _frame_error(int(e.get("code", 0)), e.get
                 for c in [MikrocFrameError, *_ERRORS.values()]}
 
 
-class DaemonMaster:
+class DaemonMaster(DaemonLife):
     """A mikroC master on a bus a daemon owns (``fap serve --protocol mikroc``,
     docs/daemon.md): what ``Master("fapd://...")`` returns.
 
@@ -541,27 +542,6 @@ class DaemonMaster:
         """This client's share of the daemon engine's counters."""
         with self._olock:
             return NodeStats(**self._counts)
-
-    def close(self) -> None:
-        """Leave the daemon (idempotent)."""
-        self._conn.close()
-        self._aconn.abandon()
-
-    async def aclose(self) -> None:
-        await self._aconn.close()
-        self.close()
-
-    def __enter__(self) -> "DaemonMaster":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-    async def __aenter__(self) -> "DaemonMaster":
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        await self.aclose()
 
 
 class Slave(_Node):

@@ -9,6 +9,7 @@ import threading
 from typing import Any, Dict, Iterable, List, Optional, Tuple, Union
 
 from .. import errors as _errors
+from .._daemon_life import DaemonLife
 from . import codec
 from . import errors as g485_errors
 from .codec import Data, SetCommand
@@ -50,7 +51,7 @@ def _command(command: Union[SetCommand, int, str]) -> Any:
     raise G485ValueError(f"command must be a SetCommand, int or name, not {type(command).__name__}")
 
 
-class DaemonG485Master:
+class DaemonG485Master(DaemonLife):
     """The System-Master's calls, each one transaction on the daemon's session (its
     timeout and retries unless given per call). ``weight``, ``priority``, ``token`` as
     for :class:`fap_py.execasync.DaemonMaster`; the line options are the daemon's."""
@@ -180,14 +181,7 @@ class DaemonG485Master:
             raise G485ValueError(f"hook must be callable, not {type(hook).__name__}")
         self._close_hooks.append(hook)
 
-    def close(self) -> None:
-        self._conn.close()
+    def _closed(self) -> None:
         hooks, self._close_hooks = self._close_hooks, []
         for hook in hooks:
             hook()
-
-    def __enter__(self) -> "DaemonG485Master":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
