@@ -14,10 +14,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
-import threading
 from typing import Any, Dict, List
 
+from ._node import stop_on_sigterm
 from ._options import (
     EXIT_OK,
     EXIT_USAGE,
@@ -168,65 +167,46 @@ def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
     if args.control:
         unix_path(args.control)    # a bad spec before anything opens
     rs485 = rs485_from_args(args) if args.port else None
-    done = threading.Event()
-
-    def on_signal(signum: int, frame: object) -> None:
-        done.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with Sim(cfg, port=args.port, baud=args.baud, rs485=rs485) as sim:
-            server = ControlServer(sim, args.control) if args.control else None
-            try:
-                buses: List[Dict[str, Any]] = [{"name": b.name, "protocol": b.protocol, "master_port": b.master_port,
-                          "nodes": len(b.addresses)} for b in sim.buses]
-                text = "\n".join(f"bus {b['name']} ({b['protocol']}): {plural(b['nodes'], 'node')}; "
-                                 f"master port: {b['master_port'] or args.port or 'the config port'}"
-                                 for b in buses)
-                emit(args, {"event": "ready", "buses": buses, "control": args.control},
-                     text + f"\nready{' (control ' + args.control + ')' if args.control else ''}")
-                while not done.wait(0.5):
-                    pass
-                st = sim.status()
-            finally:
-                if server is not None:
-                    server.close()
-        emit(args, {"event": "stopped", **st},
-             f"stopped: {plural(st['requests'], 'request')} served, faults applied: "
-             + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
-        return EXIT_OK
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
+    with stop_on_sigterm() as done, Sim(cfg, port=args.port, baud=args.baud, rs485=rs485) as sim:
+        server = ControlServer(sim, args.control) if args.control else None
+        try:
+            buses: List[Dict[str, Any]] = [{"name": b.name, "protocol": b.protocol, "master_port": b.master_port,
+                      "nodes": len(b.addresses)} for b in sim.buses]
+            text = "\n".join(f"bus {b['name']} ({b['protocol']}): {plural(b['nodes'], 'node')}; "
+                             f"master port: {b['master_port'] or args.port or 'the config port'}"
+                             for b in buses)
+            emit(args, {"event": "ready", "buses": buses, "control": args.control},
+                 text + f"\nready{' (control ' + args.control + ')' if args.control else ''}")
+            while not done.wait(0.5):
+                pass
+            st = sim.status()
+        finally:
+            if server is not None:
+                server.close()
+    emit(args, {"event": "stopped", **st},
+         f"stopped: {plural(st['requests'], 'request')} served, faults applied: "
+         + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
+    return EXIT_OK
 
 
 def _replay(args: argparse.Namespace) -> int:
     from fap_py.sim._replay import Replay
 
     rs485 = rs485_from_args(args) if args.port else None
-    done = threading.Event()
-
-    def on_signal(signum: int, frame: object) -> None:
-        done.set()
-
-    old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        with Replay(args.replay, args.protocol, port=args.port, baud=args.baud,
-                    master_port=args.master_port, rs485=rs485) as rp:
-            summary = rp.responder.summary()
-            emit(args, {"event": "ready", "buses": [{"name": "replay", "protocol": args.protocol,
-                                                      "master_port": rp.master_port}], **summary},
-                 f"replay of {args.replay} ({args.protocol}): {plural(summary['distinct_requests'], 'request')} "
-                 f"recorded; master port: {rp.master_port or args.port}\nready")
-            while not done.wait(0.5):
-                pass
-            summary = rp.responder.summary()
-        emit(args, {"event": "stopped", **summary},
-             f"stopped: {summary['matched']} matched, {summary['unmatched']} not in the capture")
-        return EXIT_OK
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
+    with stop_on_sigterm() as done, \
+            Replay(args.replay, args.protocol, port=args.port, baud=args.baud,
+                   master_port=args.master_port, rs485=rs485) as rp:
+        summary = rp.responder.summary()
+        emit(args, {"event": "ready", "buses": [{"name": "replay", "protocol": args.protocol,
+                                                  "master_port": rp.master_port}], **summary},
+             f"replay of {args.replay} ({args.protocol}): {plural(summary['distinct_requests'], 'request')} "
+             f"recorded; master port: {rp.master_port or args.port}\nready")
+        while not done.wait(0.5):
+            pass
+        summary = rp.responder.summary()
+    emit(args, {"event": "stopped", **summary},
+         f"stopped: {summary['matched']} matched, {summary['unmatched']} not in the capture")
+    return EXIT_OK
 
 
 def _action(args: argparse.Namespace) -> int:

@@ -128,6 +128,18 @@ def _answer_timeout(url: ClientUrl) -> float:
     return t
 
 
+def _hello(url: Any, protocol: Optional[str], weight: Optional[int], priority: Optional[int],
+           token: Optional[str], name: Optional[str], errors: Optional[Mapping[str, Any]]
+           ) -> "tuple[Dict[str, Any], ClientUrl, float, Dict[str, Any]]":
+    """What both connection forms check and build before they connect: the error
+    classes, the parsed URL, the answer timeout and the hello message."""
+    checked = _check_errors(errors)
+    _check_opt_str(protocol, "protocol")
+    _check_opt_str(name, "name")
+    parsed = parse_client_url(url)
+    return checked, parsed, _answer_timeout(parsed), _settings(parsed, weight, priority, token, name)
+
+
 def _no_daemon(url: str, exc: OSError) -> DaemonError:
     return DaemonError(f"no daemon at {url}: {exc.strerror or exc} (is `fap serve` running?)",
                        "", exc.errno or errno.ECONNREFUSED)
@@ -178,13 +190,9 @@ class Connection:
                  priority: Optional[int] = None, token: Optional[str] = None,
                  name: Optional[str] = None, errors: Optional[Mapping[str, Any]] = None) -> None:
         self._sock: Optional[socket.socket] = None
-        self.errors = _check_errors(errors)
-        _check_opt_str(protocol, "protocol")
-        _check_opt_str(name, "name")
-        parsed = parse_client_url(url)
+        self.errors, parsed, self.timeout, hello = _hello(url, protocol, weight, priority, token,
+                                                          name, errors)
         self.url = parsed.text
-        self.timeout = _answer_timeout(parsed)
-        hello = _settings(parsed, weight, priority, token, name)
         self._ids = itertools.count(1)
         self._wlock = threading.Lock()
         self._waiting: Dict[int, list] = {}
@@ -371,13 +379,9 @@ class AsyncConnection:
                    name: Optional[str] = None, errors: Optional[Mapping[str, Any]] = None
                    ) -> "AsyncConnection":
         self = cls()
-        self.errors = _check_errors(errors)
-        _check_opt_str(protocol, "protocol")
-        _check_opt_str(name, "name")
-        parsed = parse_client_url(url)
+        self.errors, parsed, self.timeout, hello = _hello(url, protocol, weight, priority, token,
+                                                          name, errors)
         self.url = parsed.text
-        self.timeout = _answer_timeout(parsed)
-        hello = _settings(parsed, weight, priority, token, name)
         addr = parsed.address
         try:
             if addr.kind == "unix":
