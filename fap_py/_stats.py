@@ -10,7 +10,6 @@ be forgotten in Python.
 """
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass, fields
 from typing import Any, Dict, Type, TypeVar
 
@@ -26,12 +25,6 @@ class Counters:
     def as_dict(self) -> Dict[str, Any]:
         """The counters as a plain dict."""
         return {f.name: getattr(self, f.name) for f in fields(self)}
-
-    def __call__(self: C) -> C:
-        """``node.stats()``, the call form of before the property: the snapshot itself."""
-        warnings.warn(f"{type(self).__name__}: stats is a property now; read node.stats, "
-                      "not node.stats()", DeprecationWarning, stacklevel=2)
-        return self
 
 
 def stats_from_c(cls: Type[C], cdata: Any) -> C:

@@ -327,8 +327,7 @@ class Node(NativeHandle):
 
     @property
     def stats(self) -> Stats:
-        """A snapshot of the engine's counters (``node.stats()``, the old call form, still
-        works and warns: :class:`~fap_py._stats.Counters`)."""
+        """A snapshot of the engine's counters (:class:`~fap_py._stats.Counters`)."""
         st = self._ffi.new("fapx_stats *")
         self._call(self._lib.fapx_get_stats, st)
         return stats_from_c(Stats, st)

@@ -316,8 +316,7 @@ class VirtualBus(NativeHandle):
 
     @property
     def stats(self) -> VirtualBusStats:
-        """A snapshot of the bus counters (``bus.stats()``, the old call form, still works
-        and warns: :class:`~fap_py._stats.Counters`)."""
+        """A snapshot of the bus counters (:class:`~fap_py._stats.Counters`)."""
         st = ffi.new("fap_vbus_stats *")
         self._call(lib.fap_vbus_get_stats, st)
         return stats_from_c(VirtualBusStats, st)

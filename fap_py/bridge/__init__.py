@@ -7,7 +7,6 @@ when it is built (``pip install 'fap_py[bridge]'``).
 >>> with Bridge(load_config("bridge.toml")) as bridge:    # doctest: +SKIP
 ...     bridge.wait_connected(10)
 """
-from typing import Any
 
 from .bridge import Bridge
 from .buses import TxError
@@ -27,12 +26,3 @@ from .store import StoreError
 __all__ = ["Bridge", "BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BridgeFileError",
            "BrokerConfig", "BrokerRefusedError", "BusConfig", "INSTALL_HINT",
            "MissingDependencyError", "SparkplugConfig", "StoreError", "TxError", "load_config"]
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated: ``G485Device`` is in the G485 plug-in (fap_py.bridge.protocols.g485)."""
-    if name != "G485Device":
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    from . import config
-
-    return config.G485Device

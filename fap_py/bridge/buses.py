@@ -17,7 +17,6 @@ import logging
 import queue
 import threading
 import time
-import warnings
 from typing import Any, Dict, Mapping, Optional, Protocol, Tuple
 
 from .. import _protocols
@@ -336,17 +335,3 @@ def make_adapter(cfg: BusConfig, sink: Sink) -> BusAdapter:
     _check_cfg(cfg)
     adapter: BusAdapter = _protocols.get(cfg.protocol).plugin("bridge").Adapter(cfg, sink)
     return adapter
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated names: ``FapAdapter``, ``ExecAsyncAdapter``, ``MikrocAdapter``,
-    ``G485Adapter`` are the plug-ins' ``Adapter`` classes (``<Protocol>Adapter``)."""
-    if name.endswith("Adapter") and name != "Adapter":
-        try:
-            proto = _protocols.get(name[:-len("Adapter")])
-        except _protocols.UnknownProtocolError:
-            raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
-        warnings.warn(f"{__name__}.{name} is now {proto.plugin_name('bridge')}.Adapter",
-                      DeprecationWarning, stacklevel=2)
-        return proto.plugin("bridge").Adapter
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

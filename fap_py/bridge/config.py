@@ -9,7 +9,6 @@ from __future__ import annotations
 import os
 import socket
 import sys
-import warnings
 from dataclasses import dataclass, field
 from typing import Any, Dict, Mapping, Optional, Tuple
 from urllib.parse import unquote, urlsplit
@@ -539,20 +538,6 @@ def load(path: "str | os.PathLike[str]") -> BridgeConfig:
     except ValueError as exc:   # an integer of more than 4300 digits (int() refuses it)
         raise BridgeConfigError(f"{path}: {str(exc).split(':')[0]}") from None
     return from_dict(data, os.path.dirname(os.path.abspath(path)))
-
-
-def __getattr__(name: str) -> Any:
-    """Deprecated names: ``G485Device`` lives in the G485 plug-in; ``PROTOCOLS`` is the
-    protocol table's names of the protocols with a bridge plug-in."""
-    if name == "G485Device":
-        warnings.warn("fap_py.bridge.config.G485Device moved to fap_py.bridge.protocols.g485",
-                      DeprecationWarning, stacklevel=2)
-        return _protocols.get("g485").plugin("bridge").G485Device
-    if name == "PROTOCOLS":
-        warnings.warn("fap_py.bridge.config.PROTOCOLS: use fap_py._protocols (every protocol with a "
-                      "bridge plug-in)", DeprecationWarning, stacklevel=2)
-        return tuple(p.name for p in _protocols.all_protocols() if p.has_plugin("bridge"))
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 __all__ = ["BridgeConfig", "BridgeConfigError", "BridgeConfigTypeError", "BrokerConfig", "BusConfig",

@@ -16,7 +16,6 @@ drops those repeats and merges adjacent garbage runs.
 """
 from __future__ import annotations
 
-import warnings
 from collections.abc import Sequence
 from types import ModuleType
 from typing import Any, Callable, Dict, Iterator, List, Optional, Tuple, Union, cast, overload
@@ -292,17 +291,9 @@ def make_decoder(protocol: str, baud: int = 0) -> Decoder:
 
 
 def __getattr__(name: str) -> Any:
-    """Names that moved into the plug-ins (``LEGACY`` of each: old name -> its name
-    there) still resolve here, with a DeprecationWarning; ``FIELDS`` is :func:`fields`."""
+    """``FIELDS`` is :func:`fields` (a live view of the plug-ins' fields)."""
     if name == "FIELDS":
         return fields()
-    for proto in monitor_protocols():
-        mod = plugin(proto)
-        moved = getattr(mod, "LEGACY", {}).get(name)
-        if moved is not None:
-            warnings.warn(f"fap_py.monitor.decoders.{name} moved to {mod.__name__}.{moved}",
-                          DeprecationWarning, stacklevel=2)
-            return getattr(mod, moved)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

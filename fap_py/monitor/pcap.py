@@ -207,15 +207,4 @@ def _packets(fh: BinaryIO, path: str, order: str, unit: float) -> Iterator[PcapF
                             data[5:5 + tl].decode("ascii", "replace"), bytes(data[5 + tl:]))
 
 
-def __getattr__(name: str) -> object:
-    """``PROTOCOL_IDS`` (deprecated): the pcap ids are the protocol table's."""
-    if name == "PROTOCOL_IDS":
-        import warnings
-
-        warnings.warn("fap_py.monitor.pcap.PROTOCOL_IDS: use fap_py._protocols.get(name).pcap_id",
-                      DeprecationWarning, stacklevel=2)
-        return {p.name: p.pcap_id for p in _protocols.all_protocols()}
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 __all__ = ["LINKTYPE", "PcapWriter", "header"]

@@ -311,7 +311,6 @@ def test_every_stats_is_a_property() -> None:
 
 def test_stats_are_frozen_snapshots_and_the_old_call_warns(tmp_path: Path) -> None:
     import dataclasses
-    import warnings
 
     from fap_py import execasync, fap, mikroc
     from fap_py._stats import Counters
@@ -334,11 +333,9 @@ def test_stats_are_frozen_snapshots_and_the_old_call_warns(tmp_path: Path) -> No
                 first = dataclasses.fields(st)[0].name
                 with pytest.raises(dataclasses.FrozenInstanceError):
                     setattr(st, first, 1)
-                with warnings.catch_warnings(record=True) as seen:
-                    warnings.simplefilter("always")
-                    old = node.stats()                    # the call form of before
-                assert [w.category for w in seen] == [DeprecationWarning], node
-                assert type(old) is type(st) and old.as_dict().keys() == st.as_dict().keys()
+                with pytest.raises(TypeError):
+                    node.stats()                          # the call form is gone (CHANGELOG.md)
+                assert node.stats.as_dict().keys() == st.as_dict().keys()
         finally:
             for node in reversed(nodes):
                 node.close()

@@ -19,7 +19,6 @@
 - optionally ``DISSECTOR``: the Wireshark dissector's name and filter prefix in
   ``dissectors/fap_monitor.lua`` (default: the protocol's name), whose fields must be
   ``<DISSECTOR>.<field>`` for every field of ``FIELDS`` (a test checks it);
-- optionally ``LEGACY``: names that moved here from ``monitor.decoders`` (old -> new).
 
 docs/monitor.md, "Plug-ins", has the contract.
 """

@@ -10,7 +10,6 @@ NAME = "exec"
 FIELDS = ("node", "seq", "data")
 #: the Wireshark dissector's name and filter prefix ("exec" is Wireshark's rexec)
 DISSECTOR = "execasync"
-LEGACY = {"ExecDecoder": "decoder"}
 
 #: request and answer look alike (no direction bit): the statistics take a frame
 #: repeating the pending request byte for byte as its retry, not its answer

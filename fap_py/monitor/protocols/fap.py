@@ -9,7 +9,6 @@ from ..decoders import CodecDecoder, Decoder, Event, _text_field, check_event
 
 NAME = "fap"
 FIELDS = ("msg", "msg_name", "dst", "src", "data")
-LEGACY = {"FapDecoder": "decoder"}
 
 __all__ = ["FIELDS", "NAME", "decoder", "label", "pair", "summary"]
 

@@ -14,7 +14,6 @@ NAME = "g485"
 FIELDS = ("address", "rw", "pid", "data", "packet", "device")
 #: the packet name of a wake-up preamble run (0xFF bytes before a request)
 PREAMBLE = "Wake-up-Preamble"
-LEGACY = {"G485Decoder": "G485Decoder", "G485_PREAMBLE": "PREAMBLE"}
 
 __all__ = ["FIELDS", "NAME", "PREAMBLE", "G485Decoder", "decoder", "label", "pair", "summary"]
 

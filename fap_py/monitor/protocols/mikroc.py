@@ -7,7 +7,6 @@ from ..decoders import CodecDecoder, Decoder, Event, check_event
 
 NAME = "mikroc"
 FIELDS = ("address", "from_master", "data")
-LEGACY = {"MikrocDecoder": "decoder"}
 
 __all__ = ["FIELDS", "NAME", "decoder", "pair", "summary"]
 
