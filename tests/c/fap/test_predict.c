@@ -256,11 +256,14 @@ static void test_idle_master_wakes_about_once_per_poll(void)
     CHECK_EQ(fapx_add_slave(m, 1), 0);
     CHECK_EQ(wait_event(m, FAPX_EV_SLAVE_ACTIVE, 1, 5000, NULL), 0);
     CHECK_EQ(wait_polls(m, 100), 0);          /* learn the turnaround */
-    /* The best of five windows: on a loaded machine a window where the
+    /* The best of up to ten windows: on a loaded machine a window where the
      * scheduler ran the master late drives it back to observing for a while
-     * (correctly), which says nothing about the idle cost being asked about. */
+     * (correctly), which says nothing about the idle cost being asked about.
+     * The bound sits halfway between the idle figure (~1.7) and what a
+     * master that watches the port costs (4.5-5): CI beside other jobs saw
+     * 3.2-3.7 in all of five windows once. */
     double per_poll = 1e9;
-    for (int window = 0; window < 5 && per_poll >= 3.0; window++) {
+    for (int window = 0; window < 10 && per_poll >= 2.5; window++) {
         uint64_t p0 = polls_of(m);
         long w0 = thread_wakeups("fap-test-master");
         CHECK_EQ(wait_polls(m, 200), 0);
@@ -273,7 +276,7 @@ static void test_idle_master_wakes_about_once_per_poll(void)
         if (got < per_poll)
             per_poll = got;
     }
-    CHECK(per_poll < 3.0);    /* 4.5-5 when it watches the port */
+    CHECK(per_poll < 3.5);    /* 4.5-5 when it watches the port */
     fapx_close(m);
     fapx_close(s);
     fap_vbus_close(bus);
