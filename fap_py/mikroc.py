@@ -304,6 +304,18 @@ class _Node(NativeHandle):
         thread ends with ClosedError within a fraction of a second."""
         super().close()
 
+    def reopen(self) -> None:
+        """Open the device again after it vanished (a USB unplug: ``receive``/``send``
+        raised PortGoneError): the same path, line options and lock
+        (``fap_port_reopen``), the half-read frame dropped. Raises PortError while
+        the device is still away."""
+        with self._lock, self._tx_lock:
+            r = int(self._call(lib.fap_port_reopen))
+            if r == 0:
+                self._call(lambda _h: lib.mikrocRS485_CtxResetRx(self._ctx))
+        if r < 0:
+            raise error_from_code(r, "reopen", self.path)
+
     def _c_stats(self) -> Any:
         st = ffi.new("mikrocRS485_stats *")
         self._call(lambda _h: lib.mikrocRS485_CtxGetStats(self._ctx, st))

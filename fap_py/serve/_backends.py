@@ -110,9 +110,13 @@ class Backend:
         """Fields the welcome carries for this protocol."""
         return {}
 
-    def attach(self, publish: Callable[[Dict[str, Any]], None]) -> None:
+    def attach(self, publish: Callable[[Dict[str, Any]], None],
+               port_event: Callable[[bool], None]) -> None:
         """Start what runs beside the transactions (FAP: the messages slaves send); each
-        message for every client goes to ``publish``. Runs in the loop, after open()."""
+        message for every client goes to ``publish``; an engine that reopens its port by
+        itself reports ``port_event(False)`` when it lost it and ``(True)`` when it is
+        back (the daemon tells its clients as for the others). Runs in the loop, after
+        open()."""
 
 
 class ExecBackend(Backend):
@@ -410,8 +414,10 @@ class FapBackend(Backend):
     def info(self) -> Dict[str, Any]:
         return {"rs485_mode": self.node.rs485_mode.name, "slaves": self.node.slaves}
 
-    def attach(self, publish: Callable[[Dict[str, Any]], None]) -> None:
+    def attach(self, publish: Callable[[Dict[str, Any]], None],
+               port_event: Callable[[bool], None]) -> None:
         node = self.node
+        kinds = self._f.EventKind
         loop = asyncio.get_running_loop()
         from .._native import lib
 
@@ -432,6 +438,8 @@ class FapBackend(Backend):
             async for ev in node.aevents(None):
                 # "slave", not "id": "id" is the request id a client matches answers by
                 publish({"event": "fap_event", "kind": ev.kind.name, "slave": ev.id, "time_ns": ev.time_ns})
+                if ev.kind in (kinds.PORT_LOST, kinds.PORT_REOPENED):
+                    port_event(ev.kind == kinds.PORT_REOPENED)
 
         self._tasks = [loop.create_task(messages()), loop.create_task(events())]
 

@@ -281,7 +281,7 @@ class Daemon:
         if self.config.metrics:
             await self._listen_metrics(parse_listen(self.config.metrics))
         self._bus_task = asyncio.get_running_loop().create_task(self._bus())
-        self.backend.attach(self._broadcast_event)
+        self.backend.attach(self._broadcast_event, self._engine_port)
 
     async def _listen(self, addr: Address) -> None:
         c = self.config
@@ -614,7 +614,25 @@ class Daemon:
         self._broadcast_event({"event": "port_gone", "message": f"{self.config.port}: device gone"})
         asyncio.get_running_loop().create_task(self._reopen())
 
+    def _engine_port(self, back: bool) -> None:
+        """An engine that reopens its own port (FAP) lost it or has it back: the same
+        state, counters and client events as the daemon's own reopen."""
+        if not back and self.port_state == "open":
+            self.port_state = "gone"
+            self.counters["port_gone"] += 1
+            log.warning("%s: device gone; the engine reopens it", self.config.port)
+            self._broadcast_event({"event": "port_gone", "message": f"{self.config.port}: device gone"})
+        elif back and self.port_state == "gone":
+            self._port_back()
+
+    def _port_back(self) -> None:
+        self.port_state = "open"
+        self.counters["reopens"] += 1
+        log.warning("%s: device back", self.config.port)
+        self._broadcast_event({"event": "port_back", "message": f"{self.config.port}: device back"})
+
     async def _reopen(self) -> None:
+        told = False
         while not self._stopped.is_set():
             await asyncio.sleep(self.config.reopen_interval)
             try:
@@ -622,10 +640,12 @@ class Daemon:
             except FapError as exc:
                 log.debug("reopen: %s", exc)
                 continue
-            self.port_state = "open"
-            self.counters["reopens"] += 1
-            log.warning("%s: device back", self.config.port)
-            self._broadcast_event({"event": "port_back", "message": f"{self.config.port}: device back"})
+            except Exception:               # a defect, not the device: say it once, keep trying
+                if not told:
+                    log.exception("%s: reopen failed", self.config.port)
+                    told = True
+                continue
+            self._port_back()
             return
 
     def _broadcast_event(self, obj: Dict[str, Any]) -> None:
