@@ -704,6 +704,10 @@ class DaemonMaster(DaemonLife):
         except FapError as exc:
             self._add(getattr(exc, "daemon_answer", {}))
             raise
+        except asyncio.CancelledError:
+            if op == "transact":   # counted as a direct master counts a cancelled one
+                self._add({"stats": {"transactions": 1, "failures": 1}})
+            raise
         self._add(answer)
         return answer
 

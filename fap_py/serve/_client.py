@@ -420,8 +420,10 @@ class AsyncConnection:
         finally:
             self._dead = True
             for fut in self._futures.values():
-                if not fut.done():
-                    fut.set_exception(DaemonGoneError(f"{self.url}: the daemon closed the connection"))
+                if not fut.done():   # closed by us (close() from another task): ClosedError
+                    fut.set_exception(_errors.ClosedError(f"connection to {self.url} closed")
+                                      if self._writer is None else
+                                      DaemonGoneError(f"{self.url}: the daemon closed the connection"))
             self._futures.clear()
 
     async def call(self, op: str, extra_errors: Optional[Mapping[str, Callable[..., BaseException]]] = None,
@@ -439,6 +441,12 @@ class AsyncConnection:
             msg = await asyncio.wait_for(fut, self.timeout)
         except asyncio.TimeoutError:
             raise DaemonGoneError(f"{self.url}: no answer from the daemon within {self.timeout} s") from None
+        except asyncio.CancelledError:
+            # the task gave up: the daemon drops the request from its queue, or ends the
+            # transaction on the bus as a cancelled direct one ends (its answer is not awaited)
+            if self._writer is not None and not self._dead:
+                self._writer.write(_request("cancel", next(self._ids), {"of": rid}))
+            raise
         finally:
             self._futures.pop(rid, None)
         return _result(msg, self.url, extra_errors or self.errors)

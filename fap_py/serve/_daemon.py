@@ -243,7 +243,11 @@ class Daemon:
         self._late_fd = -1
         self.port_state = "closed"
         self.counters = {"transactions": 0, "errors": 0, "late": 0, "refused": 0, "cut_off": 0,
-                         "queue_full": 0, "dropped": 0, "reopens": 0, "port_gone": 0}
+                         "queue_full": 0, "dropped": 0, "reopens": 0, "port_gone": 0, "cancelled": 0}
+        # the transaction on the bus now, its task, and the one its client cancelled
+        self._current: Optional[Pending] = None
+        self._running: Optional["asyncio.Future[Dict[str, Any]]"] = None
+        self._cancelled: Optional[Pending] = None
         self.wire_time = 0.0
         self.started = time.time()
         self.listening: List[str] = []
@@ -479,6 +483,8 @@ class Daemon:
                 s.send({"id": rid, "ok": True})
             elif op == "ping":
                 s.send({"id": rid, "ok": True})
+            elif op == "cancel":
+                s.send({"id": rid, "ok": True, "cancelled": self._cancel(s, msg.get("of"))})
             elif op in self.backend.quick_ops:
                 s.send({"id": rid, "ok": True, **self.backend.quick(op, msg)})
             else:
@@ -495,6 +501,24 @@ class Daemon:
             s.errors += 1
             s.send({"id": rid, "ok": False, "error": _error_obj(exc)})
 
+    def _cancel(self, s: Session, of: Any) -> str:
+        """A client gave up on its request ``of`` (an asyncio task cancelled): still queued,
+        it leaves the queue; on the bus now, the transaction is ended as the engine ends a
+        cancelled one (exec: a failure, the node's next message at SeqNo 0). Answers where
+        it was: "queued", "running" or "none" (already answered, or not this client's)."""
+        if not isinstance(of, int) or isinstance(of, bool):
+            raise ProtocolError("cancel: field 'of' (the request id) must be an int")
+        if self.sched.withdraw(s.key, lambda p: p.rid == of) is not None:
+            s.in_flight -= 1
+            self.counters["cancelled"] += 1
+            return "queued"
+        cur, task = self._current, self._running
+        if cur is not None and cur.session is s and cur.rid == of and task is not None and not task.done():
+            self._cancelled = cur
+            task.cancel()
+            return "running"
+        return "none"
+
     # -- the bus -----------------------------------------------------------------
 
     async def _bus(self) -> None:
@@ -507,6 +531,7 @@ class Daemon:
             key, pend = item
             s = pend.session
             answer: Dict[str, Any] = {"id": pend.rid}
+            cancelled = False
             if self.port_state != "open":
                 err: Optional[BaseException] = PortGoneError(
                     errno.ENODEV, f"{self.config.port}: device gone (the daemon reopens it)")
@@ -515,16 +540,24 @@ class Daemon:
                 self._late_check()
                 t0 = time.monotonic()
                 err = None
+                self._current = pend
+                self._running = asyncio.ensure_future(self.backend.run(pend.job))
                 try:
-                    answer.update(await self.backend.run(pend.job))
+                    answer.update(await self._running)
                 except FapError as exc:
                     err = exc
                     answer.update(getattr(exc, "daemon_fields", {}))
                 except asyncio.CancelledError:
-                    raise
+                    if self._cancelled is not pend:
+                        self._running.cancel()
+                        raise
+                    self.counters["cancelled"] += 1
+                    cancelled = True
                 except Exception as exc:     # a bug: say so to the client, keep the bus
                     log.exception("transaction failed")
                     err = DaemonError(f"internal error {type(exc).__name__}: {exc}", "", errno.EIO)
+                finally:
+                    self._current = self._running = self._cancelled = None
                 cost = answer.pop("_cost", None) or time.monotonic() - t0
             self.sched.charge(key, cost)
             self.wire_time += cost
@@ -536,7 +569,10 @@ class Daemon:
             if late:                            # the client whose transaction timed out last
                 owner = self._timed_out if self._timed_out is not None and not self._timed_out.closed else s
                 self._count_late(owner, late)
-            if err is not None:
+            if cancelled:                       # its client is not waiting; counted apart
+                answer.update(ok=False, error=_error_obj(DaemonError(
+                    f"request {pend.rid} cancelled by its client", "", errno.ECANCELED)))
+            elif err is not None:
                 self.counters["errors"] += 1
                 s.errors += 1
                 answer.update(ok=False, error=_error_obj(err))

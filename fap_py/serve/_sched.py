@@ -79,6 +79,18 @@ class Scheduler:
         if key not in ring:
             ring.append(key)
 
+    def withdraw(self, key: int, match: Any) -> Optional[Any]:
+        """Take the first of ``key``'s queued items for which ``match(item)`` holds out of
+        its queue (a request its client cancelled before its turn); None if none."""
+        share = self._shares.get(key)
+        if share is None:
+            return None
+        for item in share.queue:
+            if match(item):
+                share.queue.remove(item)
+                return item
+        return None
+
     def pending(self) -> int:
         return sum(len(s.queue) for s in self._shares.values())
 

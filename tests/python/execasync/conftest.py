@@ -4,6 +4,7 @@ pyserial port 4 to inject frames and a spy port 5 that records the wire."""
 from __future__ import annotations
 
 import json
+import sys
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,6 +12,9 @@ from typing import Dict, Iterator, List
 
 import pytest
 import serial
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+from serve_helpers import start_daemon  # the daemon tests' own starter
 
 from fap_py.execasync import RS485, Decoder, Frame, Master, Request, RS485Mode, Slave
 from fap_py.vbus import VirtualBus
@@ -71,21 +75,40 @@ def _raw_port(path: str) -> serial.Serial:
     return port
 
 
-@pytest.fixture
-def net() -> Iterator[Net]:
+def pytest_collection_modifyitems(config: pytest.Config, items: List[pytest.Item]) -> None:
+    """No daemon run for a test marked ``direct_only`` (it needs the port's own master)."""
+    drop = [it for it in items if it.get_closest_marker("direct_only")
+            and getattr(it, "callspec", None) is not None and it.callspec.params.get("net") == "daemon"]
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = [it for it in items if it not in drop]
+
+
+@pytest.fixture(params=["direct", "daemon"])
+def net(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Net]:
     """A timeout of 1 s: a loaded machine must not cause retries the tests do
     not expect (a retried seq 0 is processed again, by the settled rule);
-    tests that lose a reply on purpose shorten it."""
+    tests that lose a reply on purpose shorten it. Each test runs twice: on the
+    port itself and through ``fap serve`` on it (``fapd://``: the same calls,
+    results and exceptions); a test that needs the port's own master says so
+    with ``@pytest.mark.direct_only(reason)`` and gets no daemon run."""
     with VirtualBus(ports=6) as bus:
         counters = {n: Counter(n) for n in (1, 2, 3)}
         slaves = {n: Slave(bus.paths[n], node=n, handler=counters[n].handler, rs485=LINE).start()
                   for n in (1, 2, 3)}
-        master = Master(bus.paths[0], timeout=1.0, retries=5, rs485=LINE)
+        daemon = None
+        if request.param == "daemon":
+            daemon = start_daemon(str(tmp_path), bus.paths[0], "--timeout", "1.0", "--retries", "5")
+            master = Master(daemon.url, timeout=1.0, retries=5, rs485=LINE)
+        else:
+            master = Master(bus.paths[0], timeout=1.0, retries=5, rs485=LINE)
         raw, spy = _raw_port(bus.paths[4]), _raw_port(bus.paths[5])
         try:
             yield Net(bus, master, slaves, counters, raw, spy)
         finally:
             master.close()
+            if daemon is not None:
+                daemon.stop()
             for s in slaves.values():
                 s.close()
                 assert s.error is None, s.error

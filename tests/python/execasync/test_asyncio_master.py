@@ -176,6 +176,8 @@ def test_close_from_another_task_ends_atransact(net: Net) -> None:
     asyncio.run(main())
 
 
+@pytest.mark.direct_only("the refusal guards the port's own engine, which the task holds; a "
+                         "daemon client's blocking call has a connection of its own and is queued")
 def test_blocking_call_inside_atransact_loop_refused(net: Net) -> None:
     async def main() -> None:
         task = asyncio.create_task(net.master.atransact(9, b"absent"))

@@ -179,3 +179,35 @@ def test_threads_sharing_one_client_each_get_their_own_replies(served, vbus):
         assert m.stats.transactions == 80
     assert bad == []
     assert served.status()["totals"]["transactions"] == 80
+
+
+def test_a_cancelled_task_leaves_the_queue_or_ends_its_transaction(served, vbus):
+    """asyncio cancellation reaches the daemon: a request still queued leaves the queue
+    (never sent), the one on the bus ends as a direct master's cancelled one ends (a
+    failure; the next one at once, not after its timeout); status counts both."""
+    import asyncio
+    import time
+
+    vbus.late_gate.clear()                       # node 6 holds its answer until the gate opens
+    with Master(served.url, timeout=5.0, retries=0) as m:
+        async def main() -> float:
+            running = asyncio.create_task(m.atransact(6, b"held"))
+            while not vbus.hold.is_set():        # the slave has the request: it is on the bus
+                await asyncio.sleep(0.005)
+            queued = asyncio.create_task(m.atransact(5, b"never"))
+            await asyncio.sleep(0.05)            # let it reach the daemon's queue
+            for task in (queued, running):
+                task.cancel()
+                with pytest.raises(asyncio.CancelledError):
+                    await task
+            t0 = time.monotonic()
+            assert await m.atransact(5, b"next") == b"next"
+            return time.monotonic() - t0
+
+        took = asyncio.run(main())
+    vbus.late_gate.set()
+    assert took < 4.0                            # not after the held one's 5 s timeout
+    st = served.wait_for(lambda st: st["totals"]["cancelled"] == 2)
+    assert st["totals"]["transactions"] == 2     # the held one and "next": "never" never ran
+    assert b"never" not in b"".join(f.data for f in vbus.spy_frames())
+    assert m.stats.failures == 2 and m.stats.replies == 1
