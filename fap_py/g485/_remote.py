@@ -28,6 +28,11 @@ def _from_wire(err: Dict[str, Any]) -> BaseException:
     for k in ("expected", "got", "address", "word"):
         if k in err:
             setattr(exc, k, err[k])
+    if issubclass(cls, g485_errors.G485FrameError):
+        try:
+            exc.frame = bytes.fromhex(str(err.get("frame", "")))   # type: ignore[attr-defined]
+        except ValueError:
+            exc.frame = b""                                         # type: ignore[attr-defined]
     return exc
 
 
@@ -141,6 +146,14 @@ class DaemonG485Master(DaemonLife):
         except (TypeError, ValueError):
             raise G485ValueError("addresses must be ints") from None
         return [int(a) for a in self._call("scan", addresses=addrs, timeout=timeout, retries=retries)]
+
+    def believed_check_byte(self, address: int) -> Optional[int]:
+        """The check byte the daemon's session thinks device ``address`` holds (None:
+        unknown); another client's transactions move it too."""
+        if isinstance(address, bool) or not isinstance(address, int):
+            raise G485ValueError(f"address must be an int, not {type(address).__name__}")
+        value = self._conn.call("believed_check_byte", address=address).get("value")
+        return None if value is None else int(value)
 
     def broadcast_write(self, register: int, data: Data) -> None:
         self.write(codec.BROADCAST, register, data)

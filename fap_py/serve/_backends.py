@@ -310,6 +310,13 @@ class G485Backend(Backend):
     name = "g485"
     METHODS = ("handshake", "read", "write", "error_word", "set", "scan", "sync_write",
                "change_id", "broadcast_set", "send_raw", "send_wake_up")
+    quick_ops = ("believed_check_byte",)
+
+    def quick(self, op: str, msg: Dict[str, Any]) -> Dict[str, Any]:
+        address = num_field(msg, "address", 0, 255, integer=True)
+        if address is None:
+            raise ProtocolError(f"{op}: field 'address' is missing")
+        return {"value": self.node.master.believed_check_byte(address)}
 
     def open(self) -> None:
         from ..g485.aio import AsyncG485Master

@@ -151,10 +151,15 @@ def _error_obj(exc: BaseException) -> Dict[str, Any]:
     out: Dict[str, Any] = {"type": type(exc).__name__, "message": str(exc)}
     if isinstance(exc, OSError) and exc.errno:
         out["errno"] = exc.errno
-    for attr in ("code", "address"):            # a protocol's frame error (mikroC) carries them
+    # a protocol's error fields: mikroC's frame error (code, address), G485's check
+    # mismatch (expected, got), error word (address, word) and frame error (frame)
+    for attr in ("code", "address", "expected", "got", "word"):
         v = getattr(exc, attr, None)
         if isinstance(v, int) and not isinstance(v, bool):
             out[attr] = v
+    frame = getattr(exc, "frame", None)
+    if isinstance(frame, (bytes, bytearray)):
+        out["frame"] = bytes(frame).hex()
     return out
 
 

@@ -75,15 +75,6 @@ def _raw_port(path: str) -> serial.Serial:
     return port
 
 
-def pytest_collection_modifyitems(config: pytest.Config, items: List[pytest.Item]) -> None:
-    """No daemon run for a test marked ``direct_only`` (it needs the port's own master)."""
-    drop = [it for it in items if it.get_closest_marker("direct_only")
-            and getattr(it, "callspec", None) is not None and it.callspec.params.get("net") == "daemon"]
-    if drop:
-        config.hook.pytest_deselected(items=drop)
-        items[:] = [it for it in items if it not in drop]
-
-
 @pytest.fixture(params=["direct", "daemon"])
 def net(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Net]:
     """A timeout of 1 s: a loaded machine must not cause retries the tests do

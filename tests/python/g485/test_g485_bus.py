@@ -4,9 +4,14 @@ Port 0: the master; port 1: devices 1 and 2; port 2: device 3.
 """
 from __future__ import annotations
 
+import sys
 import threading
+from pathlib import Path
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+from serve_helpers import start_daemon  # the daemon tests' own starter
 
 from fap_py.errors import FapError
 from fap_py.g485 import (
@@ -28,12 +33,24 @@ FAST = 0.5
 SHORT = 0.05
 
 
-@pytest.fixture
-def net(vbus, tmp_path):
+@pytest.fixture(params=["direct", "daemon"])
+def net(request, vbus, tmp_path):
+    """Each test twice: the master on port 0 itself, and through ``fap serve --protocol
+    g485`` on it (``fapd://``: the same calls, results and exceptions; a test that needs
+    the port's own master is marked ``direct_only`` with why)."""
     devs = [SimDevice(1, eeprom_path=tmp_path / "d1.json"), SimDevice(2), SimDevice(3)]
-    with Simulator(vbus.paths[1], devs[:2]) as sim1, Simulator(vbus.paths[2], devs[2:]) as sim2, \
-            G485Master(vbus.paths[0], 115200, timeout=FAST, retries=3) as master:
-        yield master, vbus, devs, (sim1, sim2)
+    daemon = None
+    if request.param == "daemon":
+        daemon = start_daemon(str(tmp_path), vbus.paths[0], "--timeout", str(FAST), "--retries", "3",
+                              protocol="g485")
+    try:
+        with Simulator(vbus.paths[1], devs[:2]) as sim1, Simulator(vbus.paths[2], devs[2:]) as sim2, \
+                G485Master(daemon.url if daemon else vbus.paths[0], 115200, timeout=FAST,
+                           retries=3) as master:
+            yield master, vbus, devs, (sim1, sim2)
+    finally:
+        if daemon is not None:
+            daemon.stop()
     assert sim1.error is None and sim2.error is None
 
 
