@@ -1,19 +1,45 @@
-"""G485 polling and register writes, exec async and mikroC masters, bridged."""
+"""G485 polling and register writes, exec async and mikroC masters, bridged: each on
+the port itself and through ``fap serve`` on it (the bridge one client among others)."""
 from __future__ import annotations
 
+import contextlib
+import sys
 import threading
+from pathlib import Path
+from typing import Iterator
 
+import pytest
 from bridge_helpers import WAIT, bridge_config
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+from serve_helpers import start_daemon  # the daemon tests' own starter
 
-def test_g485_polling_write_set(broker, observer_factory, tmp_path):
+VIA = pytest.mark.parametrize("via", ["direct", "daemon"])
+
+
+@contextlib.contextmanager
+def _port(via: str, path: str, tmp_path: Path, protocol: str, *extra: str) -> Iterator[str]:
+    """``path`` itself, or the URL of a ``fap serve`` on it."""
+    if via == "direct":
+        yield path
+        return
+    d = start_daemon(str(tmp_path), path, *extra, protocol=protocol)
+    try:
+        yield d.url
+    finally:
+        d.stop()
+
+
+@VIA
+def test_g485_polling_write_set(broker, observer_factory, tmp_path, via):
     from fap_py.bridge import Bridge
     from fap_py.g485 import SimDevice, Simulator
     from fap_py.vbus import VirtualBus
 
-    with VirtualBus(2) as bus, Simulator(bus.paths[1], [SimDevice(1), SimDevice(2)]) as sim:
+    with VirtualBus(2) as bus, Simulator(bus.paths[1], [SimDevice(1), SimDevice(2)]) as sim, \
+            _port(via, bus.paths[0], tmp_path, "g485", "--timeout", "0.2") as port:
         obs = observer_factory(broker.port)
-        buses = [{"name": "g", "port": bus.paths[0], "protocol": "g485", "poll_interval": 0.05,
+        buses = [{"name": "g", "port": port, "protocol": "g485", "poll_interval": 0.05,
                   "timeout": 0.2, "device": [{"address": 1, "registers": [[1, 7], [8, 2]]},
                                              {"address": 2, "registers": [[7, 1]]},
                                              {"address": 9, "registers": [[1, 1]]}]}]
@@ -77,14 +103,16 @@ def test_g485_line_options_reach_the_master(broker, observer_factory, tmp_path):
                     assert m["data"] == "0b01"
                     obs.wait_for(f"fap/{name}/1/state", lambda d: d["state"] == "active")
 
-def test_execasync_master(broker, observer_factory, tmp_path):
+@VIA
+def test_execasync_master(broker, observer_factory, tmp_path, via):
     from fap_py.bridge import Bridge
     from fap_py.execasync import Slave
     from fap_py.vbus import VirtualBus
 
-    with VirtualBus(2) as bus, Slave(bus.paths[1], node=5, handler=lambda req: b"re:" + req.data).start():
+    with VirtualBus(2) as bus, Slave(bus.paths[1], node=5, handler=lambda req: b"re:" + req.data).start(), \
+            _port(via, bus.paths[0], tmp_path, "exec") as port:
         obs = observer_factory(broker.port)
-        buses = [{"name": "ex", "port": bus.paths[0], "protocol": "exec", "nodes": [5],
+        buses = [{"name": "ex", "port": port, "protocol": "exec", "nodes": [5],
                   "poll_data": "7071", "poll_interval": 0.05, "timeout": 0.2, "retries": 1}]
         with Bridge(bridge_config(broker.port, str(tmp_path), buses)) as bridge:
             assert bridge.wait_connected(WAIT)
@@ -96,7 +124,8 @@ def test_execasync_master(broker, observer_factory, tmp_path):
             obs.wait_for("fap/ex/6/error", lambda d: d["id"] == "e2")
 
 
-def test_mikroc_master(broker, observer_factory, tmp_path):
+@VIA
+def test_mikroc_master(broker, observer_factory, tmp_path, via):
     from fap_py.bridge import Bridge
     from fap_py.errors import FapTimeoutError
     from fap_py.mikroc import Slave
@@ -115,9 +144,11 @@ def test_mikroc_master(broker, observer_factory, tmp_path):
         t = threading.Thread(target=serve, daemon=True)
         t.start()
         obs = observer_factory(broker.port)
-        buses = [{"name": "mk", "port": bus.paths[0], "protocol": "mikroc", "baud": 19200, "timeout": 0.5}]
         try:
-            with Bridge(bridge_config(broker.port, str(tmp_path), buses)) as bridge:
+            with _port(via, bus.paths[0], tmp_path, "mikroc", "--baud", "19200", "--timeout", "0.5") as port, \
+                    Bridge(bridge_config(broker.port, str(tmp_path),
+                                         [{"name": "mk", "port": port, "protocol": "mikroc", "baud": 19200,
+                                           "timeout": 0.5}])) as bridge:
                 assert bridge.wait_connected(WAIT)   # subscribed: a tx now reaches it
                 obs.publish("fap/mk/18/tx", {"id": "m1", "data": "010203"})
                 (reply,) = obs.wait_for("fap/mk/18/rx", lambda d: d.get("reply_to") == "m1")
