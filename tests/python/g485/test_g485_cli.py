@@ -3,8 +3,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+from serve_helpers import start_daemon  # the daemon tests' own starter
 
 
 class Result:
@@ -25,16 +29,23 @@ def fap(capsys):
     return run
 
 
-@pytest.fixture
-def sim_process(vbus, tmp_path):
+@pytest.fixture(params=["direct", "daemon"])
+def sim_process(request, vbus, tmp_path):
+    """The simulator process on port 1; the commands' port: port 0, or a ``fap serve``
+    on it (the commands take ``fapd://`` URLs unchanged: same output, exit codes)."""
     proc = subprocess.Popen([sys.executable, "-m", "fap_py", "g485", "sim", "--port", vbus.paths[1],
                              "--address", "1", "--address", "4", "--eeprom-dir", str(tmp_path)],
                             stdout=subprocess.PIPE, text=True, cwd=tmp_path)  # the installed package
     assert "simulating G485 devices 1, 4" in proc.stdout.readline()
-    yield vbus.paths[0], tmp_path
-    proc.terminate()
-    assert proc.wait(10) == 0
-    proc.stdout.close()
+    daemon = start_daemon(str(tmp_path), vbus.paths[0], protocol="g485") if request.param == "daemon" else None
+    try:
+        yield (daemon.url if daemon else vbus.paths[0]), tmp_path
+    finally:
+        if daemon is not None:
+            daemon.stop()
+        proc.terminate()
+        assert proc.wait(10) == 0
+        proc.stdout.close()
 
 
 def test_cli_transactions_against_simulator_process(sim_process, fap):
