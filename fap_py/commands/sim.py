@@ -90,7 +90,7 @@ def _action_parser() -> Parser:
     add.add_argument("--probability", type=seconds, default=1.0, help="0..1")
     add.add_argument("--ms", type=seconds, default=None,
                      help="late_reply: the delay; split: the gap between the pieces (milliseconds)")
-    add.add_argument("--rate", type=seconds, default=None, help="bit_errors, byte_drops: per reply byte, 0..1")
+    add.add_argument("--rate", type=seconds, default=None, help="bit_errors, byte_drops: per byte, 0..1")
     add.add_argument("--word", type=integer, default=None,
                      help="error_reply: the error word's bits (1..0xffff)")
     add.add_argument("--seed", type=int, default=None, help="seed of the probability draws")
@@ -98,6 +98,8 @@ def _action_parser() -> Parser:
     add.add_argument("--for", dest="duration", type=seconds, default=None,
                      help="in force this many seconds (then removed; with --every: of each period)")
     add.add_argument("--every", type=seconds, default=None, help="repeat: a period in seconds (needs --for)")
+    add.add_argument("--direction", choices=["reply", "request"], default=None,
+                     help="bit_errors, byte_drops: damage replies (default) or the requests the node hears")
     lst = fa.add_parser("list", help="the active faults")
     rm = fa.add_parser("remove", help="remove a fault")
     rm.add_argument("id", help="the fault's id, or all")
@@ -241,7 +243,7 @@ def _action(args: argparse.Namespace) -> int:
         elif a.kind == "late_reply":
             raise UsageError("late_reply needs --ms MS")
         for key, value in (("seed", a.seed), ("rate", a.rate), ("word", a.word), ("at", a.at),
-                           ("for", a.duration), ("every", a.every)):
+                           ("for", a.duration), ("every", a.every), ("direction", a.direction)):
             if value is not None:
                 req[key] = value
         ans = request(a.control, req)

@@ -37,8 +37,8 @@ KINDS: Dict[str, str] = {
     "truncated": "only the first half of the reply frame",
     "hung": "once drawn, the node answers nothing until the fault is removed (reset)",
     "split": "the reply is sent in two pieces, ms milliseconds apart",
-    "bit_errors": "each reply byte has one bit flipped with probability rate",
-    "byte_drops": "each reply byte is left out with probability rate",
+    "bit_errors": "each reply (or, direction request, request) byte has one bit flipped with probability rate",
+    "byte_drops": "each reply (or, direction request, request) byte is left out with probability rate",
     "error_reply": "the protocol's error answer: the node reports the error word (G485)",
 }
 
@@ -59,6 +59,12 @@ PARAMS: Dict[str, Tuple[str, float, float, float]] = {
     "byte_drops": ("rate", 0.05, 0.0, 1.0),
     "error_reply": ("word", 1.0, 1.0, 65535.0),
 }
+
+#: which way a fault acts: on what the node sends (its reply) or on what it hears (the
+#: master's request: a damaged request fails the node's check, so it is not executed)
+DIRECTIONS = ("reply", "request")
+#: the kinds that act either way (the others are the node's own behaviour: replies only)
+BOTH_WAYS = ("bit_errors", "byte_drops")
 
 #: the longest schedule time (seconds): a day is plenty for a test bench
 MAX_SCHEDULE_S = 86400.0
@@ -85,6 +91,7 @@ class Fault:
     duration: Optional[float] = None      # ``for``: seconds active (each period with every)
     every: Optional[float] = None
     t0: float = 0.0                       # when it was added (time.monotonic)
+    direction: str = "reply"              # DIRECTIONS
     hung: set = field(default_factory=set, repr=False)   # (bus, node) latched by ``hung``
 
     def matches(self, bus: str, node: int) -> bool:
@@ -128,6 +135,7 @@ class Fault:
             d["ms"] = self.ms
         if self.kind in ("bit_errors", "byte_drops"):
             d["rate"] = self.rate
+            d["direction"] = self.direction
         if self.kind == "error_reply":
             d["word"] = self.word
         if self.kind == "hung":
@@ -173,13 +181,19 @@ class FaultTable:
             probability: float = 1.0, ms: Optional[float] = None, seed: Optional[int] = None,
             rate: Optional[float] = None, word: Optional[int] = None, at: Optional[float] = None,
             duration: Optional[float] = None, every: Optional[float] = None,
+            direction: str = "reply",
             allowed: Optional[Dict[str, Tuple[str, ...]]] = None) -> Fault:
         """Add a fault; ``allowed`` maps bus name -> the kinds its protocol implements.
 
         ``at`` (seconds from now, default 0), ``duration`` (the config's ``for``: seconds in
-        force) and ``every`` (a period: in force ``duration`` seconds of each) schedule it."""
+        force) and ``every`` (a period: in force ``duration`` seconds of each) schedule it.
+        ``direction`` "request" (bit_errors, byte_drops only) damages what the node hears."""
         if kind not in KINDS:
             raise FaultError(f"unknown fault kind {kind!r} (kinds: {', '.join(KINDS)})")
+        if direction not in DIRECTIONS:
+            raise FaultError(f"direction must be one of {', '.join(DIRECTIONS)}, not {direction!r}")
+        if direction == "request" and kind not in BOTH_WAYS:
+            raise FaultError(f"{kind} acts on replies only (direction request: {', '.join(BOTH_WAYS)})")
         if isinstance(probability, bool) or not isinstance(probability, (int, float)) \
                 or not 0.0 <= probability <= 1.0:
             raise FaultError(f"probability must be 0..1, not {probability!r}")
@@ -221,14 +235,14 @@ class FaultTable:
             f = Fault(fid, kind, bus, node, float(probability), param if kind in ("late_reply", "split") else 0.0,
                       s, rng=random.Random(s), rate=param if kind in ("bit_errors", "byte_drops") else 0.0,
                       word=int(param) if kind == "error_reply" else 0, at=at_s, duration=dur, every=per,
-                      t0=self.now())
+                      t0=self.now(), direction=direction)
             self._faults.append(f)
             self._changed({"event": "add", **f.public(f.t0)})
             if f.scheduled:
                 self._arm()
-        log.warning("fault %d added: %s on bus %s node %s (p=%g%s%s)", fid, kind, bus or "*", node,
+        log.warning("fault %d added: %s on bus %s node %s (p=%g%s%s%s)", fid, kind, bus or "*", node,
                     probability, f", {PARAMS[kind][0]} {param:g}" if kind in PARAMS else "",
-                    _schedule_text(f))
+                    ", on requests" if direction == "request" else "", _schedule_text(f))
         self._notify()
         return f
 
@@ -350,7 +364,8 @@ class FaultTable:
 
 
 #: the keys a fault takes in a config table or a control request, beside ``kind``
-FAULT_KEYS = ("bus", "node", "probability", "ms", "rate", "word", "seed", "at", "for", "every")
+FAULT_KEYS = ("bus", "node", "probability", "ms", "rate", "word", "seed", "at", "for", "every",
+              "direction")
 
 
 def fault_keywords(entry: Dict[str, Any]) -> Dict[str, Any]:

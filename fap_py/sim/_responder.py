@@ -21,17 +21,18 @@ log = logging.getLogger("fap_py.sim")
 
 
 class NodeStats:
-    __slots__ = ("requests", "replies", "faults", "errors")
+    __slots__ = ("requests", "replies", "faults", "errors", "damaged")
 
     def __init__(self) -> None:
         self.requests = 0
         self.replies = 0
         self.faults: Dict[str, int] = {}
         self.errors = 0
+        self.damaged = 0      # requests a direction-request fault damaged: not executed
 
     def public(self) -> Dict[str, Any]:
         return {"requests": self.requests, "replies": self.replies, "faults": dict(self.faults),
-                "errors": self.errors}
+                "errors": self.errors, "requests_damaged": self.damaged}
 
 
 class Request:
@@ -127,6 +128,11 @@ class Responder:
             st.faults[main.kind] = st.faults.get(main.kind, 0) + 1
             if main.kind in ("off", "hung"):
                 return
+            if main.direction == "request":
+                if self._request_damaged(main, req):
+                    st.damaged += 1    # the node's check rejects it: not executed, no reply
+                    return
+                main = None            # it came through whole: an ordinary transaction
         st.requests += 1
         if main is not None and main.kind == "no_reply":
             node.answer(req.obj, self.clock.now())   # executed, not answered
@@ -204,6 +210,13 @@ class Responder:
         if k == "byte_drops":
             return bytes(b for b in frame if not fault.rng.random() < fault.rate)
         return frame
+
+    def _request_damaged(self, fault: Any, req: Request) -> bool:
+        """Whether ``fault`` (bit_errors or byte_drops on requests) hit at least one byte of
+        the request as it crossed the wire; each byte is drawn as a reply's would be."""
+        size = self.plugin.request_size(req.obj) if hasattr(self.plugin, "request_size") \
+            else len(getattr(req.obj, "raw", b"")) or 1
+        return any(fault.rng.random() < fault.rate for _ in range(size))
 
     def status(self) -> Dict[int, Any]:
         return {a: s.public() for a, s in self.stats.items()}

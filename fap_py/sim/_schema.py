@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
-from ._faults import KINDS, MAX_SCHEDULE_S
+from ._faults import DIRECTIONS, KINDS, MAX_SCHEDULE_S
 
 Path = Tuple[Union[str, int], ...]
 
@@ -72,7 +72,7 @@ FAULT: Dict[str, Any] = {
         "ms": {"type": "number", "minimum": 0, "maximum": 60000,
                "description": "late_reply: the delay; split: the gap between the pieces (default 5)"},
         "rate": {"type": "number", "minimum": 0, "maximum": 1,
-                 "description": "bit_errors, byte_drops: per reply byte (default 0.05)"},
+                 "description": "bit_errors, byte_drops: per byte (default 0.05)"},
         "word": {"type": "integer", "minimum": 1, "maximum": 65535,
                  "description": "error_reply: the error word's bits the node reports (default 1)"},
         "seed": {"type": "integer", "description": "seed of the probability and garbage draws"},
@@ -82,6 +82,9 @@ FAULT: Dict[str, Any] = {
                 "description": "seconds in force (then it ends; with every: in each period)"},
         "every": {"type": "number", "exclusiveMinimum": 0, "maximum": MAX_SCHEDULE_S,
                   "description": "a period: in force 'for' seconds of each (needs for)"},
+        "direction": {"enum": list(DIRECTIONS),
+                      "description": "bit_errors, byte_drops: damage the node's replies (default) or "
+                                     "the requests it hears (a damaged request is not executed)"},
     },
 }
 

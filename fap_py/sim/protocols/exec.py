@@ -20,6 +20,11 @@ def check_node(node: Dict[str, Any], where: Path) -> List[Problem]:
     return _reply.check(node, where, execasync.MAX_DATA)
 
 
+def request_size(frame: Any) -> int:
+    """The request's bytes on the wire (a direction-request fault draws each)."""
+    return len(execasync.encode(frame.node, frame.data, frame.seq))
+
+
 class _Decoder:
     idle_timeout = 0.2
 

@@ -21,6 +21,11 @@ def check_node(node: Dict[str, Any], where: Path) -> List[Problem]:
     return _reply.check(node, where, mikroc.MAX_DATA)
 
 
+def request_size(msg: Any) -> int:
+    """The request's bytes on the wire (a direction-request fault draws each)."""
+    return len(mikroc.encode(msg.address, msg.data))
+
+
 class _Decoder:
     idle_timeout = 0.2
 

@@ -301,3 +301,40 @@ def test_parameters_are_refused_where_they_do_not_belong(site):
                             ("off", {"duration": float("nan")}, "for must be")):
         with pytest.raises(FaultError, match=match):
             sim.add_fault(kind, bus="ex", **kw)
+
+
+@pytest.mark.parametrize("kind", ["bit_errors", "byte_drops"])
+def test_request_direction_damages_what_the_node_hears(site, kind):
+    """direction request, rate 1: every request is damaged on its way in, so no node
+    executes or answers it (each master times out), and the node counts it as damaged,
+    not as a request; rate 0: every request comes through whole."""
+    sim, em, mm, gm = site
+    timeouts = (execasync.NoReplyError, FapTimeoutError, NoResponseError)
+
+    def node(proto):
+        bus = next(b for b in sim.status()["buses"] if b["name"] == BUS[proto])
+        return next(n for n in bus["nodes"] if n["address"] == NODE[proto])
+
+    before = {p: node(p) for p in CALLS}
+    f = sim.add_fault(kind, rate=1.0, seed=5, direction="request")
+    try:
+        assert sim.faults_list()[-1]["direction"] == "request"
+        for proto in CALLS:
+            with pytest.raises(timeouts):
+                CALLS[proto](em, mm, gm)
+            got = node(proto)
+            assert got["requests_damaged"] == before[proto]["requests_damaged"] + 1, proto
+            assert got["requests"] == before[proto]["requests"], proto       # never executed
+    finally:
+        sim.remove_fault(f["id"])
+    f = sim.add_fault(kind, rate=0.0, direction="request")
+    try:
+        for proto in CALLS:
+            assert CALLS[proto](em, mm, gm) == GOOD[proto]
+    finally:
+        sim.remove_fault(f["id"])
+    from fap_py.sim import FaultError
+    with pytest.raises(FaultError, match="replies only"):
+        sim.add_fault("garbage", direction="request")
+    with pytest.raises(FaultError, match="direction must be"):
+        sim.add_fault(kind, direction="both")
