@@ -14,6 +14,7 @@ server does.
 """
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import signal
@@ -21,7 +22,6 @@ import socket
 import subprocess
 import sys
 import threading
-import logging
 import time
 from typing import Optional
 
