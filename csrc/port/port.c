@@ -260,7 +260,7 @@ void lf_port_release(fap_port *p)
          * node is free for the replug. Stay busy until it is closed, so a
          * reopen cannot race with this close (its flock would see ours). */
         dead = p->conn;
-        dead.tio_restore = 0;   /* gone: no pin or termios to put back */
+        dead.tio_restore = 0;   /* gone: no pin or line settings to put back */
         p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     } else {
         p->busy--;
