@@ -34,8 +34,7 @@ static int validate_options(const fap_port_options *in, fap_port_options *out)
         *out = *in;
     else
         fap_port_options_init(out);
-    speed_t speed;
-    if (lf_port_baud_to_speed(out->baud, &speed) < 0)
+    if (!lf_port_baud_ok(out->baud))
         return -EINVAL;
     switch (out->rs485_mode) {
     case FAP_RS485_AUTO:
@@ -105,15 +104,8 @@ static void port_free(fap_port *p)
     free(p);
 }
 
-int lf_port_open_with_backend(fap_port **out, const char *path,
-                              const fap_port_options *o,
-                              const lf_port_backend *be, void *ctx)
-{
-    return lf_port_open_backend_cancel(out, path, o, be, ctx, NULL);
-}
-
-int lf_port_open_backend_cancel(fap_port **out, const char *path, const fap_port_options *o,
-                                const lf_port_backend *be, void *ctx, const int *cancel_fd)
+int lf_port_open_transport(fap_port **out, const char *path, const fap_port_options *o,
+                           const lf_port_transport *be, void *ctx, const int *cancel_fd)
 {
     if (!out || !path || !be) {
         if (be && be->destroy)
@@ -268,7 +260,7 @@ void lf_port_release(fap_port *p)
          * node is free for the replug. Stay busy until it is closed, so a
          * reopen cannot race with this close (its flock would see ours). */
         dead = p->conn;
-        dead.tio_restore = 0;   /* gone: no pin or termios to put back */
+        dead.tio_restore = 0;   /* gone: no pin or line settings to put back */
         p->conn.fd = p->conn.gpio_fd = p->conn.latency_saved = -1;
     } else {
         p->busy--;

@@ -1,13 +1,13 @@
 /* port_baud.c - the baud rates the port layer accepts and their termios
- * speeds (sans-I/O). Its own file so the transports that read a struct
- * termios (port_config.c, port_net.c, port_probe.c) share it without
- * calling into each other. */
+ * speeds (sans-I/O). Its own file so the code that reads a struct termios
+ * (port_device.c, port_probe.c) and the option check (port.c) share it
+ * without calling into each other. */
 #include <errno.h>
 #include <stddef.h>
 #include <termios.h>
 
 #include "fap_port.h"
-#include "port/port_backend.h"
+#include "port/port_device.h"
 
 static const struct {
     unsigned baud;
@@ -33,6 +33,12 @@ int lf_port_baud_to_speed(unsigned baud, speed_t *out)
         }
     }
     return -EINVAL;
+}
+
+int lf_port_baud_ok(unsigned baud)
+{
+    speed_t speed;
+    return lf_port_baud_to_speed(baud, &speed) == 0;
 }
 
 unsigned lf_port_speed_to_baud(speed_t speed)

@@ -3,7 +3,7 @@
  * The port layer waits in poll(): for room when the line does not drain (a
  * pty nobody reads, a stalled far end: up to the write timeout per frame),
  * for the echo, for a reply until the caller's deadline. An engine that must
- * stop promptly opens its port through the real backend with one change:
+ * stop promptly opens its port through the real transport with one change:
  * every poll also watches a cancel fd, and once that is readable the wait
  * fails with ECANCELED, so the call in progress returns -ECANCELED at once.
  *

@@ -1,45 +1,10 @@
-/* port_config.c - bringing a device up and down: open, exclusive lock,
- * termios raw 8N1, RS-485 direction mode (kernel / soft RTS / none).
- * All OS calls go through p->be. */
+/* port_config.c - bringing a line up and down: open, lock, raw 8N1 at the
+ * baud, RS-485 direction mode (kernel / soft RTS / GPIO / none). Only line
+ * operations, through p->be (port_backend.h): termios and the tty ioctls
+ * are the device transport's (port_device.c). */
 #include "port/port_internal.h"
 
-#include <fcntl.h>
 #include <string.h>
-#include <sys/file.h>
-#include <sys/ioctl.h>
-
-/* (the baud table: port_baud.c) */
-
-/* Raw 8N1, no flow control. VMIN=1 VTIME=0 with O_NONBLOCK: an empty queue
- * reads as EAGAIN (with VMIN=0 n_tty returns 0, indistinguishable from a
- * hang-up), and the deadline is ours, via poll. Soft RTS also clears
- * HUPCL: the hang-up at close drops RTS, the transmit level of an
- * active-high transceiver (see lf_port_conn_close). */
-static int configure_termios(const fap_port *p, int fd, lf_port_conn *c)
-{
-    speed_t speed;
-    if (lf_port_baud_to_speed(p->opt.baud, &speed) < 0)
-        return -EINVAL;
-    struct termios t;
-    if (p->be->tcgetattr(p->ctx, fd, &t) < 0)
-        return -errno;
-    if (c->mode == FAP_RS485_SOFT_RTS) {
-        c->tio_saved = t;
-        c->tio_restore = 1;
-        t.c_cflag &= ~(tcflag_t)HUPCL;
-    }
-    cfmakeraw(&t);
-    t.c_cflag &= ~(tcflag_t)(CSIZE | PARENB | CSTOPB | CRTSCTS);
-    t.c_cflag |= CS8 | CLOCAL | CREAD;
-    t.c_iflag &= ~(tcflag_t)(IXON | IXOFF | IXANY | INPCK | ISTRIP);
-    t.c_cc[VMIN] = 1;
-    t.c_cc[VTIME] = 0;
-    if (cfsetispeed(&t, speed) < 0 || cfsetospeed(&t, speed) < 0)
-        return -EINVAL;
-    if (p->be->tcsetattr(p->ctx, fd, TCSANOW, &t) < 0)
-        return -errno;
-    return 0;
-}
 
 static uint32_t us_to_ms_up(unsigned us)
 {
@@ -47,11 +12,11 @@ static uint32_t us_to_ms_up(unsigned us)
 }
 
 /* The device's own RS-485 config (device tree, an earlier program): 0, or
- * the ioctl's negative errno (-ENOTTY: the device has none). */
+ * the transport's negative errno (-ENOTTY: the line has none). */
 static int kernel_rs485_get(const fap_port *p, int fd, struct serial_rs485 *r)
 {
     memset(r, 0, sizeof *r);
-    return p->be->ioctl(p->ctx, fd, TIOCGRS485, r) < 0 ? -errno : 0;
+    return p->be->rs485_get ? p->be->rs485_get(p->ctx, fd, r) : -ENOTTY;
 }
 
 /* Set r, then read back what the driver kept (it clamps delays, drops
@@ -59,8 +24,9 @@ static int kernel_rs485_get(const fap_port *p, int fd, struct serial_rs485 *r)
 static int kernel_rs485_set(const fap_port *p, int fd, lf_port_conn *c,
                             const struct serial_rs485 *saved, struct serial_rs485 *r)
 {
-    if (p->be->ioctl(p->ctx, fd, TIOCSRS485, r) < 0)
-        return -errno;
+    int err = p->be->rs485_set ? p->be->rs485_set(p->ctx, fd, r) : -ENOTTY;
+    if (err)
+        return err;
     c->rs485_saved = *saved;
     c->rs485_restore = 1;
     struct serial_rs485 got;
@@ -171,15 +137,10 @@ int lf_port_rts(const fap_port *p, int fd, const lf_port_conn *c, int sending)
     if (c->gpio_fd >= 0)   /* the DE line is a GPIO: its level is the pin's */
         return p->be->gpio_set(p->ctx, c->gpio_fd, sending ? c->rts_active_high
                                                            : !c->rts_active_high);
-    int bits = TIOCM_RTS;
-    /* The pin level: high while sending for an active-high transceiver.
-     * The modem-control RTS bit is the complement of the pin on a UART
-     * (PL011, 16550: RTS asserted = nRTS pin low), so a high pin is
-     * TIOCMBIC. */
-    int pin_high = sending ? c->rts_active_high : !c->rts_active_high;
-    if (p->be->ioctl(p->ctx, fd, pin_high ? TIOCMBIC : TIOCMBIS, &bits) < 0)
-        return -errno;
-    return 0;
+    if (!p->be->rts)
+        return -ENOTTY;   /* a line without an RTS pin */
+    /* The pin level: high while sending for an active-high transceiver. */
+    return p->be->rts(p->ctx, fd, sending ? c->rts_active_high : !c->rts_active_high);
 }
 
 static int setup_direction(const fap_port *p, int fd, lf_port_conn *c)
@@ -225,39 +186,34 @@ int lf_port_conn_open(const fap_port *p, lf_port_conn *c)
     c->fd = -1;
     c->gpio_fd = -1;
     c->latency_saved = -1;
-    int fd = p->be->open(p->ctx, p->path, O_RDWR | O_NOCTTY | O_NONBLOCK | O_CLOEXEC);
+    int fd = p->be->open(p->ctx, p->path);
     if (fd < 0)
-        return -errno;
+        return fd;
     c->fd = fd;
     int err = 0;
-    /* flock binds everyone (root bypasses TIOCEXCL); a non-exclusive
-     * opener takes a shared lock: it shares with its kind, never with an
-     * exclusive owner. */
-    if (p->be->flock(p->ctx, fd, (p->opt.exclusive ? LOCK_EX : LOCK_SH) | LOCK_NB) < 0) {
-        err = (errno == EWOULDBLOCK) ? -EBUSY : -errno;
-        goto fail;
-    }
-    if (p->opt.exclusive) {
-        if (p->be->ioctl(p->ctx, fd, TIOCEXCL, NULL) < 0) {
-            err = -errno;
+    /* The lock binds everyone; a non-exclusive opener takes a shared one:
+     * it shares with its kind, never with an exclusive owner. */
+    if (p->be->lock) {
+        err = p->be->lock(p->ctx, fd, p->opt.exclusive);
+        if (err)
             goto fail;
-        }
-        c->excl_set = 1;
+        c->excl_set = p->opt.exclusive;
     }
     /* Direction first: the open asserted RTS, which on an active-low
      * transceiver is the transmit level. */
     err = setup_direction(p, fd, c);
     if (err)
         goto fail;
-    err = configure_termios(p, fd, c);
+    /* Soft RTS: the close must not move RTS, and puts the line back */
+    c->tio_restore = c->mode == FAP_RS485_SOFT_RTS;
+    err = p->be->set_line(p->ctx, fd, p->opt.baud, c->tio_restore);
     if (err)
         goto fail;
     lf_port_latency_low(p, c);
     /* Bytes that piled up before we attached are not for us. */
-    if (p->be->tcflush(p->ctx, fd, TCIOFLUSH) < 0) {
-        err = -errno;
+    err = p->be->flush(p->ctx, fd, LF_PORT_FLUSH_BOTH);
+    if (err)
         goto fail;
-    }
     return 0;
 fail:
     lf_port_conn_close(p, c);
@@ -276,25 +232,17 @@ void lf_port_conn_close(const fap_port *p, lf_port_conn *c)
         return;
     /* Best effort: on a vanished device these fail, and that is fine. */
     if (c->tio_restore) {
-        /* Soft RTS: the pin to the receive level, then the termios the port
-         * had, except the bits that would move RTS: HUPCL stays cleared (the
-         * close would drop RTS), and no CRTSCTS (the kernel would drive RTS)
-         * or B0 (drops it). TCSANOW is safe: every soft-RTS write drained. */
+        /* Soft RTS: the pin to the receive level, then the line as it was,
+         * without moving RTS (the transport's restore_line). */
         (void)lf_port_rts(p, c->fd, c, 0);
-        struct termios t = c->tio_saved;
-        t.c_cflag &= ~(tcflag_t)(HUPCL | CRTSCTS);
-        if (cfgetospeed(&t) == B0) {
-            speed_t speed;
-            if (lf_port_baud_to_speed(p->opt.baud, &speed) == 0)
-                (void)cfsetospeed(&t, speed);
-        }
-        (void)p->be->tcsetattr(p->ctx, c->fd, TCSANOW, &t);
+        if (p->be->restore_line)
+            p->be->restore_line(p->ctx, c->fd, p->opt.baud);
     }
-    if (c->rs485_restore)
-        (void)p->be->ioctl(p->ctx, c->fd, TIOCSRS485, &c->rs485_saved);
-    if (c->excl_set)
-        (void)p->be->ioctl(p->ctx, c->fd, TIOCNXCL, NULL);
-    (void)p->be->close(p->ctx, c->fd);   /* also drops the flock */
+    if (c->rs485_restore && p->be->rs485_set)
+        (void)p->be->rs485_set(p->ctx, c->fd, &c->rs485_saved);
+    if (c->excl_set && p->be->unlock)
+        p->be->unlock(p->ctx, c->fd);
+    (void)p->be->close(p->ctx, c->fd);   /* also drops the lock */
     c->fd = -1;
     c->rs485_restore = 0;
     c->tio_restore = 0;

@@ -2,8 +2,9 @@
  * the Linux GPIO character device, uAPI v2 (GPIO_V2_GET_LINE_IOCTL and
  * GPIO_V2_LINE_SET_VALUES_IOCTL from linux/gpio.h). Debian 12's libgpiod
  * is 1.6 (the v1 API): the ioctls directly need no library at all.
- * These are the posix backend's gpio_open / gpio_set; tests use a fake. */
+ * These are the posix OS table's gpio_open / gpio_set; tests use a fake. */
 #include "port/port_internal.h"
+#include "port/port_device.h"
 
 #include <fcntl.h>
 #include <linux/gpio.h>

@@ -17,23 +17,22 @@
 typedef struct lf_port_conn {
     int fd;                       /* -1 when none */
     fap_rs485_mode mode;          /* in force, never AUTO */
-    int excl_set;                 /* TIOCEXCL applied: clear it on close */
+    int excl_set;                 /* locked exclusive: unlock on close */
     int rs485_restore;            /* we changed the RS-485 config */
-    struct serial_rs485 rs485_saved;   /* TIOCGRS485 before we touched it */
-    struct serial_rs485 rs485_active;  /* TIOCGRS485 after our TIOCSRS485 */
+    struct serial_rs485 rs485_saved;   /* rs485_get before we touched it */
+    struct serial_rs485 rs485_active;  /* rs485_get after our rs485_set */
     int gpio_fd;                  /* GPIO mode: the DE line's fd, else -1 */
     int latency_saved;            /* USB latency_timer (ms) to restore, -1 none */
     char latency_file[160];       /* its sysfs file */
-    int tio_restore;              /* soft RTS: restore tio_saved (HUPCL off) at close */
-    struct termios tio_saved;     /* termios before we configured the port */
+    int tio_restore;              /* soft RTS: restore_line at close */
     /* Resolved line settings (options, else the device's config). */
     int rts_active_high;          /* pin high while sending */
     unsigned delay_before_us, delay_after_us;
-    int auto_errno;               /* AUTO fell back to NONE: the ioctl errno */
+    int auto_errno;               /* AUTO fell back to NONE: rs485's errno */
 } lf_port_conn;
 
 struct fap_port {
-    const lf_port_backend *be;
+    const lf_port_transport *be;  /* the line's transport (port_backend.h) */
     void *ctx;
     char *path;
     char *gpio_chip;              /* opt.gpio_chip points here (a copy) */
@@ -77,11 +76,10 @@ struct fap_port {
 };
 
 /* port_config.c */
-/* (lf_port_baud_to_speed, lf_port_speed_to_baud: port_backend.h) */
 /* Open p->path per p->opt into *c. On error nothing stays open and the
  * negative errno is returned. */
 int lf_port_conn_open(const fap_port *p, lf_port_conn *c);
-/* Undo lf_port_conn_open (restore RS-485, clear TIOCEXCL, close). */
+/* Undo lf_port_conn_open (restore the line and RS-485, unlock, close). */
 void lf_port_conn_close(const fap_port *p, lf_port_conn *c);
 /* Soft RTS / GPIO: drive the RTS pin (GPIO mode: the DE line) to c's
  * sending (1) or receive (0) level. */

@@ -6,7 +6,6 @@
 #include <limits.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/ioctl.h>
 
 #include "common/mono_clock.h"
 
@@ -218,24 +217,21 @@ static int write_all(fap_port *p, int fd, const uint8_t *buf, size_t n,
 
 static int drain(fap_port *p, int fd)
 {
-    while (p->be->tcdrain(p->ctx, fd) < 0) {
-        if (errno != EINTR)
-            return -errno;
-    }
-    return 0;
+    return p->be->drain(p->ctx, fd);
 }
 
-/* tcdrain() returns when the driver thinks the transmitter is empty
- * (serial_core: its tx_empty). Where the driver also reports the line
- * status register (TIOCSERGETLSR: 8250, PL011), wait for TEMT there too
- * before the direction line drops; bounded by 3 character times + 1 ms. */
+/* The drain returns when the driver thinks the transmitter is empty
+ * (serial_core: its tx_empty). Where the transport can also tell from the
+ * line itself (tx_empty: a device's line status register, TEMT), wait for
+ * that too before the direction line drops; bounded by 3 character times
+ * + 1 ms. */
 static void wait_temt(fap_port *p, int fd)
 {
+    if (!p->be->tx_empty)
+        return;
     int64_t ct = lf_char_time_ns(p->opt.baud);
     int64_t end = lf_now_ns() + 3 * ct + LF_NS_PER_MS;
-    unsigned lsr = 0;
-    while (p->be->ioctl(p->ctx, fd, TIOCSERGETLSR, &lsr) == 0 && !(lsr & TIOCSER_TEMT) &&
-           lf_now_ns() < end)
+    while (p->be->tx_empty(p->ctx, fd) == 0 && lf_now_ns() < end)
         p->be->sleep_until(p->ctx, lf_now_ns() + ct / 2);
 }
 
@@ -265,12 +261,12 @@ static int64_t echo_deadline(const fap_port *p, size_t n)
     int64_t wait = p->opt.echo_timeout_us
                        ? (int64_t)p->opt.echo_timeout_us * LF_NS_PER_US
                        : 20 * ct + 20 * LF_NS_PER_MS;
-    /* tcdrain() on a USB adapter returns before its FIFO is on the wire:
+    /* The drain on a USB adapter returns before its FIFO is on the wire:
      * allow the frame's own wire time on top. */
     return lf_now_ns() + (int64_t)n * ct + wait;
 }
 
-/* lazy_drain: skip tcdrain() when nothing after it depends on the frame
+/* lazy_drain: skip the drain when nothing after it depends on the frame
  * having left the UART (no soft RTS to release, no echo to time): the
  * transact path, whose caller waits for the reply anyway. */
 static ssize_t port_write(fap_port *p, const void *buf, size_t n, int lazy_drain)
@@ -447,10 +443,9 @@ int fap_port_flush(fap_port *p)
             p->pend_off = p->pend_len = 0;
             lf_port_pend_signal(p, 0);
         }
-        if (p->be->tcflush(p->ctx, fd, TCIOFLUSH) < 0) {
-            err = -errno;
+        err = p->be->flush(p->ctx, fd, LF_PORT_FLUSH_BOTH);
+        if (err)
             lf_port_note_error(p, err);
-        }
         lf_port_release(p);
     }
     pthread_mutex_unlock(&p->rx_mu);
@@ -461,7 +456,7 @@ int fap_port_flush(fap_port *p)
 /* ---- transact: discard stale input, write, first chunk of the reply ----- */
 
 /* Drop what was received and not read (parked input included) by reading
- * it: unlike tcflush() this never touches output still queued for the far
+ * it: unlike a flush this never touches output still queued for the far
  * end (on a pty, a frame not yet taken). One read() when nothing waits;
  * bounded, so a babbling line cannot keep the caller here. */
 int fap_port_discard_input(fap_port *p)

@@ -1,15 +1,16 @@
-/* port_net.c - tcp:// and rfc2217:// as a port-layer backend (see
- * port_net.h, docs/port.md "Network transports").
+/* port_net.c - tcp:// and rfc2217:// as a port-layer transport (the
+ * line-level table, port_backend.h; see port_net.h, docs/port.md "Network
+ * transports").
  *
- * The port logic (port.c, port_io.c) stays as it is: this backend's open
- * connects a socket and hands back its fd; read/write/poll work on it as
- * on a tty; the tty-only calls are answered here: the exclusive lock and
- * the RS-485 ioctls have no meaning on a socket (ENOTTY for RS-485, so
- * AUTO settles on NONE), tcsetattr becomes the RFC 2217 line settings
- * (raw TCP: the server's own), tcflush reads the socket empty (RFC 2217
- * also asks the server to purge). A dropped connection reads as end of
- * file or a reset, reported as EIO: the layer's "device vanished", so
- * every engine's reopen reconnects. */
+ * The open connects a socket and hands back its fd; read/write/poll work
+ * on it as on a tty. set_line is the RFC 2217 line settings at the baud
+ * (raw TCP: the server's own are in force), flush reads the socket empty
+ * (RFC 2217 also asks the server to purge), drain has nothing to wait for.
+ * No rs485, rts, lock or tx_empty: a socket has no RS-485 config (AUTO
+ * settles on NONE), direction is the server's job, and a connection is
+ * ours alone (the server decides who connects). A dropped connection reads
+ * as end of file or a reset, reported as EIO: the layer's "device
+ * vanished", so every engine's reopen reconnects. */
 #include "port/port_net.h"
 
 #include <fcntl.h>
@@ -21,13 +22,11 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/ioctl.h>
 #include <sys/socket.h>
 #include <unistd.h>
 
 #include <errno.h>
 #include <pthread.h>
-#include <termios.h>
 
 #include "common/mono_clock.h"
 #include "port/port_telnet.h"
@@ -69,8 +68,8 @@ typedef struct lf_net {
     uint8_t us[256], him[256];    /* option states, OPT_* */
     unsigned answered[16];        /* answers per COM-PORT command (cmd - 100) */
     uint32_t answer_val[16];      /* the first answer's value since the settings went out */
-    struct termios tio;           /* what tcsetattr stored (tcgetattr hands it back) */
-    int purged;                   /* tcsetattr sent PURGE-DATA: the open's flush need not */
+    unsigned baud;                /* what set_line was given */
+    int purged;                   /* set_line sent PURGE-DATA: the open's flush need not */
 } lf_net;
 
 /* Add a note to this connection's warning ("" clears it). */
@@ -607,24 +606,22 @@ static int rfc2217_start(lf_net *c, int fd)
     return 0;
 }
 
-/* ---- the backend table --------------------------------------------------- */
+/* ---- the transport table ------------------------------------------------- */
 
-static int net_open(void *ctx, const char *path, int flags)
+static int net_open(void *ctx, const char *path)
 {
     (void)path;   /* parsed into ctx by the transport map (lf_port_net_prepare) */
-    (void)flags;
     lf_net *c = ctx;
     set_warning(c, "");   /* a new connection: earlier notes are stale */
     int fd = net_connect(c);
     if (fd < 0)
-        return -1;
+        return -errno;
     c->fd = fd;
     if (c->url.scheme == LF_PORT_RFC2217 && rfc2217_start(c, fd) < 0) {
         int err = errno;
         close(fd);
         c->fd = -1;
-        errno = err;
-        return -1;
+        return -err;
     }
     return fd;
 }
@@ -637,34 +634,14 @@ static int net_close(void *ctx, int fd)
     return close(fd);
 }
 
-static int net_ioctl(void *ctx, int fd, unsigned long request, void *arg)
+/* The line settings, 8N1 at baud: stored (raw TCP: the server's own are in
+ * force); on RFC 2217 sent to the server, and its answers checked. 0, or -1
+ * with errno. */
+static int send_line_settings(lf_net *c, int fd, uint32_t baud)
 {
-    (void)ctx;
-    (void)fd;
-    (void)arg;
-    if (request == TIOCEXCL || request == TIOCNXCL)
-        return 0;   /* a connection is ours alone; the server decides who connects */
-    errno = ENOTTY; /* RS-485 and modem lines: the server's (RFC 2217: SET-CONTROL) */
-    return -1;
-}
-
-static int net_tcgetattr(void *ctx, int fd, struct termios *t)
-{
-    (void)fd;
-    *t = ((lf_net *)ctx)->tio;
-    return 0;
-}
-
-/* The line settings: stored (raw TCP: the server's own are in force); on
- * RFC 2217 sent to the server, and its answers checked. */
-static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
-{
-    (void)action;
-    lf_net *c = ctx;
-    c->tio = *t;
+    c->baud = baud;
     if (c->url.scheme != LF_PORT_RFC2217)
         return 0;
-    uint32_t baud = lf_port_speed_to_baud(cfgetospeed(t));
     uint32_t want[16] = {0};
     want[LF_CPC_SET_BAUDRATE] = baud;
     want[LF_CPC_SET_DATASIZE] = 8;
@@ -728,22 +705,29 @@ static int net_tcsetattr(void *ctx, int fd, int action, const struct termios *t)
     return 0;
 }
 
+static int net_set_line(void *ctx, int fd, unsigned baud, int hold_rts)
+{
+    (void)hold_rts;   /* never asked: the open refuses soft RTS (lf_port_net_prepare) */
+    return send_line_settings(ctx, fd, baud) < 0 ? -errno : 0;
+}
+
 /* Read the socket empty (bounded); RFC 2217 also purges the server's
- * buffers, without waiting for its answer (the parser takes it later). */
-static int net_tcflush(void *ctx, int fd, int queue)
+ * buffers, without waiting for its answer (the parser takes it later).
+ * 0, or -1 with errno. */
+static int purge(void *ctx, int fd, int queue)
 {
     lf_net *c = ctx;
-    int purged = c->purged;   /* the open's flush: tcsetattr purged in order */
+    int purged = c->purged;   /* the open's flush: set_line purged in order */
     c->purged = 0;
     if (c->url.scheme == LF_PORT_RFC2217 && !purged) {
-        uint8_t what = queue == TCIFLUSH ? LF_CPC_PURGE_RX
-                       : queue == TCOFLUSH ? LF_CPC_PURGE_TX : LF_CPC_PURGE_BOTH;
+        uint8_t what = queue == LF_PORT_FLUSH_IN ? LF_CPC_PURGE_RX
+                       : queue == LF_PORT_FLUSH_OUT ? LF_CPC_PURGE_TX : LF_CPC_PURGE_BOTH;
         uint8_t msg[16];
         if (send_all(c, fd, msg, lf_telnet_cpc(LF_CPC_PURGE_DATA, &what, 1, msg),
                      send_deadline()) < 0)
             return -1;
     }
-    if (queue == TCOFLUSH)
+    if (queue == LF_PORT_FLUSH_OUT)
         return 0;
     uint8_t junk[512];
     for (int i = 0; i < 64; i++) {
@@ -763,19 +747,16 @@ static int net_tcflush(void *ctx, int fd, int queue)
     return 0;
 }
 
-static int net_tcdrain(void *ctx, int fd)
+static int net_flush(void *ctx, int fd, int queue)
+{
+    return purge(ctx, fd, queue) < 0 ? -errno : 0;
+}
+
+static int net_drain(void *ctx, int fd)
 {
     (void)ctx;
     (void)fd;
     return 0;   /* the bytes are the server's once sent; no way to see its UART */
-}
-
-static int net_flock(void *ctx, int fd, int op)
-{
-    (void)ctx;
-    (void)fd;
-    (void)op;
-    return 0;
 }
 
 static ssize_t net_read(void *ctx, int fd, void *buf, size_t n)
@@ -841,15 +822,13 @@ static size_t net_warning(void *ctx, char *buf, size_t n)
     return len;
 }
 
-static const lf_port_backend net_backend = {
+/* No rs485, rts, lock, unlock, tx_empty, restore_line or GPIO: see the top. */
+static const lf_port_transport net_transport = {
     .open = net_open,
     .close = net_close,
-    .ioctl = net_ioctl,
-    .tcgetattr = net_tcgetattr,
-    .tcsetattr = net_tcsetattr,
-    .tcflush = net_tcflush,
-    .tcdrain = net_tcdrain,
-    .flock = net_flock,
+    .set_line = net_set_line,
+    .flush = net_flush,
+    .drain = net_drain,
     .read = net_read,
     .write = net_write,
     .poll = lf_port_posix_poll,
@@ -862,9 +841,9 @@ static const lf_port_backend net_backend = {
 };
 
 int lf_port_net_prepare(const lf_port_url *u, const fap_port_options *o,
-                        const lf_port_backend **be, void **ctx)
+                        const lf_port_transport **tr, void **ctx)
 {
-    if (!u || !be || !ctx)
+    if (!u || !tr || !ctx)
         return -EINVAL;
     if (o && (o->rs485_mode == FAP_RS485_KERNEL || o->rs485_mode == FAP_RS485_SOFT_RTS
               || o->rs485_mode == FAP_RS485_GPIO))
@@ -877,7 +856,7 @@ int lf_port_net_prepare(const lf_port_url *u, const fap_port_options *o,
     pthread_mutex_init(&c->tx_mu, NULL);
     pthread_mutex_init(&c->st_mu, NULL);
     pthread_mutex_init(&c->ans_mu, NULL);
-    *be = &net_backend;
+    *tr = &net_transport;
     *ctx = c;
     return 0;
 }

@@ -1,6 +1,6 @@
-/* port_posix.c - the real OS backend of the port layer: thin wrappers
- * around libc, nothing else (the logic lives in port.c). */
-#include "port/port_backend.h"
+/* port_posix.c - the real OS table under the device transport: thin
+ * wrappers around libc, nothing else (the logic lives in port_device.c). */
+#include "port/port_device.h"
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -81,7 +81,7 @@ void lf_port_posix_sleep_until(void *ctx, int64_t deadline_ns)
     lf_sleep_until(deadline_ns);
 }
 
-const lf_port_backend lf_port_posix_backend = {
+const lf_port_os lf_port_posix_os = {
     .open = px_open,
     .close = px_close,
     .ioctl = px_ioctl,

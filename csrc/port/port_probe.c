@@ -8,6 +8,7 @@
  * fap_port_open takes (flock on the device node, seen in /proc/locks) or a
  * UUCP lock file (minicom, picocom: /var/lock/LCK..name with a live pid). */
 #include "port/port_internal.h"
+#include "port/port_device.h"
 
 #include <fcntl.h>
 #include <limits.h>

@@ -46,7 +46,7 @@ lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t 
     return lf_rx_hold_ct_ns(seen < ct ? seen : ct, missing);
 }
 
-/* The backend's clock: a fake backend in the tests runs its own. */
+/* The transport's clock: a fake OS table in the tests runs its own. */
 static lf_ns pace_now(const fap_port *p)
 {
     return p->be->now ? p->be->now(p->ctx) : lf_now_ns();
@@ -76,7 +76,7 @@ static ssize_t read_rest(fap_port *p, void *buf, size_t n, size_t got, size_t wa
             until = lf_now_ns() + hold;
             if (until > deadline_ns)
                 until = deadline_ns;
-            /* the backend's sleep: a fake backend in the tests records it */
+            /* the transport's sleep: a fake OS table in the tests records it */
             if (until > lf_now_ns())
                 p->be->sleep_until(p->ctx, until);
         }

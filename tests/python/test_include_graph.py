@@ -149,3 +149,28 @@ def test_python_asks_port_kind_instead_of_guessing() -> None:
     bad = [f"{f.relative_to(ROOT)}:{line}" for f in sorted((ROOT / "fap_py").rglob("*.py"))
            if f != allowed for line in _guesses(ast.parse(f.read_text(), str(f)))]
     assert not bad, f"ask fap_py.port.port_kind(path) instead: {bad}"
+
+
+# The port logic and the network transport reach the line only through the
+# line-level transport table (port_backend.h): termios and the tty ioctls
+# are the device transport's (port_device.c) alone.
+_LINE_ONLY = ("port.c", "port_config.c", "port_io.c", "port_net.c", "port_backend.h",
+              "port_internal.h")
+_TTY_WORDS = re.compile(
+    r"#\s*include\s*<(?:termios\.h|sys/ioctl\.h|sys/file\.h)>"
+    r"|\b(?:struct\s+termios|tc[gs]etattr|tcflush|tcdrain|cfmakeraw|cfset[io]speed|cfget[io]speed"
+    r"|ioctl|flock|TIOC\w+|TC[IO]+FLUSH|TCSANOW|speed_t)\b")
+
+
+def test_tty_calls_stay_in_the_device_transport() -> None:
+    assert _TTY_WORDS.search("x = tcsetattr(fd, TCSANOW, &t);")
+    assert _TTY_WORDS.search("#include <termios.h>")
+    assert not _TTY_WORDS.search("p->be->set_line(p->ctx, fd, baud, 0);")
+    bad = []
+    for name in _LINE_ONLY:
+        f = CSRC / "port" / name
+        for n, line in enumerate(_strip_c(f.read_text()).splitlines(), 1):
+            m = _TTY_WORDS.search(line)
+            if m:
+                bad.append(f"csrc/port/{name}:{n}: {m.group(0)}")
+    assert not bad, f"termios and tty ioctls belong in port_device.c: {bad}"

@@ -12,7 +12,7 @@
 #include <sys/stat.h>
 
 #include "fap_port.h"
-#include "port/port_backend.h"
+#include "port/port_device.h"
 #include "pty_util.h"
 #include "unit.h"
 
@@ -80,7 +80,7 @@ static int f_tcsetattr(void *c, int fd, int a, const struct termios *t)
     return tcsetattr(fd, a, t);
 }
 static int f_tcflush(void *c, int fd, int q) { (void)c; return tcflush(fd, q); }
-static int f_flock(void *c, int fd, int op) { (void)c; return lf_port_posix_backend.flock(NULL, fd, op); }
+static int f_flock(void *c, int fd, int op) { (void)c; return lf_port_posix_os.flock(NULL, fd, op); }
 static int f_poll(void *c, struct pollfd *p, nfds_t n, int ms) { (void)c; return poll(p, n, ms); }
 
 static int f_ioctl(void *c, int fd, unsigned long req, void *arg)
@@ -201,7 +201,7 @@ static int f_gpio_set(void *c, int fd, int value)
     return 0;
 }
 
-static const lf_port_backend fake_backend = {
+static const lf_port_os fake_backend = {
     .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcgetattr,
     .tcsetattr = f_tcsetattr, .tcflush = f_tcflush, .tcdrain = f_tcdrain,
     .flock = f_flock, .read = f_read, .write = f_write, .poll = f_poll,
@@ -617,7 +617,7 @@ static void test_gpio_errors(void)
     CHECK(p == NULL);
     f.fail_gpio_open = 0;
     /* a backend without GPIO */
-    lf_port_backend nogpio = fake_backend;
+    lf_port_os nogpio = fake_backend;
     nogpio.gpio_open = NULL;
     CHECK_EQ(lf_port_open_with_backend(&p, t.name, &o, &nogpio, &f), -EOPNOTSUPP);
     /* a failing set: nothing is written, the error comes back */
@@ -672,7 +672,7 @@ static void test_latency_timer(void)
     MUST(system(dir) == 0);
     snprintf(file, sizeof file, "%s/class/tty/%s/device/latency_timer", root, name);
     set_latency(file, 16);
-    lf_port_backend be = fake_backend;
+    lf_port_os be = fake_backend;
     be.sysfs_root = root;
     static const struct { fap_rs485_mode mode; int opt, expect; } cases[] = {
         {FAP_RS485_SOFT_RTS, FAP_PORT_KEEP, 1}, {FAP_RS485_GPIO, FAP_PORT_KEEP, 1},

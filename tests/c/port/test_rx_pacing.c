@@ -17,7 +17,7 @@
 #include "fap/codec.h"
 #include "fap_port.h"
 #include "mikroc/mikroc_internal.h"
-#include "port/port_backend.h"
+#include "port/port_device.h"
 #include "port/rx_pacing.h"
 #include "unit.h"
 
@@ -129,7 +129,7 @@ static void f_sleep(void *c, int64_t deadline)
 /* The pace is measured on the wire's own clock. */
 static int64_t f_now(void *c) { return vnow(c); }
 
-static const lf_port_backend fake_be = {
+static const lf_port_os fake_be = {
     .open = f_open, .close = f_close, .ioctl = f_ioctl, .tcgetattr = f_tcget,
     .tcsetattr = f_tcset, .tcflush = f_tcflush, .tcdrain = f_tcdrain, .flock = f_flock,
     .read = f_read, .write = f_write, .poll = f_poll, .sleep_until = f_sleep,
