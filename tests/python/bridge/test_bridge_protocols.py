@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import contextlib
 import sys
-import threading
 from pathlib import Path
 from typing import Iterator
 
@@ -12,7 +11,7 @@ import pytest
 from bridge_helpers import WAIT, bridge_config
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
-from serve_helpers import start_daemon  # the daemon tests' own starter
+from serve_helpers import mikroc_echo, start_daemon  # the daemon tests' own helpers
 
 VIA = pytest.mark.parametrize("via", ["direct", "daemon"])
 
@@ -127,34 +126,17 @@ def test_execasync_master(broker, observer_factory, tmp_path, via):
 @VIA
 def test_mikroc_master(broker, observer_factory, tmp_path, via):
     from fap_py.bridge import Bridge
-    from fap_py.errors import FapTimeoutError
-    from fap_py.mikroc import Slave
     from fap_py.vbus import VirtualBus
 
-    stop = threading.Event()
-    with VirtualBus(2) as bus, Slave(bus.paths[1], 19200, address=0x12) as slave:
-        def serve() -> None:      # the slave answers each request with its bytes reversed
-            while not stop.is_set():
-                try:
-                    msg = slave.receive(timeout=0.1)
-                except FapTimeoutError:
-                    continue
-                slave.send(msg.data[::-1])
-
-        t = threading.Thread(target=serve, daemon=True)
-        t.start()
+    with VirtualBus(2) as bus, mikroc_echo(bus.paths[1]):
         obs = observer_factory(broker.port)
-        try:
-            with _port(via, bus.paths[0], tmp_path, "mikroc", "--baud", "19200", "--timeout", "0.5") as port, \
-                    Bridge(bridge_config(broker.port, str(tmp_path),
-                                         [{"name": "mk", "port": port, "protocol": "mikroc", "baud": 19200,
-                                           "timeout": 0.5}])) as bridge:
-                assert bridge.wait_connected(WAIT)   # subscribed: a tx now reaches it
-                obs.publish("fap/mk/18/tx", {"id": "m1", "data": "010203"})
-                (reply,) = obs.wait_for("fap/mk/18/rx", lambda d: d.get("reply_to") == "m1")
-                assert reply["data"] == "030201"
-                obs.publish("fap/mk/18/tx", {"id": "m2", "data": "0102030405"})   # > 3 bytes: refused
-                obs.wait_for("fap/mk/18/error", lambda d: d["id"] == "m2")
-        finally:
-            stop.set()
-            t.join(WAIT)
+        with _port(via, bus.paths[0], tmp_path, "mikroc", "--baud", "19200", "--timeout", "0.5") as port, \
+                Bridge(bridge_config(broker.port, str(tmp_path),
+                                     [{"name": "mk", "port": port, "protocol": "mikroc", "baud": 19200,
+                                       "timeout": 0.5}])) as bridge:
+            assert bridge.wait_connected(WAIT)   # subscribed: a tx now reaches it
+            obs.publish("fap/mk/18/tx", {"id": "m1", "data": "010203"})
+            (reply,) = obs.wait_for("fap/mk/18/rx", lambda d: d.get("reply_to") == "m1")
+            assert reply["data"] == "030201"
+            obs.publish("fap/mk/18/tx", {"id": "m2", "data": "0102030405"})   # > 3 bytes: refused
+            obs.wait_for("fap/mk/18/error", lambda d: d["id"] == "m2")

@@ -42,6 +42,28 @@ GOOD_HELLO = bytes([IAC, DO, 0, IAC, WILL, 0, IAC, DO, 44])
 LAST_SETTING = bytes([IAC, SB, 44, 5, 11, IAC, SE])
 
 
+#: a server's answers to the line settings (cmd + 100, value) and to the three SET-CONTROLs
+LINE_ANSWERS = [(101, (115200).to_bytes(4, "big")), (102, b"\x08"), (103, b"\x01"), (104, b"\x01")]
+CONTROL_ANSWERS = [(105, b"\x01"), (105, b"\x08"), (105, b"\x0b")]
+
+
+def _answers(pairs: list) -> bytes:
+    return b"".join(bytes([IAC, SB, 44, cmd]) + v + bytes([IAC, SE]) for cmd, v in pairs)
+
+
+def _hello_until_settings(c: socket.socket) -> bool:
+    """Negotiate as a real server, then read until the client's last SET-CONTROL has come
+    (False: the client left first)."""
+    c.sendall(GOOD_HELLO)
+    seen = b""
+    while LAST_SETTING not in seen:
+        chunk = c.recv(1)
+        if not chunk:
+            return False
+        seen = seen[-16:] + chunk
+    return True
+
+
 class Hostile:
     """A TCP server on 127.0.0.1 that misbehaves in one way, per connection:
     ``nop``/``dodont``/``sb`` flood from the start, ``noread`` negotiates
@@ -84,46 +106,25 @@ class Hostile:
                 return
             if self.kind == "good_once" and self.connections == 1:
                 # a real server's open, then it drops the line; later ones: silent
-                c.sendall(GOOD_HELLO)
-                seen = b""
-                while LAST_SETTING not in seen:
-                    chunk = c.recv(1)
-                    if not chunk:
-                        return
-                    seen = seen[-16:] + chunk
-                answers = [(101, (115200).to_bytes(4, "big")), (102, b"\x08"), (103, b"\x01"),
-                           (104, b"\x01"), (105, b"\x01"), (105, b"\x08"), (105, b"\x0b")]
-                c.sendall(b"".join(bytes([IAC, SB, 44, cmd]) + v + bytes([IAC, SE])
-                                   for cmd, v in answers))
+                if not _hello_until_settings(c):
+                    return
+                c.sendall(_answers(LINE_ANSWERS + CONTROL_ANSWERS))
                 while b"!" not in c.recv(4096):   # the client's word that it is open
                     pass
                 c.close()
                 return
             if self.kind == "lineonly":
                 # answers the line settings, never SET-CONTROL nor the baud query
-                c.sendall(GOOD_HELLO)
-                seen = b""
-                while LAST_SETTING not in seen:
-                    chunk = c.recv(1)
-                    if not chunk:
-                        return
-                    seen = seen[-16:] + chunk
-                answers = [(101, (115200).to_bytes(4, "big")), (102, b"\x08"), (103, b"\x01"),
-                           (104, b"\x01")]
-                c.sendall(b"".join(bytes([IAC, SB, 44, cmd]) + v + bytes([IAC, SE])
-                                   for cmd, v in answers))
+                if not _hello_until_settings(c):
+                    return
+                c.sendall(_answers(LINE_ANSWERS))
             if self.kind in ("silent", "good_once", "lineonly"):
                 while not self._stop.is_set() and c.recv(4096):
                     pass
                 return
             if self.kind == "noread":
-                c.sendall(GOOD_HELLO)
-                seen = b""
-                while LAST_SETTING not in seen:
-                    chunk = c.recv(1)
-                    if not chunk:
-                        return
-                    seen = seen[-16:] + chunk
+                if not _hello_until_settings(c):
+                    return
                 self.settled.set()
                 self._stop.wait()       # never reads again
                 return

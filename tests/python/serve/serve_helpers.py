@@ -3,6 +3,7 @@ processes, raw protocol sockets. A uniquely named module (not conftest) so other
 components' helpers cannot shadow it. Waits are bounded polls of a condition."""
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -10,13 +11,43 @@ import socket
 import struct
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
-from typing import Any, Callable, Dict, List, Optional
+from typing import Any, Callable, Dict, Iterator, List, Optional
 
 from fap_py.serve import status
 
 WAIT_S = 10.0
+
+
+@contextlib.contextmanager
+def mikroc_echo(path: str, address: int = 0x12, baud: int = 19200) -> Iterator[Any]:
+    """A mikroC slave on ``path`` answering each request with its bytes reversed, in a
+    thread, for the block (yields the slave)."""
+    from fap_py import mikroc
+    from fap_py.errors import FapTimeoutError
+    from fap_py.rs485 import RS485, RS485Mode
+
+    stop = threading.Event()
+    slave = mikroc.Slave(path, baud, address=address, rs485=RS485(mode=RS485Mode.NONE))
+
+    def serve() -> None:
+        while not stop.is_set():
+            try:
+                msg = slave.receive(timeout=0.1)
+            except FapTimeoutError:
+                continue
+            slave.send(msg.data[::-1])
+
+    t = threading.Thread(target=serve, daemon=True)
+    t.start()
+    try:
+        yield slave
+    finally:
+        stop.set()
+        t.join(5)
+        slave.close()
 
 
 def fap_cmd(*args: str) -> List[str]:

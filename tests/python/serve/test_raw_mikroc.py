@@ -5,10 +5,9 @@ from __future__ import annotations
 import asyncio
 import json
 import subprocess
-import threading
 
 import pytest
-from serve_helpers import fap_cmd, start_daemon
+from serve_helpers import fap_cmd, mikroc_echo, start_daemon
 
 from fap_py import mikroc
 from fap_py.errors import FapTimeoutError
@@ -40,22 +39,7 @@ def test_raw_reply_rules(vbus, tmp_path):
 
 
 def test_mikroc_master_on_a_daemon_url(tmp_path):
-    with VirtualBus(ports=2, baud=19200) as bus:
-        stop = threading.Event()
-        slave = mikroc.Slave(bus.paths[1], 19200, address=0x12, rs485=LINE)
-
-        def serve():
-            while not stop.is_set():
-                try:
-                    msg = slave.receive(timeout=0.1)
-                except FapTimeoutError:
-                    continue
-                except Exception:
-                    return
-                slave.send(msg.data[::-1])
-
-        t = threading.Thread(target=serve)
-        t.start()
+    with VirtualBus(ports=2, baud=19200) as bus, mikroc_echo(bus.paths[1]):
         d = start_daemon(str(tmp_path), bus.paths[0], "--baud", "19200", "--timeout", "0.3",
                          protocol="mikroc")
         try:
@@ -81,6 +65,3 @@ def test_mikroc_master_on_a_daemon_url(tmp_path):
                     if json.loads(x)["event"] == "reply"] == ["0201"]
         finally:
             d.stop()
-            stop.set()
-            t.join(5)
-            slave.close()

@@ -6,12 +6,11 @@ reopens its port itself: the daemon's state and counters follow its events, and 
 client gets PORT_LOST / PORT_REOPENED as a direct master does."""
 from __future__ import annotations
 
-import contextlib
 import threading
-from typing import Any, Callable, Iterator, List
+from typing import Any, Callable, List
 
 import pytest
-from serve_helpers import Served, start_daemon
+from serve_helpers import Served, mikroc_echo, start_daemon
 
 from fap_py import mikroc
 from fap_py.errors import FapTimeoutError, PortGoneError
@@ -43,31 +42,8 @@ def _pull_and_wait(bus: VirtualBus, d: Served, call: Callable[[], Any]) -> None:
     d.wait_for(lambda st: st["daemon"]["port_state"] == "open")
 
 
-@contextlib.contextmanager
-def _mikroc_echo(path: str) -> Iterator[None]:
-    stop = threading.Event()
-    slave = mikroc.Slave(path, 19200, address=0x12, rs485=LINE)
-
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                msg = slave.receive(timeout=0.1)
-            except FapTimeoutError:
-                continue
-            slave.send(msg.data[::-1])
-
-    t = threading.Thread(target=serve)
-    t.start()
-    try:
-        yield
-    finally:
-        stop.set()
-        t.join(5)
-        slave.close()
-
-
 def test_mikroc_clients_are_told_and_the_port_reopened(tmp_path):
-    with VirtualBus(ports=2, baud=19200) as bus, _mikroc_echo(bus.paths[1]):
+    with VirtualBus(ports=2, baud=19200) as bus, mikroc_echo(bus.paths[1]):
         d = start_daemon(str(tmp_path), bus.paths[0], "--baud", "19200", "--timeout", "0.3",
                          protocol="mikroc")
         try:
