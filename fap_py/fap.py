@@ -30,6 +30,7 @@ engine's notification fd through ``loop.add_reader`` (see
 """
 from __future__ import annotations
 
+import asyncio
 import errno as _errno
 import logging
 import math
@@ -756,6 +757,7 @@ class DaemonFapMaster(DaemonLife):
         self.final_stats: Optional[Stats] = None
         self._rx: List[Message] = []
         self._ev: List[SlaveEvent] = []
+        self._waits: dict = {}        # the asyncio waits in the executor, by kind (_await)
         self._lock = threading.Lock()
         served = set(self.slaves)
         missing = sorted(set(ids) - served)
@@ -785,16 +787,42 @@ class DaemonFapMaster(DaemonLife):
                     pass
         return True
 
-    def _take(self, queue: list, timeout: Optional[float], what: str) -> Any:
+    def _take(self, queue: list, timeout: Optional[float], what: str,
+              stop: Optional[threading.Event] = None) -> Any:
         deadline = _deadline(None if timeout is None else _seconds(timeout, "timeout"))
         while True:
             with self._lock:
                 if queue:
                     return queue.pop(0)
+            if stop is not None and stop.is_set():     # its asyncio caller was cancelled
+                raise FapTimeoutError(f"{what}: cancelled")
             left = None if deadline is None else deadline - time.monotonic()
             if left is not None and left <= 0:
                 raise FapTimeoutError(f"{what}: nothing within {timeout} s")
             self._pull(WAIT_SLICE if left is None else min(left, WAIT_SLICE))
+
+    async def _await(self, queue: list, timeout: Optional[float], what: str) -> Any:
+        """``_take`` in the loop's default executor, losing nothing when cancelled: the
+        thread is told to stop (within a slice), and what it took meanwhile goes back to
+        the front of ``queue`` before the next wait on it starts (one at a time)."""
+        prev = self._waits.get(what)
+        if prev is not None and not prev.done():
+            await asyncio.wait({prev})           # a cancelled wait's thread puts back first
+        stop = threading.Event()
+        fut = _running_loop().run_in_executor(None, self._take, queue, timeout, what, stop)
+        self._waits[what] = fut
+        try:
+            return await asyncio.shield(fut)
+        except asyncio.CancelledError:
+            stop.set()
+
+            def put_back(f: "asyncio.Future[Any]") -> None:
+                if not f.cancelled() and f.exception() is None:
+                    with self._lock:
+                        queue.insert(0, f.result())
+
+            fut.add_done_callback(put_back)
+            raise
 
     def send(self, data: Union[bytes, bytearray, memoryview], to: int,
              timeout: Optional[float] = 0.0) -> None:
@@ -902,7 +930,7 @@ class DaemonFapMaster(DaemonLife):
     async def arecv(self, timeout: Optional[float] = None) -> Message:
         if timeout is not None:
             _seconds(timeout, "timeout")
-        msg: Message = await _running_loop().run_in_executor(None, self.recv, timeout)
+        msg: Message = await self._await(self._rx, timeout, "recv")
         return msg
 
     def __aiter__(self) -> AsyncIterator[Message]:
@@ -918,7 +946,7 @@ class DaemonFapMaster(DaemonLife):
     async def await_event(self, timeout: Optional[float] = None) -> SlaveEvent:
         if timeout is not None:
             _seconds(timeout, "timeout")
-        ev: SlaveEvent = await _running_loop().run_in_executor(None, self.wait_event, timeout)
+        ev: SlaveEvent = await self._await(self._ev, timeout, "wait_event")
         return ev
 
     async def aevents(self, timeout: Optional[float] = None) -> AsyncIterator[SlaveEvent]:

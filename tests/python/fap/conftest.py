@@ -14,6 +14,8 @@ from fap_py.vbus import VirtualBus
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))     # fap_helpers.py
+sys.path.insert(0, str(HERE.parent / "serve"))
+from serve_helpers import start_daemon  # noqa: E402  (the daemon tests' own starter)
 
 #: Protocol timing in milliseconds instead of the vendor's seconds, so "a
 #: slave disappears and returns" runs in well under a second. The answer
@@ -40,17 +42,28 @@ def bus() -> Iterator[VirtualBus]:
         yield b
 
 
-@pytest.fixture
-def net(bus: VirtualBus) -> Iterator[Tuple[Master, List[Slave]]]:
-    """A master on port 0 and slaves 3, 7, 31 on ports 1..3, all active."""
+@pytest.fixture(params=["direct", "daemon"])
+def net(request: pytest.FixtureRequest, bus: VirtualBus, tmp_path: Path) -> Iterator[Tuple[Master, List[Slave]]]:
+    """A master on port 0 and slaves 3, 7, 31 on ports 1..3, all active. Each test runs
+    with the master on port 0 itself and as a client of ``fap serve --protocol fap
+    --slaves 3,7,31`` on it (``fapd://``: the daemon's engine, its own timing); a test
+    that needs the port's own master is ``direct_only``."""
     slaves: List[Slave] = []
-    master = Master(bus.paths[0], 115200, slaves=SLAVE_IDS, **FAST)
+    master = None
     try:
         for i, sid in enumerate(SLAVE_IDS, 1):
             slaves.append(Slave(bus.paths[i], 115200, id=sid))
+        if request.param == "daemon":   # after the slaves: the first ID query finds them
+            daemon = start_daemon(str(tmp_path), bus.paths[0], "--slaves", ",".join(map(str, SLAVE_IDS)),
+                                  protocol="fap")
+            request.addfinalizer(daemon.stop)
+            master = Master(daemon.url, 115200, slaves=SLAVE_IDS)
+        else:
+            master = Master(bus.paths[0], 115200, slaves=SLAVE_IDS, **FAST)
         master.wait_active(timeout=WAIT)
         yield master, slaves
     finally:
         for s in slaves:
             s.close()
-        master.close()
+        if master is not None:
+            master.close()

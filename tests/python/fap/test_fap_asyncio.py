@@ -35,6 +35,7 @@ def test_arecv_both_directions(net: Net) -> None:
     run(main())
 
 
+@pytest.mark.direct_only("a daemon client's arecv waits in the loop's executor, not on a notification fd (docs/daemon.md)")
 def test_arecv_waits_for_the_fd_without_busy_looping(net: Net) -> None:
     master, (a, _, _) = net
 

@@ -183,6 +183,7 @@ def test_wait_active_timeout_names_missing(bus: VirtualBus) -> None:
         assert kinds == {EventKind.ID_TIMEOUT}       # kept for the user
 
 
+@pytest.mark.direct_only("it reads the engine's notification fd (fileno), which a daemon client does not have")
 def test_stats_and_info(net: Net) -> None:
     master, slaves = net
     master.send(b"ping", to=slaves[0].id)
@@ -381,6 +382,7 @@ def test_node_is_context_manager_and_exports() -> None:
     assert os.path.exists(os.path.join(os.path.dirname(fap_py.__file__), "py.typed"))
 
 
+@pytest.mark.direct_only("the engine's own event thread and notification fd belong to the port's own master")
 def test_events_are_read_by_python_threads_not_from_the_engine(net: Net) -> None:
     """Slave state changes reach Python through the event queue, in the reader's thread."""
     master, (a, _, _) = net
@@ -403,6 +405,7 @@ def test_events_are_read_by_python_threads_not_from_the_engine(net: Net) -> None
     assert {name for name, _, _ in seen} == {"event-reader"}
 
 
+@pytest.mark.direct_only("the engine's notification fd (fileno) belongs to the port's own master; a daemon client has a socket")
 def test_notify_fd_works_with_selectors(net: Net) -> None:
     master, (a, _, _) = net
     list(master.events())

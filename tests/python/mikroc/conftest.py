@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import select
+import sys
 import termios
 import time
 import tty
@@ -12,6 +13,9 @@ from pathlib import Path
 from typing import Iterator, NamedTuple
 
 import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+from serve_helpers import start_daemon  # the daemon tests' own starter
 
 from fap_py.mikroc import Master, Slave
 from fap_py.vbus import VirtualBus
@@ -68,16 +72,26 @@ class Net(NamedTuple):
     raw_index: int
 
 
-@pytest.fixture
-def net() -> Iterator[Net]:
+@pytest.fixture(params=["direct", "daemon"])
+def net(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[Net]:
     """Master on port 0, slaves 0x12 and 150 on ports 1 and 2, a raw port 3.
-    Echo is on (a 2-wire bus): every node hears itself too."""
+    Echo is on (a 2-wire bus): every node hears itself too. Each test runs with the
+    master on port 0 itself and through ``fap serve --protocol mikroc`` on it
+    (``fapd://``); a test that needs the port's own master is ``direct_only``."""
     with VirtualBus(ports=4, echo=True, seed=7) as bus:
-        with Master(bus.paths[0], 19200) as m, \
-                Slave(bus.paths[1], 19200, address=SLAVE_A) as a, \
-                Slave(bus.paths[2], 19200, address=SLAVE_B) as b:
-            raw = RawPort(bus.paths[3])
-            try:
-                yield Net(bus, m, a, b, raw, 3)
-            finally:
-                raw.close()
+        daemon = None
+        if request.param == "daemon":
+            daemon = start_daemon(str(tmp_path), bus.paths[0], "--baud", "19200", "--timeout", "5",
+                                  protocol="mikroc")
+        try:
+            with Master(daemon.url if daemon else bus.paths[0], 19200) as m, \
+                    Slave(bus.paths[1], 19200, address=SLAVE_A) as a, \
+                    Slave(bus.paths[2], 19200, address=SLAVE_B) as b:
+                raw = RawPort(bus.paths[3])
+                try:
+                    yield Net(bus, m, a, b, raw, 3)
+                finally:
+                    raw.close()
+        finally:
+            if daemon is not None:
+                daemon.stop()

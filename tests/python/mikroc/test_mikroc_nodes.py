@@ -65,6 +65,8 @@ def test_broadcast_reaches_slaves_but_150(net):
     assert net.b.stats.ignored >= 1
 
 
+@pytest.mark.direct_only("through the daemon a send is a transaction with a reply window "
+                         "(its --timeout), so sends nobody answers hold the bus in turn")
 def test_frames_for_other_addresses_never_ready(net):
     for address in range(0, 256, 5):
         if address not in (SLAVE_A, SLAVE_B, BROADCAST):
@@ -89,6 +91,8 @@ def write_corrupted(net, frame: bytes, at: int) -> None:
     net.raw.write(frame[at:])
 
 
+@pytest.mark.direct_only("through the daemon a send is a transaction with a reply window "
+                         "(its --timeout), so sends nobody answers hold the bus in turn")
 def test_corrupted_request_sets_slave_error(net):
     # a master frame for 0x12 whose DATA1 is hit (0x01: no flip makes a marker)
     write_corrupted(net, encode(SLAVE_A, b"\x01\x02"), 3)
@@ -131,6 +135,8 @@ def test_timeouts_and_bad_input(net):
     assert net.a.receive(timeout=5).data == b"\x09"
 
 
+@pytest.mark.direct_only("through the daemon every send has its reply slot: the reply 'nobody "
+                         "reads' here is the first send's answer, which receive returns first")
 def test_master_send_discards_stale_input(net):
     net.master.send(SLAVE_A, b"\x01")
     net.a.receive(timeout=5)
@@ -190,6 +196,8 @@ def test_port_options():
             Master(bus.paths[0], 0)
 
 
+@pytest.mark.direct_only("through the daemon receive with no request outstanding raises at once "
+                         "(docs/daemon.md): there is no waiting receive to race a send")
 def test_master_send_while_another_thread_receives(net):
     """A receiving thread does not block send (no deadlock)."""
     got = []
