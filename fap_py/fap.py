@@ -805,11 +805,12 @@ class DaemonFapMaster(DaemonLife):
         """``_take`` in the loop's default executor, losing nothing when cancelled: the
         thread is told to stop (within a slice), and what it took meanwhile goes back to
         the front of ``queue`` before the next wait on it starts (one at a time)."""
+        loop = _running_loop()
         prev = self._waits.get(what)
-        if prev is not None and not prev.done():
+        if prev is not None and not prev.done() and prev.get_loop() is loop:
             await asyncio.wait({prev})           # a cancelled wait's thread puts back first
         stop = threading.Event()
-        fut = _running_loop().run_in_executor(None, self._take, queue, timeout, what, stop)
+        fut = loop.run_in_executor(None, self._take, queue, timeout, what, stop)
         self._waits[what] = fut
         try:
             return await asyncio.shield(fut)
