@@ -10,7 +10,7 @@ from typing import Iterator
 import pytest
 from bridge_helpers import WAIT, bridge_config
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+sys.path.append(str(Path(__file__).resolve().parents[1] / "serve"))  # last: never shadows a conftest
 from serve_helpers import mikroc_echo, start_daemon  # the daemon tests' own helpers
 
 VIA = pytest.mark.parametrize("via", ["direct", "daemon"])

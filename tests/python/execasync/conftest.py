@@ -13,7 +13,7 @@ from typing import Dict, Iterator, List
 import pytest
 import serial
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+sys.path.append(str(Path(__file__).resolve().parents[1] / "serve"))  # last: never shadows a conftest
 from serve_helpers import start_daemon  # the daemon tests' own starter
 
 from fap_py.execasync import RS485, Decoder, Frame, Master, Request, RS485Mode, Slave

@@ -14,7 +14,7 @@ from fap_py.vbus import VirtualBus
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))     # fap_helpers.py
-sys.path.insert(0, str(HERE.parent / "serve"))
+sys.path.append(str(HERE.parent / "serve"))  # last: never shadows a conftest
 from serve_helpers import start_daemon  # noqa: E402  (the daemon tests' own starter)
 
 #: Protocol timing in milliseconds instead of the vendor's seconds, so "a

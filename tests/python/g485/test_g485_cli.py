@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+sys.path.append(str(Path(__file__).resolve().parents[1] / "serve"))  # last: never shadows a conftest
 from serve_helpers import start_daemon  # the daemon tests' own starter
 
 

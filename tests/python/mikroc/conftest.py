@@ -14,7 +14,7 @@ from typing import Iterator, NamedTuple
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "serve"))
+sys.path.append(str(Path(__file__).resolve().parents[1] / "serve"))  # last: never shadows a conftest
 from serve_helpers import start_daemon  # the daemon tests' own starter
 
 from fap_py.mikroc import Master, Slave
