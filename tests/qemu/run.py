@@ -31,7 +31,7 @@ REG_DR, REG_CR = 0x000, 0x030
 GPIO_LINE = 1           # the PL061 line the GPIO checks use as DE (rs485_checks.c)
 GPIO_OUT = 0x10000      # parse_trace's pseudo-offset of a PL061 output: + line
 #: the whole guest run's bound: it takes 7-10 s here (TCG), but a CI run once took the
-#: PL011 guest past 80 s (no hog on the machine: the VM's host was busy); a hang still
+#: PL011 guest past 80 s with nothing else running (not reproduced since); a hang still
 #: ends here. Each guest line is printed with its time, so a slow stretch shows where.
 BOOT_TIMEOUT_S = 300
 

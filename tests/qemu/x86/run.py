@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from run import report, start_qemu, suite_setup  # shared with the PL011 suite
 
 #: the whole guest run's bound: it takes 7-10 s here (TCG), but a CI run once took the
-#: PL011 guest past 80 s (no hog on the machine: the VM's host was busy); a hang still
+#: PL011 guest past 80 s with nothing else running (not reproduced since); a hang still
 #: ends here. Each guest line is printed with its time, so a slow stretch shows where.
 BOOT_TIMEOUT_S = 300
 STALL_S = 2.0            # the host stops reading ttyS0 this long (tcdrain check)
