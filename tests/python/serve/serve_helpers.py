@@ -50,6 +50,29 @@ def mikroc_echo(path: str, address: int = 0x12, baud: int = 19200) -> Iterator[A
         slave.close()
 
 
+@contextlib.contextmanager
+def fap_echo(path: str, slave_id: int = 3) -> Iterator[Any]:
+    """A FAP slave on ``path`` sending back each message reversed, in a thread, for the
+    block (yields the slave)."""
+    from fap_py import Slave
+    from fap_py.rs485 import RS485, RS485Mode
+
+    stop = threading.Event()
+    with Slave(path, id=slave_id, rs485=RS485(mode=RS485Mode.NONE)) as slave:
+        def echo() -> None:
+            while not stop.is_set():
+                for msg in slave.messages(0.1):
+                    slave.send(msg.data[::-1])
+
+        t = threading.Thread(target=echo)
+        t.start()
+        try:
+            yield slave
+        finally:
+            stop.set()
+            t.join(5)
+
+
 def fap_cmd(*args: str) -> List[str]:
     """argv of the installed command as a process (-I: not the source tree)."""
     return [sys.executable, "-I", "-m", "fap_py", *args]

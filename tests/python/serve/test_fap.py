@@ -5,10 +5,9 @@ from __future__ import annotations
 import asyncio
 import json
 import subprocess
-import threading
 
 import pytest
-from serve_helpers import fap_cmd, start_daemon
+from serve_helpers import fap_cmd, fap_echo, start_daemon
 
 from fap_py import Master, Slave
 from fap_py.errors import NotMasterError, UnknownSlaveError
@@ -18,17 +17,7 @@ from fap_py.vbus import VirtualBus
 
 
 def test_fap_master_on_a_daemon_url(tmp_path):
-    with VirtualBus(ports=2, baud=115200) as bus, \
-            Slave(bus.paths[1], id=3, rs485=RS485(mode=RS485Mode.NONE)) as slave:
-        stop = threading.Event()
-
-        def echo():
-            while not stop.is_set():
-                for msg in slave.messages(0.1):
-                    slave.send(msg.data[::-1])
-
-        t = threading.Thread(target=echo)
-        t.start()
+    with VirtualBus(ports=2, baud=115200) as bus, fap_echo(bus.paths[1]):
         d = start_daemon(str(tmp_path), bus.paths[0], "--slaves", "3", protocol="fap")
         try:
             with Master(d.url, slaves=[3]) as m:
@@ -75,8 +64,6 @@ def test_fap_master_on_a_daemon_url(tmp_path):
             assert d.status()["totals"]["transactions"] >= 1
         finally:
             d.stop()
-            stop.set()
-            t.join(5)
 
 
 def test_fap_events_carry_the_slave_not_a_request_id(tmp_path):

@@ -6,11 +6,10 @@ reopens its port itself: the daemon's state and counters follow its events, and 
 client gets PORT_LOST / PORT_REOPENED as a direct master does."""
 from __future__ import annotations
 
-import threading
 from typing import Any, Callable, List
 
 import pytest
-from serve_helpers import Served, mikroc_echo, start_daemon
+from serve_helpers import Served, fap_echo, mikroc_echo, start_daemon
 
 from fap_py import mikroc
 from fap_py.errors import FapTimeoutError, PortGoneError
@@ -77,19 +76,10 @@ def test_g485_clients_are_told_and_the_port_reopened(tmp_path):
 
 
 def test_fap_clients_are_told_and_the_engine_polls_again(tmp_path):
-    from fap_py import Master, Slave
+    from fap_py import Master
     from fap_py.fap import EventKind
 
-    with VirtualBus(ports=2, baud=115200) as bus, Slave(bus.paths[1], id=3, rs485=LINE) as slave:
-        stop = threading.Event()
-
-        def echo() -> None:
-            while not stop.is_set():
-                for msg in slave.messages(0.1):
-                    slave.send(msg.data[::-1])
-
-        t = threading.Thread(target=echo)
-        t.start()
+    with VirtualBus(ports=2, baud=115200) as bus, fap_echo(bus.paths[1]):
         d = start_daemon(str(tmp_path), bus.paths[0], "--slaves", "3", protocol="fap")
         try:
             with Master(d.url, slaves=[3]) as m:
@@ -113,8 +103,6 @@ def test_fap_clients_are_told_and_the_engine_polls_again(tmp_path):
                 assert (msg.source, msg.data) == (3, b"cba")
         finally:
             d.stop()
-            stop.set()
-            t.join(5)
 
 
 def test_raw_clients_are_told_and_the_port_reopened(tmp_path):
