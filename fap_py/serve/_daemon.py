@@ -648,21 +648,22 @@ class Daemon:
     # device gone: tell everyone, reopen in the background
 
     def _port_gone(self, err: BaseException) -> None:
+        self._unwatch_late()
+        self._mark_gone(f"{err}; reopening every {self.config.reopen_interval:.1f} s")
+        asyncio.get_running_loop().create_task(self._reopen())
+
+    def _mark_gone(self, why: str) -> None:
+        """The port's state, counter, log line and client event when the device vanished."""
         self.port_state = "gone"
         self.counters["port_gone"] += 1
-        self._unwatch_late()
-        log.warning("%s: %s; reopening every %.1f s", self.config.port, err, self.config.reopen_interval)
+        log.warning("%s: %s", self.config.port, why)
         self._broadcast_event({"event": "port_gone", "message": f"{self.config.port}: device gone"})
-        asyncio.get_running_loop().create_task(self._reopen())
 
     def _engine_port(self, back: bool) -> None:
         """An engine that reopens its own port (FAP) lost it or has it back: the same
         state, counters and client events as the daemon's own reopen."""
         if not back and self.port_state == "open":
-            self.port_state = "gone"
-            self.counters["port_gone"] += 1
-            log.warning("%s: device gone; the engine reopens it", self.config.port)
-            self._broadcast_event({"event": "port_gone", "message": f"{self.config.port}: device gone"})
+            self._mark_gone("device gone; the engine reopens it")
         elif back and self.port_state == "gone":
             self._port_back()
 
