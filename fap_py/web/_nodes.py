@@ -12,7 +12,10 @@ Rules (docs/web.md):
   earlier one's node (a master sends its next request after its timeout), unless
   a bad frame came in its place (counted as that node's error instead);
 - a live source's request still unanswered :data:`PENDING_S` seconds (wall time)
-  after it came is a timeout too (a quiet bus after a lost reply);
+  after it came is a timeout too (a quiet bus after a lost reply), taken back if
+  its answer still comes before any other frame: the wall time is when the hub
+  read a frame, not when it was on the wire, so a reader that fell behind must not
+  change the count (the final table is still a function of the records alone);
 - a bad frame (CRC, check, garbage ...) while a request is pending is the polled
   node's error, else it is unattributed (node ``"?"``);
 - a collision (a virtual-bus capture event) while a request is pending is the
@@ -92,7 +95,8 @@ class NodeTable:
         self.nodes: Dict[str, _Node] = {}
         self.frames = self.bad = self.bytes = self.collisions = 0
         self.t_last: Optional[float] = None
-        self._pending: Optional[List[Any]] = None          # [node, t_end, bad_seen]
+        self._pending: Optional[List[Any]] = None          # [node, t_end, bad_seen, wall]
+        self._expired: Optional[List[Any]] = None          # the pending one expire() closed
         # bins: index -> [frames, bytes, {node: [sum_s, n]}]
         self._bins: Dict[int, List[Any]] = {}
 
@@ -132,6 +136,7 @@ class NodeTable:
             nd.errors[reason] = nd.errors.get(reason, 0) + 1
             if t is not None:
                 nd.last_seen = t
+            self._take_back()               # the sequence's rule: this node's error, no timeout
             if self._pending is not None:
                 self._pending[2] = True
             return
@@ -142,12 +147,15 @@ class NodeTable:
         if t is not None:
             nd.last_seen = t
         if role == "req":
+            self._expired = None
             self._close_pending()
             nd.requests += 1
             self._pending = [node, rec.t_end, False, wall]
         elif role == "ans":
             nd.replies += 1
             nd.answered_last = True
+            if self._expired is not None and self._expired[0] == node:
+                self._take_back()                   # expire() was early: it was answered
             pend = self._pending
             if pend is not None and pend[0] == node and pend[1] is not None and t is not None:
                 seconds = max(0.0, t - pend[1])
@@ -157,6 +165,13 @@ class NodeTable:
                     s[0] += seconds
                     s[1] += 1
             self._pending = None
+
+    def _take_back(self) -> None:
+        """The request expire() closed was answered (or damaged) after all: pending again."""
+        exp = self._expired
+        if exp is not None:
+            self._node(exp[0]).timeouts -= 1
+            self._pending, self._expired = exp, None
 
     def _close_pending(self) -> None:
         pend = self._pending
@@ -182,6 +197,7 @@ class NodeTable:
         pend = self._pending
         if pend is not None and not pend[2] and wall - pend[3] >= after_s:
             self._close_pending()
+            self._expired = pend
 
     def finish(self) -> None:
         """The recording ended: a request still unanswered timed out."""

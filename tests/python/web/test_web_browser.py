@@ -138,7 +138,13 @@ def test_fault_switched_from_the_page_shows_as_timeouts_and_stops(sim_page, tmp_
     wait_page(lambda: src.sim.faults_list() == [], "the fault removed")
     poller.pause()
     before = poller.errors[5]
-    wait_page(lambda: int(cell(d, 5, "timeouts")) == before, "the page's timeouts == the master's failures")
+    try:
+        wait_page(lambda: int(cell(d, 5, "timeouts")) == before, "the page's timeouts == the master's failures")
+    except AssertionError:
+        sim5 = [n for n in src.sim.status()["buses"][0]["nodes"] if n["address"] == 5]
+        raise AssertionError(f"page: {[cell(d, 5, k) for k in ('requests', 'replies', 'timeouts')]} "
+                             f"master: errors {poller.errors} {poller.master.stats} sim: {sim5} "
+                             f"api: {node_rows(srv.url).get('5')}") from None
     replies, rounds = int(cell(d, 5, "replies")), poller.rounds
     poller.resume()
     wait_until(lambda: poller.rounds >= rounds + 5)

@@ -80,3 +80,33 @@ def test_several_browsers_each_get_every_frame() -> None:
         finally:
             for s in streams:
                 s.close()
+
+
+def test_an_early_expiry_is_taken_back_by_the_answer_or_a_bad_frame() -> None:
+    """expire() runs on the hub's clock (when it read a frame), not the wire's: a reader
+    that fell behind a second between a request and its answer must not leave a timeout.
+    After the take-back the table is the one the records alone give (a recording's)."""
+    from fap_py.web._nodes import Annotator, NodeTable
+
+    mon = Monitor("exec", 115200)
+    req, ans = encode(5, b"\x01\x02", 7), encode(5, b"\xaa\x55", 7)
+    bad = bytearray(encode(5, b"\xaa\x55", 8))
+    bad[-1] ^= 0xFF
+    other = encode(1, b"\x01", 9)
+
+    def table(frames, expire_after):
+        """Feed ``frames``; expire() (wall + 2 s) after the indexes in ``expire_after``."""
+        ann, tab = Annotator(), NodeTable(115200)
+        for i, raw in enumerate(frames):
+            for rec in mon.feed(raw, float(i), 1e-4):
+                tab.add(rec, *ann.annotate(rec), wall=float(i))
+            if i in expire_after:
+                tab.expire(i + 2.0)
+        tab.finish()                      # the end: as a recording's
+        return {r["node"]: (r["requests"], r["replies"], r["timeouts"], r["errors"]) for r in tab.table()}
+
+    for frames in ([req, ans, other], [req, other, req, ans], [req, bytes(bad), other]):
+        assert table(frames, {0, 2}) == table(frames, set()), frames
+    assert table([req, ans, other], {0})["5"] == (1, 1, 0, 0)
+    assert table([req, other], {0})["5"] == (1, 0, 1, 0)           # really unanswered
+    assert table([req, bytes(bad), other], {0})["5"] == (1, 0, 0, 1)
