@@ -34,7 +34,7 @@ table.md, *.png), outside the source tree; ``--out`` puts them elsewhere.
 The modules: ``kinds`` (what is measured), ``stats`` (statistics, probes of
 a process), ``syscalls`` (perf), ``runner`` (the runs and series), ``net``
 (network rows), ``report`` (table, plots), ``readme`` (README's section),
-``issue24`` / ``targets`` (the target rows); this file only plans a run.
+``verdicts`` / ``targets`` (the target rows); this file only plans a run.
 """
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional
 
-from bench import ROOT, issue24, results_home, syscalls, use_installed_fap_py
+from bench import ROOT, results_home, syscalls, use_installed_fap_py, verdicts
 from bench.kinds import ALL_KINDS, BASE, QUICK_KINDS
 from bench.stats import loadavg
 
@@ -246,7 +246,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         if quick:
             print("bench: --quick: not run: the bridge and real-time issue-24 rows (shown as not "
                   "measured; the full run measures them)", file=sys.stderr)
-        parts.extend(issue24.part_rows(rounds, quick, skip=args.skip_parts or quick,
+        parts.extend(verdicts.part_rows(rounds, quick, skip=args.skip_parts or quick,
                                        why=QUICK_PARTS_WHY if quick and not args.skip_parts
                                        else "skipped (--skip-parts)",
                                        measured=g485_rows))
@@ -272,7 +272,7 @@ def main(argv: Optional[List[str]] = None) -> int:
             step("g485-paired", "G485 paired", g485_paired)
         step("codec", "codec throughput", codec)
         step("parts", "issue-24 parts", other_parts)
-    res["targets"] = [t.as_dict() for t in issue24.own_rows(res) + parts]
+    res["targets"] = [t.as_dict() for t in verdicts.own_rows(res) + parts]
     res["loadavg_after"] = loadavg()
     res["wall_s"] = time.monotonic() - t_start
     out.mkdir(parents=True, exist_ok=True)

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
-from bench import issue24, results_home
+from bench import results_home, verdicts
 from bench.report import markdown  # the runner's own tables, one format
 from bench.targets import Target, table
 
@@ -48,7 +48,7 @@ def section(res: Dict[str, Any], rel: Optional[str], plots: bool = False) -> str
     blocks = full.split("\n## ")
     keep = [b for b in blocks if b.startswith(("Paced at 115200", "Paced at 1000000"))]
     rows = ([Target(**{k: v for k, v in t.items() if k != "met"}) for t in res["targets"]]
-            if "targets" in res else issue24.own_rows(res))     # a run from before the rows
+            if "targets" in res else verdicts.own_rows(res))     # a run from before the rows
     met = sum(1 for t in rows if t.met)
     missed = sum(1 for t in rows if t.met is False)
     L: List[str] = [
@@ -58,7 +58,7 @@ def section(res: Dict[str, Any], rel: Optional[str], plots: bool = False) -> str
         + (f"Full table and plots: [`{rel}/table.md`]({rel}/table.md)." if rel else
            "Full table and plots: the run's `table.md` and PNGs (kept outside the repository)."),
         "",
-        f"Targets of issue 24 in this run: {met} met, {missed} missed, "
+        f"Targets in this run: {met} met, {missed} missed, "
         f"{len(rows) - met - missed} not measured.", "",
         table(rows)]
     if plots and rel:

@@ -150,7 +150,7 @@ def markdown(res: Dict[str, Any]) -> str:
             L.append(f"| {mode} | {r.get('c_rate', float('nan')):.0f} | {r['py_rate']:.0f} | "
                      f"{r.get('c_cpu_us', float('nan')):.1f} | {r['py_cpu_us']:.1f} |")
         L.append("")
-    L += ["## Targets of issue 24 in this run", "",
+    L += ["## Targets in this run", "",
           "Medians of the run's rounds; CPU ratios: this engine's CPU µs per exchange over "
           "libmodbus's read, the same side, the same run. Load average before/after: "
           f"{res['loadavg_before']} / {res.get('loadavg_after', '?')}.", "",

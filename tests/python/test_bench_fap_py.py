@@ -1,5 +1,5 @@
 """The fap_py target's one measurement (bench/fap_py/bench_fap_py.py ``paired``) and its
-row (bench/issue24.py ``python_rows``), on synthetic runs: no bus, no timing.
+row (bench/verdicts.py ``python_rows``), on synthetic runs: no bus, no timing.
 
 ``bench/`` is not part of the package: it is imported from the checkout.
 """
@@ -87,13 +87,13 @@ def test_paired_gives_up_when_every_pair_fails(monkeypatch: pytest.MonkeyPatch) 
 
 
 def test_python_row_reads_the_pairs() -> None:
-    from bench import issue24
+    from bench import verdicts
     rt = {"c_rate": 5000.0, "py_rate": 3600.0, "c_cpu_us": 100.0, "py_cpu_us": 130.0,
           "ratio": 0.74, "ratio_min": 0.5, "ratio_max": 1.2, "pairs": 11, "dropped": 1,
           "c_polls": 1.5, "py_polls": 2.0, "load_before": "1 1 1", "load_after": "2 2 2"}
-    (row,) = issue24.python_rows({"python": {"round-trip": rt}})
+    (row,) = verdicts.python_rows({"python": {"round-trip": rt}})
     assert row.value == pytest.approx(74.0) and row.met is True
     assert "11 interleaved pairs, 1 void" in row.note and "2.00 vs 1.50" in row.note
     assert "load 1 1 1 -> 2 2 2" in row.note
-    (old,) = issue24.python_rows({"python": {"round-trip": {"c_rate": 1000.0, "py_rate": 600.0}}})
+    (old,) = verdicts.python_rows({"python": {"round-trip": {"c_rate": 1000.0, "py_rate": 600.0}}})
     assert old.value == pytest.approx(60.0) and old.met is False and "one pair" in old.note

@@ -1,4 +1,4 @@
-"""The targets of issue 24, as :class:`bench.targets.Target` rows from one run.
+"""The performance targets (issue 24 set most of them), as :class:`bench.targets.Target` rows from one run.
 
 The runner's own measurements give the CPU ratios against libmodbus, the idle
 FAP master and fap_py against the C API (:func:`own_rows`). The other parts
@@ -15,7 +15,7 @@ from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from bench.targets import Target
 
-log = logging.getLogger("bench.issue24")
+log = logging.getLogger("bench.verdicts")
 
 # (module, what it measures, the rows' names when it is missing)
 PARTS: Tuple[Tuple[str, str, Tuple[str, ...]], ...] = (

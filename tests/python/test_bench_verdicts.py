@@ -58,8 +58,8 @@ def test_parse_stat_totals_names_and_other() -> None:
 
 
 def test_cpu_rows_ratio_per_side_and_missing_peer() -> None:
-    from bench import issue24
-    rows = {t.name: t for t in issue24.cpu_rows(_results())}
+    from bench import verdicts
+    rows = {t.name: t for t in verdicts.cpu_rows(_results())}
     fap_c, fap_s = rows["cpu-fap-poll-115200-client"], rows["cpu-fap-poll-115200-server"]
     assert fap_c.value == pytest.approx(0.4) and fap_c.met is True
     assert fap_s.value == pytest.approx(0.75) and fap_s.met is False
@@ -70,17 +70,17 @@ def test_cpu_rows_ratio_per_side_and_missing_peer() -> None:
 
 
 def test_idle_and_python_rows() -> None:
-    from bench import issue24
-    idle = {t.name: t for t in issue24.idle_rows(_results())}
+    from bench import verdicts
+    idle = {t.name: t for t in verdicts.idle_rows(_results())}
     assert idle["idle-master-1-slaves"].value == pytest.approx(2.5)
     assert idle["idle-master-1-slaves"].met is False
     assert idle["idle-master-31-slaves"].met is None            # not in this run
-    (py,) = issue24.python_rows(_results())
+    (py,) = verdicts.python_rows(_results())
     assert py.value == pytest.approx(80.0) and py.met is True
 
 
 def test_part_rows_found_by_name_missing_or_failing() -> None:
-    from bench import issue24
+    from bench import verdicts
     from bench.targets import Target
 
     good = types.SimpleNamespace(targets=lambda rounds: [Target("g485-115200", "g", 97.0, 95.0, True)])
@@ -95,24 +95,24 @@ def test_part_rows_found_by_name_missing_or_failing() -> None:
             return types.SimpleNamespace(targets=bad)
         raise ImportError(f"No module named {name!r}", name=name)
 
-    rows = issue24.part_rows(3, False, importer=importer)
+    rows = verdicts.part_rows(3, False, importer=importer)
     by = {t.name: t for t in rows}
     assert by["g485-115200"].met is True
     assert by["bridge-forward-115200"].met is None and "no bus" in by["bridge-forward-115200"].note
     assert by["realtime-p99-115200"].met is None and "bench.realtime" in by["realtime-p99-115200"].note
-    skipped = issue24.part_rows(3, False, skip=True, importer=importer)
+    skipped = verdicts.part_rows(3, False, skip=True, importer=importer)
     assert all(t.met is None for t in skipped)
 
 
 def test_readme_section_replaced_between_markers(tmp_path: Path) -> None:
-    from bench import issue24, readme
+    from bench import readme, verdicts
     run = tmp_path / "bench" / "results" / "run1"
     run.mkdir(parents=True)
     res = _results()
     res.update({"date": "2026-11-26", "host": "h", "machine": "2 CPUs", "loadavg_before": "1 1 1",
                 "loadavg_after": "2 2 2", "rounds": 3, "seconds": 1.5, "bauds": [115200],
                 "missing": {}, "unpaced": {}, "scale": {},
-                "targets": [t.as_dict() for t in issue24.python_rows(res)]})
+                "targets": [t.as_dict() for t in verdicts.python_rows(res)]})
     res["paced"] = {"115200": {}}
     (run / "results.json").write_text(json.dumps(res))
     doc = tmp_path / "README.md"
@@ -129,20 +129,20 @@ def test_readme_section_replaced_between_markers(tmp_path: Path) -> None:
 def test_a_missed_cpu_ratio_names_its_floor():
     """A miss says what the floor of the cost is, computed from the same run: the fewest
     wake-ups the wire allows (1 for a client, 2 for a server) at this side's cost per wake-up."""
-    from bench import issue24
+    from bench import verdicts
 
     paced = {"115200": {
         "modbus": {"client_us": {"median": 100.0}, "server_us": {"median": 100.0},
                    "client_wakeups": {"median": 10.0}, "server_wakeups": {"median": 10.0}},
         "fap-poll": {"client_us": {"median": 80.0}, "client_wakeups": {"median": 4.0},
                      "server_us": {"median": 80.0}, "server_wakeups": {"median": 2.0}}}}
-    rows = {t.name: t for t in issue24.cpu_rows({"paced": paced})}
+    rows = {t.name: t for t in verdicts.cpu_rows({"paced": paced})}
     client, server = rows["cpu-fap-poll-115200-client"], rows["cpu-fap-poll-115200-server"]
     assert client.met is False and "floor 1 wake-up/x at ~20 µs each" in client.note
     assert "0.20x libmodbus, reachable: 3.0 wake-ups/x above it" in client.note
     assert server.met is False and "floor 2 wake-ups/x at ~40 µs each = ~80 µs/x" in server.note
     assert "below that floor" in server.note
-    idle = issue24.idle_rows({"paced": paced, "scale": {"115200": {"slaves": {"1": {
+    idle = verdicts.idle_rows({"paced": paced, "scale": {"115200": {"slaves": {"1": {
         "master_load": {"median": 0.02}, "cycles_per_s": {"median": 400.0},
         "cpu_us_per_cycle": {"median": 50.0}}}}}})
     assert "= 0.80 % at these cycles/s" in idle[0].note      # 400/s x 20 µs
