@@ -31,8 +31,7 @@ from .errors import (
 )
 
 if TYPE_CHECKING:  # pragma: no cover
-    from .fap import Master, Slave
-    from .fap_types import EventKind, Message, SlaveEvent, Stats
+    from .fap import EventKind, Master, Message, Slave, SlaveEvent, Stats
     from .rs485 import RS485, RS485Mode
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
@@ -42,14 +41,13 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 # built (a source checkout) and stay cheap for the CLI.
 _LAZY = {
     "Master": ".fap", "Slave": ".fap",
-    "EventKind": ".fap_types", "Message": ".fap_types", "SlaveEvent": ".fap_types",
-    "Stats": ".fap_types",
+    "EventKind": ".fap", "Message": ".fap", "SlaveEvent": ".fap", "Stats": ".fap",
     "RS485": ".rs485", "RS485Mode": ".rs485",
 }
 
 
 # the protocols' binding modules come from the protocol table (fap_py._protocols)
-_SUBMODULES = ("fap_types", "fap_aio", "fap_classic", "rs485", "vbus") + tuple(
+_SUBMODULES = ("rs485", "vbus") + tuple(
     p.binding.rsplit(".", 1)[1] for p in _protocols.PROTOCOLS)
 
 

@@ -49,7 +49,7 @@ def _c_fields(ctype: str) -> list:
 
 
 def test_python_constants_equal_the_compiled_core() -> None:
-    from fap_py import execasync, fap, fap_types, mikroc, vbus
+    from fap_py import execasync, fap, mikroc, vbus
     from fap_py._native import lib
 
     pairs = {
@@ -74,7 +74,7 @@ def test_python_constants_equal_the_compiled_core() -> None:
     bad = {k: v for k, v in pairs.items() if v[0] != v[1]}
     assert not bad
     assert fap.Master._mode == lib.FAPX_MASTER and fap.Slave._mode == lib.FAPX_SLAVE
-    for kind in fap_types.EventKind:
+    for kind in fap.EventKind:
         assert kind.value == getattr(lib, f"FAPX_EV_{kind.name}")
     for st in execasync.Status:
         assert st.value == getattr(lib, f"EXEC_ASYNC_{st.name}")
@@ -83,7 +83,9 @@ def test_python_constants_equal_the_compiled_core() -> None:
             assert sr.value == getattr(lib, f"EXEC_SLAVE_{sr.name}")
     for mode in fap_py.RS485Mode:
         assert mode.value == getattr(lib, f"FAP_RS485_{mode.name}")
-    for code, cls in mikroc._ERRORS.items():
+    from fap_py.mikroc.errors import _ERRORS
+
+    for code, cls in _ERRORS.items():
         assert code == getattr(lib, "MIKROC_RS485_" + {
             "ChecksumError": "ECRC", "FormatError": "EFORMAT", "ShortFrameError": "ESHORT",
             "LongFrameError": "ELONG", "AbortedFrameError": "EABORT",
@@ -93,9 +95,9 @@ def test_python_constants_equal_the_compiled_core() -> None:
 def test_stats_dataclasses_name_every_c_counter() -> None:
     from dataclasses import fields
 
-    from fap_py import execasync, fap_types, mikroc, port, vbus
+    from fap_py import execasync, fap, mikroc, port, vbus
 
-    for cls, ctype, skip in ((fap_types.Stats, "fapx_stats", ()),
+    for cls, ctype, skip in ((fap.Stats, "fapx_stats", ()),
                              (execasync.MasterStats, "execMasterStats", ()),
                              (execasync.SlaveStats, "execSlaveStats", ()),
                              (mikroc.NodeStats, "mikrocRS485_stats",
@@ -299,7 +301,7 @@ def test_every_stats_is_a_property() -> None:
 
     classes = _classes_with_stats()
     names = {f"{c.__module__}.{c.__qualname__}" for c in classes}
-    for must in ("fap_py.fap.Node", "fap_py.vbus.VirtualBus", "fap_py.execasync.Master",
+    for must in ("fap_py.fap.node.Node", "fap_py.vbus.VirtualBus", "fap_py.execasync.Master",
                  "fap_py.execasync.Slave", "fap_py.port.Port", "fap_py.monitor.sources.LivePort",
                  "fap_py.monitor.session.Session"):
         assert must in names, must

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Dict, Optional, Tuple
 
 from ..._validate import U32, check_int
-from ...fap_types import MASTER_ID
+from ...fap.types import MASTER_ID
 from ..decoders import CodecDecoder, Decoder, Event, _text_field, check_event
 
 NAME = "fap"

@@ -49,6 +49,12 @@ def _with_tty_stderr(argv: List[str], *, until: Optional[Callable[[bytes], bool]
                 seen += chunk
             elif p.poll() is not None:
                 break
+        if p.poll() is None:          # the deadline, not the process, ended the loop: end it,
+            p.terminate()             # so that reading its stdout cannot block the test
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
         out = p.stdout.read() if p.stdout else b""
         p.wait(timeout=30)
         return p, out, seen

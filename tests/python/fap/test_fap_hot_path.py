@@ -1,5 +1,5 @@
 """The message path's shortcuts (fap_py/fap.py: _first_wait, the cached C calls,
-fap_types._new_message) keep every check and result of the general path."""
+fap.types._new_message) keep every check and result of the general path."""
 from __future__ import annotations
 
 import dataclasses
@@ -23,7 +23,7 @@ from fap_py import (
     Slave,
 )
 from fap_py.fap import WAIT_SLICE
-from fap_py.fap_types import _new_message
+from fap_py.fap.types import _new_message
 from fap_py.vbus import VirtualBus
 
 Net = Tuple[Master, List[Slave]]

@@ -325,7 +325,7 @@ def test_examples_of_issue_12() -> None:
 
 def test_more_entry_points(nodes: Dict[str, Any], tmp_path: Any) -> None:
     from fap_py import vbus
-    from fap_py.fap_classic import classic_check
+    from fap_py.fap.classic import classic_check
     from fap_py.rs485 import line_options, parse_realtime, port_options
 
     fm = nodes["fap_master"]
@@ -358,7 +358,7 @@ def test_more_entry_points(nodes: Dict[str, Any], tmp_path: Any) -> None:
 
 def test_async_pump_waits_refuse_hostile_timeouts(nodes: Dict[str, Any]) -> None:
     """The pump behind arecv/await_event checks its own timeouts (it is public too)."""
-    from fap_py.fap_aio import AsyncPump
+    from fap_py.fap.aio import AsyncPump
 
     fm = nodes["fap_master"]
 
@@ -390,7 +390,7 @@ COVERED = {
     "Master.request", "Slave.receive", "Slave.areceive", "VirtualBus.set_fault",
     "VirtualBus.drop_next", "VirtualBus.corrupt_next", "VirtualBus.silence",
     "VirtualBus.disconnect", "vbus.parse_capture", "vbus.read_capture", "Capture.data_from",
-    "Capture.events_of", "fap_classic.classic_check", "AsyncPump.get_rx", "AsyncPump.get_event",
+    "Capture.events_of", "classic.classic_check", "AsyncPump.get_rx", "AsyncPump.get_event",
     # --- sim: fap_py.sim's public functions and clock (test_sim_entry_points_refuse_hostile) ---
     "sim.load", "sim.loads", "sim.plugin", "sim.plugin_name", "ManualClock.advance",
     # --- end sim ---

@@ -69,8 +69,8 @@ C_CALLBACK = re.compile(r"^fap_py_")
 
 #: classes whose methods are not walked on an instance of their own, and why
 NO_INSTANCE = {
-    "fap_py.fap.Node": "the base of fap.Master and fap.Slave: its methods are walked on those",
-    "fap_py.fap_aio.AsyncPump": "the asyncio pump behind Node.arecv/await_event/aevents (walked "
+    "fap_py.fap.node.Node": "the base of fap.Master and fap.Slave: its methods are walked on those",
+    "fap_py.fap.aio.AsyncPump": "the asyncio pump behind Node.arecv/await_event/aevents (walked "
                                 "there); its methods run only inside the loop it belongs to",
     "fap_py.bridge.buses.BusAdapter": "the base of the four bus adapters: its methods are walked "
                                       "on those",
@@ -289,20 +289,20 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         # --- serve (fap serve): clients of a daemon in a thread of the walk ---
         "fap_py.execasync.DaemonMaster": lambda: execasync.Master(served("exec"), timeout=0.01,
                                                                   retries=0),
-        "fap_py.mikroc.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
-        "fap_py.fap.DaemonFapMaster": lambda: fap.Master(served("fap", slaves=[5]), slaves=[5]),
+        "fap_py.mikroc.daemon.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
+        "fap_py.fap.daemon.DaemonFapMaster": lambda: fap.Master(served("fap", slaves=[5]), slaves=[5]),
         "fap_py.serve.Connection": lambda: __import__("fap_py.serve", fromlist=["Connection"]).Connection(
             served("raw")),
         # --- end serve ---
-        "fap_py.fap.Master": lambda: fap.Master(own(), slaves=[5], rs485=line),
-        "fap_py.fap.Slave": lambda: fap.Slave(own(), id=5, rs485=line),
+        "fap_py.fap.master.Master": lambda: fap.Master(own(), slaves=[5], rs485=line),
+        "fap_py.fap.slave.Slave": lambda: fap.Slave(own(), id=5, rs485=line),
         "fap_py.execasync.Master": lambda: execasync.Master(own(), timeout=0.01, retries=0,
                                                             rs485=line),
         "fap_py.execasync.Slave": lambda: execasync.Slave(own(), node=1,
                                                           handler=lambda r: r.data, rs485=line),
         "fap_py.execasync.StructLayout": lambda: execasync.StructLayout([("a", "u8"), ("b", "f32")]),
-        "fap_py.mikroc.Master": lambda: mikroc.Master(own(), rs485=line),
-        "fap_py.mikroc.Slave": lambda: mikroc.Slave(own(), address=7, rs485=line),
+        "fap_py.mikroc.master.Master": lambda: mikroc.Master(own(), rs485=line),
+        "fap_py.mikroc.slave.Slave": lambda: mikroc.Slave(own(), address=7, rs485=line),
         "fap_py.vbus.VirtualBus": lambda: vbus.VirtualBus(ports=2),
         "fap_py.port.Port": lambda: Port(own(), rs485=line),
         "fap_py.g485.master.G485Master": lambda: G485Master(own(), timeout=0.01, retries=0,

@@ -26,10 +26,10 @@ import threading
 from collections import deque
 from typing import Any, Callable, Deque, Optional, Protocol
 
-from ._handle import WAIT_SLICE
-from ._validate import check_timeout
-from .errors import ClosedError, FapError, FapTimeoutError, InvalidTypeError
-from .fap_types import Message, SlaveEvent
+from .._handle import WAIT_SLICE
+from .._validate import check_timeout
+from ..errors import ClosedError, FapError, FapTimeoutError, InvalidTypeError
+from .types import Message, SlaveEvent
 
 
 class PumpedNode(Protocol):

@@ -1,36 +1,7 @@
-"""FAP (Fast Action Protocol) master and slave nodes, run by libfap's C engine.
-
-Each :class:`Master` or :class:`Slave` owns one handle of libfap's re-entrant
-API (``include/fapx.h``): a C engine thread that talks to the serial port,
-keeps the protocol's timers and queues the frames and events. Python code
-gets exactly the engine C programs get; this module only converts types,
-checks arguments and turns C error codes into exceptions. The value types
-are in :mod:`fap_py.fap_types`, the line options in :mod:`fap_py.rs485`,
-the errors in :mod:`fap_py.errors` (all re-exported here).
-
-Example::
-
-    from fap_py import Master, Slave
-    from fap_py.vbus import VirtualBus
-
-    with VirtualBus(ports=2) as bus, \\
-         Master(bus.paths[0], 115200, slaves=[7], id_cycle=0.05) as master, \\
-         Slave(bus.paths[1], 115200, id=7) as slave:
-        master.wait_active([7], timeout=2)
-        master.send(b"hello", to=7)
-        print(slave.recv(timeout=2))         # Message(source=0, data=b'hello')
-
-Blocking calls (:meth:`Node.recv`, :meth:`Node.wait_event`, ...) release the
-GIL while they wait and wait in slices of :data:`WAIT_SLICE` seconds inside
-C, so Ctrl-C (``KeyboardInterrupt``) and :meth:`Node.close` from another
-thread take effect within one slice. The asyncio methods
-(:meth:`Node.arecv`, ``async for``, :meth:`Node.aevents`) are driven by the
-engine's notification fd through ``loop.add_reader`` (see
-:mod:`fap_py.fap_aio`).
-"""
+"""What the FAP master and slave share: one C engine (a libfap handle) on one port;
+the argument checks and the message path's C calls."""
 from __future__ import annotations
 
-import asyncio
 import errno as _errno
 import logging
 import math
@@ -38,16 +9,15 @@ import os
 import threading
 import time
 from asyncio import get_running_loop as _running_loop
-from typing import Any, AsyncIterator, Iterable, Iterator, List, Optional, Union
+from typing import Any, AsyncIterator, Iterator, List, Optional, Union
 
-from ._daemon_life import DaemonLife
-from ._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
-from ._interruptible import open_interruptibly
-from ._native import ffi as _ffi
-from ._native import lib as _lib
-from ._stats import stats_from_c
-from ._validate import MAX_TIMEOUT, check_baud, check_bytes, check_int, check_path, check_seconds
-from .errors import (
+from .._handle import WAIT_SLICE, NativeHandle, deadline_of, slice_ms
+from .._interruptible import open_interruptibly
+from .._native import ffi as _ffi
+from .._native import lib as _lib
+from .._stats import stats_from_c
+from .._validate import MAX_TIMEOUT, check_baud, check_bytes, check_int, check_path, check_seconds
+from ..errors import (
     ClosedError,
     FapError,
     FapTimeoutError,
@@ -60,10 +30,9 @@ from .errors import (
     UnknownSlaveError,
     error_from_code,
 )
-from .fap_aio import AsyncPump
-from .fap_classic import classic_check
-from .fap_types import (
-    MASTER_ID,
+from ..rs485 import RS485, RS485Mode, line_options
+from .aio import AsyncPump
+from .types import (
     MAX_DATA,
     MAX_ID,
     EventKind,
@@ -71,41 +40,7 @@ from .fap_types import (
     SlaveEvent,
     Stats,
     _new_message,
-    mask_ids,
 )
-from .rs485 import DEFAULT_BAUD, RS485, RS485Mode, line_options, port_options
-
-# Facts the tools read through fap_py._protocols (never re-typed in a tool).
-NODE_MIN: int = 1                       # slave IDs a master polls
-NODE_MAX: int = MAX_ID
-BROADCAST = None                        # FAP has no broadcast ID
-
-__all__ = [
-    "NODE_MIN",
-    "NODE_MAX",
-    "DEFAULT_BAUD",
-    "BROADCAST",
-    "MASTER_ID",
-    "MAX_DATA",
-    "MAX_ID",
-    "WAIT_SLICE",
-    "classic_check",
-    "DaemonFapMaster",
-    "EventKind",
-    "InvalidTypeError",
-    "Master",
-    "Message",
-    "Node",
-    "NotMasterError",
-    "RS485",
-    "RS485Mode",
-    "Slave",
-    "SlaveEvent",
-    "SlaveExistsError",
-    "Stats",
-    "UnknownSlaveError",
-    "port_options",
-]
 
 log = logging.getLogger(__name__)
 
@@ -205,6 +140,7 @@ _DEBUG = logging.DEBUG
 
 # -- nodes --------------------------------------------------------------------
 
+
 class Node(NativeHandle):
     """What masters and slaves share: one C engine on one serial port.
 
@@ -260,7 +196,7 @@ class Node(NativeHandle):
         self._rx_depth = opts.rx_depth or lib.FAPX_DEFAULT_RX_DEPTH
         self._ev_depth = opts.ev_depth or lib.FAPX_DEFAULT_EV_DEPTH
         self.rs485.apply_to(lib.fapx_options_port(opts), self.baudrate)  # &opts->port (opaque to cffi)
-        from . import _trace
+        from .. import _trace
         self._tap = _trace.tap_for("fap", self.path)   # wire bytes at DEBUG (fap_py/_trace.py)
         if self._tap is not None:                      # set before open: sees the first frame
             opts.trace, opts.trace_ctx = lib.fap_py_trace, self._tap.handle
@@ -599,393 +535,3 @@ class Node(NativeHandle):
         if pump is not None:
             pump.stop()
         await super().aclose()
-
-
-class Master(Node):
-    """The FAP master (ID 0): polls its listed slaves, runs the ID cycles.
-
-    Args:
-        port: serial device path (e.g. ``/dev/ttyUSB0`` or a
-            :class:`~fap_py.vbus.VirtualBus` path).
-        baudrate: line speed (any termios rate; the vendor API allows
-            9600..115200).
-        slaves: slave IDs (1..31) to list at once (see :meth:`add_slave`).
-        id_cycle: seconds between ID cycles while a listed slave is
-            inactive (default 15).
-        id_answer_timeout: QUERY_ID -> ID window, seconds (default 1).
-        data_done_timeout: SEND_DATA -> DATA_DONE limit, seconds (default 15).
-        send_budget: sending time per turn, seconds (default 10).
-        byte_gap: inter-byte gap that abandons a partial frame, seconds
-            (default: the longer of 4 character times and 10 ms).
-        reopen_interval: retry period after the port vanished (default 0.2).
-        rx_queue, tx_queue, event_queue: C queue depths (256, 64, 256).
-        rs485: :class:`RS485` line options.
-
-    Raises:
-        InvalidValueError / InvalidTypeError: bad arguments.
-        PortError: the port could not be opened (``errno``, ``path`` set).
-    """
-
-    _mode = 0
-
-    def __new__(cls, port: Any = None, *args: Any, **kwargs: Any) -> Any:
-        from .serve._url import is_daemon_url
-
-        if cls is Master and is_daemon_url(port):   # fapd://: the bus fap serve owns
-            return DaemonFapMaster(port, *args, **kwargs)
-        return super().__new__(cls)
-
-    def __init__(self, port: PathLike, baudrate: int = 115200, *,
-                 slaves: Iterable[int] = (), **options: Any) -> None:
-        if isinstance(slaves, (str, bytes)) or not isinstance(slaves, Iterable):
-            raise InvalidTypeError("slaves must be an iterable of slave IDs")
-        ids = [_slave_id(s) for s in slaves]
-        if len(set(ids)) != len(ids):
-            twice = sorted({i for i in ids if ids.count(i) > 1})
-            raise InvalidValueError(f"slaves: ID {', '.join(map(str, twice))} listed twice: {ids}")
-        super().__init__(port, baudrate, node_id=MASTER_ID, **options)
-        try:
-            for sid in ids:
-                self.add_slave(sid)
-        except BaseException:
-            self.close()
-            raise
-
-    #: The IDs a master sends to (send()'s fast path; _check_dest says why others fail).
-    _dests = frozenset(range(1, MAX_ID + 1))
-
-    def _check_dest(self, to: Any) -> int:
-        return _int(to, "to (a slave ID)", 1, MAX_ID)
-
-    def _slave_call(self, fn: Any, id: int, what: str) -> "tuple[int, int]":
-        """``fn(handle, id)`` for one slave ID (checked first): (the ID, C's non-negative
-        result); a negative result raises the matching error."""
-        sid = _slave_id(id)
-        code = self._call(fn, sid)
-        if code < 0:
-            raise _error(code, what, detail=f"id {sid}")
-        return sid, code
-
-    def add_slave(self, id: int) -> None:
-        """List slave ``id``; it starts inactive and is queried after the current data cycle.
-
-        Raises:
-            SlaveExistsError: already listed.
-        """
-        sid = self._slave_call(self._lib.fapx_add_slave, id, "add_slave")[0]
-        log.info("master: slave %d listed", sid)
-
-    def remove_slave(self, id: int) -> None:
-        """Stop polling slave ``id``.
-
-        Raises:
-            UnknownSlaveError: not listed.
-        """
-        sid = self._slave_call(self._lib.fapx_remove_slave, id, "remove_slave")[0]
-        log.info("master: slave %d removed", sid)
-
-    def is_active(self, id: int) -> bool:
-        """Whether listed slave ``id`` answers (UnknownSlaveError if not listed)."""
-        return bool(self._slave_call(self._lib.fapx_slave_active, id, "is_active")[1])
-
-    @property
-    def slaves(self) -> List[int]:
-        """The listed slave IDs, ascending."""
-        return mask_ids(self._call(self._lib.fapx_listed_mask))
-
-    @property
-    def active_slaves(self) -> List[int]:
-        """The listed slaves that answered their last query, ascending."""
-        return mask_ids(self._call(self._lib.fapx_active_mask))
-
-    def wait_active(self, ids: Optional[Iterable[int]] = None,
-                    timeout: Optional[float] = None) -> None:
-        """Wait until every slave in ``ids`` (default: all listed) is active.
-
-        Waits on engine events; the events it consumes are kept and still
-        returned by :meth:`wait_event` / :meth:`events` afterwards.
-
-        Raises:
-            FapTimeoutError: not all active within ``timeout`` seconds.
-        """
-        if ids is not None and (isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable)):
-            raise InvalidTypeError(f"ids must be an iterable of slave IDs, not {type(ids).__name__}")
-        want = None if ids is None else {_slave_id(i) for i in ids}
-        deadline = _deadline(timeout)
-        while True:
-            target = set(self.slaves) if want is None else want
-            if target <= set(self.active_slaves):
-                return
-            ev = self._ev_c(_slice_ms(deadline))
-            if ev is not None:
-                with self._lock:
-                    self._stash.append(ev)
-                    del self._stash[:-self._ev_depth]
-            elif deadline is not None and time.monotonic() >= deadline:
-                missing = sorted(target - set(self.active_slaves))
-                raise FapTimeoutError(f"wait_active: slaves {missing} not active within {timeout} s")
-
-
-class DaemonFapMaster(DaemonLife):
-    """The FAP master's calls on a bus a daemon owns (``fap serve --protocol fap
-    --slaves IDS``, docs/daemon.md): what ``Master("fapd://...")`` returns.
-
-    :meth:`send` queues a DATA frame on the daemon's engine; every message the slaves
-    send and every engine event reach every client of the daemon (:meth:`recv`,
-    :meth:`wait_event`). ``slaves`` must be among the daemon's; the slave list, the
-    timings and the line are the daemon's (``add_slave`` / ``remove_slave`` are refused).
-    ``stats`` are the daemon engine's. ``weight``, ``priority``, ``token`` as for
-    :class:`fap_py.execasync.DaemonMaster`. The asyncio forms (``arecv``, ``async for``,
-    ``await_event``) wait in the loop's default executor.
-    """
-
-    id = MASTER_ID
-
-    def __init__(self, port: PathLike, baudrate: int = 115200, *, slaves: Iterable[int] = (),
-                 weight: Optional[int] = None, priority: Optional[int] = None,
-                 token: Optional[str] = None, **options: Any) -> None:
-        from .serve._client import Connection
-
-        check_baud(baudrate)
-        if isinstance(slaves, (str, bytes)) or not isinstance(slaves, Iterable):
-            raise InvalidTypeError("slaves must be an iterable of slave IDs")
-        ids = [_slave_id(x) for x in slaves]
-        self._conn = Connection(port, protocol="fap", weight=weight, priority=priority, token=token,
-                                name="fap master")
-        self.path: str = self._conn.url
-        self.baudrate: int = int(self._conn.welcome.get("baud") or baudrate)
-        self.final_stats: Optional[Stats] = None
-        self._rx: List[Message] = []
-        self._ev: List[SlaveEvent] = []
-        self._waits: dict = {}        # the asyncio waits in the executor, by kind (_await)
-        self._lock = threading.Lock()
-        served = set(self.slaves)
-        missing = sorted(set(ids) - served)
-        if missing:
-            self.close()
-            raise UnknownSlaveError(f"{self.path}: slaves {missing} are not the daemon's "
-                                    f"(--slaves {sorted(served)})")
-
-    @property
-    def rs485_mode(self) -> RS485Mode:
-        """The daemon's direction mode."""
-        return RS485Mode[str(self._conn.welcome.get("rs485_mode", "NONE"))]
-
-    def _pull(self, timeout: Optional[float]) -> bool:
-        """Take one message of the daemon's into the rx / event queues; False on timeout."""
-        ev = self._conn.next_event(timeout)
-        if ev is None:
-            return False
-        kind = ev.get("event")
-        with self._lock:
-            if kind == "fap_rx":
-                self._rx.append(_new_message(int(ev["source"]), bytes.fromhex(ev["data"])))
-            elif kind == "fap_event":
-                try:
-                    self._ev.append(SlaveEvent(EventKind[str(ev["kind"])], int(ev["slave"]), int(ev["time_ns"])))
-                except (KeyError, ValueError):
-                    pass
-        return True
-
-    def _take(self, queue: list, timeout: Optional[float], what: str,
-              stop: Optional[threading.Event] = None) -> Any:
-        deadline = _deadline(None if timeout is None else _seconds(timeout, "timeout"))
-        while True:
-            with self._lock:
-                if queue:
-                    return queue.pop(0)
-            if stop is not None and stop.is_set():     # its asyncio caller was cancelled
-                raise FapTimeoutError(f"{what}: cancelled")
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
-                raise FapTimeoutError(f"{what}: nothing within {timeout} s")
-            self._pull(WAIT_SLICE if left is None else min(left, WAIT_SLICE))
-
-    async def _await(self, queue: list, timeout: Optional[float], what: str) -> Any:
-        """``_take`` in the loop's default executor, losing nothing when cancelled: the
-        thread is told to stop (within a slice), and what it took meanwhile goes back to
-        the front of ``queue`` before the next wait on it starts (one at a time)."""
-        loop = _running_loop()
-        prev = self._waits.get(what)
-        if prev is not None and not prev.done() and prev.get_loop() is loop:
-            await asyncio.wait({prev})           # a cancelled wait's thread puts back first
-        stop = threading.Event()
-        fut = loop.run_in_executor(None, self._take, queue, timeout, what, stop)
-        self._waits[what] = fut
-        try:
-            return await asyncio.shield(fut)
-        except asyncio.CancelledError:
-            stop.set()
-
-            def put_back(f: "asyncio.Future[Any]") -> None:
-                if not f.cancelled() and f.exception() is None:
-                    with self._lock:
-                        queue.insert(0, f.result())
-
-            fut.add_done_callback(put_back)
-            raise
-
-    def send(self, data: Union[bytes, bytearray, memoryview], to: int,
-             timeout: Optional[float] = 0.0) -> None:
-        """Queue ``data`` (1..1024 bytes) for slave ``to`` on the daemon's engine."""
-        dest = _int(to, "to (a slave ID)", 1, MAX_ID)
-        payload = _payload(data)
-        if timeout is not None:
-            _seconds(timeout, "timeout")
-        self._conn.call("send", to=dest, data=payload.hex())
-
-    def flush(self, timeout: Optional[float] = None) -> None:
-        """Wait until the daemon's engine has sent everything queued."""
-        t = 3600.0 if timeout is None else _seconds(timeout, "timeout")
-        self._conn.call("flush", timeout=min(t, 3600.0))
-
-    def recv_nowait(self) -> Optional[Message]:
-        while self._pull(0):
-            pass
-        with self._lock:
-            return self._rx.pop(0) if self._rx else None
-
-    def recv(self, timeout: Optional[float] = None) -> Message:
-        """The next message a slave sent (FapTimeoutError after ``timeout`` s)."""
-        msg: Message = self._take(self._rx, timeout, "recv")
-        return msg
-
-    def messages(self, timeout: Optional[float] = None) -> Iterator[Message]:
-        try:
-            while True:
-                yield self.recv(timeout)
-        except (FapTimeoutError, ClosedError):
-            return
-
-    def __iter__(self) -> Iterator[Message]:
-        return self.messages(None)
-
-    def wait_event(self, timeout: Optional[float] = None) -> SlaveEvent:
-        ev: SlaveEvent = self._take(self._ev, timeout, "wait_event")
-        return ev
-
-    def events(self, timeout: Optional[float] = 0.0) -> Iterator[SlaveEvent]:
-        try:
-            while True:
-                yield self.wait_event(timeout)
-        except (FapTimeoutError, ClosedError):
-            return
-
-    @property
-    def slaves(self) -> List[int]:
-        return [int(x) for x in self._conn.call("slaves")["slaves"]]
-
-    @property
-    def active_slaves(self) -> List[int]:
-        return [int(x) for x in self._conn.call("slaves")["active"]]
-
-    def is_active(self, id: int) -> bool:
-        sid = _slave_id(id)
-        answer = self._conn.call("slaves")
-        if sid not in answer["slaves"]:
-            raise UnknownSlaveError(f"is_active: id {sid} is not listed")
-        return sid in answer["active"]
-
-    def wait_active(self, ids: Optional[Iterable[int]] = None, timeout: Optional[float] = None) -> None:
-        if ids is not None and (isinstance(ids, (str, bytes)) or not isinstance(ids, Iterable)):
-            raise InvalidTypeError(f"ids must be an iterable of slave IDs, not {type(ids).__name__}")
-        want = None if ids is None else {_slave_id(i) for i in ids}
-        deadline = _deadline(None if timeout is None else _seconds(timeout, "timeout"))
-        while True:
-            answer = self._conn.call("slaves")
-            target = set(answer["slaves"]) if want is None else want
-            if target <= set(answer["active"]):
-                return
-            left = None if deadline is None else deadline - time.monotonic()
-            if left is not None and left <= 0:
-                missing = sorted(target - set(answer["active"]))
-                raise FapTimeoutError(f"wait_active: slaves {missing} not active within {timeout} s")
-            self._pull(0.02 if left is None else min(left, 0.02))   # events are kept for wait_event
-
-    def add_slave(self, id: int) -> None:
-        _slave_id(id)
-        raise NotMasterError(f"{self.path}: the daemon owns the slave list (fap serve --slaves)")
-
-    def remove_slave(self, id: int) -> None:
-        _slave_id(id)
-        raise NotMasterError(f"{self.path}: the daemon owns the slave list (fap serve --slaves)")
-
-    @property
-    def stats(self) -> Stats:
-        """The daemon engine's counters."""
-        return Stats(**self._conn.call("fap_stats")["stats"])
-
-    @property
-    def rx_pending(self) -> int:
-        while self._pull(0):
-            pass
-        with self._lock:
-            return len(self._rx)
-
-    @property
-    def tx_pending(self) -> int:
-        return int(self._conn.call("tx_pending")["tx_pending"])
-
-    # asyncio: the blocking waits in the loop's default executor (the client side's one
-    # thread per wait; the daemon itself runs without threads)
-    async def arecv(self, timeout: Optional[float] = None) -> Message:
-        if timeout is not None:
-            _seconds(timeout, "timeout")
-        msg: Message = await self._await(self._rx, timeout, "recv")
-        return msg
-
-    def __aiter__(self) -> AsyncIterator[Message]:
-        return self._amessages()
-
-    async def _amessages(self) -> AsyncIterator[Message]:
-        try:
-            while True:
-                yield await self.arecv()
-        except ClosedError:
-            return
-
-    async def await_event(self, timeout: Optional[float] = None) -> SlaveEvent:
-        if timeout is not None:
-            _seconds(timeout, "timeout")
-        ev: SlaveEvent = await self._await(self._ev, timeout, "wait_event")
-        return ev
-
-    async def aevents(self, timeout: Optional[float] = None) -> AsyncIterator[SlaveEvent]:
-        try:
-            while True:
-                yield await self.await_event(timeout)
-        except (FapTimeoutError, ClosedError):
-            return
-
-
-class Slave(Node):
-    """A FAP slave (ID 1..31): answers the master's queries, sends in its turn.
-
-    Args:
-        port: serial device path.
-        baudrate: line speed.
-        id: this slave's ID, 1..31.
-        Other keyword options as for :class:`Master` (``rs485``, queue
-        depths, ``byte_gap``, ``reopen_interval``, ``send_budget``...).
-    """
-
-    _mode = 1
-
-    def __init__(self, port: PathLike, baudrate: int = 115200, *, id: int,
-                 **options: Any) -> None:
-        super().__init__(port, baudrate, node_id=_slave_id(id, "id"), **options)
-        self._dests = frozenset(range(MAX_ID + 1)) - {self.id}
-
-    def _check_dest(self, to: Any) -> int:
-        dest = _int(to, "to (a node ID)", 0, MAX_ID)
-        if dest == self.id:
-            raise InvalidValueError(f"a slave cannot send to its own ID {dest}")
-        return dest
-
-    def send(self, data: Union[bytes, bytearray, memoryview], to: int = MASTER_ID,
-             timeout: Optional[float] = 0.0) -> None:
-        """Queue ``data`` for node ``to`` (default the master); sent when polled.
-
-        See :meth:`Node.send`.
-        """
-        Node.send(self, data, to, timeout)   # not super(): one object less per message

@@ -6,9 +6,9 @@ cffi.
 """
 from __future__ import annotations
 
-from ._native import lib
-from ._validate import check_int
-from .errors import FapError, InvalidValueError, NotInitialisedError, QueueFullError
+from .._native import lib
+from .._validate import check_int
+from ..errors import FapError, InvalidValueError, NotInitialisedError, QueueFullError
 
 __all__ = ["classic_check"]
 

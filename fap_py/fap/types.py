@@ -9,8 +9,8 @@ import enum
 from dataclasses import dataclass
 from typing import List
 
-from ._native import lib
-from ._stats import Counters
+from .._native import lib
+from .._stats import Counters
 
 __all__ = ["MASTER_ID", "MAX_ID", "MAX_DATA", "EventKind", "Message", "SlaveEvent", "Stats",
            "mask_ids"]
@@ -113,6 +113,6 @@ class Stats(Counters):
 def mask_ids(mask: int) -> List[int]:
     """The slave IDs whose bits are set in a ``fapx_*_mask`` value, ascending."""
     if type(mask) is not int or not 0 <= mask <= 0xFFFFFFFF:
-        from .errors import InvalidValueError
+        from ..errors import InvalidValueError
         raise InvalidValueError(f"mask must be a 32-bit slave mask, not {mask!r}")
     return [i for i in range(1, MAX_ID + 1) if mask >> i & 1]
