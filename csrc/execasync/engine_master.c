@@ -45,7 +45,7 @@ struct execMaster {
     lf_exec_flen flen;               /* wire length of the reply in progress */
     struct { uint16_t req, rep; } expect[256];   /* per node: the last request's
                                       * wire length and its reply's */
-    int at_baud;                     /* replies came at the baud's pace */
+    lf_rx_link link;                 /* replies came at the baud's pace (rx_plan.h) */
     int fresh;                       /* nothing read since the attempt was sent */
     lf_ns req_end;                   /* when the attempt's request can have ended */
     int stop_fd;                     /* eventfd: execMasterStop ends the port's waits */
@@ -218,9 +218,9 @@ static ssize_t read_reply(execMaster *m, byte *buf, size_t cap, int64_t wait_unt
     if (fresh && expect) {
         lf_ns ct = lf_char_time_ns(fap_port_baud(m->port));
         return lf_port_read_reply(m->port, buf, cap, want, m->req_end + (lf_ns)expect * ct,
-                                  wait_until, &m->at_baud);
+                                  wait_until, &m->link);
     }
-    return lf_port_read_frame_kept(m->port, buf, cap, want, wait_until, &m->at_baud);
+    return lf_port_read_frame_kept(m->port, buf, cap, want, wait_until, &m->link);
 }
 
 /* Read what comes until wait_until (0 = only what is queued), decode it,

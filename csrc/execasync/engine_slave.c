@@ -53,7 +53,7 @@ struct execSlave {
     lf_trace trace;                    /* wire trace hook (fap_trace.h) */
     lf_exec_tap tap;                   /* raw bytes of the request in progress */
     lf_exec_flen flen;                 /* wire length: this request, the last */
-    int at_baud;                       /* the link keeps the baud's pace (rx_pacing.h) */
+    lf_rx_link link;                   /* the link keeps the baud's pace (rx_plan.h) */
 };
 
 void execSlaveOptionsInit(execSlaveOptions *o)
@@ -223,7 +223,7 @@ static int wait_input(execSlave *s, lf_ns deadline)
      * wake-up instead of one per lower bound. */
     size_t want = lf_exec_rx_want(&s->rx, &s->flen, s->flen.last);
     ssize_t r = lf_port_read_frame_kept(s->port, s->pending, PENDING_SIZE, want, deadline,
-                                        &s->at_baud);
+                                        &s->link);
     if (r <= 0)
         return (int)r;
     s->pos = 0;

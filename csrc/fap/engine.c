@@ -4,15 +4,16 @@
  * inter-byte gap, port reopen). It feeds received bytes to the decoder and
  * frames to the state machine, and transmits the state machine's outbox
  * through the port layer. While a frame is arriving it sleeps on the timer
- * for the frame's wire time instead of waking per byte (rx_pacing.h); a
- * master that polled a slave sleeps until the DATA_DONE can be complete
- * and reads it in one wake-up (reply_predict.h).
+ * for the frame's wire time instead of waking per byte; a master that
+ * polled a slave sleeps until the DATA_DONE can be complete (the time
+ * reply_predict.h learns) and reads it in one wake-up. When to read is the
+ * read planner's (port/rx_plan.h): this loop is its event-driven driver.
  * No signals: nothing the host application sees. */
 #include "fap/fapx_internal.h"
 #include "fap/reply_predict.h"
 #include "common/mono_timerfd.h"
 #include "port/port_link.h"   /* the link's slack; fap_port_caps says what it is */
-#include "port/rx_pacing.h"
+#include "port/rx_pacing.h"   /* the read planner (rx_plan.h) */
 #include <errno.h>
 #include <linux/time_types.h>   /* struct __kernel_timespec */
 #include <sys/epoll.h>
@@ -380,8 +381,9 @@ typedef struct engine {
     int reg_port;                 /* port fd registered in epoll_fd (-1: none) */
     lf_ns hold_until;             /* a frame is arriving: read it then (0: none) */
     unsigned baud;
-    lf_rx_pace pace;              /* the link's observed pace, per frame */
-    int at_baud;                  /* the link was seen running at the port's baud */
+    lf_rx_link link;              /* the link was seen running at the port's baud */
+    lf_rx_plan plan;              /* when to read (port/rx_plan.h); its stage: the
+                                     awaited DATA_DONE's hold (asleep for it, or for its rest) */
     lf_ns held_to;                /* when the last hold was due to end (0: none) */
     /* The awaited DATA_DONE (master; reply_predict.h) */
     lf_reply_predict rp;
@@ -389,7 +391,6 @@ typedef struct engine {
     lf_ns poll_sent;              /* when its SEND_DATA ended on the wire */
     uint64_t polls0;              /* m.c.polls then: a DATA_DONE came when it moves */
     uint64_t data0;               /* m.c.data_rx then: the slave sent DATA when it moves */
-    int predicting;               /* the hold is the predicted reply's (1) or its rest's (2) */
     uint8_t rbuf[4096];
 } engine;
 
@@ -426,6 +427,8 @@ static void engine_init(engine *e, fapx *h)
     /* a device at a known baud (a network transport paces nothing here) */
     int device = (fap_port_caps(h->port) & FAP_PORT_CAP_PACED) && lf_port_link_slack_ns(h->port) == 0;
     lf_reply_predict_init(&e->rp, e->baud, device);
+    /* any hold that finds its frame complete on time clears the belief */
+    lf_rx_plan_init(&e->plan, e->baud, &e->link, 1);
 }
 
 /* The application's requests (stop, queued data, slave list), under the
@@ -537,30 +540,23 @@ static int wait_events(engine *e, lf_ns deadline, uint32_t *port_ev)
     return timer_ev;
 }
 
-/* How long to hold after a piece of `fed` bytes, `missing` still due
- * (port/rx_pacing.h). Once a frame's second piece showed the link running
- * at the port's baud (not faster: a pty, a network, a bus paced above the
- * port's rate), the next frames hold from their first piece at the baud's
- * pace, the upper bound rx_pacing would use anyway: one wake-up less per
- * frame. A hold that found its frame complete may have overslept (the link
- * got faster, or the wake-up was late): the next frame observes again. */
-static lf_ns pace_hold(engine *e, int frame_start, int held, size_t fed, size_t missing,
+/* A piece of `fed` bytes was read, `missing` still due: the planner's
+ * hold (port/rx_plan.h), never past the decoder's gap deadline. Once a
+ * frame's second piece showed the link running at the port's baud (not
+ * faster: a pty, a network, a bus paced above the port's rate), the next
+ * frames hold from their first piece at the baud's pace: one wake-up less
+ * per frame. A hold that found its frame complete may have overslept (the
+ * link got faster, or the wake-up was late): the next frame observes
+ * again. Returns when the hold ends, or 0: watch the port. */
+static lf_ns hold_end(engine *e, int frame_start, int held, size_t fed, size_t missing,
                        lf_ns now)
 {
-    lf_ns ct = lf_char_time_ns(e->baud);
-    /* Complete at a hold's end: the link outran the baud, unless the
-     * wake-up itself came late by more than a character time (a loaded
-     * machine): then the frame had all the time it needed at the baud,
-     * and observing again would only cost the next frame a wake-up. */
-    if (held && missing == 0 && now - e->held_to <= ct)
-        e->at_baud = 0;
-    lf_ns last = e->pace.t_last;
-    lf_ns observed = lf_rx_pace_hold(&e->pace, e->baud, frame_start, fed, missing, now);
-    if (frame_start && e->at_baud)
-        return lf_rx_hold_ct_ns(ct, missing);
-    if (!frame_start && !held && last > 0 && ct > 0)   /* a piece as the wire brought it */
-        e->at_baud = lf_rx_at_baud(now - last, ct, fed);
-    return observed;
+    lf_rx_piece in = {
+        .n = fed, .missing = missing, .first = frame_start, .now = now,
+        .slept_to = held ? e->held_to : 0, .deadline = LF_NEVER,
+    };
+    lf_rx_action a = lf_rx_plan_piece(&e->plan, &in);
+    return a.act == LF_RX_SLEEP_UNTIL ? min_ns(a.until, lf_fap_decoder_deadline(&e->h->dec)) : 0;
 }
 
 /* A SEND_DATA went (sent_end: its end on the wire): sleep without the
@@ -573,10 +569,8 @@ static void plan_reply(engine *e, lf_ns sent_end)
     e->poll_id = 0;
     /* A frame went while a predicted hold was pending (the slave was
      * removed, or its reply timed out with nothing held): that hold is void. */
-    if (e->predicting == 1 || (e->predicting == 2 && !lf_fap_decoder_missing(&h->dec))) {
+    if (lf_rx_plan_sent(&e->plan, lf_fap_decoder_missing(&h->dec)))
         e->hold_until = 0;
-        e->predicting = 0;
-    }
     if (h->mode != FAPX_MASTER || m->state != LF_M_POLL_WAIT || m->out.len || h->port_down)
         return;
     e->poll_id = m->cur;
@@ -586,24 +580,24 @@ static void plan_reply(engine *e, lf_ns sent_end)
     if (e->hold_until || lf_fap_decoder_missing(&h->dec))
         return;
     lf_ns at = lf_reply_predict_when(&e->rp, m->cur, sent_end);
-    if (at) {
-        e->hold_until = min_ns(at, m->wait_deadline);
-        e->predicting = 1;
-    }
+    lf_rx_action a = lf_rx_plan_reply(&e->plan, LF_RX_REPLY_PREDICTED, LF_FAP_OVERHEAD, at,
+                                      sent_end, m->wait_deadline);
+    if (a.act == LF_RX_SLEEP_UNTIL)
+        e->hold_until = a.until;
 }
 
-/* The read at the end of a predicted hold (stage 1) or of the hold for
- * its rest (stage 2). Stage 1 tells the predictor how it went, and holds
- * for the missing bytes at the baud's pace when some came (the slave was
- * late, or sends DATA in its turn); anything else watches the port again
- * (nothing came: the slave is late or gone; the state machine's timeout
- * stays as it was). */
-static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
+/* The read at the end of a predicted hold (stage ASLEEP) or of the hold
+ * for its rest (stage HOLD). ASLEEP tells the predictor how it went, and
+ * the planner holds for the missing bytes at the baud's pace when the
+ * reply is not in (the slave was late, or sends DATA in its turn);
+ * anything else watches the port again (the state machine's timeout stays
+ * as it was). */
+static void predicted_read(engine *e, lf_rx_reply_stage stage, size_t fed, lf_ns now)
 {
     fapx *h = e->h;
     size_t missing = lf_fap_decoder_missing(&h->dec);
     int done = h->m.c.polls != e->polls0;
-    if (stage == 1 && e->poll_id) {
+    if (stage == LF_RX_REPLY_ASLEEP && e->poll_id) {
         /* a DATA frame in the slave's turn: longer than predicted by design */
         int data_turn = h->m.c.data_rx != e->data0 ||
                         (!done && lf_fap_decoder_msg(&h->dec) == LF_FAP_DATA);
@@ -614,22 +608,21 @@ static void predicted_read(engine *e, int stage, size_t fed, lf_ns now)
                                      done ? 0 : missing ? missing : LF_FAP_OVERHEAD);
         e->poll_id = 0;
     }
-    /* More than the last byte missing (nothing came: the whole frame):
-     * hold for all but the last at the baud's pace; the last one (or what
-     * a stage 2 did not bring) is waited for on the port, so the reply is
-     * not later than the wire. */
-    if (stage == 1 && !done && !missing && !fed)
-        missing = LF_FAP_OVERHEAD;
-    if (stage == 1 && missing > 1 && !h->port_down) {
-        lf_ns rest = (lf_ns)(missing - 1) * lf_char_time_ns(e->baud);
-        e->hold_until = min_ns(now + rest, lf_fap_decoder_deadline(&h->dec));
-        e->predicting = 2;
-    }
+    lf_rx_reply_read in = {
+        .got = fed, .want = LF_FAP_OVERHEAD, .missing = missing, .done = done, .now = now,
+        .slept_to = e->held_to, .deadline = lf_fap_decoder_deadline(&h->dec),
+    };
+    e->plan.stage = stage;
+    lf_rx_action a = lf_rx_plan_reply_read(&e->plan, LF_RX_REPLY_PREDICTED, &in);
+    if (a.act == LF_RX_SLEEP_UNTIL && !h->port_down)
+        e->hold_until = a.until;
+    else
+        e->plan.stage = LF_RX_REPLY_NONE;
 }
 
 /* Read what the port has and feed the decoder; then hold while the frame
  * is incomplete: sleep until all but its last byte can be in at the link's
- * observed pace (never past the gap deadline; port/rx_pacing.h). A hold
+ * observed pace (never past the gap deadline; port/rx_plan.h). A hold
  * that brought nothing means the wire stalled: watch the port again. */
 static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
 {
@@ -637,11 +630,11 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
     /* A hold ends at its time, or at any timer (state machine, gap): what
      * has arrived is fed before a timeout is judged. */
     int held = e->hold_until && (timer_ev || now >= e->hold_until);
-    int stage = held ? e->predicting : 0;
+    lf_rx_reply_stage stage = held ? e->plan.stage : LF_RX_REPLY_NONE;
     if (held) {
         e->held_to = e->hold_until;
         e->hold_until = 0;
-        e->predicting = 0;
+        e->plan.stage = LF_RX_REPLY_NONE;
         port_ev |= EPOLLIN;
     }
     size_t fed = 0;
@@ -660,7 +653,7 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
                 break;
         }
     }
-    if (stage) {
+    if (stage != LF_RX_REPLY_NONE) {
         predicted_read(e, stage, fed, now);
         return;
     }
@@ -673,8 +666,7 @@ static void read_port(engine *e, uint32_t port_ev, int timer_ev, lf_ns now)
         e->poll_id = 0;
     }
     if (fed && !h->port_down) {
-        lf_ns hold = pace_hold(e, frame_start, held, fed, lf_fap_decoder_missing(&h->dec), now);
-        e->hold_until = hold ? min_ns(now + hold, lf_fap_decoder_deadline(&h->dec)) : 0;
+        e->hold_until = hold_end(e, frame_start, held, fed, lf_fap_decoder_missing(&h->dec), now);
     } else if (h->port_down) {
         e->hold_until = 0;
     }

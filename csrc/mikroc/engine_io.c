@@ -83,10 +83,10 @@ static int refill(mikrocRS485_ctx *c, size_t max, size_t want, int64_t not_befor
      * at the pace the last frame showed (the port keeps it) */
     if (n == 0 && not_before)
         n = lf_port_read_reply(c->port, c->rx, max, want, not_before, deadline_ns,
-                               lf_port_rx_at_baud(c->port));
+                               lf_port_rx_link(c->port));
     else if (n == 0)
         n = want > 1 ? lf_port_read_frame_kept(c->port, c->rx, max, want, deadline_ns,
-                                               lf_port_rx_at_baud(c->port))
+                                               lf_port_rx_link(c->port))
                      : fap_port_read(c->port, c->rx, max, deadline_ns);
     if (n < 0) {
         c->stats.last_rx_error = (int)n;

@@ -11,6 +11,7 @@
 
 #include "fap_port.h"
 #include "port/port_backend.h"
+#include "port/rx_plan.h"
 
 /* One open device: everything port_config_open() sets up and
  * port_config_close() undoes. */
@@ -70,7 +71,7 @@ struct fap_port {
     int intr_fd;                  /* the port's own cancel fd (an eventfd,
                                      lf_port_open_interruptible), else -1 */
     int interrupted;              /* atomic: lf_port_interrupt was called */
-    int rx_at_baud;               /* rx_pacing.c: frames came at the baud's pace */
+    lf_rx_link rx_link;           /* rx_pacing.c: frames came at the baud's pace */
     int64_t tx_end_ns;            /* port_io.c: when the last frame written can have
                                      left (write start + its wire time); atomic */
 };

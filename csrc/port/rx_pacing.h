@@ -32,33 +32,7 @@
 
 #include "common/mono_clock.h"
 #include "fap_port.h"
-
-/* How long to sleep before reading when `missing` more bytes are due:
- * their wire time but the last byte's, less a margin for the engine's own
- * wake-up latency (the larger of a character time and 150 us); 0 when that
- * is under 100 us (not worth a timer: short frames at 1 Mbaud) or the
- * baud is 0. */
-lf_ns lf_rx_hold_ns(unsigned baud, size_t missing);
-/* The same for a character time ct (ns per byte) instead of a baud. */
-lf_ns lf_rx_hold_ct_ns(lf_ns ct, size_t missing);
-
-/* n bytes that came `gap` ns after the previous piece ran at the baud's
- * character time ct, not faster (within 30 %: a wake-up is never early). */
-int lf_rx_at_baud(lf_ns gap, lf_ns ct, size_t n);
-
-/* The observed pace of one frame, for engines that read the frame's
- * pieces themselves (the FAP engine's epoll loop). */
-typedef struct lf_rx_pace {
-    lf_ns t_last;                     /* when the previous piece was read; 0 = none */
-} lf_rx_pace;
-
-/* A piece of n > 0 bytes was read at now and `missing` more are due
- * (missing 0: the frame is complete). first: the piece starts a frame.
- * Returns how long to hold: 0 on a frame's first piece (the engine waits
- * for the next one, which measures the link), else lf_rx_hold_ct_ns() of
- * the smaller of the observed and the baud's character time. */
-lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t missing,
-                      lf_ns now);
+#include "port/rx_plan.h"   /* the decisions; this file's reads are their blocking driver */
 
 /* Read into buf (capacity n) until `want` bytes are in, sleeping the wire
  * time of the missing bytes instead of waking per byte:
@@ -66,9 +40,9 @@ lf_ns lf_rx_pace_hold(lf_rx_pace *s, unsigned baud, int first, size_t n, size_t 
  *     fap_port_read; 0 = do not wait);
  *  2. fewer than want: wait for the next piece on the fd (until
  *     deadline_ns), which gives the link's observed pace;
- *  3. while fewer than want and the hold (lf_rx_pace_hold) of the missing
- *     bytes is not 0: sleep that long (never past deadline_ns), read what
- *     is queued;
+ *  3. while fewer than want and the planner (lf_rx_plan_piece) holds for
+ *     the missing bytes: sleep that long (never past deadline_ns), read
+ *     what is queued;
  *  4. return once want is reached, the hold is 0 (the caller waits for the
  *     last bytes on the fd), or a wait brought nothing (the wire stalled).
  * Returns the bytes read (0: deadline passed with nothing), or a negative
@@ -86,18 +60,18 @@ ssize_t lf_port_read_paced(fap_port *p, void *buf, size_t n, size_t want,
 ssize_t lf_port_read_frame(fap_port *p, void *buf, size_t n, size_t want,
                            int64_t deadline_ns);
 
-/* lf_port_read_frame keeping the pace from one frame to the next (the FAP
- * engine's rule): *at_baud set, the rest is held from the first bytes at
- * the baud's pace without waiting for a second piece; a hold that woke on
- * time and found all `want` bytes in clears it (the link may be faster);
- * a second piece as the wire brought it sets it when the link ran at the
- * baud (not faster). */
+/* lf_port_read_frame keeping the link's pace from one frame to the next
+ * in *link (rx_plan.h): link->at_baud set, the rest is held from the
+ * first bytes at the baud's pace without waiting for a second piece; such
+ * a hold that woke on time and found all `want` bytes in clears it (the
+ * link may be faster); a second piece as the wire brought it sets it when
+ * the link ran at the baud (not faster). */
 ssize_t lf_port_read_frame_kept(fap_port *p, void *buf, size_t n, size_t want,
-                                int64_t deadline_ns, int *at_baud);
+                                int64_t deadline_ns, lf_rx_link *link);
 
-/* The port's own at_baud flag for lf_port_read_frame_kept, for engines
+/* The port's own link belief for lf_port_read_frame_kept, for engines
  * whose state has no room for one (the mikroC context). Its reader's. */
-int *lf_port_rx_at_baud(fap_port *p);
+lf_rx_link *lf_port_rx_link(fap_port *p);
 
 /* When the last frame written on p can have left the wire: the write's
  * start plus its wire time at the port's baud (0: nothing written). An
@@ -107,15 +81,17 @@ int64_t lf_port_tx_end_ns(fap_port *p);
 
 /* lf_port_read_frame_kept for a reply whose expected length (want) and
  * earliest completion are known (the exec master: the last reply's length
- * from that node, after the request's end): with *at_baud set, not_before
- * ahead and want long enough for a hold (lf_rx_hold_ct_ns > 0), one sleep until not_before (never past deadline_ns),
- * one read; the rest, if any, held at the baud's pace (bounded by its wire
- * time); nothing yet, or *at_baud clear: lf_port_read_frame_kept. A reply
- * found complete by a wake-up within a character time of not_before
- * clears *at_baud (at the baud it could not be: the link is faster). A
- * stop during the sleep waits at most until not_before. Same returns. */
+ * from that node, after the request's end; lf_rx_plan_reply's
+ * LF_RX_REPLY_EXPECTED): with link->at_baud set, not_before ahead and
+ * want long enough for a hold (lf_rx_hold_ct_ns > 0), one sleep until
+ * not_before (never past deadline_ns), one read; the rest, if any, held at
+ * the baud's pace (bounded by its wire time); nothing yet, or at_baud
+ * clear: lf_port_read_frame_kept. A reply found complete by a wake-up
+ * within a character time of not_before clears at_baud (at the baud it
+ * could not be: the link is faster). A stop during the sleep waits at most
+ * until not_before. Same returns. */
 ssize_t lf_port_read_reply(fap_port *p, void *buf, size_t n, size_t want, int64_t not_before,
-                           int64_t deadline_ns, int *at_baud);
+                           int64_t deadline_ns, lf_rx_link *link);
 
 /* fap_port_read whose deadline holds to the nanosecond, for short waits
  * that are part of the wire timing (the exec slave watching the line

@@ -261,23 +261,6 @@ static void test_slow_link_baud_bounds_hold(void)
     close_fake(&w, p);
 }
 
-static void test_pace_hold(void)
-{
-    lf_rx_pace s = {0};
-    lf_ns us = LF_NS_PER_US;
-    CHECK_EQ(lf_rx_pace_hold(&s, 115200, 1, 3, 100, 1000 * us), 0);   /* first piece */
-    /* 5 bytes in 50 us: 10 us a byte, not the baud's 86.8 */
-    CHECK_EQ(lf_rx_pace_hold(&s, 115200, 0, 5, 100, 1050 * us), 99 * 10 * us - 150 * us);
-    CHECK_EQ(lf_rx_pace_hold(&s, 115200, 0, 5, 12, 1100 * us), 0);    /* < 100 us: no timer */
-    /* slower than the baud: the baud's character time */
-    CHECK_EQ(lf_rx_pace_hold(&s, 115200, 0, 1, 100, 2100 * us),
-             99 * lf_char_time_ns(115200) - 150 * us);
-    CHECK_EQ(lf_rx_pace_hold(&s, 115200, 0, 1, 0, 2200 * us), 0);     /* complete */
-    CHECK_EQ(s.t_last, 0);
-    CHECK_EQ(lf_rx_pace_hold(&s, 0, 0, 1, 100, 2300 * us), 0);        /* nothing observed */
-    CHECK_EQ(lf_rx_hold_ct_ns(0, 100), 0);
-}
-
 /* Never sleeps past the deadline, and returns what came by then. */
 static void test_deadline_caps_sleep(void)
 {
@@ -407,22 +390,22 @@ static void test_frame_kept_pace(void)
     fap_port *p = open_fake(&w, BAUD);
     REQUIRE(p);
     uint8_t buf[64];
-    int at_baud = 0;
+    lf_rx_link link = {0};
     script(&w, 15, 0);
-    ssize_t r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    ssize_t r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &link);
     CHECK(r >= 11 && r <= 15);
     CHECK_EQ(w.polls, 2);                            /* the first piece, the second */
-    CHECK_EQ(at_baud, 1);
+    CHECK_EQ(link.at_baud, 1);
     script(&w, 15, 0);
-    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &link);
     CHECK(r >= 11 && r <= 15);
     CHECK_EQ(w.polls, 1);                            /* the first piece only */
     CHECK(w.sleeps >= 1);
-    CHECK_EQ(at_baud, 1);
+    CHECK_EQ(link.at_baud, 1);
     script_at(&w, 15, CT / 10);
-    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &at_baud);
+    r = lf_port_read_frame_kept(p, buf, sizeof buf, 15, lf_now_ns() + 100 * CT, &link);
     CHECK_EQ(r, 15);
-    CHECK_EQ(at_baud, 0);
+    CHECK_EQ(link.at_baud, 0);
     close_fake(&w, p);
 }
 
@@ -444,23 +427,23 @@ static void test_reply_one_sleep(void)
     fap_port *p = open_fake(&w, BAUD);
     REQUIRE(p);
     uint8_t buf[64];
-    int at_baud = 1;
+    lf_rx_link link = {1};
     script(&w, 16, 0);
     shift(&w, CT);
     int64_t not_before = lf_now_ns() + 16 * CT;
     ssize_t r = lf_port_read_reply(p, buf, sizeof buf, 16, not_before, lf_now_ns() + 100 * CT,
-                                   &at_baud);
+                                   &link);
     CHECK_EQ(r, 15);
     CHECK_EQ(w.sleeps, 1);
     CHECK_EQ(w.polls, 0);
     CHECK_EQ(w.reads, 1);
-    CHECK_EQ(at_baud, 1);
+    CHECK_EQ(link.at_baud, 1);
 
     /* the deadline comes first: the sleep ends there, what is in is returned */
     script(&w, 16, 0);
     shift(&w, CT);
     r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 8 * CT,
-                           &at_baud);
+                           &link);
     CHECK(r >= 6 && r <= 8);
     CHECK_EQ(w.sleeps, 1);
     CHECK(w.slept[0] <= 8 * CT);
@@ -469,22 +452,22 @@ static void test_reply_one_sleep(void)
     script(&w, 16, 0);
     shift(&w, 30 * CT);
     r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
-                           &at_baud);
+                           &link);
     CHECK(r >= 1);
     CHECK(w.polls >= 1);
-    CHECK_EQ(at_baud, 1);
+    CHECK_EQ(link.at_baud, 1);
 
     /* a faster link: complete at the wake, which clears at_baud */
     script_at(&w, 16, CT / 10);
     r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
-                           &at_baud);
+                           &link);
     CHECK_EQ(r, 16);
-    CHECK_EQ(at_baud, 0);
+    CHECK_EQ(link.at_baud, 0);
 
     /* at_baud clear: no sleep before the first piece */
     script(&w, 16, 0);
     r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 16 * CT, lf_now_ns() + 100 * CT,
-                           &at_baud);
+                           &link);
     CHECK(r >= 1);
     CHECK(w.polls >= 1);
     CHECK(w.sleeps == 0 || w.slept[0] < 16 * CT);
@@ -494,11 +477,11 @@ static void test_reply_one_sleep(void)
     /* 16 bytes at 1 Mbaud (160 us): too short for a hold, so no sleep */
     p = open_fake(&w, 1000000);
     REQUIRE(p);
-    at_baud = 1;
+    link.at_baud = 1;
     script_at(&w, 16, 10000);
     shift(&w, 10000);
     r = lf_port_read_reply(p, buf, sizeof buf, 16, lf_now_ns() + 160000, lf_now_ns() + 100 * CT,
-                           &at_baud);
+                           &link);
     CHECK(r >= 1);
     CHECK_EQ(w.sleeps, 0);
     /* at most one poll: a slow build (TSan) may find the first byte already in */
@@ -508,7 +491,7 @@ static void test_reply_one_sleep(void)
 
 UNIT_MAIN(UNIT(test_hold_ns), UNIT(test_reply_one_sleep), UNIT(test_all_there_read_at_once),
           UNIT(test_paced_frame_one_sleep), UNIT(test_fast_link_short_hold),
-          UNIT(test_slow_link_baud_bounds_hold), UNIT(test_pace_hold), UNIT(test_frame_kept_pace),
+          UNIT(test_slow_link_baud_bounds_hold), UNIT(test_frame_kept_pace),
           UNIT(test_deadline_caps_sleep),
           UNIT(test_stalled_wire_returns), UNIT(test_no_sleep_cases),
           UNIT(test_fap_missing), UNIT(test_exec_missing), UNIT(test_mikroc_missing),
