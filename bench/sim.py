@@ -203,22 +203,24 @@ def _delays(capture: str) -> Dict[bytes, List[Tuple[bytes, float]]]:
     return build_table(read_capture(capture), "exec").entries
 
 
-def _replay_row(tmp: str, exchanges: int) -> Dict[str, Any]:
+def _replay_row(tmp: str, exchanges: int, realtime: Optional[str] = None) -> Dict[str, Any]:
     from fap_py import execasync
     from fap_py.vbus import VirtualBus
 
     rec_cap, rep_cap = os.path.join(tmp, "rec.cap"), os.path.join(tmp, "rep.cap")
     payload = [i.to_bytes(4, "big") for i in range(exchanges)]
-    with VirtualBus(ports=2, baud=BAUD, capture=rec_cap) as bus:
-        sim = _Proc(_fap("sim", _config(os.path.join(tmp, "echo.toml"), "exec", [1], bus.paths[1]), "--json"))
+    rt = ["--realtime", realtime] if realtime else []   # the sims' port threads; the buses' own
+    with VirtualBus(ports=2, baud=BAUD, capture=rec_cap, realtime=realtime) as bus:
+        sim = _Proc(_fap("sim", _config(os.path.join(tmp, "echo.toml"), "exec", [1], bus.paths[1]), "--json",
+                         *(rt and ["--port", bus.paths[1], *rt])))
         try:
             with execasync.Master(bus.paths[0], BAUD, timeout=0.5, retries=0) as m:
                 recorded = [m.transact(1, p) for p in payload]
         finally:
             sim.close()
-    with VirtualBus(ports=2, baud=BAUD, capture=rep_cap) as bus:
+    with VirtualBus(ports=2, baud=BAUD, capture=rep_cap, realtime=realtime) as bus:
         rp = _Proc(_fap("sim", "--replay", rec_cap, "--protocol", "exec", "--port", bus.paths[1],
-                        "--baud", str(BAUD), "--json"))
+                        "--baud", str(BAUD), "--json", *rt))
         try:
             with execasync.Master(bus.paths[0], BAUD, timeout=0.5, retries=0) as m:
                 replayed = [m.transact(1, p) for p in payload]
@@ -227,25 +229,41 @@ def _replay_row(tmp: str, exchanges: int) -> Dict[str, Any]:
     a, b = _delays(rec_cap), _delays(rep_cap)
     char = 10.0 / BAUD
     pairs = [(x, y) for req in a for x, y in zip(a[req], b.get(req, ()))]
-    diffs = sorted(abs(x[1] - y[1]) / char for x, y in pairs)
+    signed = sorted((y[1] - x[1]) / char for x, y in pairs)     # + : the replay was later
+    diffs = sorted(abs(d) for d in signed)
     exact = sum(x[0] == y[0] for x, y in pairs)
     n = sum(len(v) for v in a.values())
     return {"frames": 2 * n, "byte_exact": replayed == recorded and exact == n == sum(len(v) for v in b.values()),
             "p99_chars": diffs[int(0.99 * (len(diffs) - 1))] if diffs else None,
-            "p50_chars": statistics.median(diffs) if diffs else None}
+            "p50_chars": statistics.median(diffs) if diffs else None,
+            "max_chars": diffs[-1] if diffs else None,
+            "median_signed_chars": statistics.median(signed) if signed else None}
 
 
-def measure(rounds: int = 7, seconds: float = 0.4, exchanges: int = 5000) -> Dict[str, Any]:
+#: the row groups ``--only`` picks from
+PARTS = ("scan", "fap", "replay")
+
+
+def measure(rounds: int = 7, seconds: float = 0.4, exchanges: int = 5000,
+            only: Sequence[str] = PARTS, realtime: Optional[str] = None) -> Dict[str, Any]:
+    out: Dict[str, Any] = {"load": loadavg()}
     with tempfile.TemporaryDirectory(prefix="fap-bench-sim-") as tmp:
-        out: Dict[str, Any] = {p: _scan(p, rounds, seconds, tmp) for p in ("exec", "mikroc", "g485")}
-        out["fap"] = _fap_row(tmp)
-        out["replay"] = _replay_row(tmp, exchanges)
+        if "scan" in only:
+            out.update({p: _scan(p, rounds, seconds, tmp) for p in ("exec", "mikroc", "g485")})
+        if "fap" in only:
+            out["fap"] = _fap_row(tmp)
+        if "replay" in only:
+            out["replay"] = _replay_row(tmp, exchanges, realtime)
+            out["replay"]["realtime"] = realtime
+    out["load_after"] = loadavg()
     return out
 
 
 def to_targets(res: Dict[str, Any]) -> List[Target]:
     rows: List[Target] = []
     for p in ("exec", "mikroc", "g485"):
+        if p not in res:
+            continue
         r = res[p]
         ref = "fap g485 sim, the same 126 devices" if p == "g485" else f"the C slave engine (fap {p} slave), one node"
         rows.append(Target(f"sim-scan-{p}", GOAL_SCAN, 100 * r["ratio"], SHARE, True, "%",
@@ -253,16 +271,23 @@ def to_targets(res: Dict[str, Any]) -> List[Target]:
                            f"per-round ratios {100 * r['ratio_min']:.0f}-{100 * r['ratio_max']:.0f} %; "
                            f"load {r['load']}"))
     for p in ("exec", "mikroc", "g485", "fap"):
+        if p not in res:
+            continue
         r = res[p]
         note = f"{res['fap']['polls_per_s']:.0f} poll cycles/s of a master with the 31 slaves" \
             if p == "fap" and res["fap"].get("polls_per_s") else "no master on the bus, 2 s"
         rows.append(Target(f"sim-idle-{p}", f"an idle fap sim of every {p} node < {IDLE:g} % of a core",
                            r["idle_cpu"], IDLE, False, "%", note))
+    if "replay" not in res:
+        return rows
     r = res["replay"]
     rows.append(Target("sim-replay-timing", f"replay of a 10,000-frame capture: byte-exact, reply delay "
                        f"within {REPLAY_CHARS:g} character time of the recording (p99)",
                        r["p99_chars"] if r["byte_exact"] else None, REPLAY_CHARS, False, "chars",
-                       f"{r['frames']} frames, byte-exact {r['byte_exact']}, p50 {r['p50_chars']:.2f} chars"
+                       f"{r['frames']} frames, byte-exact {r['byte_exact']}, p50 {r['p50_chars']:.2f} chars, "
+                       f"max {r['max_chars']:.1f}, signed median {r['median_signed_chars']:+.2f}; load "
+                       f"{res['load']} -> {res['load_after']}"
+                       + (f"; real-time {r['realtime']}" if r.get("realtime") else "")
                        if r["p50_chars"] is not None else "no exchange measured"))
     return rows
 
@@ -280,8 +305,12 @@ def main(argv: Optional[List[str]] = None) -> int:
     ap.add_argument("--seconds", type=float, default=0.4, help="one batch of one master")
     ap.add_argument("--exchanges", type=int, default=5000, help="the replay's recorded exchanges")
     ap.add_argument("--json", metavar="FILE", help="write the raw results here")
+    ap.add_argument("--only", choices=PARTS, action="append",
+                    help="measure only these rows (repeat; default all): scan, fap, replay")
+    ap.add_argument("--realtime", metavar="SPEC", help="the replay row: the sims' port threads and the "
+                    "virtual buses at this real-time spec (docs/realtime.md, e.g. fifo:50)")
     a = ap.parse_args(argv)
-    res = measure(a.rounds, a.seconds, a.exchanges)
+    res = measure(a.rounds, a.seconds, a.exchanges, a.only or PARTS, a.realtime)
     print(table(to_targets(res)), end="")
     if a.json:
         with open(a.json, "w") as fh:

@@ -140,6 +140,8 @@ class BridgeConfig:
     stats_interval: float = 10.0
     inflight: int = 100
     metrics_listen: Optional[Tuple[str, int]] = None   #: [metrics] listen: Prometheus endpoint
+    #: [metrics] sim_control: a ``fap sim`` control socket (unix:PATH) whose counters join the metrics
+    metrics_sim_control: Optional[str] = None
     discovery_prefix: str = "homeassistant"             #: Home Assistant's discovery prefix
     sparkplug: Optional[SparkplugConfig] = None         #: [sparkplug]
     #: every broker, in order of preference ([[broker]]); ``broker`` is the first
@@ -403,6 +405,17 @@ def from_dict(data: Mapping[str, Any], base: str = ".") -> BridgeConfig:
     listen = _pop(metrics, "listen", str, "metrics", None)
     if listen is not None:
         kw["metrics_listen"] = parse_listen(listen)
+    sim_control = _pop(metrics, "sim_control", str, "metrics", None)
+    if sim_control is not None:
+        from ..sim._control import ControlError, unix_path
+
+        if listen is None:
+            raise BridgeConfigError("metrics.sim_control needs metrics.listen (the endpoint it joins)")
+        try:
+            unix_path(sim_control)
+        except ControlError as exc:
+            raise BridgeConfigError(f"metrics.sim_control: {exc}") from None
+        kw["metrics_sim_control"] = sim_control
     _done(metrics, "metrics")
     if sparkplug is not None:
         ids = {}

@@ -173,6 +173,72 @@ class BridgeCollector:
         yield CounterMetricFamily("fap_bridge_tx_duplicates", "tx redeliveries dropped", value=b.duplicates)
 
 
+class SimCollector:
+    """The counters of a ``fap sim`` running beside the bridge (``[metrics] sim_control``),
+    read from its control socket at scrape time: per node requests, replies, errors,
+    damaged requests and faults applied, per bus unmatched requests and reopens, and the
+    sim's fault totals. ``fap_sim_up`` is 0 (and nothing else is exported) while the sim
+    does not answer; the first failure of a run of them is logged."""
+
+    def __init__(self, spec: str, timeout: float = 1.0) -> None:
+        from ..sim._control import unix_path
+
+        unix_path(spec)
+        self.spec, self.timeout = spec, timeout
+        self._failing = False
+
+    def describe(self) -> List[Any]:
+        return []
+
+    def collect(self) -> Iterator[Any]:
+        from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily
+
+        from ..errors import FapError
+        from ..sim._control import counters
+
+        try:
+            st = counters(self.spec, self.timeout)
+        except FapError as exc:
+            if not self._failing:
+                log.warning("metrics: the sim at %s does not answer: %s", self.spec, exc)
+            self._failing = True
+            yield GaugeMetricFamily("fap_sim_up", "1 while the sim's control socket answers", value=0.0)
+            return
+        if self._failing:
+            log.info("metrics: the sim at %s answers again", self.spec)
+        self._failing = False
+        yield GaugeMetricFamily("fap_sim_up", "1 while the sim's control socket answers", value=1.0)
+        node = ["bus", "protocol", "address"]
+        per_node = {key: CounterMetricFamily(f"fap_sim_node_{key}", what, labels=node) for key, what in (
+            ("requests", "requests the node served"), ("replies", "replies the node sent"),
+            ("errors", "requests whose generator hook raised (no reply)"),
+            ("requests_damaged", "requests a direction-request fault damaged (not executed)"))}
+        faults = CounterMetricFamily("fap_sim_node_faults", "faults applied to the node's transactions",
+                                     labels=node + ["kind"])
+        unmatched = CounterMetricFamily("fap_sim_bus_unmatched", "requests for an address no node has",
+                                        labels=["bus", "protocol"])
+        reopened = CounterMetricFamily("fap_sim_bus_reopened", "times the bus's port was opened again",
+                                       labels=["bus", "protocol"])
+        for bus in st.get("buses", ()):
+            labels = [str(bus["name"]), str(bus["protocol"])]
+            unmatched.add_metric(labels, bus.get("unmatched", 0))
+            reopened.add_metric(labels, bus.get("reopened", 0))
+            for n in bus.get("nodes", ()):
+                where = labels + [str(n["address"])]
+                for key, family in per_node.items():
+                    family.add_metric(where, n.get(key, 0))
+                for kind, count in sorted(n.get("faults", {}).items()):
+                    faults.add_metric(where + [kind], count)
+        applied = CounterMetricFamily("fap_sim_faults_applied", "faults applied, by kind", labels=["kind"])
+        for kind, count in sorted(st.get("faults_applied", {}).items()):
+            applied.add_metric([kind], count)
+        yield from (*per_node.values(), faults, unmatched, reopened, applied)
+        yield GaugeMetricFamily("fap_sim_faults_active", "faults in the sim's table now",
+                                value=len(st.get("faults", ())))
+        yield CounterMetricFamily("fap_sim_fault_changes", "faults added, removed, switched",
+                                  value=st.get("fault_changes", 0))
+
+
 #: connections the endpoint serves at once; a new one past it closes the oldest
 #: (the slowest: a scrape sends its request at once)
 MAX_CLIENTS = 32
@@ -197,7 +263,7 @@ class MetricsServer:
     client costs one fd for a bounded time, never a thread, and never the bus side."""
 
     def __init__(self, bridge: MetricsSource, host: str, port: int, *, max_clients: int = MAX_CLIENTS,
-                 timeout: float = CLIENT_TIMEOUT) -> None:
+                 timeout: float = CLIENT_TIMEOUT, sim_control: Optional[str] = None) -> None:
         if not all(hasattr(bridge, a) for a in _SOURCE_ATTRS) or not isinstance(host, str) \
                 or isinstance(port, bool) \
                 or not isinstance(port, int):
@@ -217,6 +283,8 @@ class MetricsServer:
         self.max_clients, self.timeout = max_clients, float(timeout)
         self.registry = CollectorRegistry(auto_describe=False)
         self.registry.register(BridgeCollector(bridge))
+        if sim_control is not None:     # a sim beside the bridge: its counters too
+            self.registry.register(SimCollector(sim_control))
         try:
             infos = socket.getaddrinfo(host or None, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
             family, _, _, _, addr = infos[0]

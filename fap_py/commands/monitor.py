@@ -70,6 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="write the Wireshark extcap launcher to DIR (and exit if no input given)")
     p.add_argument("-q", "--quiet", action="store_true",
                    help="no status lines on stderr (listening, auto lock); errors still")
+    p.add_argument("--sim-control", metavar="unix:PATH",
+                   help="a fap sim running on the bus (its --control socket): its counters "
+                        "(requests served, faults applied, per node) follow the summary")
 
 
 def _choice(convert: Callable[[str], str]) -> Callable[[str], str]:
@@ -143,8 +146,38 @@ def monitor(args: argparse.Namespace, out: Optional[IO[str]] = None) -> int:
     (:class:`fap_py.monitor.session.Session` has the session itself)."""
     from fap_py.monitor.session import Session
 
+    sim = getattr(args, "sim_control", None)
+    if sim:
+        from fap_py.sim._control import counters
+
+        counters(sim)     # a sim that does not answer: the error now, before the input is read
     ended_by = Session(config_from_args(args), out).run()
+    if sim:
+        _sim_summary(args, sim, out or sys.stdout)
     return opt.EXIT_INTERRUPTED if ended_by == signal.SIGINT else 0
+
+
+def _sim_summary(args: argparse.Namespace, spec: str, out: IO[str]) -> None:
+    """The sim's counters after the monitor's own summary: its totals, then each bus and
+    node as ``fap sim status`` prints them; with ``--json`` one ``{"event": "sim", ...}``
+    line (the sim's status answer)."""
+    import json
+
+    from fap_py.errors import FapError
+    from fap_py.sim._control import counters
+
+    from .sim import counters_text, status_lines
+
+    try:
+        st = counters(spec)
+    except FapError as exc:     # the sim stopped first: the monitor's own result stands
+        log.warning("--sim-control: %s", exc)
+        return
+    if args.json:
+        out.write(json.dumps({"event": "sim", "control": spec, **st}) + "\n")
+    else:
+        out.write("\n".join([f"sim ({spec}): {counters_text(st)}", *status_lines(st)]) + "\n")
+    out.flush()
 
 
 __all__ = ["add_arguments", "monitor", "register", "run"]

@@ -185,10 +185,30 @@ def _serve(args: argparse.Namespace, cfg: Dict[str, Any]) -> int:
         finally:
             if server is not None:
                 server.close()
-    emit(args, {"event": "stopped", **st},
-         f"stopped: {plural(st['requests'], 'request')} served, faults applied: "
-         + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
+    emit(args, {"event": "stopped", **st}, f"stopped: {counters_text(st)}")
     return EXIT_OK
+
+
+def status_lines(st: Dict[str, Any]) -> List[str]:
+    """A sim status as text: each bus, each node's counters, the faults in force
+    (``fap sim status``, and ``fap monitor --sim-control`` after its summary)."""
+    text = []
+    for b in st["buses"]:
+        text.append(f"bus {b['name']} ({b['protocol']}): {plural(b['requests'], 'request')}, "
+                    f"master port {b['master_port'] or '-'}")
+        for n in b["nodes"]:
+            faults = ", ".join(f"{k} {v}" for k, v in n["faults"].items())
+            text.append(f"  node {n['address']}: {n['requests']} requests, {n['replies']} replies"
+                        + (f", faults {faults}" if faults else "") + (f", state {n['state']}" if "state" in n else ""))
+    text.append("faults: " + (", ".join(_fault_text(f) for f in st["faults"]) or "none"))
+    return text
+
+
+def counters_text(st: Dict[str, Any]) -> str:
+    """A sim status's counters in one line (``fap sim``'s last line, ``fap monitor
+    --sim-control``'s summary)."""
+    return (f"{plural(st['requests'], 'request')} served, faults applied: "
+            + (", ".join(f"{k} {v}" for k, v in st["faults_applied"].items() if v) or "none"))
 
 
 def _replay(args: argparse.Namespace) -> int:
@@ -218,16 +238,7 @@ def _action(args: argparse.Namespace) -> int:
     if a.action == "status":
         ans = request(a.control, {"cmd": "status"})
         _check(ans)
-        text = []
-        for b in ans["buses"]:
-            text.append(f"bus {b['name']} ({b['protocol']}): {plural(b['requests'], 'request')}, "
-                        f"master port {b['master_port'] or '-'}")
-            for n in b["nodes"]:
-                faults = ", ".join(f"{k} {v}" for k, v in n["faults"].items())
-                text.append(f"  node {n['address']}: {n['requests']} requests, {n['replies']} replies"
-                            + (f", faults {faults}" if faults else "") + (f", state {n['state']}" if "state" in n else ""))
-        text.append("faults: " + (", ".join(_fault_text(f) for f in ans["faults"]) or "none"))
-        emit(a, {"event": "status", **ans}, "\n".join(text))
+        emit(a, {"event": "status", **ans}, "\n".join(status_lines(ans)))
         return EXIT_OK
     if a.fault_action == "add":
         req: Dict[str, Any] = {"cmd": "fault.add", "kind": a.kind, "probability": a.probability}

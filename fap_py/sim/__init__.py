@@ -63,6 +63,7 @@ class SimBus:
                 "nodes": [{"address": a, **nodes[a]} for a in sorted(nodes)],
                 "requests": sum(n["requests"] for n in nodes.values()),
                 "unmatched": getattr(self.runner, "unmatched", 0),
+                "reopened": getattr(self.runner, "reopened", 0),
                 "error": None if error is None else f"{type(error).__name__}: {error}"}
 
 
@@ -226,7 +227,9 @@ def _start_responder(proto: ModuleType, ctx: _Ctx) -> Any:
     from ..port import Port
     from ._responder import Responder
 
-    port = Port(ctx.paths[0], ctx.baud, ctx.rs485)
+    # a plug-in may open more kinds of port than the port layer (G485: pyserial URLs)
+    opener = getattr(proto, "open_port", None)
+    port = opener(ctx.paths[0], ctx.baud, ctx.rs485) if opener else Port(ctx.paths[0], ctx.baud, ctx.rs485)
     try:
         nodes = {a: proto.make_node(a, cfg, ctx.seed + a) for a, cfg in ctx.nodes}
         return Responder(ctx.name, proto, port, nodes, ctx.faults, ctx.clock, ctx.seed).start()

@@ -228,3 +228,14 @@ def request(spec: str, obj: Dict[str, Any], timeout: float = 5.0) -> Dict[str, A
         raise ControlError(f"{path}: no answer within {timeout} s") from None
     finally:
         s.close()
+
+
+def counters(spec: str, timeout: float = 1.0) -> Dict[str, Any]:
+    """The running sim's counters, for a tool that runs beside it (``fap monitor
+    --sim-control``, the bridge's ``[metrics] sim_control``): its ``status`` answer without
+    ``ok``. FileError when nothing answers at ``spec``, ControlError for a refusal or no
+    answer within ``timeout`` seconds."""
+    ans = request(spec, {"cmd": "status"}, timeout)
+    if not ans.pop("ok", False):
+        raise ControlError(f"{unix_path(spec)}: the sim refused status: {ans.get('error')}")
+    return ans

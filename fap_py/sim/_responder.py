@@ -62,7 +62,19 @@ class Responder:
         #: notified after each batch of requests is handled (replies written): tests wait on it
         self.handled = threading.Condition()
         self.transactions = 0
+        self.reopened = 0      # times the port was opened again after it went away
         self._timers: List[threading.Timer] = []
+        # nodes that hear every request, not only their own (a G485 device losing the first
+        # burst after power-on to baud detection, whoever it was for): empty for most buses
+        self._overhear = [n for n in nodes.values() if getattr(n, "hears_all", False)]
+        # a node whose address can change while it runs (G485: the ID register, an EEPROM
+        # image loaded at reset) is found again under its new address after each request
+        self._movable = bool(getattr(plugin, "ADDRESS_CAN_CHANGE", False))
+        # (node, its counters) moved onto an address another node holds: both answer there,
+        # as two devices at one ID do on a real bus
+        self._parked: List[Any] = []
+        if self._movable:              # an EEPROM image may hold another ID from the start
+            self._rekey(list(self.nodes.items()))
 
     def start(self) -> "Responder":
         self._thread = threading.Thread(target=self._serve, name=f"fap-sim {self.bus}", daemon=True)
@@ -81,6 +93,7 @@ class Responder:
             self._thread.join(5.0)
 
     def _serve(self) -> None:
+        gone = False
         try:
             while not self._stop.is_set():
                 # a partial frame expires after the decoder's idle time; otherwise wait long
@@ -93,13 +106,21 @@ class Responder:
                 except PortError as exc:
                     if self._stop.is_set():
                         return
-                    log.warning("%s: %s; reopening", self.bus, exc)
+                    if not gone:      # once per outage, not once per try
+                        log.warning("%s: %s; reopening", self.bus, exc)
+                    gone = True
+                    # no spinning while the device is away; then the same path again
                     if self._stop.wait(0.05):
                         return
                     try:
                         self.port.reopen()
                     except FapError:
-                        pass
+                        continue
+                    gone = False
+                    self.reopened += 1
+                    if hasattr(self.decoder, "clear"):
+                        self.decoder.clear()   # a frame cut by the outage is not finished later
+                    log.info("%s: port reopened", self.bus)
                     continue
                 items = self.decoder.feed(data) if data else self.decoder.idle()
                 for req in items:
@@ -115,15 +136,53 @@ class Responder:
 
     def _handle(self, req: Request) -> None:
         if req.address is None:          # heard by every node (a broadcast, a discard)
-            for node in self.nodes.values():
+            for node in (*self.nodes.values(), *(n for n, _ in self._parked)):
                 node.hear(req.obj)
+            if self._movable:
+                self._rekey(list(self.nodes.items()))
             return
         node = self.nodes.get(req.address)
+        for other in self._overhear:
+            if other is not node:
+                other.hear(req.obj)
         if node is None:
             self.unmatched += 1
             return
-        st = self.stats[req.address]
-        main, late = self.faults.draw(self.bus, req.address)
+        self._transact(node, req, self.stats[req.address])
+        if self._movable:
+            for other, st in self._parked:
+                if other.address == req.address:
+                    self._transact(other, req, st)
+            if node.address != req.address or self._parked:
+                self._rekey([(req.address, node)])
+
+    def _rekey(self, entries: List[Any]) -> None:
+        """Put each (key, node) whose node's address is no longer its key under its address
+        now; onto one already taken, the newcomer is parked: it answers there too (two devices
+        at one ID, a conflict on a real bus; logged) and takes the address once it is free."""
+        for key, node in entries:
+            new = node.address
+            if new == key or self.nodes.get(key) is not node:
+                continue
+            del self.nodes[key]
+            st = self.stats.pop(key)
+            if new in self.nodes:
+                log.warning("%s: node %d moved to address %d, which another node holds: both "
+                            "answer there", self.bus, key, new)
+                self._parked.append((node, st))
+                continue
+            log.info("%s: node %d now answers at address %d", self.bus, key, new)
+            self.nodes[new], self.stats[new] = node, st
+        for entry in list(self._parked):
+            node, st = entry
+            if node.address not in self.nodes:
+                self._parked.remove(entry)
+                self.nodes[node.address], self.stats[node.address] = node, st
+
+    def _transact(self, node: Any, req: Request, st: NodeStats) -> None:
+        address = req.address
+        assert address is not None     # _handle sends only addressed requests here
+        main, late = self.faults.draw(self.bus, address)
         if main is not None:
             st.faults[main.kind] = st.faults.get(main.kind, 0) + 1
             if main.kind in ("off", "hung"):
@@ -143,7 +202,7 @@ class Responder:
             frame = node.answer(req.obj, self.clock.now())
         except FapError as exc:        # a hook that raised: logged, counted, no reply
             st.errors += 1
-            log.warning("%s node %d: %s", self.bus, req.address, exc)
+            log.warning("%s node %d: %s", self.bus, address, exc)
             return
         if frame is None:
             return
@@ -157,14 +216,14 @@ class Responder:
             st.faults["late_reply"] = st.faults.get("late_reply", 0) + 1
             delay = late.ms / 1000.0
         if delay == 0.0 and len(pieces) == 1:
-            self._write(frame, req.address, st)
+            self._write(frame, address, st)
             return
         if delay == 0.0:
-            self._write(pieces[0], req.address, st, last=False)
+            self._write(pieces[0], address, st, last=False)
             pieces = pieces[1:]
             delay = main.ms / 1000.0 if main is not None else 0.0
         # sent by a timer: the other nodes of the bus go on answering meanwhile
-        self._later(delay, pieces, req.address, st, main.ms / 1000.0 if main is not None else 0.0)
+        self._later(delay, pieces, address, st, main.ms / 1000.0 if main is not None else 0.0)
 
     def _later(self, delay: float, pieces: List[bytes], address: int, st: NodeStats, gap: float) -> None:
         def fire() -> None:

@@ -23,7 +23,8 @@ class _MetricsOutput(OutputBase):
         from ..metrics import MetricsServer
 
         assert self.config.metrics_listen is not None
-        self.server = MetricsServer(ctx, *self.config.metrics_listen)
+        self.server = MetricsServer(ctx, *self.config.metrics_listen,
+                                    sim_control=self.config.metrics_sim_control)
 
     @property
     def port(self) -> int:

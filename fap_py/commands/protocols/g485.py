@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 import time
-from typing import Any, Callable, Dict, Tuple, Union
+from typing import Any, Callable, Dict, List, Tuple, Union
 
 from fap_py import _protocols
 
@@ -106,31 +106,54 @@ def _rs485(args: argparse.Namespace) -> Any:
     return None if pyserial_url else opt.rs485_from_args(args)
 
 
-def run_sim(args: argparse.Namespace) -> int:
-    from fap_py.g485 import SimDevice, Simulator
-
-    devices = []
+def sim_config(args: argparse.Namespace) -> Dict[str, Any]:
+    """The ``fap sim`` site ``fap g485 sim`` runs (docs/sim.md): one G485 bus on ``--port``,
+    a node per ``--address`` (its EEPROM in DIR/g485-<ID>.json with ``--eeprom-dir``); the
+    sim's seed is ``--seed``, so device N draws its bulk-mode discards from seed + N."""
+    nodes: List[Dict[str, Any]] = []
     for address in args.address:
-        path = os.path.join(args.eeprom_dir, f"g485-{address}.json") if args.eeprom_dir else None
+        node: Dict[str, Any] = {"address": address}
         if args.eeprom_dir:
-            try:
-                os.makedirs(args.eeprom_dir, exist_ok=True)
-            except OSError as exc:   # a file there, say: "File exists" named nothing
-                why = "not a directory" if isinstance(exc, FileExistsError) else exc.strerror
-                raise OSError(exc.errno, f"--eeprom-dir: cannot use it as the EEPROM directory "
-                              f"({why})", args.eeprom_dir) from None
-        devices.append(SimDevice(address, eeprom_path=path, wake_up_loss=args.wake_up_loss,
-                                 seed=args.seed + address))
+            node["eeprom"] = os.path.join(args.eeprom_dir, f"g485-{address}.json")
+        if args.wake_up_loss:
+            node["wake_up_loss"] = True
+        nodes.append(node)
+    return {"sim": {"seed": args.seed},
+            "bus": [{"name": "g485", "protocol": "g485", "port": args.port, "baud": args.baud,
+                     "node": nodes}]}
+
+
+def run_sim(args: argparse.Namespace) -> int:
+    from fap_py.g485.codec import MAX_SLAVE_ADDRESS, MIN_SLAVE_ADDRESS
+    from fap_py.g485.errors import G485ValueError
+    from fap_py.g485.transaction import whole_arg
+    from fap_py.sim import Sim
+
+    # the errors the device simulator gave, not the config's paths (the user wrote no config)
+    for i, address in enumerate(args.address):
+        whole_arg(address, "device address", MIN_SLAVE_ADDRESS, MAX_SLAVE_ADDRESS)
+        if address in args.address[:i]:
+            raise G485ValueError(f"a device with ID {address} is already on this port")
+    if args.eeprom_dir:
+        try:
+            os.makedirs(args.eeprom_dir, exist_ok=True)
+        except OSError as exc:   # a file there, say: "File exists" named nothing
+            why = "not a directory" if isinstance(exc, FileExistsError) else exc.strerror
+            raise OSError(exc.errno, f"--eeprom-dir: cannot use it as the EEPROM directory "
+                          f"({why})", args.eeprom_dir) from None
     t0 = time.monotonic()
-    with stop_on_sigterm() as done, Simulator(args.port, devices, baudrate=args.baud,
-                                                  rs485=_rs485(args)) as sim:
-        opt.emit(args, {"event": "ready", "port": sim.name, "addresses": args.address},
+    with stop_on_sigterm() as done, Sim(sim_config(args), rs485=_rs485(args)) as sim:
+        bus = sim.buses[0]
+        name = getattr(bus.runner.port, "path", args.port)
+        opt.emit(args, {"event": "ready", "port": name, "addresses": args.address},
                  f"ready: simulating G485 device{'s' if len(args.address) > 1 else ''} "
-                 f"{', '.join(map(str, args.address))} on {sim.name}")
+                 f"{', '.join(map(str, args.address))} on {name}")
         while not done.wait(0.2):
-            if sim.error is not None:
-                raise sim.error
-        replies, events, reopened = sim.replies_sent, sim.events, sim.reopened
+            if bus.runner.error is not None:
+                raise bus.runner.error
+        st = bus.status()
+        events, reopened = bus.runner.transactions, st["reopened"]
+        replies = sum(n["replies"] for n in st["nodes"])
     opt.emit(args, {"event": "summary", "seconds": round(time.monotonic() - t0, 3),
                 "packets": events, "replies": replies, "reopened": reopened},
              f"summary: {opt.plural(events, 'packet')} handled, {opt.plural(replies, 'reply', 'replies')} "

@@ -14,6 +14,8 @@ from .._schema import MAX_LIST, Path, Problem
 NAME = "g485"
 ADDRESS_MIN, ADDRESS_MAX = codec.MIN_SLAVE_ADDRESS, codec.MAX_SLAVE_ADDRESS
 FAULTS = REPLY_KINDS + ("error_reply",)
+#: a device's ID is its register 7: a write, or a reset that loads an EEPROM image, moves it
+ADDRESS_CAN_CHANGE = True
 
 #: register types: bytes, signedness (big-endian over consecutive registers)
 TYPES = {"u8": (1, False), "i8": (1, True), "u16": (2, False), "i16": (2, True),
@@ -24,6 +26,8 @@ NODE_PROPERTIES: Dict[str, Any] = {
                  "items": {"type": "integer", "minimum": 0, "maximum": 255},
                  "description": "registers 1..5 (protocol version, class, subclass, hardware, software)"},
     "eeprom": {"type": "string", "maxLength": 4096, "description": "EEPROM image file (persistence)"},
+    "wake_up_loss": {"type": "boolean", "description": "lose the first burst heard after power-on "
+                     "or reset (baud detection above 28,800 baud; default false)"},
     "registers": {"type": "array", "maxItems": MAX_LIST, "items": {
         "type": "object", "additionalProperties": False, "required": ["register"],
         "properties": {
@@ -68,9 +72,11 @@ class _Decoder:
         out = []
         for ev in events:
             if isinstance(ev, codec.Packet):
-                if ev.address == codec.MASTER_ADDRESS:
-                    continue   # another device's reply
-                out.append(Request(None if ev.address == codec.BROADCAST else ev.address, ev))
+                # a broadcast, or another device's reply (to the master): every device hears it
+                # (a device just powered on loses it to baud detection) and none answers
+                target = ev.address
+                out.append(Request(None if target == codec.BROADCAST or target == codec.MASTER_ADDRESS
+                                   else target, ev))
             else:
                 out.append(Request(None, ev))
         return out
@@ -84,6 +90,9 @@ class _Decoder:
 
     def idle(self) -> List[Request]:
         return self._items(self._p.expire()) if self._p.buffered else []
+
+    def clear(self) -> None:
+        self._p.clear()
 
 
 def request_decoder(baud: int) -> _Decoder:
@@ -108,8 +117,16 @@ class Node:
             kw["identity"] = tuple(cfg["identity"])
         if "eeprom" in cfg:
             kw["eeprom_path"] = cfg["eeprom"]
+        if cfg.get("wake_up_loss"):
+            kw["wake_up_loss"] = True
         self.device = SimDevice(address, private=private, seed=seed, **kw)
-        self.address = address
+        # a device that loses the first burst after power-on loses it whoever it was for
+        self.hears_all = self.device.wake_up_loss
+
+    @property
+    def address(self) -> int:
+        """The ID it answers at now (register 7: a write or an EEPROM image moves it)."""
+        return self.device.address
 
     def hear(self, event: Any) -> None:
         self.device.handle(event)     # broadcasts and discards: no reply
@@ -198,6 +215,54 @@ def learn(pairs: List[Any]) -> Dict[int, Dict[str, Any]]:
             cfg["registers"] = [{"register": r, "initial": regs[r]} for r in private]
         out[address] = cfg
     return out
+
+
+class _SerialPort:
+    """A pyserial URL (``socket://`` ...; fap_py.g485.transport.SerialIO) with the port
+    layer's calls the responder makes (read with a timeout, write, reopen, close)."""
+
+    _SLICE_S = 0.05   # a read waits in slices: a close() from another thread ends it
+
+    def __init__(self, io: Any) -> None:
+        self._io = io
+        self.baudrate = io.baudrate
+        self.path = io.name
+
+    def read(self, n: int, timeout: float = 0.0) -> bytes:
+        import time
+
+        from ...errors import ClosedError
+
+        if self._io.closed:
+            raise ClosedError(f"{self.path}: port closed")
+        try:
+            return bytes(self._io.read_some(n, time.monotonic() + min(timeout, self._SLICE_S)))
+        except Exception:
+            if self._io.closed:   # closed under the read: the responder is stopping
+                raise ClosedError(f"{self.path}: port closed") from None
+            raise
+
+    def write(self, data: bytes) -> int:
+        self._io.write(data)
+        return len(data)
+
+    def reopen(self) -> None:
+        self._io.reopen()
+
+    def close(self) -> None:
+        self._io.close()
+
+
+def open_port(path: str, baud: int, rs485: Any) -> Any:
+    """A device path or libfap's tcp:// / rfc2217:// through the port layer; a pyserial URL
+    (``socket://``, ``loop://``: what ``fap g485`` has always taken) through pyserial."""
+    from ...port import Port, port_kind
+
+    if port_kind(path) != "other":
+        return Port(path, baud, rs485)
+    from ...g485.transport import open_io
+
+    return _SerialPort(open_io(path, baud, rs485=rs485))
 
 
 def garbage(rng: Any, n: int) -> bytes:
