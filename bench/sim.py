@@ -4,7 +4,8 @@ For each request/reply protocol, one paced 115200 bus carries ``fap sim`` with t
 whole address range (exec async 1..254, mikroC's range, G485 1..126) and a master scanning
 every node in turn; a second bus of the same pace carries the responder the sim is measured
 against (the C slave engine of ``fap exec slave`` / ``fap mikroc slave`` answering one node,
-the bare responder on the link; for G485 today's ``fap g485 sim`` with the same 126 devices).
+the bare responder on the link; for G485 the simulator class ``fap g485 sim`` ran before it
+became a case of ``fap sim``, ``fap_py.g485.Simulator``, with the same 126 devices).
 The two are measured in interleaved batches (a load swing slows both alike within a round);
 the row is the median of the per-round ratios of exchanges/s. The idle row is each sim's CPU
 while no master talks (``/proc/<pid>/stat``, 2 s). FAP's simulated slaves are the C slave
@@ -44,6 +45,19 @@ SHARE = 95.0          # % of the responder it stands in for
 IDLE = 2.0            # % of a core, an idle sim of every node
 REPLAY_CHARS = 1.0    # p99 of |replayed - recorded| reply delay, character times
 GOAL_SCAN = f"fap sim, the whole address range, exchanges/s >= {SHARE:g} % of the responder it stands in for"
+
+
+#: the G485 reference: fap_py.g485.Simulator with one SimDevice per address (seed N, as
+#: ``fap g485 sim`` seeded its devices before it ran the sim room), a JSON ready line
+_G485_REFERENCE = """
+import json, signal, sys, threading
+from fap_py.g485 import SimDevice, Simulator
+stop = threading.Event()
+signal.signal(signal.SIGTERM, lambda *_: stop.set())
+with Simulator(sys.argv[1], [SimDevice(int(a), seed=int(a)) for a in sys.argv[2:]], baudrate=115200) as sim:
+    print(json.dumps({"event": "ready", "port": sim.name}), flush=True)
+    stop.wait()
+"""
 
 
 def _fap(*args: str) -> List[str]:
@@ -135,8 +149,8 @@ def _scan(protocol: str, rounds: int, seconds: float, tmp: str) -> Dict[str, Any
         elif protocol == "mikroc":
             ref = _Proc(_fap("mikroc", "slave", "--port", direct.paths[1], "--address", "1", "--json"))
         else:
-            ref = _Proc(_fap("g485", "sim", "--port", direct.paths[1], "--json",
-                             *[a for n in sim_nodes for a in ("--address", str(n))]))
+            # the G485 simulator class fap g485 sim ran before it became a fap sim site
+            ref = _Proc([sys.executable, "-c", _G485_REFERENCE, direct.paths[1], *map(str, sim_nodes)])
         sim = _Proc(_fap("sim", _config(os.path.join(tmp, f"{protocol}.toml"), protocol, sim_nodes,
                                         simbus.paths[1]), "--json"))
         try:
@@ -265,7 +279,7 @@ def to_targets(res: Dict[str, Any]) -> List[Target]:
         if p not in res:
             continue
         r = res[p]
-        ref = "fap g485 sim, the same 126 devices" if p == "g485" else f"the C slave engine (fap {p} slave), one node"
+        ref = "fap_py.g485.Simulator, the same 126 devices" if p == "g485" else f"the C slave engine (fap {p} slave), one node"
         rows.append(Target(f"sim-scan-{p}", GOAL_SCAN, 100 * r["ratio"], SHARE, True, "%",
                            f"{r['nodes']} nodes, {r['sim_rate']:.0f} vs {r['ref_rate']:.0f} exchanges/s against {ref}; "
                            f"per-round ratios {100 * r['ratio_min']:.0f}-{100 * r['ratio_max']:.0f} %; "
