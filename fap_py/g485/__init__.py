@@ -33,6 +33,7 @@ from .codec import (
 )
 from .codec import MAX_SLAVE_ADDRESS as NODE_MAX
 from .codec import MIN_SLAVE_ADDRESS as NODE_MIN
+from .daemon import DaemonG485Master
 from .device import RegisterSpec, SimDevice
 from .errors import (
                     BroadcastReadError,
@@ -62,5 +63,5 @@ __all__ = [
     "EchoMismatchError", "G485FrameError", "G485ValueError", "HandshakeMismatchError", "NoResponseError",
     "RereadMismatchError",
     "UnexpectedReplyError", "WriteRefusedError",
-    "Check", "G485Master", "MasterStats", "Simulator",
+    "Check", "DaemonG485Master", "G485Master", "MasterStats", "Simulator",
 ]

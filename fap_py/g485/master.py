@@ -123,7 +123,7 @@ class G485Master(Closing):
         from ..serve._url import is_daemon_url
 
         if cls is G485Master and is_daemon_url(port):   # fapd://: a bus fap serve owns
-            from ._remote import DaemonG485Master
+            from .daemon import DaemonG485Master
             return DaemonG485Master(port, *args, **kwargs)
         return super().__new__(cls)
 

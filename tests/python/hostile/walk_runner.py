@@ -291,6 +291,8 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
                                                                   retries=0),
         "fap_py.mikroc.daemon.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
         "fap_py.fap.daemon.DaemonFapMaster": lambda: fap.Master(served("fap", slaves=[5]), slaves=[5]),
+        "fap_py.g485.daemon.DaemonG485Master": lambda: __import__("fap_py.g485", fromlist=["G485Master"]).G485Master(
+            served("g485"), timeout=0.01),
         "fap_py.serve.Connection": lambda: __import__("fap_py.serve", fromlist=["Connection"]).Connection(
             served("raw")),
         # --- end serve ---

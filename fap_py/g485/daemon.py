@@ -1,6 +1,6 @@
 """G485 on a bus a daemon owns (``fap serve --protocol g485``, docs/daemon.md): what
-``G485Master("fapd://...")`` returns. Private module; the class is reached through
-:class:`fap_py.g485.G485Master`."""
+``G485Master("fapd://...")`` returns (also exported as ``fap_py.g485.DaemonG485Master``,
+as each protocol package exports its daemon client)."""
 from __future__ import annotations
 
 import dataclasses
