@@ -29,7 +29,7 @@ from ._errors import (
     ProtocolError,
 )
 from ._url import Address, ClientUrl, parse_client_url, query_int
-from ._wire import HEADER_SIZE, VERSION, body_size, pack, unpack
+from ._wire import HEADER_SIZE, VERSION, MessageReader, body_size, pack, unpack
 
 log = logging.getLogger("fap_py.serve.client")
 
@@ -392,23 +392,20 @@ class AsyncConnection:
             raise _no_daemon(self.url, exc) from None
         self._writer = writer
         writer.write(pack(hello))
-        from ._wire import read_message
-
+        messages = MessageReader(reader, 10.0)   # the welcome and all after it: one reader
         try:
-            msg = await asyncio.wait_for(read_message(reader, 10.0), min(self.timeout, 10.0))
+            msg = await asyncio.wait_for(messages.next(), min(self.timeout, 10.0))
             self.welcome = _check_welcome(msg, self.url, protocol)
         except BaseException:
             writer.close()
             raise
-        self._task = asyncio.get_running_loop().create_task(self._read_loop(reader))
+        self._task = asyncio.get_running_loop().create_task(self._read_loop(messages))
         return self
 
-    async def _read_loop(self, reader: asyncio.StreamReader) -> None:
-        from ._wire import read_message
-
+    async def _read_loop(self, messages: MessageReader) -> None:
         try:
             while True:
-                msg = await read_message(reader, 10.0)
+                msg = await messages.next()
                 if msg is None:
                     break
                 rid = msg.get("id")

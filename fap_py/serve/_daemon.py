@@ -36,7 +36,7 @@ from ._errors import BadUrlError, ClientQueueFullError, DaemonError, ProtocolErr
 from ._lock import UucpLock
 from ._sched import DEFAULT_QUANTUM, Scheduler
 from ._url import Address, is_loopback, parse_listen
-from ._wire import VERSION, pack, read_message
+from ._wire import VERSION, MessageReader, pack
 
 log = logging.getLogger("fap_py.serve")
 
@@ -425,7 +425,8 @@ class Daemon:
 
     async def _session(self, s: Session) -> None:
         c = self.config
-        hello = await read_message(s.reader, c.body_timeout, c.hello_timeout)
+        messages = MessageReader(s.reader, c.body_timeout)
+        hello = await messages.next(c.hello_timeout)
         if hello is None:
             return
         refusal = self._check_hello(s, hello)
@@ -442,7 +443,7 @@ class Daemon:
                 "timeout": c.timeout, "retries": c.retries, "pid": os.getpid(), "queue": c.queue,
                 "port_state": self.port_state, **self.backend.info()})
         while not s.closed:
-            msg = await read_message(s.reader, c.body_timeout)
+            msg = await messages.next()
             if msg is None:
                 return
             self._request(s, msg)
