@@ -29,6 +29,7 @@ import dataclasses
 import errno
 import logging
 import os
+import select
 import threading
 import time
 from dataclasses import dataclass
@@ -410,6 +411,86 @@ def _stats(handle: "Union[Master, Slave]", cls: Type[_C], ctype: str, get: Calla
     return stats_from_c(cls, st)
 
 
+class _PortWait:
+    """The waits of one :meth:`Master.atransact` on the port fd: one ``add_reader`` and
+    one timer per attempt's deadline for the whole transaction (a reply comes in
+    several reads, ~8 at 115200; a reader and a timer set up and torn down for each
+    wait were most of the daemon's time per transaction). Registered with the
+    handle's asyncio waits for the transaction's length, so a close() from any
+    thread detaches the reader and ends the wait with ClosedError, as
+    :meth:`NativeHandle.await_readable` does."""
+
+    __slots__ = ("master", "loop", "fd", "gone", "waiter", "timer", "at", "by_fd", "poll")
+
+    def __init__(self, master: "Master") -> None:
+        self.master = master
+        self.loop = asyncio.get_running_loop()
+        self.fd = master.fileno()            # ClosedError once closed
+        self.waiter: "Optional[asyncio.Future[bool]]" = None
+        self.timer: Optional[asyncio.TimerHandle] = None
+        self.at: Optional[int] = None        # the C deadline the timer is set for
+        self.by_fd = False                   # the last wake was the fd's
+        self.poll: Any = None
+        self.gone: "asyncio.Future[bool]" = self.loop.create_future()   # failed by close()
+        self.gone.add_done_callback(self._gone)
+        with master._hlock:
+            master._async_waits[self.gone] = self.fd
+        self.loop.add_reader(self.fd, self._ready)
+
+    def _ready(self) -> None:
+        w = self.waiter
+        if w is None or w.done():
+            return
+        if self.by_fd:
+            # the loop polled the fd before the woken task read it: this event may be
+            # that stale one (level-triggered), not new bytes; one poll says which
+            self.by_fd = False
+            if self.poll is None:
+                self.poll = select.poll()
+                self.poll.register(self.fd, select.POLLIN)
+            if not self.poll.poll(0):
+                return
+        self.by_fd = True
+        w.set_result(True)
+
+    def _expire(self) -> None:
+        self.at = None                       # (a loop timer may fire a hair early: set anew)
+        w = self.waiter
+        if w is not None and not w.done():
+            w.set_result(False)
+
+    def _gone(self, f: "asyncio.Future[bool]") -> None:
+        exc = None if f.cancelled() else f.exception()
+        w = self.waiter
+        if w is not None and not w.done():
+            w.set_exception(exc or self.master._closed_error())
+
+    async def wait(self, deadline_ns: int, left: float) -> None:
+        """Until the fd is readable or ``left`` seconds pass (the deadline ``deadline_ns``)."""
+        if deadline_ns != self.at:
+            if self.timer is not None:
+                self.timer.cancel()
+            self.timer = self.loop.call_later(left, self._expire)
+            self.at = deadline_ns
+        if self.gone.done():
+            raise self.master._closed_error()
+        w: "asyncio.Future[bool]" = self.loop.create_future()
+        self.waiter = w
+        try:
+            await w
+        finally:
+            self.waiter = None
+
+    def close(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+        m = self.master
+        with m._hlock:
+            registered = m._async_waits.pop(self.gone, None) is not None
+        if registered and not self.loop.is_closed():
+            self.loop.remove_reader(self.fd)
+
+
 class Master(NativeHandle):
     """Exec async master on one port.
 
@@ -547,9 +628,10 @@ class Master(NativeHandle):
         The C engine's non-blocking steps (``execMasterBegin`` /
         ``execMasterStep``: the same sequence numbers, retries, trace hook
         and stats as :meth:`transact`) run in the loop's thread; between
-        steps the task waits on the port fd (``loop.add_reader``) or the
-        attempt's deadline (a loop timer). No worker thread. Calls on one
-        master are serialised; different masters run concurrently.
+        steps the task waits on the port fd (one ``loop.add_reader`` for the
+        whole transaction) or the attempt's deadline (a loop timer). No
+        worker thread. Calls on one master are serialised; different masters
+        run concurrently.
         Cancelling ends the transaction as a failure (the next message to
         ``node`` carries SeqNo 0) and leaves the master usable; a close()
         from another task or thread raises :class:`~fap_py.errors.ClosedError`.
@@ -571,11 +653,14 @@ class Master(NativeHandle):
             _raise_for(rc, what, self.path)
             self._ainflight += 1
             over = False
+            port: Optional[_PortWait] = None
             try:
                 while True:
                     left = deadline[0] / 1e9 - time.monotonic()   # both CLOCK_MONOTONIC
                     if left > 0:
-                        await self.await_readable(left)
+                        if port is None:
+                            port = _PortWait(self)
+                        await port.wait(deadline[0], left)
                     rc = int(self._call(lib.execMasterStep, reply, MAX_DATA, reply_len, deadline))
                     if rc != lib.EXEC_MASTER_MORE:
                         over = True
@@ -584,6 +669,8 @@ class Master(NativeHandle):
                         log.debug("<- node %d (async) %s", node, out.hex())
                         return out
             finally:
+                if port is not None:
+                    port.close()
                 self._ainflight -= 1
                 if not over:                 # cancelled, closed or interrupted mid-way
                     try:
