@@ -251,8 +251,10 @@ class Daemon:
                          "queue_full": 0, "dropped": 0, "reopens": 0, "port_gone": 0, "cancelled": 0}
         # the transaction on the bus now, its task, and the one its client cancelled
         self._current: Optional[Pending] = None
-        self._running: Optional["asyncio.Future[Dict[str, Any]]"] = None
+        self._running: Optional["asyncio.Future[Any]"] = None
         self._cancelled: Optional[Pending] = None
+        self._cycled = False               # the loop ran other callbacks during a transaction
+        self._closing = False
         self.wire_time = 0.0
         self.started = time.time()
         self.listening: List[str] = []
@@ -350,6 +352,7 @@ class Daemon:
         await self.aclose()
 
     async def aclose(self) -> None:
+        self._closing = True
         for srv in self._servers:
             srv.close()
         for s in list(self.sessions.values()):
@@ -520,14 +523,17 @@ class Daemon:
             return "queued"
         cur, task = self._current, self._running
         if cur is not None and cur.session is s and cur.rid == of and task is not None and not task.done():
-            self._cancelled = cur
-            task.cancel()
+            if self._cancelled is not cur:    # (cancelled once: a second cancel is the same)
+                self._cancelled = cur
+                task.cancel()
             return "running"
         return "none"
 
     # -- the bus -----------------------------------------------------------------
 
     async def _bus(self) -> None:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
         while True:
             item = self.sched.next()
             if item is None:
@@ -538,6 +544,8 @@ class Daemon:
             s = pend.session
             answer: Dict[str, Any] = {"id": pend.rid}
             cancelled = False
+            self._cycled = False
+            loop.call_soon(self._cycle)        # ran by the end: the loop served the others meanwhile
             if self.port_state != "open":
                 err: Optional[BaseException] = PortGoneError(
                     errno.ENODEV, f"{self.config.port}: device gone (the daemon reopens it)")
@@ -547,16 +555,19 @@ class Daemon:
                 t0 = time.monotonic()
                 err = None
                 self._current = pend
-                self._running = asyncio.ensure_future(self.backend.run(pend.job))
+                # awaited in this task (no task a transaction): a client's cancel cancels
+                # this task while it waits inside run(), see _cancel
+                self._running = task
                 try:
-                    answer.update(await self._running)
+                    answer.update(await self.backend.run(pend.job))
                 except FapError as exc:
                     err = exc
                     answer.update(getattr(exc, "daemon_fields", {}))
                 except asyncio.CancelledError:
-                    if self._cancelled is not pend:
-                        self._running.cancel()
+                    if self._cancelled is not pend or self._closing:
                         raise
+                    if task is not None and hasattr(task, "uncancel"):
+                        task.uncancel()          # (3.11+: the cancel is handled here)
                     self.counters["cancelled"] += 1
                     cancelled = True
                 except Exception as exc:     # a bug: say so to the client, keep the bus
@@ -593,8 +604,15 @@ class Daemon:
             if s.closed:
                 self.counters["dropped"] += 1   # its client left mid-transaction: nobody else gets it
             else:
-                s.send(answer)
-            await asyncio.sleep(0)              # let readers queue requests between transactions
+                # sent once this task next waits: the next queued request is on the wire by
+                # then (its run() writes it before its first wait), so the bus does not wait
+                # for this answer's JSON and socket write
+                loop.call_soon(s.send, answer)
+            if not self._cycled:                # it never waited: let readers queue requests
+                await asyncio.sleep(0)
+
+    def _cycle(self) -> None:
+        self._cycled = True
 
     # late replies: bytes that arrive after a transaction timed out, before the next begins
 
