@@ -29,7 +29,6 @@ import dataclasses
 import errno
 import logging
 import os
-import select
 import threading
 import time
 from dataclasses import dataclass
@@ -411,75 +410,66 @@ def _stats(handle: "Union[Master, Slave]", cls: Type[_C], ctype: str, get: Calla
     return stats_from_c(cls, st)
 
 
-class _PortWait:
-    """The waits of one :meth:`Master.atransact` on the port fd: one ``add_reader`` and
-    one timer per attempt's deadline for the whole transaction (a reply comes in
-    several reads, ~8 at 115200; a reader and a timer set up and torn down for each
-    wait were most of the daemon's time per transaction). Registered with the
-    handle's asyncio waits for the transaction's length, so a close() from any
-    thread detaches the reader and ends the wait with ClosedError, as
+class _Steps:
+    """One :meth:`Master.atransact` driven from the loop's callbacks: ``execMasterStep``
+    runs in the port fd's reader callback (and in the timer's, at the attempt's
+    deadline), so a reply that comes in several reads (~8 at 115200) wakes the
+    task once, when the transaction ends, not once a read; one ``add_reader`` and
+    one timer per attempt for the whole transaction (set up and torn down for each
+    read they were most of the daemon's time). Registered with the handle's asyncio
+    waits for the transaction's length, so a close() from any thread detaches the
+    reader and ends the transaction with ClosedError, as
     :meth:`NativeHandle.await_readable` does."""
 
-    __slots__ = ("master", "loop", "fd", "gone", "waiter", "timer", "at", "by_fd", "poll")
+    __slots__ = ("master", "loop", "fd", "args", "deadline", "done", "gone", "timer", "at")
 
-    def __init__(self, master: "Master") -> None:
+    def __init__(self, master: "Master", reply: Any, reply_len: Any, deadline: Any) -> None:
         self.master = master
         self.loop = asyncio.get_running_loop()
         self.fd = master.fileno()            # ClosedError once closed
-        self.waiter: "Optional[asyncio.Future[bool]]" = None
+        self.args = (reply, MAX_DATA, reply_len, deadline)
+        self.deadline = deadline
         self.timer: Optional[asyncio.TimerHandle] = None
         self.at: Optional[int] = None        # the C deadline the timer is set for
-        self.by_fd = False                   # the last wake was the fd's
-        self.poll: Any = None
-        self.gone: "asyncio.Future[bool]" = self.loop.create_future()   # failed by close()
+        self.done: "asyncio.Future[int]" = self.loop.create_future()   # Step's last rc
+        self.gone: "asyncio.Future[bool]" = self.loop.create_future()  # failed by close()
         self.gone.add_done_callback(self._gone)
         with master._hlock:
             master._async_waits[self.gone] = self.fd
-        self.loop.add_reader(self.fd, self._ready)
+        self.loop.add_reader(self.fd, self._step)
+        self._arm()
 
-    def _ready(self) -> None:
-        w = self.waiter
-        if w is None or w.done():
-            return
-        if self.by_fd:
-            # the loop polled the fd before the woken task read it: this event may be
-            # that stale one (level-triggered), not new bytes; one poll says which
-            self.by_fd = False
-            if self.poll is None:
-                self.poll = select.poll()
-                self.poll.register(self.fd, select.POLLIN)
-            if not self.poll.poll(0):
-                return
-        self.by_fd = True
-        w.set_result(True)
+    def _arm(self) -> None:
+        """The timer for the attempt's deadline (a retry moves it)."""
+        at = self.deadline[0]
+        if at != self.at:
+            if self.timer is not None:
+                self.timer.cancel()
+            left = max(0.0, at / 1e9 - time.monotonic())   # both CLOCK_MONOTONIC
+            self.timer = self.loop.call_later(left, self._expired)
+            self.at = at
 
-    def _expire(self) -> None:
+    def _expired(self) -> None:
         self.at = None                       # (a loop timer may fire a hair early: set anew)
-        w = self.waiter
-        if w is not None and not w.done():
-            w.set_result(False)
+        self._step()
+
+    def _step(self) -> None:
+        if self.done.done():
+            return
+        try:
+            rc = int(self.master._call(lib.execMasterStep, *self.args))
+        except Exception as exc:             # ClosedError: closed from another thread
+            self.done.set_exception(exc)
+            return
+        if rc != lib.EXEC_MASTER_MORE:
+            self.done.set_result(rc)
+        else:
+            self._arm()
 
     def _gone(self, f: "asyncio.Future[bool]") -> None:
         exc = None if f.cancelled() else f.exception()
-        w = self.waiter
-        if w is not None and not w.done():
-            w.set_exception(exc or self.master._closed_error())
-
-    async def wait(self, deadline_ns: int, left: float) -> None:
-        """Until the fd is readable or ``left`` seconds pass (the deadline ``deadline_ns``)."""
-        if deadline_ns != self.at:
-            if self.timer is not None:
-                self.timer.cancel()
-            self.timer = self.loop.call_later(left, self._expire)
-            self.at = deadline_ns
-        if self.gone.done():
-            raise self.master._closed_error()
-        w: "asyncio.Future[bool]" = self.loop.create_future()
-        self.waiter = w
-        try:
-            await w
-        finally:
-            self.waiter = None
+        if not self.done.done():
+            self.done.set_exception(exc or self.master._closed_error())
 
     def close(self) -> None:
         if self.timer is not None:
@@ -627,10 +617,10 @@ class Master(NativeHandle):
 
         The C engine's non-blocking steps (``execMasterBegin`` /
         ``execMasterStep``: the same sequence numbers, retries, trace hook
-        and stats as :meth:`transact`) run in the loop's thread; between
-        steps the task waits on the port fd (one ``loop.add_reader`` for the
-        whole transaction) or the attempt's deadline (a loop timer). No
-        worker thread. Calls on one master are serialised; different masters
+        and stats as :meth:`transact`) run in the loop's thread, each step
+        when the port fd turns readable (one ``loop.add_reader`` for the
+        whole transaction) or the attempt's deadline passes (a loop timer);
+        the task waits once, for the transaction's end. No worker thread. Calls on one master are serialised; different masters
         run concurrently.
         Cancelling ends the transaction as a failure (the next message to
         ``node`` carries SeqNo 0) and leaves the master usable; a close()
@@ -653,24 +643,18 @@ class Master(NativeHandle):
             _raise_for(rc, what, self.path)
             self._ainflight += 1
             over = False
-            port: Optional[_PortWait] = None
+            steps: Optional[_Steps] = None
             try:
-                while True:
-                    left = deadline[0] / 1e9 - time.monotonic()   # both CLOCK_MONOTONIC
-                    if left > 0:
-                        if port is None:
-                            port = _PortWait(self)
-                        await port.wait(deadline[0], left)
-                    rc = int(self._call(lib.execMasterStep, reply, MAX_DATA, reply_len, deadline))
-                    if rc != lib.EXEC_MASTER_MORE:
-                        over = True
-                        _raise_for(rc, what, self.path)
-                        out = bytes(ffi.buffer(reply, reply_len[0]))
-                        log.debug("<- node %d (async) %s", node, out.hex())
-                        return out
+                steps = _Steps(self, reply, reply_len, deadline)
+                rc = await steps.done
+                over = True
+                _raise_for(rc, what, self.path)
+                out = bytes(ffi.buffer(reply, reply_len[0]))
+                log.debug("<- node %d (async) %s", node, out.hex())
+                return out
             finally:
-                if port is not None:
-                    port.close()
+                if steps is not None:
+                    steps.close()
                 self._ainflight -= 1
                 if not over:                 # cancelled, closed or interrupted mid-way
                     try:
