@@ -521,6 +521,7 @@ class Master(NativeHandle):
                                  "(a bus shared through `fap serve`)")
         self._lock = threading.Lock()        # one transaction at a time
         self._alock: Optional[asyncio.Lock] = None   # the same among atransact tasks
+        self._abufs: Optional[Tuple[Any, Any, Any]] = None   # atransact's reply, length, deadline
         self._ainflight = 0                  # atransact calls between Begin and their end
         self.path = check_path(port)
         popts = port_options(baudrate, rs485)
@@ -630,9 +631,9 @@ class Master(NativeHandle):
         payload = _check_data(data)
         if self._alock is None:
             self._alock = asyncio.Lock()
-        reply = ffi.new("byte[]", MAX_DATA)
-        reply_len = ffi.new("word *")
-        deadline = ffi.new("int64_t *")
+        if self._abufs is None:              # one set of buffers: used under _alock only
+            self._abufs = (ffi.new("byte[]", MAX_DATA), ffi.new("word *"), ffi.new("int64_t *"))
+        reply, reply_len, deadline = self._abufs
         what = f"node {node}"
         async with self._alock:
             log.debug("-> node %d (async) %s", node, payload.hex())

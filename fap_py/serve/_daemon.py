@@ -603,11 +603,13 @@ class Daemon:
                 s.replies += 1
             if s.closed:
                 self.counters["dropped"] += 1   # its client left mid-transaction: nobody else gets it
-            else:
+            elif self.sched.pending():
                 # sent once this task next waits: the next queued request is on the wire by
                 # then (its run() writes it before its first wait), so the bus does not wait
                 # for this answer's JSON and socket write
                 loop.call_soon(s.send, answer)
+            else:
+                s.send(answer)
             if not self._cycled:                # it never waited: let readers queue requests
                 await asyncio.sleep(0)
 
