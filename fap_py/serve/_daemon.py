@@ -25,7 +25,7 @@ import socket
 import struct
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 from .._validate import check_baud, check_int, check_path, check_seconds
 from ..errors import FapError, FapTimeoutError, InvalidTypeError, InvalidValueError, PortError, PortGoneError
@@ -253,7 +253,6 @@ class Daemon:
         self._current: Optional[Pending] = None
         self._running: Optional["asyncio.Future[Any]"] = None
         self._cancelled: Optional[Pending] = None
-        self._cycled = False               # the loop ran other callbacks during a transaction
         self._closing = False
         self.wire_time = 0.0
         self.started = time.time()
@@ -534,18 +533,26 @@ class Daemon:
     async def _bus(self) -> None:
         loop = asyncio.get_running_loop()
         task = asyncio.current_task()
+        out: Optional[Tuple[Session, Dict[str, Any]]] = None   # the last answer, not sent yet
         while True:
             item = self.sched.next()
             if item is None:
+                if out is not None:
+                    out[0].send(out[1])
+                    out = None
                 self._wake.clear()
                 await self._wake.wait()
                 continue
+            if out is not None:
+                # sent once this task first waits: the next request is on the wire by then
+                # (run() writes it before its first wait), so the bus does not wait for
+                # the last answer's JSON and socket write
+                loop.call_soon(out[0].send, out[1])
+                out = None
             key, pend = item
             s = pend.session
             answer: Dict[str, Any] = {"id": pend.rid}
             cancelled = False
-            self._cycled = False
-            loop.call_soon(self._cycle)        # ran by the end: the loop served the others meanwhile
             if self.port_state != "open":
                 err: Optional[BaseException] = PortGoneError(
                     errno.ENODEV, f"{self.config.port}: device gone (the daemon reopens it)")
@@ -603,18 +610,11 @@ class Daemon:
                 s.replies += 1
             if s.closed:
                 self.counters["dropped"] += 1   # its client left mid-transaction: nobody else gets it
-            elif self.sched.pending():
-                # sent once this task next waits: the next queued request is on the wire by
-                # then (its run() writes it before its first wait), so the bus does not wait
-                # for this answer's JSON and socket write
-                loop.call_soon(s.send, answer)
             else:
-                s.send(answer)
-            if not self._cycled:                # it never waited: let readers queue requests
-                await asyncio.sleep(0)
-
-    def _cycle(self) -> None:
-        self._cycled = True
+                out = (s, answer)
+            # requests that came with the reply are read before the next turn is chosen (a
+            # client whose next request is already here keeps its turn)
+            await asyncio.sleep(0)
 
     # late replies: bytes that arrive after a transaction timed out, before the next begins
 
