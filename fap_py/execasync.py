@@ -413,30 +413,21 @@ def _stats(handle: "Union[Master, Slave]", cls: Type[_C], ctype: str, get: Calla
 class _Steps:
     """One :meth:`Master.atransact` driven from the loop's callbacks: ``execMasterStep``
     runs in the port fd's reader callback (and in the timer's, at the attempt's
-    deadline), so a reply that comes in several reads (~8 at 115200) wakes the
-    task once, when the transaction ends, not once a read; one ``add_reader`` and
-    one timer per attempt for the whole transaction (set up and torn down for each
-    read they were most of the daemon's time). Registered with the handle's asyncio
-    waits for the transaction's length, so a close() from any thread detaches the
-    reader and ends the transaction with ClosedError, as
-    :meth:`NativeHandle.await_readable` does."""
+    deadline), so a reply that comes in several reads (~10 at 115200 on a paced
+    link) wakes the task once, when the transaction ends, not once a read. The
+    reader is the master's, kept from one transaction to the next
+    (:meth:`Master._alisten`); the timer is one per attempt."""
 
-    __slots__ = ("master", "loop", "fd", "args", "deadline", "done", "gone", "timer", "at")
+    __slots__ = ("master", "loop", "args", "deadline", "done", "timer", "at")
 
     def __init__(self, master: "Master", reply: Any, reply_len: Any, deadline: Any) -> None:
         self.master = master
         self.loop = asyncio.get_running_loop()
-        self.fd = master.fileno()            # ClosedError once closed
         self.args = (reply, MAX_DATA, reply_len, deadline)
         self.deadline = deadline
         self.timer: Optional[asyncio.TimerHandle] = None
         self.at: Optional[int] = None        # the C deadline the timer is set for
         self.done: "asyncio.Future[int]" = self.loop.create_future()   # Step's last rc
-        self.gone: "asyncio.Future[bool]" = self.loop.create_future()  # failed by close()
-        self.gone.add_done_callback(self._gone)
-        with master._hlock:
-            master._async_waits[self.gone] = self.fd
-        self.loop.add_reader(self.fd, self._step)
         self._arm()
 
     def _arm(self) -> None:
@@ -451,9 +442,9 @@ class _Steps:
 
     def _expired(self) -> None:
         self.at = None                       # (a loop timer may fire a hair early: set anew)
-        self._step()
+        self.step()
 
-    def _step(self) -> None:
+    def step(self) -> None:
         if self.done.done():
             return
         try:
@@ -463,22 +454,18 @@ class _Steps:
             return
         if rc != lib.EXEC_MASTER_MORE:
             self.done.set_result(rc)
-        else:
-            self._arm()
+            return
+        self._arm()
+        if self.master._aport is None:       # the reader was taken (await_readable)
+            self.master._alisten(self)
 
-    def _gone(self, f: "asyncio.Future[bool]") -> None:
-        exc = None if f.cancelled() else f.exception()
+    def fail(self, exc: BaseException) -> None:
         if not self.done.done():
-            self.done.set_exception(exc or self.master._closed_error())
+            self.done.set_exception(exc)
 
     def close(self) -> None:
         if self.timer is not None:
             self.timer.cancel()
-        m = self.master
-        with m._hlock:
-            registered = m._async_waits.pop(self.gone, None) is not None
-        if registered and not self.loop.is_closed():
-            self.loop.remove_reader(self.fd)
 
 
 class Master(NativeHandle):
@@ -522,6 +509,9 @@ class Master(NativeHandle):
         self._lock = threading.Lock()        # one transaction at a time
         self._alock: Optional[asyncio.Lock] = None   # the same among atransact tasks
         self._abufs: Optional[Tuple[Any, Any, Any]] = None   # atransact's reply, length, deadline
+        self._aport: Optional[Tuple[asyncio.AbstractEventLoop, int, "asyncio.Future[bool]"]] = None
+        self._asteps: Optional[_Steps] = None   # the atransact the reader serves
+        self._areopened = False              # reopen() since the reader was added
         self._ainflight = 0                  # atransact calls between Begin and their end
         self.path = check_path(port)
         popts = port_options(baudrate, rs485)
@@ -647,6 +637,7 @@ class Master(NativeHandle):
             steps: Optional[_Steps] = None
             try:
                 steps = _Steps(self, reply, reply_len, deadline)
+                self._alisten(steps)
                 rc = await steps.done
                 over = True
                 _raise_for(rc, what, self.path)
@@ -654,6 +645,7 @@ class Master(NativeHandle):
                 log.debug("<- node %d (async) %s", node, out.hex())
                 return out
             finally:
+                self._asteps = None
                 if steps is not None:
                     steps.close()
                 self._ainflight -= 1
@@ -662,6 +654,71 @@ class Master(NativeHandle):
                         self._call(lib.execMasterAbort)
                     except ClosedError:
                         pass
+
+    # The port fd's reader for atransact, kept from one transaction to the next (adding
+    # and removing it each time, two epoll_ctl calls and asyncio's bookkeeping, was a
+    # tenth of the daemon's time). It is registered with the handle's asyncio waits,
+    # so a close() from any thread detaches it and fails the transaction in flight.
+
+    def _alisten(self, steps: _Steps) -> None:
+        """Make ``steps`` the transaction the reader serves; add the reader if needed."""
+        loop = steps.loop
+        port = self._aport
+        if port is not None and (port[0] is not loop or self._areopened):
+            self._adetach()                  # (a reopened port: another fd, or the number reused)
+            port = None
+        if port is None:
+            self._areopened = False
+            fd = self.fileno()               # ClosedError once closed
+            gone: "asyncio.Future[bool]" = loop.create_future()   # failed by close()
+            gone.add_done_callback(self._agone)
+            with self._hlock:
+                self._async_waits[gone] = fd
+            loop.add_reader(fd, self._areadable)
+            self._aport = (loop, fd, gone)
+        self._asteps = steps
+
+    def _areadable(self) -> None:
+        steps = self._asteps
+        if steps is not None:
+            steps.step()
+        else:                                # bytes between transactions: level-triggered,
+            self._adetach()                  # it would fire every loop turn; the next Begin drops them
+
+    def _adetach(self) -> None:
+        """Remove atransact's reader (from its loop's thread, or with that loop stopped)."""
+        port, self._aport = self._aport, None
+        if port is None:
+            return
+        loop, fd, gone = port
+        with self._hlock:
+            registered = self._async_waits.pop(gone, None) is not None
+        if not registered or loop.is_closed():
+            return
+        try:
+            running: Optional[asyncio.AbstractEventLoop] = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop or not loop.is_running():
+            loop.remove_reader(fd)
+        else:
+            loop.call_soon_threadsafe(loop.remove_reader, fd)
+
+    def _agone(self, f: "asyncio.Future[bool]") -> None:
+        """close() detached the reader: forget it, fail the transaction in flight."""
+        port = self._aport
+        if port is not None and port[2] is f:
+            self._aport = None
+        exc = None if f.cancelled() else f.exception()
+        steps = self._asteps
+        if steps is not None:
+            steps.fail(exc or self._closed_error())
+
+    async def await_readable(self, timeout: Optional[float] = None) -> bool:
+        """As :meth:`NativeHandle.await_readable` (atransact's reader, if kept, first
+        leaves the fd to it)."""
+        self._adetach()
+        return await super().await_readable(timeout)
 
     async def abroadcast(self, data: BytesLike = b"") -> None:
         """:meth:`broadcast` from a coroutine, in turn with this master's
@@ -689,6 +746,7 @@ class Master(NativeHandle):
         """Open the device again (after it vanished: a USB unplug, say)."""
         with self._lock:
             _reopen(self, lib.execMasterPort)
+            self._areopened = True           # atransact's reader: add it again
 
     def reset_sequence(self) -> None:
         """Start again from sequence number 0 for every node (a master restart)."""

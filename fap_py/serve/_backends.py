@@ -124,6 +124,10 @@ class Backend:
     def fd(self) -> int:
         return self.node.fileno()
 
+    def release_fd(self) -> None:
+        """Before the daemon watches :meth:`fd` itself (late replies): an engine that
+        keeps its own reader there between transactions takes it off."""
+
     def flush(self) -> None:
         """Drop input nobody asked for (a late reply)."""
 
@@ -196,6 +200,9 @@ class ExecBackend(Backend):
 
         with self.node._using() as h:
             lib.fap_port_flush(lib.execMasterPort(h))
+
+    def release_fd(self) -> None:
+        self.node._adetach()               # atransact's reader, kept between transactions
 
     def check(self, op: str, msg: Dict[str, Any]) -> Job:
         x = self._x

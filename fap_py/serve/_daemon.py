@@ -626,6 +626,7 @@ class Daemon:
             return
         if fd < 0:
             return
+        self.backend.release_fd()
         self._late_owner, self._late_fd = s, fd
         asyncio.get_running_loop().add_reader(fd, self._late_seen)
 
