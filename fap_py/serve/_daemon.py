@@ -610,8 +610,10 @@ class Daemon:
                 s.replies += 1
             if s.closed:
                 self.counters["dropped"] += 1   # its client left mid-transaction: nobody else gets it
+            elif self.sched.pending():
+                out = (s, answer)               # after the next request's write (above)
             else:
-                out = (s, answer)
+                s.send(answer)                  # nothing waits for the bus: at once
             # requests that came with the reply are read before the next turn is chosen (a
             # client whose next request is already here keeps its turn)
             await asyncio.sleep(0)
