@@ -669,7 +669,7 @@ class Master(NativeHandle):
             port = None
         if port is None:
             self._areopened = False
-            fd = self.fileno()               # ClosedError once closed
+            fd = int(self._call(self._fd))   # ClosedError once closed
             gone: "asyncio.Future[bool]" = loop.create_future()   # failed by close()
             gone.add_done_callback(self._agone)
             with self._hlock:
@@ -719,6 +719,19 @@ class Master(NativeHandle):
         leaves the fd to it)."""
         self._adetach()
         return await super().await_readable(timeout)
+
+    def fileno(self) -> int:
+        """As :meth:`NativeHandle.fileno`; asked in the loop that keeps atransact's
+        reader, that reader leaves the fd first (the caller may add its own there)."""
+        port = self._aport
+        if port is not None and self._asteps is None:
+            try:
+                here = asyncio.get_running_loop() is port[0]
+            except RuntimeError:
+                here = False
+            if here:
+                self._adetach()
+        return super().fileno()
 
     async def abroadcast(self, data: BytesLike = b"") -> None:
         """:meth:`broadcast` from a coroutine, in turn with this master's
