@@ -358,6 +358,15 @@ def _result(msg: Dict[str, Any], url: str,
     raise err
 
 
+class _NoAnswer(Exception):
+    """The answer timeout ran out (AsyncConnection.call turns it into DaemonGoneError)."""
+
+
+def _no_answer(fut: "asyncio.Future[Any]") -> None:
+    if not fut.done():
+        fut.set_exception(_NoAnswer())
+
+
 class AsyncConnection:
     """The asyncio form of :class:`Connection`: ``await AsyncConnection.open(url, ...)``;
     each :meth:`call` awaits its own answer (a future matched by id; one reader task)."""
@@ -431,12 +440,15 @@ class AsyncConnection:
             raise DaemonGoneError(f"{self.url}: the daemon closed the connection")
         rid = next(self._ids)
         data = _request(op, rid, fields)
-        fut: "asyncio.Future[Dict[str, Any]]" = asyncio.get_running_loop().create_future()
+        loop = asyncio.get_running_loop()
+        fut: "asyncio.Future[Dict[str, Any]]" = loop.create_future()
         self._futures[rid] = fut
         self._writer.write(data)
+        # a timer, not wait_for: the same deadline without a second future and its callbacks
+        timer = loop.call_later(self.timeout, _no_answer, fut)
         try:
-            msg = await asyncio.wait_for(fut, self.timeout)
-        except asyncio.TimeoutError:
+            msg = await fut
+        except _NoAnswer:
             raise DaemonGoneError(f"{self.url}: no answer from the daemon within {self.timeout} s") from None
         except asyncio.CancelledError:
             # the task gave up: the daemon drops the request from its queue, or ends the
@@ -445,6 +457,7 @@ class AsyncConnection:
                 self._writer.write(_request("cancel", next(self._ids), {"of": rid}))
             raise
         finally:
+            timer.cancel()
             self._futures.pop(rid, None)
         return _result(msg, self.url, extra_errors or self.errors)
 
