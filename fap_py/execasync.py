@@ -410,6 +410,64 @@ def _stats(handle: "Union[Master, Slave]", cls: Type[_C], ctype: str, get: Calla
     return stats_from_c(cls, st)
 
 
+class _Steps:
+    """One :meth:`Master.atransact` driven from the loop's callbacks: ``execMasterStep``
+    runs in the port fd's reader callback (and in the timer's, at the attempt's
+    deadline), so a reply that comes in several reads (~10 at 115200 on a paced
+    link) wakes the task once, when the transaction ends, not once a read. The
+    reader is the master's, kept from one transaction to the next
+    (:meth:`Master._alisten`); the timer is one per attempt."""
+
+    __slots__ = ("master", "loop", "args", "deadline", "done", "timer", "at")
+
+    def __init__(self, master: "Master", reply: Any, reply_len: Any, deadline: Any) -> None:
+        self.master = master
+        self.loop = asyncio.get_running_loop()
+        self.args = (reply, MAX_DATA, reply_len, deadline)
+        self.deadline = deadline
+        self.timer: Optional[asyncio.TimerHandle] = None
+        self.at: Optional[int] = None        # the C deadline the timer is set for
+        self.done: "asyncio.Future[int]" = self.loop.create_future()   # Step's last rc
+        self._arm()
+
+    def _arm(self) -> None:
+        """The timer for the attempt's deadline (a retry moves it)."""
+        at = self.deadline[0]
+        if at != self.at:
+            if self.timer is not None:
+                self.timer.cancel()
+            left = max(0.0, at / 1e9 - time.monotonic())   # both CLOCK_MONOTONIC
+            self.timer = self.loop.call_later(left, self._expired)
+            self.at = at
+
+    def _expired(self) -> None:
+        self.at = None                       # (a loop timer may fire a hair early: set anew)
+        self.step()
+
+    def step(self) -> None:
+        if self.done.done():
+            return
+        try:
+            rc = int(self.master._call(lib.execMasterStep, *self.args))
+        except Exception as exc:             # ClosedError: closed from another thread
+            self.done.set_exception(exc)
+            return
+        if rc != lib.EXEC_MASTER_MORE:
+            self.done.set_result(rc)
+            return
+        self._arm()
+        if self.master._aport is None:       # the reader was taken (await_readable)
+            self.master._alisten(self)
+
+    def fail(self, exc: BaseException) -> None:
+        if not self.done.done():
+            self.done.set_exception(exc)
+
+    def close(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+
+
 class Master(NativeHandle):
     """Exec async master on one port.
 
@@ -450,6 +508,10 @@ class Master(NativeHandle):
                                  "(a bus shared through `fap serve`)")
         self._lock = threading.Lock()        # one transaction at a time
         self._alock: Optional[asyncio.Lock] = None   # the same among atransact tasks
+        self._abufs: Optional[Tuple[Any, Any, Any]] = None   # atransact's reply, length, deadline
+        self._aport: Optional[Tuple[asyncio.AbstractEventLoop, int, "asyncio.Future[bool]"]] = None
+        self._asteps: Optional[_Steps] = None   # the atransact the reader serves
+        self._areopened = False              # reopen() since the reader was added
         self._ainflight = 0                  # atransact calls between Begin and their end
         self.path = check_path(port)
         popts = port_options(baudrate, rs485)
@@ -546,10 +608,11 @@ class Master(NativeHandle):
 
         The C engine's non-blocking steps (``execMasterBegin`` /
         ``execMasterStep``: the same sequence numbers, retries, trace hook
-        and stats as :meth:`transact`) run in the loop's thread; between
-        steps the task waits on the port fd (``loop.add_reader``) or the
-        attempt's deadline (a loop timer). No worker thread. Calls on one
-        master are serialised; different masters run concurrently.
+        and stats as :meth:`transact`) run in the loop's thread, each step
+        when the port fd turns readable (one ``loop.add_reader`` for the
+        whole transaction) or the attempt's deadline passes (a loop timer);
+        the task waits once, for the transaction's end. No worker thread. Calls on one master are serialised; different masters
+        run concurrently.
         Cancelling ends the transaction as a failure (the next message to
         ``node`` carries SeqNo 0) and leaves the master usable; a close()
         from another task or thread raises :class:`~fap_py.errors.ClosedError`.
@@ -558,9 +621,9 @@ class Master(NativeHandle):
         payload = _check_data(data)
         if self._alock is None:
             self._alock = asyncio.Lock()
-        reply = ffi.new("byte[]", MAX_DATA)
-        reply_len = ffi.new("word *")
-        deadline = ffi.new("int64_t *")
+        if self._abufs is None:              # one set of buffers: used under _alock only
+            self._abufs = (ffi.new("byte[]", MAX_DATA), ffi.new("word *"), ffi.new("int64_t *"))
+        reply, reply_len, deadline = self._abufs
         what = f"node {node}"
         async with self._alock:
             log.debug("-> node %d (async) %s", node, payload.hex())
@@ -571,25 +634,104 @@ class Master(NativeHandle):
             _raise_for(rc, what, self.path)
             self._ainflight += 1
             over = False
+            steps: Optional[_Steps] = None
             try:
-                while True:
-                    left = deadline[0] / 1e9 - time.monotonic()   # both CLOCK_MONOTONIC
-                    if left > 0:
-                        await self.await_readable(left)
-                    rc = int(self._call(lib.execMasterStep, reply, MAX_DATA, reply_len, deadline))
-                    if rc != lib.EXEC_MASTER_MORE:
-                        over = True
-                        _raise_for(rc, what, self.path)
-                        out = bytes(ffi.buffer(reply, reply_len[0]))
-                        log.debug("<- node %d (async) %s", node, out.hex())
-                        return out
+                steps = _Steps(self, reply, reply_len, deadline)
+                self._alisten(steps)
+                rc = await steps.done
+                over = True
+                _raise_for(rc, what, self.path)
+                out = bytes(ffi.buffer(reply, reply_len[0]))
+                log.debug("<- node %d (async) %s", node, out.hex())
+                return out
             finally:
+                self._asteps = None
+                if steps is not None:
+                    steps.close()
                 self._ainflight -= 1
                 if not over:                 # cancelled, closed or interrupted mid-way
                     try:
                         self._call(lib.execMasterAbort)
                     except ClosedError:
                         pass
+
+    # The port fd's reader for atransact, kept from one transaction to the next (adding
+    # and removing it each time, two epoll_ctl calls and asyncio's bookkeeping, was a
+    # tenth of the daemon's time). It is registered with the handle's asyncio waits,
+    # so a close() from any thread detaches it and fails the transaction in flight.
+
+    def _alisten(self, steps: _Steps) -> None:
+        """Make ``steps`` the transaction the reader serves; add the reader if needed."""
+        loop = steps.loop
+        port = self._aport
+        if port is not None and (port[0] is not loop or self._areopened):
+            self._adetach()                  # (a reopened port: another fd, or the number reused)
+            port = None
+        if port is None:
+            self._areopened = False
+            fd = int(self._call(self._fd))   # ClosedError once closed
+            gone: "asyncio.Future[bool]" = loop.create_future()   # failed by close()
+            gone.add_done_callback(self._agone)
+            with self._hlock:
+                self._async_waits[gone] = fd
+            loop.add_reader(fd, self._areadable)
+            self._aport = (loop, fd, gone)
+        self._asteps = steps
+
+    def _areadable(self) -> None:
+        steps = self._asteps
+        if steps is not None:
+            steps.step()
+        else:                                # bytes between transactions: level-triggered,
+            self._adetach()                  # it would fire every loop turn; the next Begin drops them
+
+    def _adetach(self) -> None:
+        """Remove atransact's reader (from its loop's thread, or with that loop stopped)."""
+        port, self._aport = self._aport, None
+        if port is None:
+            return
+        loop, fd, gone = port
+        with self._hlock:
+            registered = self._async_waits.pop(gone, None) is not None
+        if not registered or loop.is_closed():
+            return
+        try:
+            running: Optional[asyncio.AbstractEventLoop] = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if running is loop or not loop.is_running():
+            loop.remove_reader(fd)
+        else:
+            loop.call_soon_threadsafe(loop.remove_reader, fd)
+
+    def _agone(self, f: "asyncio.Future[bool]") -> None:
+        """close() detached the reader: forget it, fail the transaction in flight."""
+        port = self._aport
+        if port is not None and port[2] is f:
+            self._aport = None
+        exc = None if f.cancelled() else f.exception()
+        steps = self._asteps
+        if steps is not None:
+            steps.fail(exc or self._closed_error())
+
+    async def await_readable(self, timeout: Optional[float] = None) -> bool:
+        """As :meth:`NativeHandle.await_readable` (atransact's reader, if kept, first
+        leaves the fd to it)."""
+        self._adetach()
+        return await super().await_readable(timeout)
+
+    def fileno(self) -> int:
+        """As :meth:`NativeHandle.fileno`; asked in the loop that keeps atransact's
+        reader, that reader leaves the fd first (the caller may add its own there)."""
+        port = self._aport
+        if port is not None and self._asteps is None:
+            try:
+                here = asyncio.get_running_loop() is port[0]
+            except RuntimeError:
+                here = False
+            if here:
+                self._adetach()
+        return super().fileno()
 
     async def abroadcast(self, data: BytesLike = b"") -> None:
         """:meth:`broadcast` from a coroutine, in turn with this master's
@@ -617,6 +759,7 @@ class Master(NativeHandle):
         """Open the device again (after it vanished: a USB unplug, say)."""
         with self._lock:
             _reopen(self, lib.execMasterPort)
+            self._areopened = True           # atransact's reader: add it again
 
     def reset_sequence(self) -> None:
         """Start again from sequence number 0 for every node (a master restart)."""

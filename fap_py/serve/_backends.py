@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import operator
 import time
-from dataclasses import asdict, dataclass
-from typing import Any, Callable, Dict, Optional
+from dataclasses import asdict, dataclass, fields
+from typing import Any, Callable, Dict, Optional, Tuple
 
 from .. import _trace
 from ..errors import FapTimeoutError
@@ -52,8 +53,13 @@ class _FrameTap(_trace.Tap):
             super().log(f)
 
 
+def _counts_delta(names: Tuple[str, ...], before: Tuple[int, ...], after: Tuple[int, ...]) -> Dict[str, int]:
+    return {k: a - b for k, b, a in zip(names, before, after) if a != b}
+
+
 def _stats_delta(before: Any, after: Any) -> Dict[str, int]:
-    a, b = asdict(after), asdict(before)
+    # vars(), not asdict(): the counters are flat ints, asdict's deep copy cost ~20 µs a call
+    a, b = vars(after), vars(before)
     return {k: a[k] - b[k] for k in a if a[k] != b[k]}
 
 
@@ -63,8 +69,10 @@ class Backend:
     name = "?"
     #: the slaves a polling master lists (FAP: ``--slaves``)
     slaves: tuple = ()
-    #: a monitor is attached (the daemon sets it): engines on their own thread report frames
-    tapped = False
+    #: the engine's C trace hook feeds on_frame (see :meth:`_sync_hook`)
+    _hooked = False
+    _tapped = False
+    _wire_log: Optional[logging.Logger] = None    #: the engine's wire logger (with a hook)
     #: the engine counter (in an answer's ``stats``) that counts frames nobody asked for
     LATE_COUNTER = "unexpected"
     #: ops answered at once, without the bus
@@ -80,6 +88,32 @@ class Backend:
     def open(self) -> None:
         raise NotImplementedError
 
+    @property
+    def tapped(self) -> bool:
+        """A monitor is attached (the daemon sets it): frames go to ``on_frame``."""
+        return self._tapped
+
+    @tapped.setter
+    def tapped(self, on: bool) -> None:
+        self._tapped = on
+        if on:                 # at once (never inside the hook: the daemon sets True from a request)
+            self._sync_hook()
+
+    def _wants_hook(self) -> bool:
+        return self._tapped or (self._wire_log is not None and self._wire_log.isEnabledFor(logging.DEBUG))
+
+    def _sync_hook(self) -> None:
+        """Install the C trace hook only while someone reads frames (a monitor, the
+        wire log at DEBUG): without it a transaction's two frames cost no Python call.
+        Turned off before a transaction, never from inside the hook (C forbids that)."""
+        want = self._wants_hook()
+        if want != self._hooked and self.node is not None:
+            self._set_hook(want)
+            self._hooked = want
+
+    def _set_hook(self, on: bool) -> None:
+        """Install (True) or remove the engine's trace hook; engines with one override."""
+
     def close(self) -> None:
         if self.node is not None:
             self.node.close()
@@ -89,6 +123,10 @@ class Backend:
 
     def fd(self) -> int:
         return self.node.fileno()
+
+    def release_fd(self) -> None:
+        """Before the daemon watches :meth:`fd` itself (late replies): an engine that
+        keeps its own reader there between transactions takes it off."""
 
     def flush(self) -> None:
         """Drop input nobody asked for (a late reply)."""
@@ -132,17 +170,39 @@ class ExecBackend(Backend):
         self.node = execasync.Master(self.port, self.baud, timeout=self.timeout,
                                      retries=self.retries, rs485=self.rs485)
         self._tap = _FrameTap(self.on_frame, "exec", f"fap serve {self.port}")
-        from .._native import lib
+        self._wire_log = self._tap.logger
+        self._sync_hook()
+        self._set = (self.timeout, self.retries)
+        # the counters read straight from C into one struct (Master.stats builds a dataclass:
+        # two of them a transaction were a tenth of the daemon's time)
+        from .._native import ffi, lib
+
+        self._names = tuple(f.name for f in fields(execasync.MasterStats))
+        self._get = operator.attrgetter(*self._names)
+        self._st = ffi.new("execMasterStats *")
+        self._get_stats = lib.execMasterGetStats
+
+    def _counts(self) -> Tuple[int, ...]:
+        self.node._call(self._get_stats, self._st)
+        return self._get(self._st)
+
+    def _set_hook(self, on: bool) -> None:
+        from .._native import ffi, lib
 
         with self.node._using() as h:
-            lib.execMasterSetTrace(h, lib.fap_py_trace, self._tap.handle)
-        self._set = (self.timeout, self.retries)
+            if on:
+                lib.execMasterSetTrace(h, lib.fap_py_trace, self._tap.handle)
+            else:
+                lib.execMasterSetTrace(h, ffi.NULL, ffi.NULL)
 
     def flush(self) -> None:
         from .._native import lib
 
         with self.node._using() as h:
             lib.fap_port_flush(lib.execMasterPort(h))
+
+    def release_fd(self) -> None:
+        self.node._adetach()               # atransact's reader, kept between transactions
 
     def check(self, op: str, msg: Dict[str, Any]) -> Job:
         x = self._x
@@ -165,7 +225,9 @@ class ExecBackend(Backend):
 
     async def run(self, job: Job) -> Dict[str, Any]:
         m = self.node
-        before = m.stats
+        if self._hooked != self._wants_hook():
+            self._sync_hook()
+        before = self._counts()
         out: Dict[str, Any] = {}
         try:
             if job.op == "broadcast":
@@ -180,9 +242,10 @@ class ExecBackend(Backend):
                 out["seq"] = m.next_seq(a["node"])
                 out["data"] = (await m.atransact(a["node"], a["data"])).hex()
         except BaseException as exc:
-            exc.daemon_fields = {"stats": _stats_delta(before, m.stats), **out}   # type: ignore[attr-defined]
+            exc.daemon_fields = {"stats": _counts_delta(self._names, before, self._counts()),   # type: ignore[attr-defined]
+                                 **out}
             raise
-        out["stats"] = _stats_delta(before, m.stats)
+        out["stats"] = _counts_delta(self._names, before, self._counts())
         return out
 
 
@@ -263,9 +326,16 @@ class MikrocBackend(Backend):
         self._m = mikroc
         self.node = mikroc.Master(self.port, self.baud, rs485=self.rs485)
         self._tap = _FrameTap(self.on_frame, "mikroc", f"fap serve {self.port}")
-        from .._native import lib
+        self._wire_log = self._tap.logger
+        self._sync_hook()
 
-        lib.mikrocRS485_CtxSetTrace(self.node._ctx, lib.fap_py_trace, self._tap.handle)
+    def _set_hook(self, on: bool) -> None:
+        from .._native import ffi, lib
+
+        if on:
+            lib.mikrocRS485_CtxSetTrace(self.node._ctx, lib.fap_py_trace, self._tap.handle)
+        else:
+            lib.mikrocRS485_CtxSetTrace(self.node._ctx, ffi.NULL, ffi.NULL)
 
     def flush(self) -> None:
         from .._native import lib
@@ -284,6 +354,8 @@ class MikrocBackend(Backend):
 
     async def run(self, job: Job) -> Dict[str, Any]:
         a = job.args
+        if self._hooked != self._wants_hook():
+            self._sync_hook()
         before = self.node.stats
         try:
             if job.op == "send":

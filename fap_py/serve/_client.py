@@ -29,7 +29,7 @@ from ._errors import (
     ProtocolError,
 )
 from ._url import Address, ClientUrl, parse_client_url, query_int
-from ._wire import HEADER_SIZE, VERSION, body_size, pack, unpack
+from ._wire import HEADER_SIZE, VERSION, MessageReader, body_size, pack, unpack
 
 log = logging.getLogger("fap_py.serve.client")
 
@@ -358,6 +358,15 @@ def _result(msg: Dict[str, Any], url: str,
     raise err
 
 
+class _NoAnswer(Exception):
+    """The answer timeout ran out (AsyncConnection.call turns it into DaemonGoneError)."""
+
+
+def _no_answer(fut: "asyncio.Future[Any]") -> None:
+    if not fut.done():
+        fut.set_exception(_NoAnswer())
+
+
 class AsyncConnection:
     """The asyncio form of :class:`Connection`: ``await AsyncConnection.open(url, ...)``;
     each :meth:`call` awaits its own answer (a future matched by id; one reader task)."""
@@ -392,23 +401,20 @@ class AsyncConnection:
             raise _no_daemon(self.url, exc) from None
         self._writer = writer
         writer.write(pack(hello))
-        from ._wire import read_message
-
+        messages = MessageReader(reader, 10.0)   # the welcome and all after it: one reader
         try:
-            msg = await asyncio.wait_for(read_message(reader, 10.0), min(self.timeout, 10.0))
+            msg = await asyncio.wait_for(messages.next(), min(self.timeout, 10.0))
             self.welcome = _check_welcome(msg, self.url, protocol)
         except BaseException:
             writer.close()
             raise
-        self._task = asyncio.get_running_loop().create_task(self._read_loop(reader))
+        self._task = asyncio.get_running_loop().create_task(self._read_loop(messages))
         return self
 
-    async def _read_loop(self, reader: asyncio.StreamReader) -> None:
-        from ._wire import read_message
-
+    async def _read_loop(self, messages: MessageReader) -> None:
         try:
             while True:
-                msg = await read_message(reader, 10.0)
+                msg = await messages.next()
                 if msg is None:
                     break
                 rid = msg.get("id")
@@ -434,12 +440,15 @@ class AsyncConnection:
             raise DaemonGoneError(f"{self.url}: the daemon closed the connection")
         rid = next(self._ids)
         data = _request(op, rid, fields)
-        fut: "asyncio.Future[Dict[str, Any]]" = asyncio.get_running_loop().create_future()
+        loop = asyncio.get_running_loop()
+        fut: "asyncio.Future[Dict[str, Any]]" = loop.create_future()
         self._futures[rid] = fut
         self._writer.write(data)
+        # a timer, not wait_for: the same deadline without a second future and its callbacks
+        timer = loop.call_later(self.timeout, _no_answer, fut)
         try:
-            msg = await asyncio.wait_for(fut, self.timeout)
-        except asyncio.TimeoutError:
+            msg = await fut
+        except _NoAnswer:
             raise DaemonGoneError(f"{self.url}: no answer from the daemon within {self.timeout} s") from None
         except asyncio.CancelledError:
             # the task gave up: the daemon drops the request from its queue, or ends the
@@ -448,6 +457,7 @@ class AsyncConnection:
                 self._writer.write(_request("cancel", next(self._ids), {"of": rid}))
             raise
         finally:
+            timer.cancel()
             self._futures.pop(rid, None)
         return _result(msg, self.url, extra_errors or self.errors)
 

@@ -25,7 +25,7 @@ import socket
 import struct
 import time
 from dataclasses import dataclass, field
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 from .._validate import check_baud, check_int, check_path, check_seconds
 from ..errors import FapError, FapTimeoutError, InvalidTypeError, InvalidValueError, PortError, PortGoneError
@@ -36,7 +36,7 @@ from ._errors import BadUrlError, ClientQueueFullError, DaemonError, ProtocolErr
 from ._lock import UucpLock
 from ._sched import DEFAULT_QUANTUM, Scheduler
 from ._url import Address, is_loopback, parse_listen
-from ._wire import VERSION, pack, read_message
+from ._wire import VERSION, MessageReader, pack
 
 log = logging.getLogger("fap_py.serve")
 
@@ -251,8 +251,9 @@ class Daemon:
                          "queue_full": 0, "dropped": 0, "reopens": 0, "port_gone": 0, "cancelled": 0}
         # the transaction on the bus now, its task, and the one its client cancelled
         self._current: Optional[Pending] = None
-        self._running: Optional["asyncio.Future[Dict[str, Any]]"] = None
+        self._running: Optional["asyncio.Future[Any]"] = None
         self._cancelled: Optional[Pending] = None
+        self._closing = False
         self.wire_time = 0.0
         self.started = time.time()
         self.listening: List[str] = []
@@ -350,6 +351,7 @@ class Daemon:
         await self.aclose()
 
     async def aclose(self) -> None:
+        self._closing = True
         for srv in self._servers:
             srv.close()
         for s in list(self.sessions.values()):
@@ -425,7 +427,8 @@ class Daemon:
 
     async def _session(self, s: Session) -> None:
         c = self.config
-        hello = await read_message(s.reader, c.body_timeout, c.hello_timeout)
+        messages = MessageReader(s.reader, c.body_timeout)
+        hello = await messages.next(c.hello_timeout)
         if hello is None:
             return
         refusal = self._check_hello(s, hello)
@@ -442,7 +445,7 @@ class Daemon:
                 "timeout": c.timeout, "retries": c.retries, "pid": os.getpid(), "queue": c.queue,
                 "port_state": self.port_state, **self.backend.info()})
         while not s.closed:
-            msg = await read_message(s.reader, c.body_timeout)
+            msg = await messages.next()
             if msg is None:
                 return
             self._request(s, msg)
@@ -519,20 +522,33 @@ class Daemon:
             return "queued"
         cur, task = self._current, self._running
         if cur is not None and cur.session is s and cur.rid == of and task is not None and not task.done():
-            self._cancelled = cur
-            task.cancel()
+            if self._cancelled is not cur:    # (cancelled once: a second cancel is the same)
+                self._cancelled = cur
+                task.cancel()
             return "running"
         return "none"
 
     # -- the bus -----------------------------------------------------------------
 
     async def _bus(self) -> None:
+        loop = asyncio.get_running_loop()
+        task = asyncio.current_task()
+        out: Optional[Tuple[Session, Dict[str, Any]]] = None   # the last answer, not sent yet
         while True:
             item = self.sched.next()
             if item is None:
+                if out is not None:
+                    out[0].send(out[1])
+                    out = None
                 self._wake.clear()
                 await self._wake.wait()
                 continue
+            if out is not None:
+                # sent once this task first waits: the next request is on the wire by then
+                # (run() writes it before its first wait), so the bus does not wait for
+                # the last answer's JSON and socket write
+                loop.call_soon(out[0].send, out[1])
+                out = None
             key, pend = item
             s = pend.session
             answer: Dict[str, Any] = {"id": pend.rid}
@@ -546,16 +562,19 @@ class Daemon:
                 t0 = time.monotonic()
                 err = None
                 self._current = pend
-                self._running = asyncio.ensure_future(self.backend.run(pend.job))
+                # awaited in this task (no task a transaction): a client's cancel cancels
+                # this task while it waits inside run(), see _cancel
+                self._running = task
                 try:
-                    answer.update(await self._running)
+                    answer.update(await self.backend.run(pend.job))
                 except FapError as exc:
                     err = exc
                     answer.update(getattr(exc, "daemon_fields", {}))
                 except asyncio.CancelledError:
-                    if self._cancelled is not pend:
-                        self._running.cancel()
+                    if self._cancelled is not pend or self._closing:
                         raise
+                    if task is not None and hasattr(task, "uncancel"):
+                        task.uncancel()          # (3.11+: the cancel is handled here)
                     self.counters["cancelled"] += 1
                     cancelled = True
                 except Exception as exc:     # a bug: say so to the client, keep the bus
@@ -591,9 +610,13 @@ class Daemon:
                 s.replies += 1
             if s.closed:
                 self.counters["dropped"] += 1   # its client left mid-transaction: nobody else gets it
+            elif self.sched.pending():
+                out = (s, answer)               # after the next request's write (above)
             else:
-                s.send(answer)
-            await asyncio.sleep(0)              # let readers queue requests between transactions
+                s.send(answer)                  # nothing waits for the bus: at once
+            # requests that came with the reply are read before the next turn is chosen (a
+            # client whose next request is already here keeps its turn)
+            await asyncio.sleep(0)
 
     # late replies: bytes that arrive after a transaction timed out, before the next begins
 
@@ -605,6 +628,7 @@ class Daemon:
             return
         if fd < 0:
             return
+        self.backend.release_fd()
         self._late_owner, self._late_fd = s, fd
         asyncio.get_running_loop().add_reader(fd, self._late_seen)
 

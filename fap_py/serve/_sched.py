@@ -42,6 +42,7 @@ class Scheduler:
         self._shares: Dict[int, Share] = {}
         self._rings: Dict[int, List[int]] = {}      # priority -> keys with work, turn order
         self._turn: Optional[int] = None            # the key whose turn is running
+        self._queued = 0                            # items in all queues
 
     def add(self, key: int, weight: int = 1, priority: int = 0, limit: int = 16) -> Share:
         share = Share(key, weight, priority, limit)
@@ -60,6 +61,7 @@ class Scheduler:
             self._turn = None
         left = list(share.queue)
         share.queue.clear()
+        self._queued -= len(left)
         return left
 
     def share(self, key: int) -> Share:
@@ -75,6 +77,7 @@ class Scheduler:
             raise ClientQueueFullError(f"queue full: {share.limit} requests already waiting "
                                        "for the bus (the daemon's --queue)")
         share.queue.append(item)
+        self._queued += 1
         ring = self._rings.setdefault(share.priority, [])
         if key not in ring:
             ring.append(key)
@@ -88,11 +91,13 @@ class Scheduler:
         for item in share.queue:
             if match(item):
                 share.queue.remove(item)
+                self._queued -= 1
                 return item
         return None
 
     def pending(self) -> int:
-        return sum(len(s.queue) for s in self._shares.values())
+        """Items waiting in all queues."""
+        return self._queued
 
     def next(self) -> Optional[Tuple[int, Any]]:
         """(key, item) to run now, or None when no queue holds work."""
@@ -111,6 +116,7 @@ class Scheduler:
                     self._turn = key
                     share.deficit += self.quantum * share.weight
                 if share.deficit > 0:
+                    self._queued -= 1
                     return key, share.queue.popleft()
                 ring.append(ring.pop(0))         # spent: the next client's turn
                 self._turn = None
