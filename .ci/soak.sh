@@ -7,7 +7,8 @@
 # corrupted or duplicated FAP delivery, a stale exec reply, an exec handler
 # run twice (other than the documented SeqNo-0 retry), or a mikroC frame
 # delivered twice. mikroC / G485 corruption that passed their 8-bit checks
-# is measured and printed, not failed on.
+# is measured and printed, not failed on. Then fap serve's volume run: 10^5
+# transactions of client processes through the daemon, every protocol.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 [ -d .venv ] || python3 -m venv .venv
@@ -47,6 +48,12 @@ missing = set(_protocols.names()) - seen
 if missing:
     sys.exit(f"soak.sh: no result for {sorted(missing)}")
 PY
+# the daemon under volume (docs/daemon.md, Testing): 3 client processes per case, every
+# protocol, Unix socket and TCP, 10^5 transactions in all; it prints each case's rate and
+# the total. From $out: `python -m pytest` in the tree would import the unbuilt sources.
+(cd "$out" && FAP_SERVE_VOLUME="${FAP_SERVE_VOLUME:-100000}" timeout --kill-after=10 1500 \
+  python -m pytest -q -p no:cacheprovider ../tests/python/serve/test_volume.py) \
+  || { echo "soak.sh: the daemon volume run (tests/python/serve/test_volume.py) failed" >&2; rc=1; }
 if [ $rc -ne 0 ]; then
   echo "soak.sh: FAILED (crash, hang, corrupted, duplicated or stale delivery; $out/soak.jsonl)" >&2
   exit 1
