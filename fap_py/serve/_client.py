@@ -403,7 +403,7 @@ class AsyncConnection:
         writer.write(pack(hello))
         messages = MessageReader(reader, 10.0)   # the welcome and all after it: one reader
         try:
-            msg = await asyncio.wait_for(messages.next(), min(self.timeout, 10.0))
+            msg = await messages.next(first_timeout=min(self.timeout, 10.0))   # not wait_for (_wire.py)
             self.welcome = _check_welcome(msg, self.url, protocol)
         except BaseException:
             writer.close()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import asyncio
 import json
 import struct
+import sys
 from typing import Any, Dict, Optional
 
 from ._errors import ProtocolError
@@ -103,9 +104,9 @@ class MessageReader:
                     left = self._started + self._body_timeout - loop.time()
                     if left <= 0:
                         raise asyncio.TimeoutError
-                    chunk = await asyncio.wait_for(self._reader.read(_CHUNK), left)
+                    chunk = await _read_within(self._reader, left)
                 elif not inside and first_timeout:
-                    chunk = await asyncio.wait_for(self._reader.read(_CHUNK), first_timeout)
+                    chunk = await _read_within(self._reader, first_timeout)
                 else:
                     chunk = await self._reader.read(_CHUNK)
             except ConnectionError:
@@ -119,6 +120,18 @@ class MessageReader:
             if not inside:
                 self._started = loop.time()
             self._buf += chunk
+
+
+if sys.version_info >= (3, 11):
+    async def _read_within(reader: asyncio.StreamReader, seconds: float) -> bytes:
+        """A chunk, or asyncio.TimeoutError after ``seconds``. Not ``wait_for``: on 3.11 it
+        loses a cancellation that comes as the read completes, and a reader task cancelled
+        at its loop's end then reads on forever (seen: asyncio.run() hung closing a client)."""
+        async with asyncio.timeout(seconds):
+            return await reader.read(_CHUNK)
+else:  # pragma: no cover - 3.9/3.10 have no asyncio.timeout
+    async def _read_within(reader: asyncio.StreamReader, seconds: float) -> bytes:
+        return await asyncio.wait_for(reader.read(_CHUNK), seconds)
 
 
 def hex_field(obj: Dict[str, Any], key: str, most: int, *, default: Optional[bytes] = b"") -> bytes:
