@@ -490,6 +490,30 @@ class FapBackend(Backend):
     def reopen(self) -> None:
         """The engine reopens the port by itself (PORT_LOST / PORT_REOPENED events)."""
 
+    # The hook runs on the engine's own thread and takes the GIL for every frame: with no
+    # reader it is off, or a loaded daemon's engine can wait for the GIL between a slave's
+    # DATA and DATA_DONE, miss its byte gap and stall the bus for the DATA_DONE window
+    # (seen in the volume test). Set from the loop's thread, never from inside the hook,
+    # so it is switched both ways at once (the exec hook only at a transaction's start).
+    @property
+    def tapped(self) -> bool:
+        return self._tapped
+
+    @tapped.setter
+    def tapped(self, on: bool) -> None:
+        self._tapped = on
+        if getattr(self, "_tap", None) is not None:     # else attach() installs it
+            self._sync_hook()
+
+    def _set_hook(self, on: bool) -> None:
+        from .._native import ffi, lib
+
+        with self.node._using() as h:
+            if on:
+                lib.fapx_set_trace(h, lib.fap_py_trace, self._tap.handle)
+            else:
+                lib.fapx_set_trace(h, ffi.NULL, ffi.NULL)
+
     def info(self) -> Dict[str, Any]:
         return {"rs485_mode": self.node.rs485_mode.name, "slaves": self.node.slaves}
 
@@ -498,7 +522,6 @@ class FapBackend(Backend):
         node = self.node
         kinds = self._f.EventKind
         loop = asyncio.get_running_loop()
-        from .._native import lib
 
         def from_engine(direction: str, status: str, t_ns: int, data: bytes) -> None:
             # the FAP engine's own thread: hand the frame to the loop, only while tapped
@@ -506,8 +529,8 @@ class FapBackend(Backend):
                 loop.call_soon_threadsafe(self.on_frame, direction, status, t_ns, data)
 
         self._tap = _FrameTap(from_engine, "fap", f"fap serve {self.port}")
-        with node._using() as h:
-            lib.fapx_set_trace(h, lib.fap_py_trace, self._tap.handle)
+        self._wire_log = self._tap.logger
+        self._sync_hook()      # only while a monitor or the wire log at DEBUG reads frames
 
         async def messages() -> None:
             async for msg in node:

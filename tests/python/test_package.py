@@ -301,8 +301,8 @@ def test_every_stats_is_a_property() -> None:
 
     classes = _classes_with_stats()
     names = {f"{c.__module__}.{c.__qualname__}" for c in classes}
-    for must in ("fap_py.fap.node.Node", "fap_py.vbus.VirtualBus", "fap_py.execasync.Master",
-                 "fap_py.execasync.Slave", "fap_py.port.Port", "fap_py.monitor.sources.LivePort",
+    for must in ("fap_py.fap.node.Node", "fap_py.vbus.VirtualBus", "fap_py.execasync.master.Master",
+                 "fap_py.execasync.slave.Slave", "fap_py.port.Port", "fap_py.monitor.sources.LivePort",
                  "fap_py.monitor.session.Session"):
         assert must in names, must
     bad = [f"{c.__module__}.{c.__qualname__}" for c in classes

@@ -287,7 +287,7 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         return f"fapd://{where}/s.sock"
     return {
         # --- serve (fap serve): clients of a daemon in a thread of the walk ---
-        "fap_py.execasync.DaemonMaster": lambda: execasync.Master(served("exec"), timeout=0.01,
+        "fap_py.execasync.daemon.DaemonMaster": lambda: execasync.Master(served("exec"), timeout=0.01,
                                                                   retries=0),
         "fap_py.mikroc.daemon.DaemonMaster": lambda: mikroc.Master(served("mikroc")),
         "fap_py.fap.daemon.DaemonFapMaster": lambda: fap.Master(served("fap", slaves=[5]), slaves=[5]),
@@ -298,11 +298,11 @@ def factories(ctx: Ctx) -> Dict[str, Callable[[], Any]]:
         # --- end serve ---
         "fap_py.fap.master.Master": lambda: fap.Master(own(), slaves=[5], rs485=line),
         "fap_py.fap.slave.Slave": lambda: fap.Slave(own(), id=5, rs485=line),
-        "fap_py.execasync.Master": lambda: execasync.Master(own(), timeout=0.01, retries=0,
+        "fap_py.execasync.master.Master": lambda: execasync.Master(own(), timeout=0.01, retries=0,
                                                             rs485=line),
-        "fap_py.execasync.Slave": lambda: execasync.Slave(own(), node=1,
+        "fap_py.execasync.slave.Slave": lambda: execasync.Slave(own(), node=1,
                                                           handler=lambda r: r.data, rs485=line),
-        "fap_py.execasync.StructLayout": lambda: execasync.StructLayout([("a", "u8"), ("b", "f32")]),
+        "fap_py.execasync.layout.StructLayout": lambda: execasync.StructLayout([("a", "u8"), ("b", "f32")]),
         "fap_py.mikroc.master.Master": lambda: mikroc.Master(own(), rs485=line),
         "fap_py.mikroc.slave.Slave": lambda: mikroc.Slave(own(), address=7, rs485=line),
         "fap_py.vbus.VirtualBus": lambda: vbus.VirtualBus(ports=2),
