@@ -77,6 +77,8 @@ class Backend:
     LATE_COUNTER = "unexpected"
     #: ops answered at once, without the bus
     quick_ops: tuple = ()
+    #: the hook runs on the engine's own thread, never the loop's: it can be taken off at once
+    UNHOOK_AT_ONCE = False
 
     def __init__(self, port: str, baud: int, rs485: Optional[RS485], timeout: float,
                  retries: int, on_frame: FrameSink) -> None:
@@ -96,8 +98,8 @@ class Backend:
     @tapped.setter
     def tapped(self, on: bool) -> None:
         self._tapped = on
-        if on:                 # at once (never inside the hook: the daemon sets True from a request)
-            self._sync_hook()
+        if on or self.UNHOOK_AT_ONCE:   # never from inside the hook (C forbids it): on comes
+            self._sync_hook()           # from a request; off waits for a transaction's start
 
     def _wants_hook(self) -> bool:
         return self._tapped or (self._wire_log is not None and self._wire_log.isEnabledFor(logging.DEBUG))
@@ -107,7 +109,7 @@ class Backend:
         wire log at DEBUG): without it a transaction's two frames cost no Python call.
         Turned off before a transaction, never from inside the hook (C forbids that)."""
         want = self._wants_hook()
-        if want != self._hooked and self.node is not None:
+        if want != self._hooked and self.node is not None and getattr(self, "_tap", None) is not None:
             self._set_hook(want)
             self._hooked = want
 
@@ -493,17 +495,8 @@ class FapBackend(Backend):
     # The hook runs on the engine's own thread and takes the GIL for every frame: with no
     # reader it is off, or a loaded daemon's engine can wait for the GIL between a slave's
     # DATA and DATA_DONE, miss its byte gap and stall the bus for the DATA_DONE window
-    # (seen in the volume test). Set from the loop's thread, never from inside the hook,
-    # so it is switched both ways at once (the exec hook only at a transaction's start).
-    @property
-    def tapped(self) -> bool:
-        return self._tapped
-
-    @tapped.setter
-    def tapped(self, on: bool) -> None:
-        self._tapped = on
-        if getattr(self, "_tap", None) is not None:     # else attach() installs it
-            self._sync_hook()
+    # (seen in the volume test).
+    UNHOOK_AT_ONCE = True
 
     def _set_hook(self, on: bool) -> None:
         from .._native import ffi, lib

@@ -51,14 +51,14 @@ def mikroc_echo(path: str, address: int = 0x12, baud: int = 19200) -> Iterator[A
 
 
 @contextlib.contextmanager
-def fap_echo(path: str, slave_id: int = 3) -> Iterator[Any]:
+def fap_echo(path: str, slave_id: int = 3, baud: int = 115200, **options: Any) -> Iterator[Any]:
     """A FAP slave on ``path`` sending back each message reversed, in a thread, for the
-    block (yields the slave)."""
+    block (yields the slave: its counters). ``options``: the Slave's (``byte_gap`` ...)."""
     from fap_py import Slave
     from fap_py.rs485 import RS485, RS485Mode
 
     stop = threading.Event()
-    with Slave(path, id=slave_id, rs485=RS485(mode=RS485Mode.NONE)) as slave:
+    with Slave(path, baud, id=slave_id, rs485=RS485(mode=RS485Mode.NONE), **options) as slave:
         def echo() -> None:
             while not stop.is_set():
                 for msg in slave.messages(0.1):

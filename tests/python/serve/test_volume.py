@@ -19,7 +19,7 @@ from typing import Any, Dict, Iterator, List, Tuple
 
 import pytest
 import serial
-from serve_helpers import mikroc_echo, start_daemon
+from serve_helpers import fap_echo, mikroc_echo, start_daemon
 
 from fap_py import mikroc
 from fap_py.execasync import Decoder
@@ -195,31 +195,6 @@ def _line_echo(path: str, baud: int) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def _fap_echo(path: str, baud: int, slave_id: int) -> Iterator[Any]:
-    """A FAP slave sending back each message reversed (serve_helpers.fap_echo at ``baud``);
-    yields the slave (its counters: the frames it lost)."""
-    from fap_py import Slave
-    from fap_py.rs485 import RS485, RS485Mode
-
-    stop = threading.Event()
-    # byte_gap 0.1 s, not 10 ms: three slaves share this (loaded) test process, and a frame
-    # one of them reads across a pause is dropped, which costs the master's 15 s DATA_DONE wait
-    with Slave(path, baud, id=slave_id, rs485=RS485(mode=RS485Mode.NONE), byte_gap=0.1) as slave:
-        def echo() -> None:
-            while not stop.is_set():
-                for msg in slave.messages(0.1):
-                    slave.send(msg.data[::-1])
-
-        t = threading.Thread(target=echo)
-        t.start()
-        try:
-            yield slave
-        finally:
-            stop.set()
-            t.join(5)
-
-
-@contextlib.contextmanager
 def _responders(proto: str, bus: VirtualBus) -> Iterator[Tuple[List[str], List[Any]]]:
     """The slaves of ``proto`` on the bus's ports 1..; yields the daemon's extra options
     and the FAP slaves."""
@@ -245,7 +220,9 @@ def _responders(proto: str, bus: VirtualBus) -> Iterator[Tuple[List[str], List[A
             extra = ["--timeout", "2", "--retries", "0"]
         else:
             for c in range(N_CLIENTS):
-                slaves.append(stack.enter_context(_fap_echo(bus.paths[1 + c], BAUD, 3 + c)))
+                # byte_gap 0.1 s, not 10 ms: three slaves share this loaded process, and a
+                # frame one of them reads across a pause is dropped (a 15 s DATA_DONE wait)
+                slaves.append(stack.enter_context(fap_echo(bus.paths[1 + c], 3 + c, BAUD, byte_gap=0.1)))
             extra = ["--slaves", ",".join(str(3 + c) for c in range(N_CLIENTS))]
         yield extra, slaves
 
