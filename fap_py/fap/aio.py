@@ -24,7 +24,7 @@ import asyncio
 import logging
 import threading
 from collections import deque
-from typing import Any, Callable, Deque, Optional, Protocol
+from typing import TYPE_CHECKING, Any, AsyncIterator, Callable, Deque, Optional, Protocol
 
 from .._handle import WAIT_SLICE
 from .._validate import check_timeout
@@ -279,3 +279,22 @@ class AsyncPump:
         if not done.wait(2.0):  # pragma: no cover - the loop thread is stuck
             log.warning("%s: event loop did not detach the notify fd within 2 s",
                         self.node._label())
+
+
+class AsyncMessages:
+    """``async for msg in node``: ``arecv()`` until the node is closed (a FAP node's and
+    a daemon client's)."""
+
+    if TYPE_CHECKING:   # each user defines it
+        async def arecv(self, timeout: Optional[float] = None) -> Message: ...
+
+    def __aiter__(self) -> AsyncIterator[Message]:
+        """``async for msg in node``: messages until the node is closed."""
+        return self._amessages()
+
+    async def _amessages(self) -> AsyncIterator[Message]:
+        try:
+            while True:
+                yield await self.arecv()
+        except ClosedError:
+            return

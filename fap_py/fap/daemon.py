@@ -19,6 +19,7 @@ from ..errors import (
     UnknownSlaveError,
 )
 from ..rs485 import RS485Mode
+from .aio import AsyncMessages
 from .node import PathLike, _deadline, _int, _payload, _seconds, _slave_id
 from .types import (
     MASTER_ID,
@@ -33,7 +34,7 @@ from .types import (
 log = logging.getLogger(__name__)
 
 
-class DaemonFapMaster(DaemonLife):
+class DaemonFapMaster(DaemonLife, AsyncMessages):
     """The FAP master's calls on a bus a daemon owns (``fap serve --protocol fap
     --slaves IDS``, docs/daemon.md): what ``Master("fapd://...")`` returns.
 
@@ -241,15 +242,6 @@ class DaemonFapMaster(DaemonLife):
         msg: Message = await self._await(self._rx, timeout, "recv")
         return msg
 
-    def __aiter__(self) -> AsyncIterator[Message]:
-        return self._amessages()
-
-    async def _amessages(self) -> AsyncIterator[Message]:
-        try:
-            while True:
-                yield await self.arecv()
-        except ClosedError:
-            return
 
     async def await_event(self, timeout: Optional[float] = None) -> SlaveEvent:
         if timeout is not None:

@@ -31,7 +31,7 @@ from ..errors import (
     error_from_code,
 )
 from ..rs485 import RS485, RS485Mode, line_options
-from .aio import AsyncPump
+from .aio import AsyncMessages, AsyncPump
 from .types import (
     MAX_DATA,
     MAX_ID,
@@ -141,7 +141,7 @@ _DEBUG = logging.DEBUG
 # -- nodes --------------------------------------------------------------------
 
 
-class Node(NativeHandle):
+class Node(NativeHandle, AsyncMessages):
     """What masters and slaves share: one C engine on one serial port.
 
     Not instantiated directly: use :class:`Master` or :class:`Slave`. A node
@@ -501,16 +501,6 @@ class Node(NativeHandle):
             return msg
         return await pump.get_rx(timeout)
 
-    def __aiter__(self) -> AsyncIterator[Message]:
-        """``async for msg in node``: messages until the node is closed."""
-        return self._amessages()
-
-    async def _amessages(self) -> AsyncIterator[Message]:
-        try:
-            while True:
-                yield await self.arecv()
-        except ClosedError:
-            return
 
     async def await_event(self, timeout: Optional[float] = None) -> SlaveEvent:
         """``await``-able :meth:`wait_event`."""

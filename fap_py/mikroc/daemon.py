@@ -21,6 +21,16 @@ _WIRE_ERRORS = {c.__name__: (lambda e: _frame_error(int(e.get("code", 0)), e.get
                 for c in [MikrocFrameError, *_ERRORS.values()]}
 
 
+def _request_fields(address: int, data: bytes, timeout: Optional[float]) -> dict:
+    """A request op's fields, checked (the reply window: ``timeout``, None for the daemon's)."""
+    _check_address(address)
+    fields: dict = {"address": address, "data": _check_data(data).hex()}
+    t = check_timeout(timeout)
+    if t is not None:
+        fields["timeout"] = max(t, 1e-6)
+    return fields
+
+
 class DaemonMaster(DaemonLife):
     """A mikroC master on a bus a daemon owns (``fap serve --protocol mikroc``,
     docs/daemon.md): what ``Master("fapd://...")`` returns.
@@ -76,23 +86,12 @@ class DaemonMaster(DaemonLife):
 
     def request(self, address: int, data: bytes = b"", timeout: Optional[float] = 1.0) -> Message:
         """``send`` then ``receive`` as one transaction on the daemon."""
-        _check_address(address)
-        data = _check_data(data)
-        fields: dict = {"address": address, "data": data.hex()}
-        t = check_timeout(timeout)
-        if t is not None:
-            fields["timeout"] = max(t, 1e-6)
-        return self._message(self._call("request", **fields))
+        return self._message(self._call("request", **_request_fields(address, data, timeout)))
 
     async def arequest(self, address: int, data: bytes = b"",
                        timeout: Optional[float] = 1.0) -> Message:
         """``await``-able :meth:`request` (an asyncio connection, no thread)."""
-        _check_address(address)
-        data = _check_data(data)
-        fields: dict = {"address": address, "data": data.hex()}
-        t = check_timeout(timeout)
-        if t is not None:
-            fields["timeout"] = max(t, 1e-6)
+        fields = _request_fields(address, data, timeout)
         conn = await self._aconn.get()
         return self._message(await conn.call("request", **fields))
 
