@@ -22,6 +22,24 @@ WAIT_S = 10.0
 
 
 @contextlib.contextmanager
+def _serving(step: Callable[[], None]) -> Iterator[None]:
+    """Call ``step`` (it returns within about 0.1 s) over and over in a thread, for the block."""
+    stop = threading.Event()
+
+    def run() -> None:
+        while not stop.is_set():
+            step()
+
+    t = threading.Thread(target=run, daemon=True)
+    t.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        t.join(5)
+
+
+@contextlib.contextmanager
 def mikroc_echo(path: str, address: int = 0x12, baud: int = 19200) -> Iterator[Any]:
     """A mikroC slave on ``path`` answering each request with its bytes reversed, in a
     thread, for the block (yields the slave)."""
@@ -29,25 +47,16 @@ def mikroc_echo(path: str, address: int = 0x12, baud: int = 19200) -> Iterator[A
     from fap_py.errors import FapTimeoutError
     from fap_py.rs485 import RS485, RS485Mode
 
-    stop = threading.Event()
-    slave = mikroc.Slave(path, baud, address=address, rs485=RS485(mode=RS485Mode.NONE))
+    def echo() -> None:
+        try:
+            msg = slave.receive(timeout=0.1)
+        except FapTimeoutError:
+            return
+        slave.send(msg.data[::-1])
 
-    def serve() -> None:
-        while not stop.is_set():
-            try:
-                msg = slave.receive(timeout=0.1)
-            except FapTimeoutError:
-                continue
-            slave.send(msg.data[::-1])
-
-    t = threading.Thread(target=serve, daemon=True)
-    t.start()
-    try:
+    with mikroc.Slave(path, baud, address=address, rs485=RS485(mode=RS485Mode.NONE)) as slave, \
+            _serving(echo):
         yield slave
-    finally:
-        stop.set()
-        t.join(5)
-        slave.close()
 
 
 @contextlib.contextmanager
@@ -57,20 +66,13 @@ def fap_echo(path: str, slave_id: int = 3, baud: int = 115200, **options: Any) -
     from fap_py import Slave
     from fap_py.rs485 import RS485, RS485Mode
 
-    stop = threading.Event()
-    with Slave(path, baud, id=slave_id, rs485=RS485(mode=RS485Mode.NONE), **options) as slave:
-        def echo() -> None:
-            while not stop.is_set():
-                for msg in slave.messages(0.1):
-                    slave.send(msg.data[::-1])
+    def echo() -> None:
+        for msg in slave.messages(0.1):
+            slave.send(msg.data[::-1])
 
-        t = threading.Thread(target=echo)
-        t.start()
-        try:
-            yield slave
-        finally:
-            stop.set()
-            t.join(5)
+    with Slave(path, baud, id=slave_id, rs485=RS485(mode=RS485Mode.NONE), **options) as slave, \
+            _serving(echo):
+        yield slave
 
 
 def fap_cmd(*args: str) -> List[str]:
